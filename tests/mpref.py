@@ -1,0 +1,134 @@
+"""High-precision references built from the definitions, not from closed forms.
+
+Everything here is written independently of ``lie_factors``: ``hat`` follows the
+table in CONVENTIONS.md, ``ad`` is the matrix of ``y -> vee([hat x, hat y])``
+obtained by bracketing basis vectors, ``exp`` is the matrix exponential of
+``hat(x)`` and ``dexp`` is the power series sum_i ad^i/(i+1)! (seed 000, Eq. 35),
+all at ``DPS`` significant digits with mpmath.
+"""
+
+from __future__ import annotations
+
+import mpmath as mp
+import numpy as np
+
+DPS = 50
+mp.mp.dps = DPS
+
+# --- hat/vee per group, from CONVENTIONS.md -------------------------------------------------
+
+
+def _skew(w):
+    return [[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]
+
+
+def hat_so3(x):
+    return mp.matrix(_skew(x))
+
+
+def hat_se3(x):
+    w, v = x[:3], x[3:]
+    S = _skew(w)
+    return mp.matrix([S[0] + [v[0]], S[1] + [v[1]], S[2] + [v[2]], [0, 0, 0, 0]])
+
+
+def hat_se2(x):
+    return mp.matrix([[0, -x[2], x[0]], [x[2], 0, x[1]], [0, 0, 0]])
+
+
+def hat_sim2(x):
+    return mp.matrix([[0, -x[2], x[0]], [x[2], 0, x[1]], [0, 0, -x[3]]])
+
+
+def vee_so3(M):
+    return [M[2, 1], M[0, 2], M[1, 0]]
+
+
+def vee_se3(M):
+    return [M[2, 1], M[0, 2], M[1, 0], M[0, 3], M[1, 3], M[2, 3]]
+
+
+def vee_se2(M):
+    return [M[0, 2], M[1, 2], M[1, 0]]
+
+
+def vee_sim2(M):
+    return [M[0, 2], M[1, 2], M[1, 0], -M[2, 2]]
+
+
+GROUPS = {
+    "so3": (3, hat_so3, vee_so3),
+    "se3": (6, hat_se3, vee_se3),
+    "se2": (3, hat_se2, vee_se2),
+    "sim2": (4, hat_sim2, vee_sim2),
+}
+
+
+def mpf_vec(x):
+    """Exact conversion of a float64 vector to mpf (no rounding)."""
+    return [mp.mpf(float(v)) for v in np.asarray(x, dtype=float).ravel()]
+
+
+def to_numpy(M) -> np.ndarray:
+    return np.array(M.tolist(), dtype=float)
+
+
+def ad(group: str, x):
+    """ad_x as the matrix of y -> vee(hat(x) hat(y) - hat(y) hat(x))."""
+    n, hat, vee = GROUPS[group]
+    X = hat(x)
+    A = mp.matrix(n, n)
+    for j in range(n):
+        e = [0] * n
+        e[j] = 1
+        Y = hat(e)
+        col = vee(X * Y - Y * X)
+        for i in range(n):
+            A[i, j] = col[i]
+    return A
+
+
+def exp(group: str, x):
+    """exp(hat(x)) by mpmath's matrix exponential."""
+    return mp.expm(GROUPS[group][1](x))
+
+
+def dexp(group: str, x):
+    """sum_i ad_x^i/(i+1)!, summed until terms fall below 10^-DPS of the sum."""
+    A = ad(group, x)
+    n = A.rows
+    total = mp.eye(n)
+    term = mp.eye(n)
+    tol = mp.mpf(10) ** (-DPS)
+    i = 0
+    while True:
+        i += 1
+        term = term * A / (i + 1)
+        total += term
+        if mp.mnorm(term, 1) <= tol * max(mp.mnorm(total, 1), 1) and i > 3:
+            break
+        if i > 2000:
+            raise RuntimeError("dexp series did not converge")
+    return total
+
+
+def dlog(group: str, x):
+    return mp.inverse(dexp(group, x))
+
+
+def rel_err(ours, ref) -> float:
+    """CONVENTIONS.md accuracy: max|A - R| / max(1, max|R|), computed in mpmath.
+
+    ``ref`` is an mpmath matrix or a (nested) list of mpf; ``ours`` anything
+    numpy can convert, with the same number of entries.
+    """
+    if isinstance(ref, mp.matrix):
+        flat_r = [ref[i, j] for i in range(ref.rows) for j in range(ref.cols)]
+    else:
+        flat_r = list(np.asarray(ref, dtype=object).ravel())
+    flat_o = np.asarray(ours, dtype=float).ravel().tolist()
+    if len(flat_o) != len(flat_r):
+        raise ValueError(f"size mismatch: {len(flat_o)} vs {len(flat_r)}")
+    num = max(abs(mp.mpf(o) - mp.mpf(r)) for o, r in zip(flat_o, flat_r))
+    den = max(mp.mpf(1), max(abs(mp.mpf(r)) for r in flat_r))
+    return float(num / den)
