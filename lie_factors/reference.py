@@ -1,4 +1,7 @@
-"""High-precision references built from the definitions, not from closed forms.
+"""High-precision references built from the definitions, never from closed forms.
+
+Used by the tests and by ``lie-factors crosscheck`` as the oracle the closed
+forms are measured against.
 
 Everything here is written independently of ``lie_factors``: ``hat`` follows the
 table in CONVENTIONS.md, ``ad`` is the matrix of ``y -> vee([hat x, hat y])``
@@ -114,6 +117,15 @@ def dexp(group: str, x):
 
 def dlog(group: str, x):
     return mp.inverse(dexp(group, x))
+
+
+def log(group: str, X):
+    """vee(logm(X)) by mpmath's principal matrix logarithm (X: float or mp matrix).
+
+    Valid away from rotation angle pi, where the principal logarithm is unique.
+    """
+    M = X if isinstance(X, mp.matrix) else mp.matrix(np.asarray(X, dtype=float).tolist())
+    return GROUPS[group][2](mp.logm(M))
 
 
 def rel_err(ours, ref) -> float:
