@@ -1,0 +1,301 @@
+"""``lie-factors``: command-line entry point.
+
+Subcommands are registered in :data:`SUBCOMMANDS` (name → (add_arguments,
+run)).  Optional ones live in their own module and are offered only if that
+module imports: such a module defines ``main(args) -> int | None`` taking the
+parsed ``argparse.Namespace`` and, optionally, ``add_arguments(parser)``
+(see :data:`OPTIONAL_SUBCOMMANDS`).
+
+User errors (bad file, unwritable output, unknown backend, ...) print ONE line
+``lie-factors: error: ...`` on stderr and exit with status 2, never a traceback.
+With ``--json`` the last line of stdout is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import sys
+from typing import Callable
+
+PROG = "lie-factors"
+EXIT_USAGE = 2
+
+
+class CLIError(Exception):
+    """Reported as ``lie-factors: error: <message>``, exit status 2."""
+
+
+# --------------------------------------------------------------------------- #
+# helpers
+# --------------------------------------------------------------------------- #
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def _progress(args) -> Callable | None:
+    """Per-iteration progress printer on stderr, or None with --quiet."""
+    if args.quiet:
+        return None
+    from lie_factors.posegraph import format_iteration
+
+    def report(info):
+        print(format_iteration(info), file=sys.stderr, flush=True)
+
+    return report
+
+
+def _say(args, text: str) -> None:
+    """Human-readable stdout line (suppressed by --quiet; errors are never suppressed)."""
+    if not args.quiet:
+        print(text, flush=True)
+
+
+def _emit_json(record: dict) -> None:
+    # Last stdout line, one object: scripts can do `tail -n1 | jq`.
+    print(json.dumps(record, sort_keys=False), flush=True)
+
+
+# --------------------------------------------------------------------------- #
+# posegraph
+# --------------------------------------------------------------------------- #
+
+def _add_posegraph(p: argparse.ArgumentParser) -> None:
+    from lie_factors.posegraph import BACKENDS
+
+    p.add_argument("dataset", metavar="DATASET",
+                   help="g2o file (2-D VERTEX_SE2/EDGE_SE2 or 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
+                        "EDGE3), or the name of a file shipped with GTSAM, e.g. sphere2500.txt")
+    p.add_argument("--backend", default="custom", metavar="NAME",
+                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
+                        "native = GTSAM's own factors, the reference)")
+    p.add_argument("--max-iterations", type=_nonnegative_int, default=100, metavar="K",
+                   help="Levenberg-Marquardt iteration limit (default: 100)")
+    p.add_argument("--output", metavar="FILE.g2o", help="write the optimized graph (g2o)")
+    p.add_argument("--plot", metavar="FILE.png", help="plot initial and optimized trajectories")
+    p.add_argument("--json", action="store_true",
+                   help="print a JSON summary as the last line of stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
+
+
+def _run_posegraph(args) -> int:
+    from lie_factors import posegraph as pgm
+
+    # Everything that can be wrong with the invocation is checked before the
+    # (possibly long) optimization.
+    pgm.get_backend(args.backend)
+    for path in (args.output, args.plot):
+        if path:
+            pgm.check_writable(path)
+    pg = pgm.load(args.dataset)
+    pgm.load_factors(args.backend)
+
+    kind = "SE(3)" if pg.is3d else "SE(2)"
+    init = "spanning tree of the edges" if pg.initialized_from_edges else "vertices in the file"
+    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges "
+               f"(initial guess: {init}); backend {args.backend}")
+    record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args))
+    status = "converged" if record.converged else "stopped (not converged)"
+    _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
+               f"{record.iterations} iterations, {record.seconds:.3f} s, {status}")
+
+    if args.output:
+        pgm.write_g2o(args.output, pg.between, result.values)
+        _say(args, f"wrote {args.output}")
+    if args.plot:
+        from lie_factors.plotting import plot_trajectories
+
+        trajectories = {"initial": pgm.positions(pg.initial, pg.is3d),
+                        "optimized": pgm.positions(result.values, pg.is3d)}
+        pgm.replace_atomically(args.plot, lambda tmp: plot_trajectories(
+            tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d), suffix=".png")
+        _say(args, f"wrote {args.plot}")
+    if args.json:
+        _emit_json(record.to_dict())
+    return 0
+
+
+# --------------------------------------------------------------------------- #
+# demo
+# --------------------------------------------------------------------------- #
+
+def _add_demo(p: argparse.ArgumentParser) -> None:
+    from lie_factors.posegraph import BACKENDS
+
+    p.add_argument("--poses", type=_positive_int, default=300, metavar="N",
+                   help="number of poses (default: 300, at least 2)")
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+    p.add_argument("--output", default="lie-factors-demo", metavar="DIR",
+                   help="directory for trajectory.png and optimized.g2o "
+                        "(default: ./lie-factors-demo, created if missing)")
+    p.add_argument("--backend", default="custom", metavar="NAME",
+                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom)")
+    p.add_argument("--max-iterations", type=_nonnegative_int, default=100, metavar="K",
+                   help="Levenberg-Marquardt iteration limit (default: 100)")
+    p.add_argument("--json", action="store_true",
+                   help="print a JSON summary as the last line of stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
+
+
+def _run_demo(args) -> int:
+    from lie_factors import demo
+    from lie_factors import posegraph as pgm
+
+    if args.poses < 2:
+        raise CLIError(f"--poses must be at least 2, got {args.poses}")
+    pgm.get_backend(args.backend)
+    out_dir = args.output
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise CLIError(f"{out_dir}: exists and is not a directory")
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise CLIError(f"{out_dir}: cannot create directory ({exc.strerror})") from None
+    png = os.path.join(out_dir, "trajectory.png")
+    g2o = os.path.join(out_dir, "optimized.g2o")
+    pgm.check_writable(g2o)
+    factors = pgm.load_factors(args.backend)
+
+    problem = demo.simulate(args.poses, args.seed)
+    graph = demo.build_graph(problem, factors)
+    _say(args, f"demo: {args.poses} poses, {len(problem.odometry)} odometry edges, "
+               f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
+    result = pgm.optimize(graph, problem.initial, args.max_iterations, _progress(args))
+    ate0 = demo.ate_rmse(problem.initial, problem.truth)
+    ate1 = demo.ate_rmse(result.values, problem.truth)
+    status = "converged" if result.converged else "stopped (not converged)"
+    _say(args, f"error       {result.initial_error:12.6g} -> {result.final_error:.6g} "
+               f"({result.iterations} iterations, {result.seconds:.3f} s, {status})")
+    _say(args, f"ATE (RMSE)  {ate0:12.4f} m -> {ate1:.4f} m")
+
+    pgm.write_g2o(g2o, demo.between_graph(problem), result.values)
+    from lie_factors.plotting import plot_trajectories
+
+    truth = [T.translation() for T in problem.truth]
+    pgm.replace_atomically(png, lambda tmp: plot_trajectories(
+        tmp,
+        {"ground truth": truth,
+         "initial": pgm.positions(problem.initial, True),
+         "optimized": pgm.positions(result.values, True)},
+        f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m"),
+        suffix=".png")
+    _say(args, f"wrote {png} and {g2o}")
+    if args.json:
+        _emit_json({
+            "backend": args.backend,
+            "dataset": f"demo(poses={args.poses}, seed={args.seed})",
+            "dimension": 3,
+            "poses": args.poses,
+            "factors": int(graph.size()),
+            "iterations": result.iterations,
+            "initial_error": result.initial_error,
+            "final_error": result.final_error,
+            "seconds": result.seconds,
+            "converged": result.converged,
+            "ate_rmse_initial": ate0,
+            "ate_rmse": ate1,
+        })
+    return 0
+
+
+# --------------------------------------------------------------------------- #
+# registry
+# --------------------------------------------------------------------------- #
+
+#: name → (help, add_arguments(parser), run(args) -> exit status)
+SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
+    "demo": ("simulate and optimize an SE(3) odometry chain with loop closures", _add_demo, _run_demo),
+    "posegraph": ("optimize a g2o pose graph with Levenberg-Marquardt", _add_posegraph, _run_posegraph),
+}
+
+#: Subcommands living in their own module, offered only if the module imports.
+OPTIONAL_SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "crosscheck": ("lie_factors.crosscheck", "compare lie_factors against GTSAM and mpmath"),
+}
+
+
+def _unavailable(name: str, exc: Exception) -> tuple[str, Callable, Callable]:
+    """A stand-in for an optional subcommand whose module exists but fails to import."""
+    reason = f"{type(exc).__name__}: {exc}"
+
+    def add(parser):
+        parser.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+
+    def run(args):
+        raise CLIError(f"{name} is unavailable ({reason})")
+
+    return (f"(unavailable: {reason})", add, run)
+
+
+def _load_optional() -> dict[str, tuple[str, Callable, Callable]]:
+    found = {}
+    for name, (module_name, help_text) in OPTIONAL_SUBCOMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name == module_name:  # not installed/written: simply not offered
+                continue
+            found[name] = _unavailable(name, exc)
+            continue
+        except Exception as exc:  # a broken optional module must not take the whole CLI down
+            found[name] = _unavailable(name, exc)
+            continue
+        add = getattr(module, "add_arguments", lambda parser: None)
+        doc = (module.__doc__ or help_text).strip().splitlines()[0]
+        found[name] = (doc, add, module.main)
+    return found
+
+
+def build_parser() -> tuple[argparse.ArgumentParser, dict]:
+    commands = {**SUBCOMMANDS, **_load_optional()}
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Closed-form Lie-group kernels and GTSAM factors: demos and pose-graph tools.",
+    )
+    from lie_factors import __version__
+
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (help_text, add, _) in commands.items():
+        add(sub.add_parser(name, help=help_text, description=help_text))
+    return parser, commands
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit status (also used as the console-script entry)."""
+    from lie_factors.posegraph import PoseGraphError
+
+    parser, commands = build_parser()
+    args = parser.parse_args(argv)  # argparse itself exits 2 on usage errors
+    try:
+        status = commands[args.command][2](args)
+    except (CLIError, PoseGraphError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"{PROG}: error: interrupted", file=sys.stderr)
+        return 130
+    return 0 if status is None else int(status)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,50 @@
+"""Trajectory plots for the CLI (Agg only, no pyplot global state).
+
+We draw on a bare ``matplotlib.figure.Figure`` with an Agg canvas, so the CLI
+works headless and never changes the backend of a user's session.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+_STYLES = {
+    "ground truth": dict(color="black", lw=1.5, ls="--"),
+    "initial": dict(color="tab:red", lw=1.0, alpha=0.8),
+    "optimized": dict(color="tab:blue", lw=1.2),
+}
+
+
+def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str = "",
+                      three_d: bool = True) -> None:
+    """Save a PNG of named trajectories, each an array of positions, shape (N, 3).
+
+    Left: top view (x, y).  Right (if ``three_d``): a 3-D view.  ``path`` is
+    written as PNG whatever its suffix (callers write to a temporary name).
+    """
+    fig = Figure(figsize=(12, 5.5) if three_d else (7, 6))
+    FigureCanvasAgg(fig)
+    top = fig.add_subplot(1, 2 if three_d else 1, 1)
+    ax3 = fig.add_subplot(1, 2, 2, projection="3d") if three_d else None
+    for label, P in trajectories.items():
+        P = np.asarray(P, dtype=float).reshape(-1, 3)
+        style = _STYLES.get(label, {})
+        top.plot(P[:, 0], P[:, 1], label=label, **style)
+        if ax3 is not None:
+            ax3.plot(P[:, 0], P[:, 1], P[:, 2], label=label, **style)
+    top.set_xlabel("x [m]")
+    top.set_ylabel("y [m]")
+    top.set_title("top view")
+    top.set_aspect("equal", adjustable="datalim")
+    top.legend(loc="best")
+    if ax3 is not None:
+        ax3.set_xlabel("x [m]")
+        ax3.set_ylabel("y [m]")
+        ax3.set_zlabel("z [m]")
+        ax3.set_title("3-D")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, format="png", dpi=100)
