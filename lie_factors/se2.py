@@ -1,0 +1,286 @@
+"""SE(2), GTSAM's Pose2: closed-form exp, log, adjoints and D_exp / D_log.
+
+Tangent ordering (translation first, as GTSAM's Pose2)::
+
+    x = [x, y, θ]                      shape (..., 3)
+    hat(x) = [[0, -θ, x],
+              [θ,  0, y],
+              [0,  0, 0]]              shape (..., 3, 3)
+    group element [[R(θ), t], [0, 0, 1]]
+
+``dexp`` is the seed's D_exp(x) = Σ ad_x^i/(i+1)! (seed 000, Eq. 35), the LEFT
+Jacobian: exp(x + ε) ≈ exp(dexp(x) ε)·exp(x). GTSAM's Pose2.ExpmapDerivative is
+the right Jacobian, ``ExpmapDerivative(x) == dexp(-x)`` (likewise Logmap).
+
+Every public function broadcasts over leading axes; the ``_name(..., out)``
+numba cores work on one element and never allocate.
+
+Coefficients (seed 000, Eqs. 50–52) ``a = sinθ/θ``, ``b = (1 - cosθ)/θ²``,
+``c = (1 - a)/θ²``: ``a`` and ``b`` have cancellation-free closed forms
+(``b = 2 sin²(θ/2)/θ²``) and only need a Taylor band to avoid 0/0;
+``c`` cancels catastrophically (relative error ≈ 6ε/θ²), so it uses its
+power series up to ``C_TAYLOR``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import _jit, _validate
+
+DIM = 3
+MAT = 3
+
+#: |θ| below this: a_θ, b_θ from their Taylor polynomials (closed forms are 0/0
+#: at θ = 0; the omitted θ⁶/5040 term is < 2e-28 here).
+ANGLE_TAYLOR = 1e-4
+#: |θ| below this: c_θ = (θ - sin θ)/θ³ from its series (closed form loses
+#: ≈ 2ε/θ relative accuracy in the dexp entries; at θ = 1 that is ≤ 4e-16).
+C_TAYLOR = 1.0
+
+# c_θ = Σ_k (-1)^k θ^{2k}/(2k+3)!  (seed 000, Eq. 81, second sum); 10 terms reach
+# θ^18/21! < 2e-20 at |θ| = 1.
+_C_SERIES = np.array([(-1.0) ** k / math.factorial(2 * k + 3) for k in range(10)])
+
+
+@_jit.kernel
+def _ab(th):
+    """(a_θ, b_θ) of seed 000, Eqs. (50), (51)."""
+    if abs(th) < ANGLE_TAYLOR:
+        t = th * th
+        return 1.0 - t / 6.0 * (1.0 - t / 20.0), 0.5 - t / 24.0 * (1.0 - t / 30.0)
+    s = math.sin(0.5 * th) / th
+    # 1 - cos θ = 2 sin²(θ/2) avoids the cancellation of the literal Eq. (51)
+    return math.sin(th) / th, 2.0 * s * s
+
+
+@_jit.kernel
+def _c(th):
+    """c_θ = (1 - a_θ)/θ² of seed 000, Eq. (52)."""
+    if abs(th) < C_TAYLOR:
+        t = th * th
+        s = 0.0
+        for k in range(_C_SERIES.shape[0] - 1, -1, -1):
+            s = s * t + _C_SERIES[k]
+        return s
+    return (th - math.sin(th)) / (th * th * th)
+
+
+# --- cores -----------------------------------------------------------------------------------
+
+
+@_jit.kernel
+def _hat(x, out):
+    out[0, 0] = 0.0
+    out[0, 1] = -x[2]
+    out[0, 2] = x[0]
+    out[1, 0] = x[2]
+    out[1, 1] = 0.0
+    out[1, 2] = x[1]
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = 0.0
+
+
+@_jit.kernel
+def _vee(X, out):
+    out[0] = X[0, 2]
+    out[1] = X[1, 2]
+    out[2] = X[1, 0]
+
+
+@_jit.kernel
+def _exp(x, out):
+    th = x[2]
+    a, b = _ab(th)
+    tb = th * b
+    # translation V u with V = a I + θ b J, the same block as D_exp (seed 000, Eq. 83)
+    out[0, 0] = math.cos(th)
+    out[0, 1] = -math.sin(th)
+    out[0, 2] = a * x[0] - tb * x[1]
+    out[1, 0] = math.sin(th)
+    out[1, 1] = math.cos(th)
+    out[1, 2] = tb * x[0] + a * x[1]
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = 1.0
+
+
+@_jit.kernel
+def _log(X, out):
+    th = math.atan2(X[1, 0], X[0, 0])
+    a, b = _ab(th)
+    # V⁻¹ = (a I - θ b J)/(a² + θ² b²) and a² + θ² b² = 2 b, so V⁻¹ = α I - (θ/2) J
+    # with α = a/(2b) = (θ/2) cot(θ/2) (same inverse as seed 000, Eq. 85)
+    al = a / (2.0 * b)
+    h = 0.5 * th
+    tx = X[0, 2]
+    ty = X[1, 2]
+    out[0] = al * tx + h * ty
+    out[1] = -h * tx + al * ty
+    out[2] = th
+
+
+@_jit.kernel
+def _ad(x, out):
+    # seed 000, Eq. (78)
+    out[0, 0] = 0.0
+    out[0, 1] = -x[2]
+    out[0, 2] = x[1]
+    out[1, 0] = x[2]
+    out[1, 1] = 0.0
+    out[1, 2] = -x[0]
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = 0.0
+
+
+@_jit.kernel
+def _Ad(X, out):
+    # X hat(v, φ) X⁻¹ = hat(R v - φ J t, φ): Ad = [[R, -J t], [0, 1]], -J t = (t_y, -t_x)
+    out[0, 0] = X[0, 0]
+    out[0, 1] = X[0, 1]
+    out[0, 2] = X[1, 2]
+    out[1, 0] = X[1, 0]
+    out[1, 1] = X[1, 1]
+    out[1, 2] = -X[0, 2]
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = 1.0
+
+
+@_jit.kernel
+def _dexp(x, out):
+    th = x[2]
+    a, b = _ab(th)
+    tc = th * _c(th)
+    tb = th * b
+    # seed 000, Eq. (83) corrected: third column (θ c x + b y, θ c y - b x); the seed
+    # drops the factor θ on c (see docs/_errata_2d.md)
+    out[0, 0] = a
+    out[0, 1] = -tb
+    out[0, 2] = tc * x[0] + b * x[1]
+    out[1, 0] = tb
+    out[1, 1] = a
+    out[1, 2] = tc * x[1] - b * x[0]
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = 1.0
+
+
+@_jit.kernel
+def _dlog(x, out):
+    th = x[2]
+    a, b = _ab(th)
+    tc = th * _c(th)
+    # seed 000, Eqs. (84)-(85): D_log = [[A⁻¹, -A⁻¹ v], [0, 1]], with the 2×2 inverse
+    # A⁻¹ = (a I - θ b J)/(a² + θ² b²) = α I - (θ/2) J since a² + θ² b² = 2 b
+    al = a / (2.0 * b)
+    h = 0.5 * th
+    v0 = tc * x[0] + b * x[1]
+    v1 = tc * x[1] - b * x[0]
+    out[0, 0] = al
+    out[0, 1] = h
+    out[0, 2] = -(al * v0 + h * v1)
+    out[1, 0] = -h
+    out[1, 1] = al
+    out[1, 2] = h * v0 - al * v1
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = 1.0
+
+
+@_jit.kernel
+def _compose(X, Y, out):
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = X[i, 0] * Y[0, j] + X[i, 1] * Y[1, j] + X[i, 2] * Y[2, j]
+
+
+@_jit.kernel
+def _inverse(X, out):
+    # [[Rᵀ, -Rᵀ t], [0, 1]]
+    tx = X[0, 2]
+    ty = X[1, 2]
+    out[0, 0] = X[0, 0]
+    out[0, 1] = X[1, 0]
+    out[0, 2] = -(X[0, 0] * tx + X[1, 0] * ty)
+    out[1, 0] = X[0, 1]
+    out[1, 1] = X[1, 1]
+    out[1, 2] = -(X[0, 1] * tx + X[1, 1] * ty)
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = 1.0
+
+
+# --- public, broadcasting ----------------------------------------------------------------------
+
+_ROW = "[0, 0, 1]"
+
+
+def _element(X, name):
+    arr = _validate.square(X, MAT, name)
+    _validate.rotation_block(arr, name, 2)
+    _validate.bottom_row(arr, name, _ROW)
+    return arr
+
+
+def hat(x):
+    """(..., 3) → (..., 3, 3): [[0, -θ, x], [θ, 0, y], [0, 0, 0]]."""
+    return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
+
+
+def vee(X):
+    """(..., 3, 3) → (..., 3): [X[0, 2], X[1, 2], X[1, 0]]."""
+    return _jit.apply(_vee, _validate.square(X, MAT, "X"), 2, (DIM,))
+
+
+def exp(x):
+    """(..., 3) → (..., 3, 3): [[R(θ), V u], [0, 1]], V = a_θ I + θ b_θ J (seed 000, Eqs. 50–51)."""
+    return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
+
+
+def log(X):
+    """(..., 3, 3) → (..., 3): principal logarithm, θ = atan2 ∈ (-π, π].
+
+    Raises ValueError unless the rotation block is orthonormal and the last row is [0, 0, 1].
+    """
+    return _jit.apply(_log, _element(X, "X"), 2, (DIM,))
+
+
+def ad(x):
+    """(..., 3) → (..., 3, 3): ad_x y = vee([hat x, hat y]) (seed 000, Eq. 78)."""
+    return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
+
+
+def Ad(X):
+    """(..., 3, 3) → (..., 3, 3): [[R, (t_y, -t_x)ᵀ], [0, 1]], X hat(y) X⁻¹ = hat(Ad(X) y)."""
+    return _jit.apply(_Ad, _element(X, "X"), 2, (DIM, DIM))
+
+
+def dexp(x):
+    """(..., 3) → (..., 3, 3): left Jacobian D_exp(x) (seed 000, Eq. 83, corrected).
+
+    GTSAM's Pose2.ExpmapDerivative(x) equals dexp(-x).
+    """
+    return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
+
+
+def dlog(x):
+    """(..., 3) → (..., 3, 3): D_exp(x)⁻¹ in closed form (seed 000, Eqs. 84–85); singular at |θ| = 2π.
+
+    GTSAM's Pose2.LogmapDerivative(x) equals dlog(-x).
+    """
+    return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
+
+
+def compose(X, Y):
+    """(..., 3, 3) × (..., 3, 3) → (..., 3, 3): X·Y, batch axes broadcast."""
+    return _jit.apply2(_compose, _element(X, "X"), _element(Y, "Y"), (2, 2), (MAT, MAT))
+
+
+def inverse(X):
+    """(..., 3, 3) → (..., 3, 3): [[Rᵀ, -Rᵀ t], [0, 1]]."""
+    return _jit.apply(_inverse, _element(X, "X"), 2, (MAT, MAT))
