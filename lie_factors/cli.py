@@ -106,8 +106,8 @@ def _run_posegraph(args) -> int:
     for path in (args.output, args.plot):
         if path:
             pgm.check_writable(path)
-    pg = pgm.load(args.dataset)
     pgm.load_factors(args.backend)
+    pg = pgm.load(args.dataset)
 
     kind = "SE(3)" if pg.is3d else "SE(2)"
     init = "spanning tree of the edges" if pg.initialized_from_edges else "vertices in the file"

@@ -73,7 +73,7 @@ def resolve_dataset(name: str) -> str:
     if os.path.dirname(name) == "":
         try:
             return gtsam.findExampleDataFile(name)
-        except RuntimeError:
+        except (RuntimeError, OSError):  # the Python wrapper raises FileNotFoundError
             pass
         raise PoseGraphError(
             f"{name}: no such file, and not a dataset shipped with GTSAM "
@@ -216,7 +216,7 @@ def check_g2o(path: str) -> G2oSummary:
                     f"{where}: field {rec.ids + k + 2} ({tok!r}) is not a number"
                 ) from None
             if not math.isfinite(values[k]):
-                raise PoseGraphError(f"{where}: field {rec.ids + k + 2} is {tok} (not finite)")
+                raise PoseGraphError(f"{where}: field {rec.ids + k + 2} ({tok!r}) is not finite")
         pose = values[: rec.pose]
         if tag.endswith(":QUAT"):
             qnorm = float(np.linalg.norm(pose[3:7]))
