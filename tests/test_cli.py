@@ -1,0 +1,253 @@
+"""The ``lie-factors`` CLI: demo, posegraph, bad input, JSON, subcommand registry."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lie_factors import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = str(ROOT / "data" / "smallGrid3D.g2o")
+
+
+def run_main(capsys, *argv):
+    status = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def last_json(out: str) -> dict:
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def assert_one_line_error(status, out, err, *fragments):
+    assert status == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("lie-factors: error: ")
+    assert "Traceback" not in err
+    for f in fragments:
+        assert f in lines[0], lines[0]
+
+
+# -------------------------------------------------------------------- demo
+
+def test_demo_small_native(tmp_path, capsys):
+    status, out, err = run_main(capsys, "demo", "--poses", "40", "--seed", "3", "--backend", "native",
+                                "--output", str(tmp_path / "d"), "--json")
+    assert status == 0
+    rec = last_json(out)
+    for key in ("backend", "dataset", "poses", "factors", "iterations", "initial_error",
+                "final_error", "seconds", "converged", "ate_rmse_initial", "ate_rmse"):
+        assert key in rec
+    assert rec["poses"] == 40 and rec["converged"]
+    assert rec["final_error"] < rec["initial_error"]
+    assert rec["ate_rmse"] < rec["ate_rmse_initial"]
+    assert "ATE" in out and "iter" in err  # report on stdout, progress on stderr
+    assert (tmp_path / "d" / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (tmp_path / "d" / "optimized.g2o").read_text().count("EDGE_SE3:QUAT") == rec["factors"] - 1
+
+
+def test_demo_is_seeded(tmp_path, capsys):
+    recs = []
+    for k in range(2):
+        status, out, _ = run_main(capsys, "demo", "--poses", "30", "--backend", "native", "--quiet",
+                                  "--json", "--output", str(tmp_path / f"d{k}"))
+        recs.append(last_json(out))
+    assert recs[0]["final_error"] == recs[1]["final_error"]
+    assert recs[0]["ate_rmse"] == recs[1]["ate_rmse"]
+
+
+def test_demo_quiet_prints_only_json(tmp_path, capsys):
+    status, out, err = run_main(capsys, "demo", "--poses", "20", "--backend", "native", "--quiet",
+                                "--json", "--output", str(tmp_path))
+    assert status == 0 and err == ""
+    assert len(out.strip().splitlines()) == 1
+
+
+def test_demo_custom_backend(tmp_path, capsys):
+    pytest.importorskip("lie_factors.factors")
+    results = {}
+    for backend in ("native", "custom"):
+        status, out, _ = run_main(capsys, "demo", "--poses", "40", "--backend", backend, "--quiet",
+                                  "--json", "--output", str(tmp_path / backend))
+        assert status == 0
+        results[backend] = last_json(out)
+    assert results["custom"]["final_error"] == pytest.approx(results["native"]["final_error"], rel=1e-6)
+
+
+def test_demo_output_is_a_file(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("x")
+    assert_one_line_error(*run_main(capsys, "demo", "--poses", "10", "--backend", "native",
+                                    "--output", str(f)), "not a directory")
+
+
+# --------------------------------------------------------------- posegraph
+
+def test_posegraph_native_outputs(tmp_path, capsys):
+    out_g2o, out_png = tmp_path / "o.g2o", tmp_path / "o.png"
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--backend", "native", "--json",
+                                "--output", str(out_g2o), "--plot", str(out_png))
+    assert status == 0
+    rec = last_json(out)
+    assert rec["backend"] == "native" and rec["dataset"] == "smallGrid3D.g2o"
+    assert rec["poses"] == 125 and rec["factors"] == 298 and rec["converged"]
+    assert rec["final_error"] == pytest.approx(517.9253346774, rel=1e-9)
+    assert err.count("iter ") == rec["iterations"]
+    assert out_g2o.read_text().count("VERTEX_SE3:QUAT") == 125
+    assert out_png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_posegraph_gtsam_example_by_name(capsys):
+    # sphere2500.txt: EDGE3 lines only, initialized from a spanning tree.
+    status, out, err = run_main(capsys, "posegraph", "sphere2500.txt", "--backend", "native",
+                                "--max-iterations", "1", "--quiet", "--json")
+    assert status == 0 and err == ""
+    rec = last_json(out)
+    assert rec["poses"] == 2500 and rec["iterations"] == 1 and not rec["converged"]
+
+
+def test_posegraph_custom_matches_native(capsys):
+    pytest.importorskip("lie_factors.factors")
+    recs = {}
+    for backend in ("native", "custom"):
+        status, out, _ = run_main(capsys, "posegraph", SMALL, "--backend", backend, "--quiet", "--json")
+        assert status == 0
+        recs[backend] = last_json(out)
+    assert recs["custom"]["final_error"] == pytest.approx(recs["native"]["final_error"], rel=1e-6)
+
+
+# --------------------------------------------------------------- bad input
+
+SE2_INFO = "1 0 0 1 0 1"
+
+
+@pytest.mark.parametrize(
+    "text, fragments",
+    [
+        ("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 1 1\n", ["bad.g2o:1:", "EDGE_SE3:QUAT expects 2 ids", "got 12 fields"]),
+        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 5 1 0 0 " + SE2_INFO + "\n",
+         ["bad.g2o:3:", "unknown vertex 5"]),
+        ("VERTEX_SE2 0 0 0 0\n", ["empty graph"]),
+        ("", ["empty graph"]),
+        ("VERTEX_SE2 0 0 0 0\nWHAT 1\n", ["bad.g2o:2:", "unknown tag 'WHAT'"]),
+        ("EDGE_SE2 0 1 1 0 nan " + SE2_INFO + "\n", ["bad.g2o:1:", "not finite"]),
+        ("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 -1\n", ["bad.g2o:1:", "not positive definite"]),
+    ],
+)
+def test_bad_files(tmp_path, capsys, text, fragments):
+    path = tmp_path / "bad.g2o"
+    path.write_text(text)
+    assert_one_line_error(*run_main(capsys, "posegraph", str(path), "--backend", "native"), *fragments)
+
+
+def test_missing_file(tmp_path, capsys):
+    assert_one_line_error(*run_main(capsys, "posegraph", str(tmp_path / "nope.g2o"), "--backend", "native"),
+                          "no such file")
+    assert_one_line_error(*run_main(capsys, "posegraph", "nope-not-in-gtsam.g2o", "--backend", "native"),
+                          "not a dataset shipped with GTSAM")
+
+
+def test_unknown_backend(capsys):
+    assert_one_line_error(*run_main(capsys, "posegraph", SMALL, "--backend", "quantum"),
+                          "unknown backend 'quantum'")
+    assert_one_line_error(*run_main(capsys, "demo", "--backend", "quantum", "--poses", "5"),
+                          "unknown backend 'quantum'")
+
+
+def test_unwritable_output_checked_before_optimizing(tmp_path, capsys):
+    target = str(tmp_path / "no" / "such" / "dir" / "out.g2o")
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--backend", "native", "--output", target)
+    assert_one_line_error(status, out, err, "does not exist")
+    assert "iter" not in err and out == ""  # nothing was optimized
+    assert_one_line_error(*run_main(capsys, "posegraph", SMALL, "--backend", "native",
+                                    "--plot", str(tmp_path)), "is a directory")
+
+
+def test_existing_output_not_clobbered_by_failed_run(tmp_path, capsys):
+    out_file = tmp_path / "result.g2o"
+    out_file.write_text("previous result\n")
+    bad = tmp_path / "bad.g2o"
+    bad.write_text("EDGE_SE2 0 1 1 0 0\n")
+    assert_one_line_error(*run_main(capsys, "posegraph", str(bad), "--backend", "native",
+                                    "--output", str(out_file)), "EDGE_SE2 expects")
+    assert out_file.read_text() == "previous result\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.g2o", "result.g2o"]
+
+
+def test_usage_errors_exit_2(capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["demo", "--poses", "-3"])
+    assert info.value.code == 2
+    with pytest.raises(SystemExit) as info:
+        cli.main([])
+    assert info.value.code == 2
+
+
+# ---------------------------------------------------------- process level
+
+def run_module(*argv, cwd=None):
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "lie_factors.cli", *argv], capture_output=True,
+                          text=True, env=env, cwd=cwd, timeout=120)
+
+
+def test_python_m_entry_point_json_last_line(tmp_path):
+    p = run_module("posegraph", SMALL, "--backend", "native", "--json", "--max-iterations", "3")
+    assert p.returncode == 0, p.stderr
+    rec = json.loads(p.stdout.strip().splitlines()[-1])
+    assert rec["iterations"] == 3
+    assert p.stderr.count("iter ") == 3
+
+
+def test_python_m_bad_input_no_traceback(tmp_path):
+    bad = tmp_path / "sphere.g2o"
+    bad.write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n" * 1 + "EDGE_SE3:QUAT 0 1 1 2 3\n")
+    p = run_module("posegraph", str(bad), "--backend", "native")
+    assert p.returncode == 2
+    assert p.stderr.strip() == ("lie-factors: error: sphere.g2o:2: EDGE_SE3:QUAT expects 2 ids, "
+                                "7 pose values and 21 information values (30 fields), got 5 fields")
+    assert p.stdout == ""
+
+
+def test_help_lists_subcommands():
+    p = run_module("--help")
+    assert p.returncode == 0
+    assert "demo" in p.stdout and "posegraph" in p.stdout
+
+
+# ------------------------------------------------------- subcommand registry
+
+def test_optional_subcommand_absent_is_not_offered(monkeypatch):
+    monkeypatch.setitem(cli.OPTIONAL_SUBCOMMANDS, "ghost", ("lie_factors._no_such_module", "x"))
+    parser, commands = cli.build_parser()
+    assert "ghost" not in commands
+
+
+def test_optional_subcommand_is_one_table_entry(monkeypatch, tmp_path, capsys):
+    mod = tmp_path / "lf_extra_cmd.py"
+    mod.write_text('"""say hello"""\n'
+                   "def add_arguments(p):\n    p.add_argument('--name', default='x')\n"
+                   "def main(args):\n    print('hello', args.name)\n    return 0\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.OPTIONAL_SUBCOMMANDS, "hello", ("lf_extra_cmd", "say hello"))
+    status, out, _ = run_main(capsys, "hello", "--name", "world")
+    assert status == 0 and out == "hello world\n"
+
+
+def test_broken_optional_subcommand_does_not_break_cli(monkeypatch, tmp_path, capsys):
+    mod = tmp_path / "lf_broken_cmd.py"
+    mod.write_text("import lf_definitely_missing_dependency\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.OPTIONAL_SUBCOMMANDS, "broken", ("lf_broken_cmd", "broken"))
+    assert_one_line_error(*run_main(capsys, "broken"), "broken is unavailable")
+    status, out, _ = run_main(capsys, "demo", "--poses", "5", "--backend", "native", "--quiet",
+                              "--json", "--output", str(tmp_path / "d"))
+    assert status == 0
