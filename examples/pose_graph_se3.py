@@ -8,6 +8,8 @@ back.  We print the graph error and the ATE (RMSE of positions against the
 ground truth) before and after, and save a plot.
 
     python examples/pose_graph_se3.py [output.png]
+
+(with lie_factors installed, `pip install -e .`, or `PYTHONPATH=.` in a checkout)
 """
 
 import sys

@@ -1,10 +1,14 @@
 """``lie-factors``: command-line entry point.
 
-Subcommands are registered in :data:`SUBCOMMANDS` (name → (add_arguments,
-run)).  Optional ones live in their own module and are offered only if that
-module imports: such a module defines ``main(args) -> int | None`` taking the
-parsed ``argparse.Namespace`` and, optionally, ``add_arguments(parser)``
-(see :data:`OPTIONAL_SUBCOMMANDS`).
+Subcommands are registered in :data:`SUBCOMMANDS` (name → (help,
+add_arguments, run)).  Optional ones live in their own module, listed in
+:data:`OPTIONAL_SUBCOMMANDS`, and are offered only if that module exists.  Such
+a module defines ``main(...) -> int | None`` and either
+
+- ``add_arguments(parser)``: then ``main(args)`` gets our parsed
+  ``argparse.Namespace``; or
+- nothing else: then ``main(argv)`` gets the list of arguments after the
+  subcommand name and parses them itself (``lie_factors.crosscheck`` does).
 
 User errors (bad file, unwritable output, unknown backend, ...) print ONE line
 ``lie-factors: error: ...`` on stderr and exit with status 2, never a traceback.
@@ -259,10 +263,16 @@ def _load_optional() -> dict[str, tuple[str, Callable, Callable]]:
         except Exception as exc:  # a broken optional module must not take the whole CLI down
             found[name] = _unavailable(name, exc)
             continue
-        add = getattr(module, "add_arguments", lambda parser: None)
         doc = (module.__doc__ or help_text).strip().splitlines()[0]
-        found[name] = (doc, add, module.main)
+        if hasattr(module, "add_arguments"):
+            found[name] = (doc, module.add_arguments, module.main)
+        else:
+            found[name] = (doc, _PASSTHROUGH, module.main)
     return found
+
+
+def _PASSTHROUGH(parser):  # marker: main(argv) parses its own arguments
+    parser.add_argument("argv", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict]:
@@ -285,9 +295,14 @@ def main(argv: list[str] | None = None) -> int:
     from lie_factors.posegraph import PoseGraphError
 
     parser, commands = build_parser()
-    args = parser.parse_args(argv)  # argparse itself exits 2 on usage errors
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        status = commands[args.command][2](args)
+        if argv and argv[0] in commands and commands[argv[0]][1] is _PASSTHROUGH:
+            # Hand everything after the name over untouched (incl. --help).
+            status = commands[argv[0]][2](argv[1:])
+        else:
+            args = parser.parse_args(argv)  # argparse itself exits 2 on usage errors
+            status = commands[args.command][2](args)
     except (CLIError, PoseGraphError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

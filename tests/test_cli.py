@@ -251,3 +251,13 @@ def test_broken_optional_subcommand_does_not_break_cli(monkeypatch, tmp_path, ca
     status, out, _ = run_main(capsys, "demo", "--poses", "5", "--backend", "native", "--quiet",
                               "--json", "--output", str(tmp_path / "d"))
     assert status == 0
+
+
+def test_optional_subcommand_parsing_its_own_argv(monkeypatch, tmp_path, capsys):
+    # The crosscheck style: no add_arguments, main(argv) gets the raw arguments.
+    mod = tmp_path / "lf_argv_cmd.py"
+    mod.write_text("def main(argv=None):\n    print('got', argv)\n    return 3\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.OPTIONAL_SUBCOMMANDS, "raw", ("lf_argv_cmd", "raw"))
+    status, out, _ = run_main(capsys, "raw", "--samples", "2", "--help")
+    assert status == 3 and out == "got ['--samples', '2', '--help']\n"
