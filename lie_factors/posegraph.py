@@ -552,7 +552,12 @@ def format_iteration(info: IterationInfo) -> str:
 
 @dataclass
 class RunRecord:
-    """What ``lie-factors posegraph --json`` prints (``to_dict``)."""
+    """What ``lie-factors posegraph --json`` prints (``to_dict``).
+
+    ``factors`` counts the optimized graph: the file's edges + 1 prior;
+    ``seconds`` is optimization only (LM construction + iterations, not loading);
+    ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖².
+    """
 
     backend: str
     dataset: str
