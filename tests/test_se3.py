@@ -1,0 +1,265 @@
+"""SE(3) kernels, tangent [ω, v], against lie_factors.reference (mpmath, 50 digits).
+
+Bound 1e-14 (CONVENTIONS.md error measure) over θ = 0, 1e-200, 1e-15…1, the
+coefficient thresholds straddled, up to π (exp/log) and 2π − 1e-3 (dexp/dlog),
+translations 1e-3…1e2 in random directions, nearly parallel and perpendicular to ω.
+"""
+
+import functools
+import math
+
+import mpmath as mp
+import numpy as np
+import pytest
+
+from lie_factors import _coeffs as C
+from lie_factors import reference as ref
+from lie_factors import se3, so3
+
+TOL = 1e-14
+PI = math.pi
+
+
+def _straddle(thr):
+    return [thr * (1 + s) for s in (-1e-2, -1e-9, 1e-9, 1e-2)]
+
+
+THRESHOLDS = [C.A_TAYLOR, C.C_TAYLOR, C.E_TAYLOR, C.QA_TAYLOR, C.QB_TAYLOR]
+ANGLES_TO_PI = sorted(
+    [0.0, 1e-200]
+    + list(np.logspace(-15, 0, 8))
+    + [t for thr in THRESHOLDS for t in _straddle(thr)]
+    + [1.5, 3.0, PI - 1e-6, PI - 1e-12]
+)
+ANGLES_TO_2PI = ANGLES_TO_PI + [PI, PI * (1 + 1e-9), 4.0, 5.0, 6.0, 2 * PI - 1e-3]
+NORMS = [1e-3, 1.0, 1e2]
+MODES = ["random", "parallel", "perpendicular"]
+
+
+def _points(angles, seed=0, combos=3):
+    """For each angle, `combos` (translation norm, direction mode) pairs, cycling."""
+    rng = np.random.default_rng(seed)
+    pts = []
+    k = 0
+    for th in angles:
+        for _ in range(combos):
+            d = rng.standard_normal((2, 3))
+            n = d[0] / np.linalg.norm(d[0])
+            mode = MODES[k % 3]
+            norm = NORMS[(k // 3) % 3]
+            k += 1
+            if mode == "random":
+                u = d[1]
+            elif mode == "parallel":
+                u = n + 1e-7 * d[1]
+            else:
+                u = np.cross(n, d[1])
+            pts.append(np.r_[th * n, norm * u / np.linalg.norm(u)])
+    return pts
+
+
+@functools.lru_cache(maxsize=None)
+def _ref_dexp(key):
+    return ref.dexp("se3", ref.mpf_vec(np.array(key)))
+
+
+def _check(fun, ref_fun, pts):
+    worst = (0.0, None)
+    for x in pts:
+        e = ref.rel_err(fun(x), ref_fun(x))
+        if e > worst[0]:
+            worst = (e, x)
+    assert worst[0] <= TOL, worst
+    return worst[0]
+
+
+def test_exp_accuracy():
+    _check(se3.exp, lambda x: ref.exp("se3", ref.mpf_vec(x)), _points(ANGLES_TO_PI, seed=1))
+
+
+def test_dexp_accuracy():
+    _check(se3.dexp, lambda x: _ref_dexp(tuple(x)), _points(ANGLES_TO_2PI, seed=2))
+
+
+def test_dlog_accuracy():
+    _check(se3.dlog, lambda x: mp.inverse(_ref_dexp(tuple(x))), _points(ANGLES_TO_2PI, seed=2))
+
+
+def test_dlog_accuracy_near_two_pi_and_ef_threshold():
+    angles = _straddle(C.EF_TAYLOR) + [2 * PI - 1e-3, 2 * PI - 1e-2]
+    _check(se3.dlog, lambda x: mp.inverse(_ref_dexp(tuple(x))), _points(angles, seed=4, combos=9))
+
+
+def test_ad_hat_accuracy():
+    pts = _points([0.0, 0.3, 2.0, 5.0], seed=5)
+    _check(se3.ad, lambda x: ref.ad("se3", ref.mpf_vec(x)), pts)
+    _check(se3.hat, lambda x: ref.hat_se3(ref.mpf_vec(x)), pts)
+
+
+def test_log_against_mp_logm():
+    worst = 0.0
+    for x in _points([t for t in ANGLES_TO_PI if t <= 3.0], seed=6, combos=2):
+        X = ref.to_numpy(ref.exp("se3", ref.mpf_vec(x)))
+        worst = max(worst, ref.rel_err(se3.log(X), ref.log("se3", X)))
+    assert worst <= TOL, worst
+
+
+@pytest.mark.parametrize("delta", [1e-3, 1e-8, 1e-12, 0.0])
+def test_log_near_and_at_pi_round_trip(delta):
+    for x in _points([PI - delta], seed=7, combos=6):
+        X = ref.to_numpy(ref.exp("se3", ref.mpf_vec(x)))
+        L = se3.log(X)
+        assert np.linalg.norm(L[:3]) <= PI * (1 + 4e-16)
+        scale = max(1.0, np.abs(X).max())
+        assert np.abs(se3.exp(L) - X).max() <= 2e-15 * scale
+
+
+def test_dexp_dlog_inverse_and_first_order():
+    xs = np.array(_points([0.1, 1.0, 3.0, 5.0], seed=8))
+    P = np.einsum("nij,njk->nik", se3.dexp(xs), se3.dlog(xs))
+    scale = np.maximum(1, np.abs(se3.dlog(xs)).max(axis=(1, 2)) * np.abs(se3.dexp(xs)).max(axis=(1, 2)))
+    assert (np.abs(P - np.eye(6)).max(axis=(1, 2)) / scale).max() < 1e-13
+    x = np.array([0.4, -1.1, 2.3, 0.5, 2.0, -1.0])
+    eps = 1e-7 * np.array([0.3, 0.5, -0.2, 0.1, -0.4, 0.7])
+    lhs = se3.exp(x + eps)
+    rhs = se3.exp(se3.dexp(x) @ eps) @ se3.exp(x)
+    assert np.abs(lhs - rhs).max() < 1e-13
+
+
+def test_dlog_closed_form_equals_seed_eq75_product():
+    """Our L = −½u× + e(ω×u× + u×ω×) + (ωᵀu) f ω×² is Eq. (75)'s −J⁻¹ B J⁻¹."""
+    for x in _points([1e-3, 0.5, 1.7, 3.0, 4.5], seed=9):
+        D = se3.dexp(x)
+        Ji = so3.dlog(x[:3])
+        prod = -Ji @ D[3:, :3] @ Ji
+        assert np.abs(se3.dlog(x)[3:, :3] - prod).max() <= 1e-13 * max(1, np.abs(prod).max())
+
+
+# ------------------------------------------------------------ errata (docs/_errata_3d.md)
+
+
+def test_erratum_eq65_coefficient_of_ad_is_b_not_a():
+    """Seed 000 Eq. (65) reads I + a_θ ad_x + c_θ ad_x² + (ωᵀu)[[0, Q],[0, 0]];
+    the series Σ ad^i/(i+1)! gives b_θ (as Eq. 66 and 71 do)."""
+    x = np.array([0.3, -0.9, 1.2, 0.7, 0.2, -0.5])
+    w, u = x[:3], x[3:]
+    th = np.linalg.norm(w)
+    a, b, c = C.a_theta(th), C.b_theta(th), C.c_theta(th)
+    W = so3.hat(w)
+    Q = C.qa_theta(th) * W + C.qb_theta(th) * W @ W
+    A = se3.ad(x)
+    Qb = np.zeros((6, 6))
+    Qb[3:, :3] = Q  # Eq. (65)'s upper-right block, in [ω, v] order
+    R = ref.to_numpy(_ref_dexp(tuple(x)))
+    seed = np.eye(6) + a * A + c * A @ A + (w @ u) * Qb
+    fixed = np.eye(6) + b * A + c * A @ A + (w @ u) * Qb
+    assert np.abs(seed - R).max() > 1e-2
+    assert np.abs(fixed - R).max() < 1e-15
+    assert ref.rel_err(se3.dexp(x), _ref_dexp(tuple(x))) <= TOL
+
+
+def test_eq63_ad_cubed_verified():
+    x = np.array([0.3, -0.9, 1.2, 0.7, 0.2, -0.5])
+    w, u = x[:3], x[3:]
+    A = se3.ad(x)
+    Z = np.zeros((6, 6))
+    Z[3:, :3] = so3.hat(w)
+    np.testing.assert_allclose(A @ A @ A, -(w @ w) * A - 2 * (w @ u) * Z, atol=1e-15)
+
+
+# ------------------------------------------------------------ group operations
+
+
+def test_Ad_compose_inverse():
+    for x in _points([0.2, 1.0, 3.0], seed=10):
+        X = se3.exp(x)
+        y = np.array([0.1, -0.2, 0.3, 1.0, -2.0, 0.5])
+        np.testing.assert_allclose(X @ se3.hat(y) @ np.linalg.inv(X), se3.hat(se3.Ad(X) @ y),
+                                   atol=1e-13 * max(1, np.abs(X).max()) ** 2)
+        np.testing.assert_allclose(se3.compose(X, se3.inverse(X)), np.eye(4),
+                                   atol=4e-15 * max(1, np.abs(X).max()))
+        np.testing.assert_allclose(se3.compose(X, X), X @ X, atol=1e-15 * max(1, np.abs(X).max()) ** 2)
+        # Ad(exp(x)) = exp(ad(x)) (seed 000, Eq. 9)
+        assert ref.rel_err(se3.Ad(X), mp.expm(ref.ad("se3", ref.mpf_vec(x)))) <= TOL
+    assert np.array_equal(se3.vee(se3.hat(x)), x)
+
+
+# ------------------------------------------------------------ shapes / validation
+
+
+@pytest.mark.parametrize("batch", [(), (5,), (2, 3), (2, 1, 4), (0,)])
+def test_broadcast_shapes(batch):
+    x = np.random.default_rng(0).standard_normal(batch + (6,))
+    for f in (se3.dexp, se3.dlog, se3.ad):
+        out = f(x)
+        assert out.shape == batch + (6, 6)
+        for idx in np.ndindex(*batch):
+            np.testing.assert_array_equal(out[idx], f(x[idx]))
+    for f in (se3.exp, se3.hat):
+        assert f(x).shape == batch + (4, 4)
+    X = se3.exp(x)
+    assert se3.log(X).shape == batch + (6,)
+    assert se3.vee(X).shape == batch + (6,)
+    assert se3.Ad(X).shape == batch + (6, 6)
+    assert se3.inverse(X).shape == batch + (4, 4)
+    assert se3.compose(X, X).shape == batch + (4, 4)
+
+
+def test_compose_broadcasts():
+    A = se3.exp(np.random.default_rng(1).standard_normal((3, 1, 6)))
+    B = se3.exp(np.random.default_rng(2).standard_normal((4, 6)))
+    out = se3.compose(A, B)
+    assert out.shape == (3, 4, 4, 4)
+    np.testing.assert_allclose(out[1, 2], A[1, 0] @ B[2], atol=1e-14)
+
+
+@pytest.mark.parametrize("f", [se3.exp, se3.dexp, se3.dlog, se3.ad, se3.hat])
+def test_bad_tangent_raises(f):
+    with pytest.raises(ValueError, match=r"\(\.\.\., 6\)"):
+        f(np.zeros(3))
+    with pytest.raises(ValueError):
+        f(np.array([0.0, np.nan, 1.0, 0, 0, 0]))
+    with pytest.raises(ValueError):
+        f(np.array([0.0, 0, 1.0, 0, np.inf, 0]))
+
+
+@pytest.mark.parametrize("f", [se3.log, se3.Ad, se3.inverse])
+def test_bad_pose_raises(f):
+    with pytest.raises(ValueError, match=r"\(\.\.\., 4, 4\)"):
+        f(np.eye(3))
+    bad = np.eye(4)
+    bad[:3, :3] *= 1.01
+    with pytest.raises(ValueError, match="orthonormal"):
+        f(bad)
+    bad = np.eye(4)
+    bad[3, 0] = 0.5
+    with pytest.raises(ValueError, match="last row"):
+        f(bad)
+    bad = np.eye(4)
+    bad[0, 3] = np.nan
+    with pytest.raises(ValueError):
+        f(bad)
+
+
+# ------------------------------------------------------------ GTSAM (tangent [ω, v], right Jacobians)
+
+gtsam = pytest.importorskip("gtsam")
+
+
+def test_against_gtsam_pose3():
+    for x in _points([1e-6, 0.1, 1.0, 2.0, 3.0], seed=12):
+        X = se3.exp(x)
+        np.testing.assert_allclose(gtsam.Pose3.Expmap(x).matrix(), X, atol=1e-12)
+        np.testing.assert_allclose(gtsam.Pose3.Logmap(gtsam.Pose3(X)), se3.log(X), atol=1e-10)
+        np.testing.assert_allclose(gtsam.Pose3.ExpmapDerivative(x), se3.dexp(-x), atol=1e-9)
+        np.testing.assert_allclose(gtsam.Pose3.LogmapDerivative(x), se3.dlog(-x), atol=1e-9)
+        np.testing.assert_allclose(gtsam.Pose3(X).AdjointMap(), se3.Ad(X), atol=1e-12)
+
+
+def test_near_pi_ours_exact_gtsam_recorded():
+    gt = 0.0
+    for x in _points([PI - 1e-4], seed=13):
+        r = mp.inverse(_ref_dexp(tuple(-x)))
+        assert ref.rel_err(se3.dlog(-x), r) <= TOL
+        gt = max(gt, ref.rel_err(gtsam.Pose3.LogmapDerivative(x), r))
+    print(f"GTSAM Pose3.LogmapDerivative error at pi-1e-4: {gt:.2e}")
