@@ -263,3 +263,24 @@ def test_near_pi_ours_exact_gtsam_recorded():
         assert ref.rel_err(se3.dlog(-x), r) <= TOL
         gt = max(gt, ref.rel_err(gtsam.Pose3.LogmapDerivative(x), r))
     print(f"GTSAM Pose3.LogmapDerivative error at pi-1e-4: {gt:.2e}")
+
+
+def test_erratum_seed004_se3_series_and_blocks():
+    """Seed 004 (SE(3) section) expands exp of [[ω×, v], [0, 1]] — the algebra element has
+    0, not 1, in the corner (with 1 the corner of the exponential is e, not 1) — and says
+    'the upper right block is just the rotation matrix': it is the upper LEFT block;
+    the upper right is V v. Its final V and V⁻¹ formulas are right."""
+    x = np.array([0.3, -0.9, 1.2, 0.7, 0.2, -0.5])
+    w, v = x[:3], x[3:]
+    M = ref.hat_se3(ref.mpf_vec(x))
+    M[3, 3] = 1
+    assert abs(mp.expm(M)[3, 3] - mp.e) < 1e-40
+    X = se3.exp(x)
+    np.testing.assert_allclose(X[:3, :3], so3.exp(w), atol=1e-15)
+    assert np.abs(X[:3, 3] - so3.exp(w) @ v).max() > 0.1
+    th = np.linalg.norm(w)
+    W = so3.hat(w)
+    V = np.eye(3) + (1 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * W @ W
+    Vi = np.eye(3) - W / 2 + (1 - th * np.sin(th) / (2 * (1 - np.cos(th)))) / th**2 * W @ W
+    np.testing.assert_allclose(X[:3, 3], V @ v, atol=1e-15)
+    np.testing.assert_allclose(Vi @ V, np.eye(3), atol=1e-15)
