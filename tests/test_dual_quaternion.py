@@ -11,10 +11,37 @@ from lie_factors import dual_quaternion as DQ
 from lie_factors import reference as ref
 from lie_factors import se3
 
-from test_quaternion import qexp_mp, qmul_mp, rot_mp
 
 TOL = 1e-14
 PI = math.pi
+
+
+# Own copies (not imported from test_quaternion, so the suite works in any import mode).
+def qmul_mp(p, q):
+    w1, x1, y1, z1 = p
+    w2, x2, y2, z2 = q
+    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
+
+
+def qexp_mp(w):
+    """exp of the pure quaternion (0, ω/2) by its power series."""
+    p = [mp.mpf(0)] + [mp.mpf(v) / 2 for v in w]
+    total = [mp.mpf(1), mp.mpf(0), mp.mpf(0), mp.mpf(0)]
+    term = list(total)
+    for k in range(1, 400):
+        term = [t / k for t in qmul_mp(term, p)]
+        total = [a + b for a, b in zip(total, term)]
+        if max(abs(t) for t in term) < mp.mpf(10) ** (-ref.DPS - 5) and k > 3:
+            break
+    return total
+
+
+def rot_mp(q):
+    w, x, y, z = q
+    return mp.matrix([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def dq_exp_mp(xi):
