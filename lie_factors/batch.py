@@ -232,10 +232,7 @@ def _whitening(noise_model):
         return None
     if not isinstance(noise_model, gtsam.noiseModel.Gaussian):
         return None
-    R = np.asarray(noise_model.R(), dtype=np.float64)
-    if not np.all(np.isfinite(R)):
-        return None
-    return R
+    return noise_model.R()  # finite for every non-constrained Gaussian
 
 
 class _VarBlock:
@@ -275,10 +272,103 @@ class _Group:
             self.i2 = np.array([r[1] for r in self.rows], dtype=np.int64)
             self.k2 = [int(block.keys[i]) for i in self.i2]
             self.Ad = np.ascontiguousarray(np.array([r[3] for r in self.rows], dtype=np.float64))
-            self.A2 = np.empty((E, n, n))
-        self.A1 = np.empty((E, n, n))
-        self.b = np.empty((E, n))
+            # Room for the LM damping rows of up to two hosted variables (see host()).
+            self.A1x = np.zeros((E, 3 * n, n))
+            self.A2x = np.zeros((E, 3 * n, n))
+            self.bx = np.zeros((E, 3 * n))
+            self.A1 = self.A1x[:, :n, :]
+            self.A2 = self.A2x[:, :n, :]
+            self.b = self.bx[:, :n]
+        else:
+            self.A1 = np.empty((E, n, n))
+            self.b = np.empty((E, n))
         self.rows = None
+
+    def host(self, hosted: set) -> None:
+        """Let these between factors carry the damping rows of their variables.
+
+        GTSAM adds one prior JacobianFactor √λ·I per variable.  Stacking that
+        prior under the rows of one factor already on the variable gives the
+        same normal equations (same sparsity, same AᵀA) with one factor object
+        instead of two; each variable is hosted once, by the first factor on it.
+        """
+        n = self.spec.dim
+        h1 = np.zeros(self.E, dtype=bool)
+        h2 = np.zeros(self.E, dtype=bool)
+        seen = set(hosted)
+        for f in range(self.E):
+            a, c = self.k1[f], self.k2[f]
+            if a not in seen:
+                seen.add(a)
+                h1[f] = True
+            if c not in seen:
+                seen.add(c)
+                h2[f] = True
+        hosted |= seen
+        self.h1 = np.nonzero(h1)[0]
+        self.h2 = np.nonzero(h2)[0]
+        self.h2_row = n + n * h1[self.h2].astype(np.int64)
+        rows = n * (1 + h1.astype(np.int64) + h2.astype(np.int64))
+        self.views = [(self.k1[f], self.A1x[f, :r], self.k2[f], self.A2x[f, :r], self.bx[f, :r], int(r))
+                      for f, r in enumerate(rows)]
+
+    def set_damping(self, damp: np.ndarray) -> None:
+        """Write the hosted damping blocks diag(damp[offset : offset + n])."""
+        n = self.spec.dim
+        rr = np.arange(n)
+        if self.h1.size:
+            f = self.h1[:, None]
+            self.A1x[f, n + rr[None, :], rr[None, :]] = damp[self.o1[self.h1][:, None] + rr]
+        if self.h2.size:
+            f = self.h2[:, None]
+            self.A2x[f, self.h2_row[:, None] + rr[None, :], rr[None, :]] = damp[self.o2[self.h2][:, None] + rr]
+
+
+def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
+    """(N, m, m) matrices of ``keys`` in ``values``; BatchError naming a missing/mistyped key."""
+    m = spec.kernels.MAT
+    X = np.empty((len(keys), m, m))
+    for k in keys:
+        if not values.exists(k):
+            raise BatchError(f"key {_key_name(k)} is used by a {spec.name} factor "
+                             "but is missing from the initial Values")
+    if spec.name in ("Pose3", "Pose2"):
+        # Bulk extraction in C++ (all values of that type, in key order).
+        if spec.name == "Pose3":
+            typed = gtsam.utilities.allPose3s(values)
+            E = np.asarray(gtsam.utilities.extractPose3(values))
+        else:
+            typed = gtsam.utilities.allPose2s(values)
+            E = np.asarray(gtsam.utilities.extractPose2(values))
+        tkeys = np.asarray(typed.keys(), dtype=np.uint64)
+        want = np.asarray(keys, dtype=np.uint64)
+        pos = np.searchsorted(tkeys, want)
+        pos = np.minimum(pos, max(len(tkeys) - 1, 0))
+        bad = np.nonzero((len(tkeys) == 0) | (tkeys[pos] != want))[0] if len(want) else []
+        if len(bad):
+            k = keys[bad[0]]
+            raise BatchError(f"key {_key_name(k)} must hold a gtsam.{spec.name} "
+                             f"(it is used by a {spec.name} factor)")
+        E = E[pos]
+        if spec.name == "Pose3":
+            X[:] = 0.0
+            X[:, :3, :3] = E[:, :9].reshape(-1, 3, 3)
+            X[:, :3, 3] = E[:, 9:12]
+            X[:, 3, 3] = 1.0
+        else:
+            c, s_ = np.cos(E[:, 2]), np.sin(E[:, 2])
+            X[:] = 0.0
+            X[:, 0, 0], X[:, 0, 1], X[:, 1, 0], X[:, 1, 1] = c, -s_, s_, c
+            X[:, 0, 2], X[:, 1, 2], X[:, 2, 2] = E[:, 0], E[:, 1], 1.0
+        return X
+    at = getattr(values, spec.at)
+    for j, k in enumerate(keys):
+        try:
+            X[j] = at(k).matrix()
+        except RuntimeError:
+            raise BatchError(f"key {_key_name(k)} must hold a gtsam.{spec.name} "
+                             f"(it is used by a {spec.name} factor)") from None
+    return X
 
 
 def _to_gtsam(spec, M: np.ndarray):
@@ -442,22 +532,12 @@ class BatchLevenbergMarquardt:
         managed = {}
         for name, block in self.blocks.items():
             spec = block.spec
-            m = spec.kernels.MAT
-            X = np.empty((len(block.keys), m, m))
-            for j, k in enumerate(block.keys):
-                if not initial.exists(k):
-                    raise BatchError(f"key {_key_name(k)} is used by a {spec.name} factor "
-                                     "but is missing from the initial Values")
-                try:
-                    X[j] = getattr(initial, spec.at)(k).matrix()
-                except RuntimeError:
-                    raise BatchError(f"key {_key_name(k)} must hold a gtsam.{spec.name} "
-                                     f"(it is used by a {spec.name} factor)") from None
+            for k in block.keys:
                 if k in managed:
                     raise BatchError(f"key {_key_name(k)} is used by both {managed[k]} and "
                                      f"{spec.name} factors")
                 managed[k] = spec.name
-            block.X = X
+            block.X = _read_matrices(initial, spec, block.keys)
         for g in self.groups:
             g.finalize(self.blocks[g.spec.name])
         # Every variable of `initial` gets a slot in δ (GTSAM damps all of them).
@@ -483,11 +563,21 @@ class BatchLevenbergMarquardt:
             g.o1 = off[g.i1]
             if g.kind == "between":
                 g.o2 = off[g.i2]
+        hosted: set = set()
+        for g in self.groups:
+            if g.kind == "between":
+                g.host(hosted)
+        self._unhosted = [k for k in all_keys if k not in hosted]
         # Unmanaged variables (only touched by native factors, or by none).
         self.other_keys = [k for k in all_keys if k not in managed]
         self.other = gtsam.Values(initial)
         for k in managed:
             self.other.erase(k)
+        self._managed_initial = gtsam.Values(initial)
+        for k in self.other_keys:
+            self._managed_initial.erase(k)
+        for b in self.blocks.values():
+            b.X0 = b.X.copy()
         self.managed = managed
         self._native_keys = sorted({k for _, _, ks in self.native for k in ks})
         self._unit = {}
@@ -525,8 +615,14 @@ class BatchLevenbergMarquardt:
                 total += g.loops[3](X, g.i1, g.C, g.R)
         if self.native:
             t = time.perf_counter()
-            for _, f, _ in self.native:
-                total += f.error(nvalues)
+            for i, f, _ in self.native:
+                try:
+                    total += f.error(nvalues)
+                except BatchError:
+                    raise
+                except Exception as exc:
+                    raise BatchError(f"factor {i} ({type(f).__name__}) could not be evaluated: "
+                                     f"{type(exc).__name__}: {_first_line(exc)}") from None
             self._timings["native"] += time.perf_counter() - t
         return float(total)
 
@@ -540,11 +636,20 @@ class BatchLevenbergMarquardt:
         return self.lambda_
 
     def values(self) -> gtsam.Values:
-        """The current estimate as a gtsam.Values (all keys of the initial Values)."""
-        out = gtsam.Values()
+        """The current estimate as a gtsam.Values (all keys of the initial Values).
+
+        Built in C++ as ``initial.retract(ξ)`` with ξ = Log(X₀⁻¹·X) per
+        variable (vectorized on the kernels): ~5× faster than constructing
+        every pose from Python, and exact to rounding (checked in the tests).
+        """
+        vv = gtsam.VectorValues()
+        insert = vv.insert
         for name, b in self.blocks.items():
-            for j, k in enumerate(b.keys):
-                out.insert(k, _to_gtsam(b.spec, b.X[j]))
+            G = b.spec.kernels
+            xi = G.log(G.compose(G.inverse(b.X0), b.X))
+            for k, x in zip(b.keys, xi):
+                insert(k, x)
+        out = self._managed_initial.retract(vv)
         if self.other_keys:
             out.insert(self.other)
         return out
@@ -573,9 +678,9 @@ class BatchLevenbergMarquardt:
             for i, f, keys in self.native:
                 try:
                     lf = f.linearize(nv)
-                except RuntimeError as exc:
+                except Exception as exc:
                     raise BatchError(f"factor {i} ({type(f).__name__}) could not be linearized: "
-                                     f"{_first_line(exc)}") from None
+                                     f"{type(exc).__name__}: {_first_line(exc)}") from None
                 if lf is None:
                     continue
                 vv = gtsam.VectorValues()
@@ -633,31 +738,36 @@ class BatchLevenbergMarquardt:
         return m
 
     def _build(self, sqrt_lambda: float, sqrt_diag: np.ndarray | None) -> gtsam.GaussianFactorGraph:
-        """Damped GaussianFactorGraph: whitened JacobianFactors + √λ priors."""
+        """Damped GaussianFactorGraph: whitened JacobianFactors + √λ priors.
+
+        The priors of most variables ride in the rows of a between factor
+        (:meth:`_Group.host`); the others are separate unary factors, as in GTSAM.
+        """
+        if sqrt_diag is None:
+            damp = np.full(self.total_dim, sqrt_lambda)
+        else:
+            damp = sqrt_lambda * sqrt_diag
         gfg = gtsam.GaussianFactorGraph()
         add = gfg.add
+        unit = self._unit_model
         for g in self.groups:
-            unit = self._unit_model(g.spec.dim)
             if g.kind == "between":
-                for k1, a1, k2, a2, b in zip(g.k1, g.A1, g.k2, g.A2, g.b):
-                    add(k1, a1, k2, a2, b, unit)
+                g.set_damping(damp)
+                for k1, a1, k2, a2, b, r in g.views:
+                    add(k1, a1, k2, a2, b, unit(r))
             else:
+                u = unit(g.spec.dim)
                 for k1, a1, b in zip(g.k1, g.A1, g.b):
-                    add(k1, a1, b, unit)
+                    add(k1, a1, b, u)
         for lf, _ in self._native_linear:
             gfg.push_back(lf)
-        for k in self.keys:
+        for k in self._unhosted:
             d = self.dims[k]
-            unit = self._unit_model(d)
-            if sqrt_diag is None:
-                A = np.eye(d) * sqrt_lambda
-            else:
-                o = self.offset[k]
-                s = sqrt_diag[o:o + d]
-                if np.isnan(s[0]):
-                    continue
-                A = np.diag(s * sqrt_lambda)
-            add(k, A, np.zeros(d), unit)
+            o = self.offset[k]
+            s = damp[o:o + d]
+            if np.isnan(s[0]):  # diagonal damping: variable in no factor, GTSAM skips it
+                continue
+            add(k, np.diag(s), np.zeros(d), unit(d))
         return gfg
 
     def _ordering_for(self, gfg):
