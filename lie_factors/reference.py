@@ -128,6 +128,28 @@ def log(group: str, X):
     return GROUPS[group][2](mp.logm(M))
 
 
+def log_near(group: str, X, x0, tol_digits: int = DPS - 5):
+    """The logarithm of X closest to x0: Newton on exp(hat x) = X at DPS digits.
+
+    mp.logm can return a complex, non-principal branch for rotation angles near
+    pi; starting from a nearby tangent x0 (e.g. the vector that generated X)
+    and solving the definition directly avoids that. Each step uses
+    X·exp(x)⁻¹ ≈ exp(D_exp(x) δ), i.e. δ = D_exp(x)⁻¹ vee(X·exp(x)⁻¹ − I).
+    """
+    n, hat, vee = GROUPS[group]
+    Xm = X if isinstance(X, mp.matrix) else mp.matrix(np.asarray(X, dtype=float).tolist())
+    x = [mp.mpf(v) if not isinstance(v, mp.mpf) else v for v in x0]
+    tol = mp.mpf(10) ** (-tol_digits)
+    for _ in range(100):
+        E = mp.expm(hat(x))
+        r = vee(Xm * mp.inverse(E) - mp.eye(Xm.rows))
+        d = dlog(group, x) * mp.matrix(r)
+        x = [x[i] + d[i] for i in range(n)]
+        if mp.norm(d) <= tol * max(1, mp.norm(mp.matrix(x))):
+            return x
+    raise RuntimeError("log_near: Newton did not converge")
+
+
 def rel_err(ours, ref) -> float:
     """CONVENTIONS.md accuracy: max|A - R| / max(1, max|R|), computed in mpmath.
 
