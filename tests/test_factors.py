@@ -336,15 +336,22 @@ def test_isam2_and_marginals(group):
     assert np.max(np.abs(covariances[True] - covariances[False])) <= 1e-8 * np.max(np.abs(covariances[False]))
 
 
+def _gradient_norm(graph, values):
+    g = graph.linearize(values).gradientAtZero()
+    return float(np.sqrt(g.dot(g)))
+
+
 def test_similarity2_scale_drift_graph_exact_jacobians_pay_off():
-    """A Sim(2) loop with scale drift: LM with exact Jacobians converges at least as well as native."""
-    rng = np.random.default_rng(11)
+    """A Sim(2) loop with 4 %/pose scale drift: LM with GTSAM's native Sim(2) factors stops
+    at a point that is not stationary (its Jacobians miss the Logmap derivative, so its
+    linear model cannot see the remaining descent); with exact Jacobians LM reaches the
+    optimum. Stationarity is judged by the gradient of the true cost (exact Jacobians)."""
     n = 30
     truth = [gtsam.Similarity2(gtsam.Rot2(0.0), np.zeros(2), 1.0)]
     step = gtsam.Similarity2(gtsam.Rot2(2 * np.pi / n), np.array([1.0, 0.0]), 1.0)
     for _ in range(n - 1):
         truth.append(truth[-1].compose(step))
-    results = {}
+    graphs = {}
     for label, between, prior in (
         ("ours", factors.BetweenFactorSimilarity2, factors.PriorFactorSimilarity2),
         ("native", gtsam.BetweenFactorSimilarity2, gtsam.PriorFactorSimilarity2),
@@ -354,24 +361,27 @@ def test_similarity2_scale_drift_graph_exact_jacobians_pay_off():
         local = np.random.default_rng(5)
         for i in range(n):
             j = (i + 1) % n
-            m = truth[i].between(truth[j])
-            graph.add(between(i, j, m.retract(0.01 * local.normal(size=4)), gtsam.noiseModel.Isotropic.Sigma(4, 0.05)))
-        initial = gtsam.Values()
-        drift = 1.0
-        for i, t in enumerate(truth):
-            drift *= 1.04  # accumulated scale drift of a monocular odometry
-            initial.insert(
-                i,
-                gtsam.Similarity2(t.rotation(), t.translation() * drift + 0.3 * rng.normal(size=2), t.scale() * drift),
-            )
+            m = truth[i].between(truth[j]).retract(0.01 * local.normal(size=4))
+            graph.add(between(i, j, m, gtsam.noiseModel.Isotropic.Sigma(4, 0.05)))
+        graphs[label] = graph
+    rng = np.random.default_rng(11)
+    initial = gtsam.Values()
+    drift = 1.0
+    for i, t in enumerate(truth):
+        drift *= 1.04  # accumulated scale drift of a monocular odometry
+        initial.insert(
+            i, gtsam.Similarity2(t.rotation(), t.translation() * drift + 0.3 * rng.normal(size=2), t.scale() * drift)
+        )
+    outcome = {}
+    for label, graph in graphs.items():
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(100)
         opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
         result = opt.optimize()
-        results[label] = (opt.iterations(), graph.error(result))
-    print("Sim(2) scale-drift LM (iterations, final error):", results)
-    assert results["ours"][1] <= results["native"][1] * (1 + 1e-6) + 1e-9
-    assert results["ours"][0] <= results["native"][0]
+        outcome[label] = (opt.iterations(), graph.error(result), _gradient_norm(graphs["ours"], result))
+    print("Sim(2) scale drift, LM (iterations, final error, |true gradient|):", outcome)
+    assert outcome["ours"][1] < outcome["native"][1]
+    assert outcome["ours"][2] < 1e-2 * outcome["native"][2]
 
 
 # --- bad input -------------------------------------------------------------------------------
