@@ -282,56 +282,15 @@ class _Group:
             self.i2 = np.array([r[1] for r in self.rows], dtype=np.int64)
             self.k2 = [int(block.keys[i]) for i in self.i2]
             self.Ad = np.ascontiguousarray(np.array([r[3] for r in self.rows], dtype=np.float64))
-            # Room for the LM damping rows of up to two hosted variables (see host()).
-            self.A1x = np.zeros((E, 3 * n, n))
-            self.A2x = np.zeros((E, 3 * n, n))
-            self.bx = np.zeros((E, 3 * n))
-            self.A1 = self.A1x[:, :n, :]
-            self.A2 = self.A2x[:, :n, :]
-            self.b = self.bx[:, :n]
+            self.A2 = np.empty((E, n, n))
+        self.A1 = np.empty((E, n, n))
+        self.b = np.empty((E, n))
+        # Persistent per-factor views: the arrays are refilled in place at each linearization.
+        if self.kind == "between":
+            self.views = list(zip(self.k1, self.A1, self.k2, self.A2, self.b))
         else:
-            self.A1 = np.empty((E, n, n))
-            self.b = np.empty((E, n))
+            self.views = list(zip(self.k1, self.A1, self.b))
         self.rows = None
-
-    def host(self, hosted: set) -> None:
-        """Let these between factors carry the damping rows of their variables.
-
-        GTSAM adds one prior JacobianFactor √λ·I per variable.  Stacking that
-        prior under the rows of one factor already on the variable gives the
-        same normal equations (same sparsity, same AᵀA) with one factor object
-        instead of two; each variable is hosted once, by the first factor on it.
-        """
-        n = self.spec.dim
-        h1 = np.zeros(self.E, dtype=bool)
-        h2 = np.zeros(self.E, dtype=bool)
-        seen = set(hosted)
-        for f in range(self.E):
-            a, c = self.k1[f], self.k2[f]
-            if a not in seen:
-                seen.add(a)
-                h1[f] = True
-            if c not in seen:
-                seen.add(c)
-                h2[f] = True
-        hosted |= seen
-        self.h1 = np.nonzero(h1)[0]
-        self.h2 = np.nonzero(h2)[0]
-        self.h2_row = n + n * h1[self.h2].astype(np.int64)
-        rows = n * (1 + h1.astype(np.int64) + h2.astype(np.int64))
-        self.views = [(self.k1[f], self.A1x[f, :r], self.k2[f], self.A2x[f, :r], self.bx[f, :r], int(r))
-                      for f, r in enumerate(rows)]
-
-    def set_damping(self, damp: np.ndarray) -> None:
-        """Write the hosted damping blocks diag(damp[offset : offset + n])."""
-        n = self.spec.dim
-        rr = np.arange(n)
-        if self.h1.size:
-            f = self.h1[:, None]
-            self.A1x[f, n + rr[None, :], rr[None, :]] = damp[self.o1[self.h1][:, None] + rr]
-        if self.h2.size:
-            f = self.h2[:, None]
-            self.A2x[f, self.h2_row[:, None] + rr[None, :], rr[None, :]] = damp[self.o2[self.h2][:, None] + rr]
 
 
 def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
@@ -467,6 +426,8 @@ class BatchLevenbergMarquardt:
         self._timings = dict(setup=0.0, linearize=0.0, build=0.0, eliminate=0.0,
                              retract=0.0, error=0.0, native=0.0)
         self._ordering = None
+        self._damping = None
+        self._base = None
         self._vector_checked = False
         # State (LevenbergMarquardtState)
         self.lambda_ = self.lambda_initial
@@ -510,14 +471,37 @@ class BatchLevenbergMarquardt:
         self.groups: list[_Group] = []
         groups: dict = {}
         self.native: list = []  # (index, factor, keys)
+        # Hot loop (one pass over the graph): per-class and per-noise-class lookups
+        # instead of isinstance chains; R() only for the Gaussian family.
+        kinds: dict = {}
+        gaussian = (gtsam.noiseModel.Gaussian, gtsam.noiseModel.Diagonal,
+                    gtsam.noiseModel.Isotropic, gtsam.noiseModel.Unit)
+        at = graph.at
         for i in range(graph.size()):
-            f = graph.at(i)
+            f = at(i)
             if f is None:
                 continue
-            kind = ("between" if isinstance(f, _factors.BetweenFactor)
-                    else "prior" if isinstance(f, _factors.PriorFactor) else None)
-            R = _whitening(f.noiseModel()) if kind is not None else None
-            if kind is None or R is None:
+            cls = type(f)
+            entry = kinds.get(cls)
+            if entry is None:
+                kind = ("between" if issubclass(cls, _factors.BetweenFactor)
+                        else "prior" if issubclass(cls, _factors.PriorFactor) else None)
+                if kind is None:
+                    entry = kinds[cls] = (None, None, None)
+                else:
+                    spec = cls.spec
+                    block = self.blocks.setdefault(spec.name, _VarBlock(spec))
+                    g = groups.get((kind, spec.name))
+                    if g is None:
+                        g = groups[(kind, spec.name)] = _Group(kind, spec)
+                        self.groups.append(g)
+                    entry = kinds[cls] = (kind, block.index, g.rows)
+            kind, index, rows = entry
+            R = None
+            if kind is not None:
+                nm = f.noiseModel()
+                R = nm.R() if type(nm) in gaussian else _whitening(nm)
+            if R is None:
                 if not isinstance(f, gtsam.NonlinearFactor):
                     raise BatchError(f"factor {i}: unsupported type {type(f).__name__}")
                 keys = [int(k) for k in f.keys()]
@@ -527,17 +511,15 @@ class BatchLevenbergMarquardt:
                                          "is missing from the initial Values")
                 self.native.append((i, f, keys))
                 continue
-            spec = f.spec
-            block = self.blocks.setdefault(spec.name, _VarBlock(spec))
-            g = groups.get((kind, spec.name))
-            if g is None:
-                g = groups[(kind, spec.name)] = _Group(kind, spec)
-                self.groups.append(g)
             if kind == "between":
                 k1, k2 = f._key1, f._key2
-                g.rows.append((block.add(k1), block.add(k2), f._Minv, f._AdMinv, R, k1, k2))
+                rows.append((index.setdefault(k1, len(index)), index.setdefault(k2, len(index)),
+                             f._Minv, f._AdMinv, R, k1, k2))
             else:
-                g.rows.append((block.add(f._key), None, f._Pinv, None, R, f._key, None))
+                k1 = f._key
+                rows.append((index.setdefault(k1, len(index)), None, f._Pinv, None, R, k1, None))
+        for block in self.blocks.values():
+            block.keys = list(block.index)  # dicts keep insertion order = local index order
         # Variable matrices, type-checked.
         managed = {}
         for name, block in self.blocks.items():
@@ -573,11 +555,6 @@ class BatchLevenbergMarquardt:
             g.o1 = off[g.i1]
             if g.kind == "between":
                 g.o2 = off[g.i2]
-        hosted: set = set()
-        for g in self.groups:
-            if g.kind == "between":
-                g.host(hosted)
-        self._unhosted = [k for k in all_keys if k not in hosted]
         # Unmanaged variables (only touched by native factors, or by none).
         self.other_keys = [k for k in all_keys if k not in managed]
         self.other = gtsam.Values(initial)
@@ -747,37 +724,71 @@ class BatchLevenbergMarquardt:
             m = self._unit[d] = gtsam.noiseModel.Unit.Create(d)
         return m
 
-    def _build(self, sqrt_lambda: float, sqrt_diag: np.ndarray | None) -> gtsam.GaussianFactorGraph:
-        """Damped GaussianFactorGraph: whitened JacobianFactors + √λ priors.
+    def _build_base(self) -> None:
+        """Undamped GaussianFactorGraph of the current linearization (once per iteration).
 
-        The priors of most variables ride in the rows of a between factor
-        (:meth:`_Group.host`); the others are separate unary factors, as in GTSAM.
+        One whitened JacobianFactor per factor (unit noise model), then every
+        natively linearized factor.  Reused by every λ tried in the iteration.
         """
-        if sqrt_diag is None:
-            damp = np.full(self.total_dim, sqrt_lambda)
-        else:
-            damp = sqrt_lambda * sqrt_diag
         gfg = gtsam.GaussianFactorGraph()
         add = gfg.add
-        unit = self._unit_model
         for g in self.groups:
+            unit = self._unit_model(g.spec.dim)
             if g.kind == "between":
-                g.set_damping(damp)
-                for k1, a1, k2, a2, b, r in g.views:
-                    add(k1, a1, k2, a2, b, unit(r))
+                for k1, a1, k2, a2, b in g.views:
+                    add(k1, a1, k2, a2, b, unit)
             else:
-                u = unit(g.spec.dim)
-                for k1, a1, b in zip(g.k1, g.A1, g.b):
-                    add(k1, a1, b, u)
+                for k1, a1, b in g.views:
+                    add(k1, a1, b, unit)
         for lf, _ in self._native_linear:
             gfg.push_back(lf)
-        for k in self._unhosted:
-            d = self.dims[k]
-            o = self.offset[k]
-            s = damp[o:o + d]
-            if np.isnan(s[0]):  # diagonal damping: variable in no factor, GTSAM skips it
-                continue
-            add(k, np.diag(s), np.zeros(d), unit(d))
+        self._base = gfg
+
+    def _damping_graph(self):
+        """The λ-prior JacobianFactors (A = I, b = 0), created once; re-weighted per λ."""
+        if self._damping is None:
+            graph = gtsam.GaussianFactorGraph()
+            fs = []
+            eye = {}
+            for k in self.keys:
+                d = self.dims[k]
+                if d not in eye:
+                    eye[d] = (np.eye(d), np.zeros(d), self._unit_model(d))
+                f = gtsam.JacobianFactor(k, *eye[d])
+                graph.push_back(f)
+                fs.append(f)
+            self._damping = (graph, fs)
+        return self._damping
+
+    def _build(self, sqrt_lambda: float, sqrt_diag: np.ndarray | None) -> gtsam.GaussianFactorGraph:
+        """Damped system: the base graph plus GTSAM's priors √λ·I (or √λ·√diag(JᵀJ)).
+
+        The priors are persistent factors A = I whose noise model is set to
+        σ = 1/(√λ·s) in place (``setModel``), the same whitened rows GTSAM's
+        ``buildDampedSystem`` adds; with diagonal damping, variables in no
+        factor get no prior (GTSAM damps only the keys of hessianDiagonal).
+        """
+        dgraph, dfs = self._damping_graph()
+        gfg = gtsam.GaussianFactorGraph()
+        gfg.push_back(self._base)
+        if sqrt_diag is None:
+            sig = {}
+            for f, k in zip(dfs, self.keys):
+                d = self.dims[k]
+                v = sig.get(d)
+                if v is None:
+                    v = sig[d] = np.full(d, 1.0 / sqrt_lambda)
+                f.setModel(False, v)
+            gfg.push_back(dgraph)
+        else:
+            sigmas = 1.0 / (sqrt_lambda * sqrt_diag)
+            for f, k in zip(dfs, self.keys):
+                o = self.offset[k]
+                v = sigmas[o:o + self.dims[k]]
+                if np.isnan(v[0]):  # variable in no factor: GTSAM skips it
+                    continue
+                f.setModel(False, v)
+                gfg.push_back(f)
         return gfg
 
     def _ordering_for(self, gfg):
@@ -799,18 +810,15 @@ class BatchLevenbergMarquardt:
     def _delta_vector(self, delta: gtsam.VectorValues) -> np.ndarray:
         vec = np.asarray(delta.vector(), dtype=np.float64)
         if not self._vector_checked:
-            # VectorValues.vector() concatenates in key order; check it once.
+            # VectorValues.vector() concatenates in key order; check it once on a sample.
             ok = vec.shape[0] == self.total_dim
-            if ok:
-                for k in self.keys:
-                    o = self.offset[k]
-                    if not np.array_equal(np.asarray(delta.at(k)), vec[o:o + self.dims[k]]):
-                        ok = False
-                        break
-            if not ok:
-                self._vector_by_key = True
-            else:
-                self._vector_by_key = False
+            step = max(1, len(self.keys) // 16)
+            for k in (self.keys[::step] + self.keys[-1:]) if ok else ():
+                o = self.offset[k]
+                if not np.array_equal(np.asarray(delta.at(k)), vec[o:o + self.dims[k]]):
+                    ok = False
+                    break
+            self._vector_by_key = not ok
             self._vector_checked = True
         if self._vector_by_key:
             vec = np.zeros(self.total_dim)
@@ -914,6 +922,9 @@ class BatchLevenbergMarquardt:
     def iterate(self) -> None:
         """One LM iteration (linearize once, try λ until a step is accepted or LM gives up)."""
         linear_error0 = self._linearize()
+        t = time.perf_counter()
+        self._build_base()
+        self._timings["build"] += time.perf_counter() - t
         if self._summary and self.inner_iterations == 0:
             print(f"Initial error: {self._error}, values: {len(self.keys)}")
         sqrt_diag = self._sqrt_hessian_diagonal() if self.diagonal_damping else None
