@@ -300,6 +300,12 @@ def _write_diagonal(ptrA, ldA, dims, offsets, damp):
             A[j, j] = 0.0 if v != v else v
 
 
+@njit(nogil=True)
+def _addr(a):
+    """Address of an array's first element (5× cheaper than ``a.ctypes.data``)."""
+    return a.ctypes.data
+
+
 def _pointers(fs, ncols: int):
     """(ptrA, ldA, ptrb) of JacobianFactors, or None if gtsam does not hand out views.
 
@@ -315,7 +321,9 @@ def _pointers(fs, ncols: int):
     if a0.flags.owndata or not a0.flags.writeable or a0.strides[0] != 8 or a0.strides[1] % 8:
         return None
     ld = a0.strides[1] // 8
-    ptrA = np.fromiter((a.ctypes.data for a in As), dtype=np.int64, count=n)
+    ptrA = np.fromiter((_addr(a) for a in As), dtype=np.int64, count=n)
+    if ptrA[0] != a0.ctypes.data:
+        return None
     ptrb = ptrA + 8 * ld * ncols
     for i in sorted({0, n // 3, n // 2, n - 1}):
         a, bv = As[i], fs[i].getb()
@@ -835,9 +843,12 @@ class BatchLevenbergMarquardt:
             keep.append(fs)
         damping_graph = gtsam.GaussianFactorGraph()
         dfs = []
+        zeros = {}
         for k in self.keys:
             d = self.dims[k]
-            f = gtsam.JacobianFactor(k, np.zeros((d, d)), np.zeros(d), self._unit_model(d))
+            if d not in zeros:
+                zeros[d] = (np.zeros((d, d)), np.zeros(d), self._unit_model(d))
+            f = gtsam.JacobianFactor(k, *zeros[d])
             damping_graph.push_back(f)
             dfs.append(f)
         ptrA = np.empty(len(dfs), np.int64)
