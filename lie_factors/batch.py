@@ -15,12 +15,16 @@ from Python there is no such copy.  This module
   group's ``_exp/_compose`` cores — no formula is written a second time here;
 * linearizes every other factor (native GTSAM factors, lie_factors factors
   with robust or constrained noise) through GTSAM (``factor.linearize``);
-* builds the undamped GaussianFactorGraph (whitened ``JacobianFactor(k1, A1,
-  k2, A2, b, unit)``) once per linearization, adds GTSAM's λ-priors as
-  persistent factors re-weighted in place per λ, and solves each damped step
-  with GTSAM's sparse multifrontal elimination (``gfg.optimize(ordering)``,
-  ordering computed once with the params' ordering type, COLAMD by default,
-  from the nonlinear graph — as GTSAM's LM does);
+* creates the GaussianFactorGraph once — one whitened ``JacobianFactor(k1, A1,
+  k2, A2, b, unit)`` per factor plus GTSAM's λ-prior per variable — and at
+  every linearization / λ writes the new blocks straight into those factors'
+  storage from numba (``getA()``/``getb()`` are views of it; checked on real
+  data, with a rebuild-per-iteration fallback, ``inplace=False``), so a step
+  costs no Python→C++ object construction at all;
+* solves each damped step with GTSAM's sparse multifrontal elimination
+  (``gfg.optimize(ordering)``; ordering computed once with the params'
+  ordering type, COLAMD by default, from the nonlinear graph — as GTSAM's LM
+  does);
 * runs Levenberg–Marquardt with GTSAM's ``LevenbergMarquardtOptimizer``
   semantics (``tryLambda``/``iterate``/``defaultOptimize``/``checkConvergence``;
   see :class:`BatchLevenbergMarquardt`).
@@ -37,7 +41,6 @@ For the CLI: :func:`run_batch` has the signature of ``posegraph.optimize``.
 from __future__ import annotations
 
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Callable
