@@ -8,11 +8,13 @@ from Python there is no such copy.  This module
 * groups the graph's lie_factors factors by (kind, group) and keeps their
   constants as arrays (``M⁻¹``, ``Ad(M⁻¹)``, whitening ``R``, key indices);
 * keeps the poses as an ``(N, m, m)`` array of matrices per group;
-* linearizes each group with one numba loop over the *same* compiled per-factor
-  core the factors use (``factors._compiled(kind, spec)``: inverse, compose,
-  log, dlog, H1 = −dlog(e)·Ad(M⁻¹), H2 = dlog(−e)), evaluates errors with the
-  group's ``_inverse/_compose/_log`` cores and retracts ``X·exp(δ)`` with the
-  group's ``_exp/_compose`` cores — no formula is written a second time here;
+* linearizes each group with one numba loop over the *same* per-factor
+  kernels the factors call (``factors.between`` / ``factors.prior``: inverse,
+  compose, log, dlog, H1 = −dlog(e)·Ad(M⁻¹), H2 = dlog(−e)), evaluates errors
+  with ``factors.between_error`` / ``prior_error`` and retracts ``X·exp(δ)``
+  with the groups' ``_exp/_compose`` cores — no formula is written a second
+  time here; every loop is a cached top-level kernel that takes the group id
+  (:mod:`lie_factors._dispatch`), so only the first run on a machine compiles;
 * linearizes every other factor (native GTSAM factors, lie_factors factors
   with robust or constrained noise) through GTSAM (``factor.linearize``);
 * creates the GaussianFactorGraph once — one whitened ``JacobianFactor(k1, A1,
@@ -48,12 +50,13 @@ from typing import Callable
 import gtsam
 import numpy as np
 import numba
-from numba import njit
 from numba.core import cgutils
 from numba.core import types as _nbtypes
 from numba.extending import intrinsic
 
+from . import _dispatch
 from . import factors as _factors
+from ._jit import kernel
 
 __all__ = ["BatchLevenbergMarquardt", "BatchResult", "optimize", "run_batch", "BatchError"]
 
@@ -81,130 +84,131 @@ def _first_line(exc: BaseException, limit: int = 200) -> str:
 # numba loops over the per-factor cores (compiled once per process and group)
 # --------------------------------------------------------------------------- #
 
-_LOOPS: dict = {}
+@kernel
+def _between_lin(g, X, i1, i2, Minv, AdMinv, R, A1, A2, b):
+    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e for every between factor; returns Σ ½‖R e‖²."""
+    n = AdMinv.shape[1]
+    e = np.empty(n)
+    H1 = np.empty((n, n))
+    H2 = np.empty((n, n))
+    total = 0.0
+    for f in range(i1.shape[0]):
+        _factors.between(g, Minv[f], AdMinv[f], X[i1[f]], X[i2[f]], e, H1, H2)
+        Rf = R[f]
+        for r in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += Rf[r, k] * e[k]
+            b[f, r] = -acc
+            total += 0.5 * acc * acc
+            for c in range(n):
+                s1 = 0.0
+                s2 = 0.0
+                for k in range(n):
+                    s1 += Rf[r, k] * H1[k, c]
+                    s2 += Rf[r, k] * H2[k, c]
+                A1[f, r, c] = s1
+                A2[f, r, c] = s2
+    return total
+
+
+@kernel
+def _prior_lin(g, X, i1, Pinv, R, A1, b):
+    n = R.shape[1]
+    e = np.empty(n)
+    H = np.empty((n, n))
+    total = 0.0
+    for f in range(i1.shape[0]):
+        _factors.prior(g, Pinv[f], X[i1[f]], e, H)
+        Rf = R[f]
+        for r in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += Rf[r, k] * e[k]
+            b[f, r] = -acc
+            total += 0.5 * acc * acc
+            for c in range(n):
+                s1 = 0.0
+                for k in range(n):
+                    s1 += Rf[r, k] * H[k, c]
+                A1[f, r, c] = s1
+    return total
+
+
+@kernel
+def _whitened_sq(Rf, e):
+    """½‖Rf·e‖²."""
+    total = 0.0
+    for r in range(Rf.shape[0]):
+        acc = 0.0
+        for k in range(e.shape[0]):
+            acc += Rf[r, k] * e[k]
+        total += 0.5 * acc * acc
+    return total
+
+
+@kernel
+def _between_err(g, X, i1, i2, Minv, R):
+    """Σ ½‖R·Log(M⁻¹·X1⁻¹·X2)‖² (no Jacobians)."""
+    e = np.empty(R.shape[2])
+    total = 0.0
+    for f in range(i1.shape[0]):
+        _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
+        total += _whitened_sq(R[f], e)
+    return total
+
+
+@kernel
+def _prior_err(g, X, i1, Pinv, R):
+    e = np.empty(R.shape[2])
+    total = 0.0
+    for f in range(i1.shape[0]):
+        _factors.prior_error(g, Pinv[f], X[i1[f]], e)
+        total += _whitened_sq(R[f], e)
+    return total
+
+
+@kernel
+def _retract(g, X, delta, offsets, out):
+    """out[i] = X[i]·Exp(delta[offsets[i] : offsets[i] + n]) (GTSAM's retract)."""
+    n = _dispatch.dim(g)
+    m = X.shape[1]
+    D = np.empty((m, m))
+    x = np.empty(n)
+    for i in range(X.shape[0]):
+        o = offsets[i]
+        for k in range(n):
+            x[k] = delta[o + k]
+        _dispatch.exp(g, x, D)
+        _dispatch.compose(g, X[i], D, out[i])
+
+
+@kernel
+def _relative_log(g, X0, X, out):
+    """out[i] = Log(X0[i]⁻¹·X[i]) (no validation: GTSAM values drift off SO(n) by ~1e-9)."""
+    m = X.shape[1]
+    inv = np.empty((m, m))
+    rel = np.empty((m, m))
+    for i in range(X.shape[0]):
+        _dispatch.inverse(g, X0[i], inv)
+        _dispatch.compose(g, inv, X[i], rel)
+        _dispatch.log(g, rel, out[i])
 
 
 def _loops(spec):
-    """(between_lin, prior_lin, between_err, prior_err, retract) for one group."""
-    if spec.name in _LOOPS:
-        return _LOOPS[spec.name]
-    G = spec.kernels
-    n, m = G.DIM, G.MAT
-    between_core = _factors._compiled("between", spec)
-    prior_core = _factors._compiled("prior", spec)
-    inverse, compose, log, exp = G._inverse, G._compose, G._log, G._exp
-
-    @njit(nogil=True, error_model="numpy")
-    def between_lin(X, i1, i2, Minv, AdMinv, R, A1, A2, b):
-        """Whitened A1 = R·H1, A2 = R·H2, b = −R·e; returns Σ ½‖R e‖²."""
-        e = np.empty(n)
-        H1 = np.empty((n, n))
-        H2 = np.empty((n, n))
-        total = 0.0
-        for f in range(i1.shape[0]):
-            between_core(Minv[f], AdMinv[f], X[i1[f]], X[i2[f]], e, H1, H2)
-            Rf = R[f]
-            for r in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += Rf[r, k] * e[k]
-                b[f, r] = -acc
-                total += 0.5 * acc * acc
-                for c in range(n):
-                    s1 = 0.0
-                    s2 = 0.0
-                    for k in range(n):
-                        s1 += Rf[r, k] * H1[k, c]
-                        s2 += Rf[r, k] * H2[k, c]
-                    A1[f, r, c] = s1
-                    A2[f, r, c] = s2
-        return total
-
-    @njit(nogil=True, error_model="numpy")
-    def prior_lin(X, i1, Pinv, R, A1, b):
-        e = np.empty(n)
-        H = np.empty((n, n))
-        total = 0.0
-        for f in range(i1.shape[0]):
-            prior_core(Pinv[f], X[i1[f]], e, H)
-            Rf = R[f]
-            for r in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += Rf[r, k] * e[k]
-                b[f, r] = -acc
-                total += 0.5 * acc * acc
-                for c in range(n):
-                    s1 = 0.0
-                    for k in range(n):
-                        s1 += Rf[r, k] * H[k, c]
-                    A1[f, r, c] = s1
-        return total
-
-    @njit(nogil=True, error_model="numpy")
-    def between_err(X, i1, i2, Minv, R):
-        """Σ ½‖R·Log(M⁻¹·X1⁻¹·X2)‖² (no Jacobians)."""
-        X1inv = np.empty((m, m))
-        rel = np.empty((m, m))
-        E = np.empty((m, m))
-        e = np.empty(n)
-        total = 0.0
-        for f in range(i1.shape[0]):
-            inverse(X[i1[f]], X1inv)
-            compose(X1inv, X[i2[f]], rel)
-            compose(Minv[f], rel, E)
-            log(E, e)
-            Rf = R[f]
-            for r in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += Rf[r, k] * e[k]
-                total += 0.5 * acc * acc
-        return total
-
-    @njit(nogil=True, error_model="numpy")
-    def prior_err(X, i1, Pinv, R):
-        E = np.empty((m, m))
-        e = np.empty(n)
-        total = 0.0
-        for f in range(i1.shape[0]):
-            compose(Pinv[f], X[i1[f]], E)
-            log(E, e)
-            Rf = R[f]
-            for r in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += Rf[r, k] * e[k]
-                total += 0.5 * acc * acc
-        return total
-
-    @njit(nogil=True, error_model="numpy")
-    def retract(X, delta, offsets, out):
-        """out[i] = X[i]·Exp(delta[offsets[i] : offsets[i] + n]) (GTSAM's retract)."""
-        D = np.empty((m, m))
-        x = np.empty(n)
-        for i in range(X.shape[0]):
-            o = offsets[i]
-            for k in range(n):
-                x[k] = delta[o + k]
-            exp(x, D)
-            compose(X[i], D, out[i])
-
-    @njit(nogil=True, error_model="numpy")
-    def relative_log(X0, X, out):
-        """out[i] = Log(X0[i]⁻¹·X[i]) (no validation: GTSAM values drift off SO(n) by ~1e-9)."""
-        inv = np.empty((m, m))
-        rel = np.empty((m, m))
-        for i in range(X.shape[0]):
-            inverse(X0[i], inv)
-            compose(inv, X[i], rel)
-            log(rel, out[i])
-
-    _LOOPS[spec.name] = (between_lin, prior_lin, between_err, prior_err, retract, relative_log)
-    return _LOOPS[spec.name]
+    """(between_lin, prior_lin, between_err, prior_err, retract, relative_log) bound to one group."""
+    g = spec.gid
+    return (
+        lambda *a: _between_lin(g, *a),
+        lambda *a: _prior_lin(g, *a),
+        lambda *a: _between_err(g, *a),
+        lambda *a: _prior_err(g, *a),
+        lambda *a: _retract(g, *a),
+        lambda *a: _relative_log(g, *a),
+    )
 
 
-@njit(nogil=True, error_model="numpy")
+@kernel
 def _lin_error2(A1, A2, b, o1, o2, delta):
     """Σ ½‖A1·δ1 + A2·δ2 − b‖² for between factors (rows of any count)."""
     total = 0.0
@@ -218,7 +222,7 @@ def _lin_error2(A1, A2, b, o1, o2, delta):
     return total
 
 
-@njit(nogil=True, error_model="numpy")
+@kernel
 def _lin_error1(A1, b, o1, delta):
     total = 0.0
     n = A1.shape[2]
@@ -231,7 +235,7 @@ def _lin_error1(A1, b, o1, delta):
     return total
 
 
-@njit(nogil=True, error_model="numpy")
+@kernel
 def _col_sumsq(A, o, diag):
     """diag[o[f] + c] += Σ_r A[f, r, c]² (Hessian diagonal of whitened Jacobian blocks)."""
     for f in range(A.shape[0]):
@@ -264,7 +268,7 @@ def _voidptr(typingctx, addr):
     return _nbtypes.voidptr(addr), codegen
 
 
-@njit(nogil=True, error_model="numpy")
+@kernel
 def _scatter2(A1, A2, b, ptrA, ldA, ptrb):
     """Factor f's [A1 | A2] (column-major, leading dimension ldA[f]) and b ← arrays."""
     n = A1.shape[1]
@@ -279,7 +283,7 @@ def _scatter2(A1, A2, b, ptrA, ldA, ptrb):
             bb[r] = b[f, r]
 
 
-@njit(nogil=True, error_model="numpy")
+@kernel
 def _scatter1(A1, b, ptrA, ldA, ptrb):
     n = A1.shape[1]
     for f in range(A1.shape[0]):
@@ -292,7 +296,7 @@ def _scatter1(A1, b, ptrA, ldA, ptrb):
             bb[r] = b[f, r]
 
 
-@njit(nogil=True, error_model="numpy")
+@kernel
 def _write_diagonal(ptrA, ldA, dims, offsets, damp):
     """Damping factor i (A = diag, dims[i] × dims[i]) ← diag(damp[offsets[i]:+dims[i]]); NaN → 0."""
     for i in range(ptrA.shape[0]):
@@ -303,7 +307,7 @@ def _write_diagonal(ptrA, ldA, dims, offsets, damp):
             A[j, j] = 0.0 if v != v else v
 
 
-@njit(nogil=True)
+@kernel
 def _addr(a):
     """Address of an array's first element (5× cheaper than ``a.ctypes.data``)."""
     return a.ctypes.data
@@ -667,7 +671,6 @@ class BatchLevenbergMarquardt:
             b.X0 = b.X.copy()
         self.managed = managed
         self._native_keys = sorted({k for _, _, ks in self.native for k in ks})
-        self._unit = {}
         for name, block in self.blocks.items():
             _loops(block.spec)  # compile before timing iterations
         for g in self.groups:
@@ -819,10 +822,10 @@ class BatchLevenbergMarquardt:
 
     # ------------------------------------------------------------ linear system
     def _unit_model(self, d):
-        m = self._unit.get(d)
-        if m is None:
-            m = self._unit[d] = gtsam.noiseModel.Unit.Create(d)
-        return m
+        # No noise model at all (GTSAM's null SharedDiagonal = unit, as its own
+        # linearize() produces): with an explicit Unit model, elimination
+        # whitens a copy of every factor first (measured: ~6 % slower solves).
+        return None
 
     def _make_persistent(self) -> bool:
         """Create the JacobianFactors once and locate their storage (see `_scatter2`)."""

@@ -23,9 +23,9 @@ Jacobian (seed 000, Eq. 40) and ``J_r(x) = D_exp(−x)``:
 * Prior: ``H = dlog(−e)`` (the X2 case with ``M = prior``, ``X1 = I``).
 
 The numerical work of one evaluation (inverse, compose, log, dlog and the
-product with ``Ad(M⁻¹)``) is a single call into the numba cores of the group
-module, the same cores the public broadcasting functions and the batch solver
-run.
+product with ``Ad(M⁻¹)``) is a single call of :func:`between` / :func:`prior`,
+numba kernels over the group modules' cores (the same cores the public
+broadcasting functions run); the batch solver loops over the same two kernels.
 """
 
 from __future__ import annotations
@@ -35,9 +35,8 @@ from types import ModuleType
 
 import gtsam
 import numpy as np
-from numba import njit
-
-from . import _validate, se2, se3, sim2, so3
+from . import _dispatch, _validate, se2, se3, sim2, so3
+from ._jit import kernel
 
 __all__ = [
     "BetweenFactorRot3",
@@ -52,55 +51,56 @@ __all__ = [
 ]
 
 
-def _between_core(G: ModuleType):
-    """Compile ``(Minv, AdMinv, X1, X2) -> e, H1, H2`` from the cores of ``G``.
-
-    Not cached on disk: it closes over the group's cores (see ``_jit._rows``).
-    """
-    inverse, compose, log, dlog = G._inverse, G._compose, G._log, G._dlog
-    n, m = G.DIM, G.MAT
-
-    @njit(nogil=True, error_model="numpy")
-    def between(Minv, AdMinv, X1, X2, e, H1, H2):
-        X1inv = np.empty((m, m))
-        rel = np.empty((m, m))
-        E = np.empty((m, m))
-        inverse(X1, X1inv)
-        compose(X1inv, X2, rel)
-        compose(Minv, rel, E)
-        log(E, e)
-        D = np.empty((n, n))
-        dlog(e, D)
-        for i in range(n):
-            for j in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += D[i, k] * AdMinv[k, j]
-                H1[i, j] = -acc
-        neg = np.empty(n)
-        for i in range(n):
-            neg[i] = -e[i]
-        dlog(neg, H2)
-
-    return between
+@kernel
+def between_error(g, Minv, X1, X2, e):
+    """e = Log(M⁻¹·X1⁻¹·X2) on group ``g`` (ids of :mod:`lie_factors._dispatch`)."""
+    m = X1.shape[0]
+    X1inv = np.empty((m, m))
+    rel = np.empty((m, m))
+    E = np.empty((m, m))
+    _dispatch.inverse(g, X1, X1inv)
+    _dispatch.compose(g, X1inv, X2, rel)
+    _dispatch.compose(g, Minv, rel, E)
+    _dispatch.log(g, E, e)
 
 
-def _prior_core(G: ModuleType):
-    """Compile ``(Pinv, X) -> e, H`` from the cores of ``G``."""
-    compose, log, dlog = G._compose, G._log, G._dlog
-    n, m = G.DIM, G.MAT
+@kernel
+def between(g, Minv, AdMinv, X1, X2, e, H1, H2):
+    """Error and Jacobians of a Between factor: H1 = −dlog(e)·Ad(M⁻¹), H2 = dlog(−e)."""
+    between_error(g, Minv, X1, X2, e)
+    n = e.shape[0]
+    D = np.empty((n, n))
+    _dispatch.dlog(g, e, D)
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += D[i, k] * AdMinv[k, j]
+            H1[i, j] = -acc
+    neg = np.empty(n)
+    for i in range(n):
+        neg[i] = -e[i]
+    _dispatch.dlog(g, neg, H2)
 
-    @njit(nogil=True, error_model="numpy")
-    def prior(Pinv, X, e, H):
-        E = np.empty((m, m))
-        compose(Pinv, X, E)
-        log(E, e)
-        neg = np.empty(n)
-        for i in range(n):
-            neg[i] = -e[i]
-        dlog(neg, H)
 
-    return prior
+@kernel
+def prior_error(g, Pinv, X, e):
+    """e = Log(P⁻¹·X) on group ``g``."""
+    m = X.shape[0]
+    E = np.empty((m, m))
+    _dispatch.compose(g, Pinv, X, E)
+    _dispatch.log(g, E, e)
+
+
+@kernel
+def prior(g, Pinv, X, e, H):
+    """Error and Jacobian of a Prior factor: H = dlog(−e)."""
+    prior_error(g, Pinv, X, e)
+    n = e.shape[0]
+    neg = np.empty(n)
+    for i in range(n):
+        neg[i] = -e[i]
+    _dispatch.dlog(g, neg, H)
 
 
 @dataclass(frozen=True)
@@ -112,6 +112,10 @@ class GroupSpec:
     kernels: ModuleType  # lie_factors.se3
     at: str  # Values accessor, e.g. "atPose3"
     rot_dim: int  # size of the rotation block of the matrix
+
+    @property
+    def gid(self) -> int:
+        return self.kernels.GID
 
     @property
     def dim(self) -> int:
@@ -127,16 +131,6 @@ GROUPS = {
     "Pose2": GroupSpec("Pose2", gtsam.Pose2, se2, "atPose2", 2),
     "Similarity2": GroupSpec("Similarity2", gtsam.Similarity2, sim2, "atSimilarity2", 2),
 }
-
-_COMPILED: dict = {}
-
-
-def _compiled(kind: str, spec: GroupSpec):
-    key = (kind, spec.name)
-    if key not in _COMPILED:
-        _COMPILED[key] = (_between_core if kind == "between" else _prior_core)(spec.kernels)
-    return _COMPILED[key]
-
 
 def _checked_element(spec: GroupSpec, value, what: str, factor: str) -> np.ndarray:
     """The matrix of a measurement/prior, rejecting wrong types, NaN and non-rotations."""
@@ -199,7 +193,7 @@ class BetweenFactor(gtsam.CustomFactor):
         G = spec.kernels
         self._Minv = G.inverse(M)
         self._AdMinv = np.ascontiguousarray(G.Ad(self._Minv))
-        self._core = _compiled("between", spec)
+        self._gid = spec.gid
         self._name = name
 
     def measured(self):
@@ -214,7 +208,7 @@ class BetweenFactor(gtsam.CustomFactor):
         e = np.empty(n)
         H1 = np.empty((n, n))
         H2 = np.empty((n, n))
-        self._core(self._Minv, self._AdMinv, X1, X2, e, H1, H2)
+        between(self._gid, self._Minv, self._AdMinv, X1, X2, e, H1, H2)
         if H is not None:
             H[0] = H1
             H[1] = H2
@@ -236,7 +230,7 @@ class PriorFactor(gtsam.CustomFactor):
         self._prior = prior
         self._key = k
         self._Pinv = spec.kernels.inverse(P)
-        self._core = _compiled("prior", spec)
+        self._gid = spec.gid
         self._name = name
 
     def prior(self):
@@ -249,7 +243,7 @@ class PriorFactor(gtsam.CustomFactor):
         n = spec.kernels.DIM
         e = np.empty(n)
         J = np.empty((n, n))
-        self._core(self._Pinv, X, e, J)
+        prior(self._gid, self._Pinv, X, e, J)
         if H is not None:
             H[0] = J
         return e

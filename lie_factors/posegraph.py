@@ -534,9 +534,17 @@ def optimize(
                           bool(converged), history)
 
 
+def _optimize_batch(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+    # Imported on use: lie_factors.batch compiles its loops, which native/custom never need.
+    from lie_factors.batch import run_batch
+
+    return run_batch(graph, initial, max_iterations, progress, params)
+
+
 BACKENDS.update(
     native=Backend(_native_factors, optimize, "GTSAM's own BetweenFactor/PriorFactor (reference)"),
     custom=Backend(_custom_factors, optimize, "lie_factors.factors (closed-form Jacobians)"),
+    batch=Backend(_custom_factors, _optimize_batch, "lie_factors factors, vectorized LM driven from Python"),
 )
 
 
