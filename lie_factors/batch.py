@@ -49,14 +49,11 @@ from typing import Callable
 
 import gtsam
 import numpy as np
-import numba
-from numba.core import cgutils
-from numba.core import types as _nbtypes
-from numba.extending import intrinsic
 
-from . import _dispatch
+from . import _batch_loops
 from . import factors as _factors
-from ._jit import kernel
+from ._batch_loops import col_sumsq, linear_error1, linear_error2
+from ._jacobian_storage import pointers, scatter1, scatter2, write_diagonal
 
 __all__ = ["BatchLevenbergMarquardt", "BatchResult", "optimize", "run_batch", "BatchError"]
 
@@ -78,266 +75,6 @@ def _first_line(exc: BaseException, limit: int = 200) -> str:
     """First line of an exception message, truncated (GTSAM messages can embed whole objects)."""
     text = str(exc).strip().splitlines()
     return (text[0] if text else type(exc).__name__)[:limit]
-
-
-# --------------------------------------------------------------------------- #
-# numba loops over the per-factor cores (compiled once per process and group)
-# --------------------------------------------------------------------------- #
-
-@kernel
-def _between_lin(g, X, i1, i2, Minv, AdMinv, R, A1, A2, b):
-    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e for every between factor; returns Σ ½‖R e‖²."""
-    n = AdMinv.shape[1]
-    e = np.empty(n)
-    H1 = np.empty((n, n))
-    H2 = np.empty((n, n))
-    total = 0.0
-    for f in range(i1.shape[0]):
-        _factors.between(g, Minv[f], AdMinv[f], X[i1[f]], X[i2[f]], e, H1, H2)
-        Rf = R[f]
-        for r in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += Rf[r, k] * e[k]
-            b[f, r] = -acc
-            total += 0.5 * acc * acc
-            for c in range(n):
-                s1 = 0.0
-                s2 = 0.0
-                for k in range(n):
-                    s1 += Rf[r, k] * H1[k, c]
-                    s2 += Rf[r, k] * H2[k, c]
-                A1[f, r, c] = s1
-                A2[f, r, c] = s2
-    return total
-
-
-@kernel
-def _prior_lin(g, X, i1, Pinv, R, A1, b):
-    n = R.shape[1]
-    e = np.empty(n)
-    H = np.empty((n, n))
-    total = 0.0
-    for f in range(i1.shape[0]):
-        _factors.prior(g, Pinv[f], X[i1[f]], e, H)
-        Rf = R[f]
-        for r in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += Rf[r, k] * e[k]
-            b[f, r] = -acc
-            total += 0.5 * acc * acc
-            for c in range(n):
-                s1 = 0.0
-                for k in range(n):
-                    s1 += Rf[r, k] * H[k, c]
-                A1[f, r, c] = s1
-    return total
-
-
-@kernel
-def _whitened_sq(Rf, e):
-    """½‖Rf·e‖²."""
-    total = 0.0
-    for r in range(Rf.shape[0]):
-        acc = 0.0
-        for k in range(e.shape[0]):
-            acc += Rf[r, k] * e[k]
-        total += 0.5 * acc * acc
-    return total
-
-
-@kernel
-def _between_err(g, X, i1, i2, Minv, R):
-    """Σ ½‖R·Log(M⁻¹·X1⁻¹·X2)‖² (no Jacobians)."""
-    e = np.empty(R.shape[2])
-    total = 0.0
-    for f in range(i1.shape[0]):
-        _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
-        total += _whitened_sq(R[f], e)
-    return total
-
-
-@kernel
-def _prior_err(g, X, i1, Pinv, R):
-    e = np.empty(R.shape[2])
-    total = 0.0
-    for f in range(i1.shape[0]):
-        _factors.prior_error(g, Pinv[f], X[i1[f]], e)
-        total += _whitened_sq(R[f], e)
-    return total
-
-
-@kernel
-def _retract(g, X, delta, offsets, out):
-    """out[i] = X[i]·Exp(delta[offsets[i] : offsets[i] + n]) (GTSAM's retract)."""
-    n = _dispatch.dim(g)
-    m = X.shape[1]
-    D = np.empty((m, m))
-    x = np.empty(n)
-    for i in range(X.shape[0]):
-        o = offsets[i]
-        for k in range(n):
-            x[k] = delta[o + k]
-        _dispatch.exp(g, x, D)
-        _dispatch.compose(g, X[i], D, out[i])
-
-
-@kernel
-def _relative_log(g, X0, X, out):
-    """out[i] = Log(X0[i]⁻¹·X[i]) (no validation: GTSAM values drift off SO(n) by ~1e-9)."""
-    m = X.shape[1]
-    inv = np.empty((m, m))
-    rel = np.empty((m, m))
-    for i in range(X.shape[0]):
-        _dispatch.inverse(g, X0[i], inv)
-        _dispatch.compose(g, inv, X[i], rel)
-        _dispatch.log(g, rel, out[i])
-
-
-def _loops(spec):
-    """(between_lin, prior_lin, between_err, prior_err, retract, relative_log) bound to one group."""
-    g = spec.gid
-    return (
-        lambda *a: _between_lin(g, *a),
-        lambda *a: _prior_lin(g, *a),
-        lambda *a: _between_err(g, *a),
-        lambda *a: _prior_err(g, *a),
-        lambda *a: _retract(g, *a),
-        lambda *a: _relative_log(g, *a),
-    )
-
-
-@kernel
-def _lin_error2(A1, A2, b, o1, o2, delta):
-    """Σ ½‖A1·δ1 + A2·δ2 − b‖² for between factors (rows of any count)."""
-    total = 0.0
-    n = A1.shape[2]
-    for f in range(A1.shape[0]):
-        for r in range(A1.shape[1]):
-            acc = -b[f, r]
-            for c in range(n):
-                acc += A1[f, r, c] * delta[o1[f] + c] + A2[f, r, c] * delta[o2[f] + c]
-            total += 0.5 * acc * acc
-    return total
-
-
-@kernel
-def _lin_error1(A1, b, o1, delta):
-    total = 0.0
-    n = A1.shape[2]
-    for f in range(A1.shape[0]):
-        for r in range(A1.shape[1]):
-            acc = -b[f, r]
-            for c in range(n):
-                acc += A1[f, r, c] * delta[o1[f] + c]
-            total += 0.5 * acc * acc
-    return total
-
-
-@kernel
-def _col_sumsq(A, o, diag):
-    """diag[o[f] + c] += Σ_r A[f, r, c]² (Hessian diagonal of whitened Jacobian blocks)."""
-    for f in range(A.shape[0]):
-        for c in range(A.shape[2]):
-            s = 0.0
-            for r in range(A.shape[1]):
-                s += A[f, r, c] * A[f, r, c]
-            diag[o[f] + c] += s
-
-
-# --------------------------------------------------------------------------- #
-# In-place update of persistent JacobianFactors
-#
-# gtsam's JacobianFactor.getA()/getb() return numpy views of the factor's own
-# (column-major) storage.  The optimizer creates its JacobianFactors once and,
-# at every linearization, writes the new whitened blocks straight into that
-# storage from numba, instead of constructing ~3 µs Python→C++ objects per
-# factor and iteration.  Verified on real data before use (`_check_inplace`);
-# if a gtsam build returned copies, the optimizer rebuilds the graph instead.
-# --------------------------------------------------------------------------- #
-
-@intrinsic
-def _voidptr(typingctx, addr):
-    if not isinstance(addr, _nbtypes.Integer):
-        return None
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], cgutils.voidptr_t)
-
-    return _nbtypes.voidptr(addr), codegen
-
-
-@kernel
-def _scatter2(A1, A2, b, ptrA, ldA, ptrb):
-    """Factor f's [A1 | A2] (column-major, leading dimension ldA[f]) and b ← arrays."""
-    n = A1.shape[1]
-    for f in range(A1.shape[0]):
-        A = numba.carray(_voidptr(ptrA[f]), (2 * n, ldA[f]), np.float64)
-        for c in range(n):
-            for r in range(n):
-                A[c, r] = A1[f, r, c]
-                A[n + c, r] = A2[f, r, c]
-        bb = numba.carray(_voidptr(ptrb[f]), (n,), np.float64)
-        for r in range(n):
-            bb[r] = b[f, r]
-
-
-@kernel
-def _scatter1(A1, b, ptrA, ldA, ptrb):
-    n = A1.shape[1]
-    for f in range(A1.shape[0]):
-        A = numba.carray(_voidptr(ptrA[f]), (n, ldA[f]), np.float64)
-        for c in range(n):
-            for r in range(n):
-                A[c, r] = A1[f, r, c]
-        bb = numba.carray(_voidptr(ptrb[f]), (n,), np.float64)
-        for r in range(n):
-            bb[r] = b[f, r]
-
-
-@kernel
-def _write_diagonal(ptrA, ldA, dims, offsets, damp):
-    """Damping factor i (A = diag, dims[i] × dims[i]) ← diag(damp[offsets[i]:+dims[i]]); NaN → 0."""
-    for i in range(ptrA.shape[0]):
-        d = dims[i]
-        A = numba.carray(_voidptr(ptrA[i]), (d, ldA[i]), np.float64)
-        for j in range(d):
-            v = damp[offsets[i] + j]
-            A[j, j] = 0.0 if v != v else v
-
-
-@kernel
-def _addr(a):
-    """Address of an array's first element (5× cheaper than ``a.ctypes.data``)."""
-    return a.ctypes.data
-
-
-def _pointers(fs, ncols: int):
-    """(ptrA, ldA, ptrb) of JacobianFactors, or None if gtsam does not hand out views.
-
-    All factors of a list have the same shape (``ncols`` A columns), so the
-    layout is checked on a sample: A column-major with leading dimension ld, b
-    the next column of the same VerticalBlockMatrix (ptrb = ptrA + 8·ld·ncols).
-    """
-    n = len(fs)
-    As = [f.getA() for f in fs]
-    if not n:
-        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int64)
-    a0 = As[0]
-    if a0.flags.owndata or not a0.flags.writeable or a0.strides[0] != 8 or a0.strides[1] % 8:
-        return None
-    ld = a0.strides[1] // 8
-    ptrA = np.fromiter((_addr(a) for a in As), dtype=np.int64, count=n)
-    if ptrA[0] != a0.ctypes.data:
-        return None
-    ptrb = ptrA + 8 * ld * ncols
-    for i in sorted({0, n // 3, n // 2, n - 1}):
-        a, bv = As[i], fs[i].getb()
-        if (a.strides != a0.strides or a.shape != a0.shape or bv.flags.owndata or bv.strides[0] != 8
-                or bv.ctypes.data != ptrb[i]):
-            return None
-    return ptrA, np.full(n, ld, dtype=np.int64), ptrb
 
 
 # --------------------------------------------------------------------------- #
@@ -531,6 +268,7 @@ class BatchLevenbergMarquardt:
         self._damping = None
         self._base = None
         self._persistent = None if inplace else False
+        self._unit = {}
         self._keep = None
         self._vector_checked = False
         # State (LevenbergMarquardtState)
@@ -672,9 +410,9 @@ class BatchLevenbergMarquardt:
         self.managed = managed
         self._native_keys = sorted({k for _, _, ks in self.native for k in ks})
         for name, block in self.blocks.items():
-            _loops(block.spec)  # compile before timing iterations
+            _batch_loops.bound_to(block.spec)  # compile before timing iterations
         for g in self.groups:
-            g.loops = _loops(g.spec)
+            g.loops = _batch_loops.bound_to(g.spec)
 
     # ------------------------------------------------------------ state
     def _blocks_X(self):
@@ -736,7 +474,7 @@ class BatchLevenbergMarquardt:
         insert = vv.insert
         for name, b in self.blocks.items():
             xi = np.empty((len(b.keys), b.spec.dim))
-            _loops(b.spec)[5](b.X0, b.X, xi)
+            _batch_loops.bound_to(b.spec)[5](b.X0, b.X, xi)
             for k, x in zip(b.keys, xi):
                 insert(k, x)
         out = self._managed_initial.retract(vv)
@@ -785,9 +523,9 @@ class BatchLevenbergMarquardt:
         total = 0.0
         for g in self.groups:
             if g.kind == "between":
-                total += _lin_error2(g.A1, g.A2, g.b, g.o1, g.o2, delta)
+                total += linear_error2(g.A1, g.A2, g.b, g.o1, g.o2, delta)
             else:
-                total += _lin_error1(g.A1, g.b, g.o1, delta)
+                total += linear_error1(g.A1, g.b, g.o1, delta)
         for lf, keys in self._native_linear:
             vv = gtsam.VectorValues()
             for k in keys:
@@ -801,11 +539,11 @@ class BatchLevenbergMarquardt:
         diag = np.zeros(self.total_dim)
         present = np.zeros(self.total_dim, dtype=bool)
         for g in self.groups:
-            _col_sumsq(g.A1, g.o1, diag)
+            col_sumsq(g.A1, g.o1, diag)
             n = g.spec.dim
             present[(g.o1[:, None] + np.arange(n)).ravel()] = True
             if g.kind == "between":
-                _col_sumsq(g.A2, g.o2, diag)
+                col_sumsq(g.A2, g.o2, diag)
                 present[(g.o2[:, None] + np.arange(n)).ravel()] = True
         for lf, keys in self._native_linear:
             H = np.asarray(lf.information())
@@ -822,13 +560,13 @@ class BatchLevenbergMarquardt:
 
     # ------------------------------------------------------------ linear system
     def _unit_model(self, d):
-        # No noise model at all (GTSAM's null SharedDiagonal = unit, as its own
-        # linearize() produces): with an explicit Unit model, elimination
-        # whitens a copy of every factor first (measured: ~6 % slower solves).
-        return None
+        m = self._unit.get(d)
+        if m is None:
+            m = self._unit[d] = gtsam.noiseModel.Unit.Create(d)
+        return m
 
     def _make_persistent(self) -> bool:
-        """Create the JacobianFactors once and locate their storage (see `_scatter2`)."""
+        """Create the JacobianFactors once and locate their storage (see `scatter2`)."""
         self._persistent = False
         groups_graph = gtsam.GaussianFactorGraph()
         keep = []
@@ -840,7 +578,7 @@ class BatchLevenbergMarquardt:
                 fs = [gtsam.JacobianFactor(k1, Z, k2, Z, z, unit) for k1, k2 in zip(g.k1, g.k2)]
             else:
                 fs = [gtsam.JacobianFactor(k1, Z, z, unit) for k1 in g.k1]
-            ptrs = _pointers(fs, 2 * n if g.kind == "between" else n)
+            ptrs = pointers(fs, 2 * n if g.kind == "between" else n)
             if ptrs is None:
                 return False
             g.ptrs = ptrs
@@ -862,7 +600,7 @@ class BatchLevenbergMarquardt:
         dims_all = np.array([self.dims[k] for k in self.keys], dtype=np.int64)
         for d in np.unique(dims_all):
             idx = np.nonzero(dims_all == d)[0]
-            ptrs = _pointers([dfs[i] for i in idx], int(d))
+            ptrs = pointers([dfs[i] for i in idx], int(d))
             if ptrs is None:
                 return False
             ptrA[idx], ldA[idx] = ptrs[0], ptrs[1]
@@ -883,9 +621,9 @@ class BatchLevenbergMarquardt:
         for g in self.groups:
             ptrA, ldA, ptrb = g.ptrs
             if g.kind == "between":
-                _scatter2(g.A1, g.A2, g.b, ptrA, ldA, ptrb)
+                scatter2(g.A1, g.A2, g.b, ptrA, ldA, ptrb)
             else:
-                _scatter1(g.A1, g.b, ptrA, ldA, ptrb)
+                scatter1(g.A1, g.b, ptrA, ldA, ptrb)
 
     def _check_inplace(self) -> bool:
         """After a scatter: does GTSAM see the written numbers (first/last factor per group)?"""
@@ -898,7 +636,7 @@ class BatchLevenbergMarquardt:
                     return False
         ptrA, ldA, _ = self._damp_ptrs
         probe = np.arange(1.0, self.total_dim + 1.0)
-        _write_diagonal(ptrA, ldA, self._damp_dims, self._damp_offsets, probe)
+        write_diagonal(ptrA, ldA, self._damp_dims, self._damp_offsets, probe)
         dfs = self._keep[-1]
         for i in {0, len(dfs) - 1}:
             o, d = self._damp_offsets[i], self._damp_dims[i]
@@ -937,7 +675,7 @@ class BatchLevenbergMarquardt:
         damp = (np.full(self.total_dim, sqrt_lambda) if sqrt_diag is None
                 else sqrt_lambda * sqrt_diag)
         ptrA, ldA, _ = self._damp_ptrs
-        _write_diagonal(ptrA, ldA, self._damp_dims, self._damp_offsets, damp)
+        write_diagonal(ptrA, ldA, self._damp_dims, self._damp_offsets, damp)
         return self._system
 
     def _build_base(self) -> None:
@@ -1047,7 +785,7 @@ class BatchLevenbergMarquardt:
         Xs = {}
         for name, b in self.blocks.items():
             out = np.empty_like(b.X)
-            b.loops_retract = _loops(b.spec)[4]
+            b.loops_retract = _batch_loops.bound_to(b.spec)[4]
             b.loops_retract(b.X, vec, b.offsets, out)
             Xs[name] = out
         other = self.other

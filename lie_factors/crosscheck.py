@@ -59,6 +59,11 @@ def _angles(lo: float, hi: float, k: int, rng) -> list[float]:
     return list(rng.uniform(lo, hi, size=k))
 
 
+def rotation_slice(group: str) -> slice:
+    """Where the rotation angle sits in the group's tangent vector."""
+    return {"so3": slice(0, 3), "se3": slice(0, 3), "se2": slice(2, 3), "sim2": slice(2, 3)}[group]
+
+
 def _tangent(group: str, theta: float, rng) -> np.ndarray:
     """A tangent vector of rotation angle θ, with translation (and scale) of size 1e-3 … 1e2."""
     if group == "so3":

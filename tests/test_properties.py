@@ -13,14 +13,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lie_factors import se2, se3, series, sim2, so3
+from lie_factors.crosscheck import rotation_slice
 
 GROUPS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2}
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-
-
-def rotation_index(name):
-    """Where the rotation angle sits in the tangent vector."""
-    return {"so3": slice(0, 3), "se3": slice(0, 3), "se2": slice(2, 3), "sim2": slice(2, 3)}[name]
 
 
 @st.composite
@@ -32,7 +28,7 @@ def tangents(draw, name, max_angle=np.pi * 0.999):
     angle = draw(st.sampled_from([0.0, 10**log_angle * max_angle, max_angle * draw(st.floats(0, 1))]))
     log_trans = draw(st.floats(-3, 2))
     x = raw * 10**log_trans
-    r = rotation_index(name)
+    r = rotation_slice(name)
     w = raw[r]
     norm = np.linalg.norm(w)
     x[r] = angle * (w / norm if norm > 0 else np.eye(len(w))[0])
