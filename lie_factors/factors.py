@@ -35,6 +35,7 @@ from types import ModuleType
 
 import gtsam
 import numpy as np
+
 from . import _dispatch, _validate, se2, se3, sim2, so3
 from ._jit import kernel
 
@@ -131,6 +132,7 @@ GROUPS = {
     "Pose2": GroupSpec("Pose2", gtsam.Pose2, se2, "atPose2", 2),
     "Similarity2": GroupSpec("Similarity2", gtsam.Similarity2, sim2, "atSimilarity2", 2),
 }
+
 
 def _checked_element(spec: GroupSpec, value, what: str, factor: str) -> np.ndarray:
     """The matrix of a measurement/prior, rejecting wrong types, NaN and non-rotations."""
