@@ -9,9 +9,9 @@ time ratio to native.
 
     python benchmarks/posegraph_backends.py [--data-dir DIR] [--datasets A B ...]
         [--backends native custom batch] [--max-iterations K]
-        [--output docs/benchmarks_posegraph.md]
+        [--output FILE.md]
 
-Prints the markdown table and writes it (with a short header) to --output.
+Prints the markdown table; with --output also writes it, with a short header, to that file.
 """
 
 from __future__ import annotations
@@ -104,8 +104,7 @@ def main(argv=None) -> int:
                         help="names (with or without .g2o), paths, or GTSAM example names")
     parser.add_argument("--backends", nargs="+", default=DEFAULT_BACKENDS, choices=list(P.BACKENDS))
     parser.add_argument("--max-iterations", type=int, default=100)
-    parser.add_argument("--output", default=str(ROOT / "docs" / "benchmarks_posegraph.md"),
-                        help="markdown file to write (default: docs/benchmarks_posegraph.md)")
+    parser.add_argument("--output", default="", help="also write the table (with a header) to this markdown file")
     args = parser.parse_args(argv)
 
     def log(msg):

@@ -124,6 +124,21 @@ def test_posegraph_custom_matches_native(capsys):
     assert recs["custom"]["final_error"] == pytest.approx(recs["native"]["final_error"], rel=1e-6)
 
 
+def test_posegraph_batch_matches_native(tmp_path, capsys):
+    recs = {}
+    for backend in ("native", "batch"):
+        out_file = tmp_path / f"{backend}.g2o"
+        status, out, err = run_main(capsys, "posegraph", SMALL, "--backend", backend, "--json",
+                                    "--output", str(out_file))
+        assert status == 0
+        recs[backend] = last_json(out)
+        assert out_file.read_text().count("EDGE_SE3:QUAT") == recs[backend]["factors"] - 1
+        assert err.count("iter ") == recs[backend]["iterations"]  # one progress line per iteration
+    assert recs["batch"]["backend"] == "batch"
+    assert recs["batch"]["iterations"] == recs["native"]["iterations"]
+    assert recs["batch"]["final_error"] == pytest.approx(recs["native"]["final_error"], rel=1e-6)
+
+
 # --------------------------------------------------------------- bad input
 
 SE2_INFO = "1 0 0 1 0 1"
