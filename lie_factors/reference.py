@@ -150,6 +150,38 @@ def log_near(group: str, X, x0, tol_digits: int = DPS - 5):
     raise RuntimeError("log_near: Newton did not converge")
 
 
+# --- unit quaternions [w, x, y, z] ------------------------------------------------------
+
+
+def quat_mul(p, q):
+    """Hamilton product of two quaternions given as [w, x, y, z] lists."""
+    w1, x1, y1, z1 = p
+    w2, x2, y2, z2 = q
+    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
+
+
+def quat_exp(w):
+    """exp of the pure quaternion (0, ω/2) by its power series (half-angle convention)."""
+    p = [mp.mpf(0)] + [mp.mpf(v) / 2 for v in w]
+    total = [mp.mpf(1), mp.mpf(0), mp.mpf(0), mp.mpf(0)]
+    term = list(total)
+    for k in range(1, 400):
+        term = [t / k for t in quat_mul(term, p)]
+        total = [a + b for a, b in zip(total, term)]
+        if max(abs(t) for t in term) < mp.mpf(10) ** (-DPS - 5) and k > 3:
+            break
+    return total
+
+
+def quat_to_rotation(q):
+    """The rotation matrix v ↦ q v q* of a unit quaternion [w, x, y, z]."""
+    w, x, y, z = q
+    return mp.matrix([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
 def rel_err(ours, ref) -> float:
     """CONVENTIONS.md accuracy: max|A - R| / max(1, max|R|), computed in mpmath.
 

@@ -16,40 +16,12 @@ TOL = 1e-14
 PI = math.pi
 
 
-# Own copies (not imported from test_quaternion, so the suite works in any import mode).
-def qmul_mp(p, q):
-    w1, x1, y1, z1 = p
-    w2, x2, y2, z2 = q
-    return [w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]
-
-
-def qexp_mp(w):
-    """exp of the pure quaternion (0, ω/2) by its power series."""
-    p = [mp.mpf(0)] + [mp.mpf(v) / 2 for v in w]
-    total = [mp.mpf(1), mp.mpf(0), mp.mpf(0), mp.mpf(0)]
-    term = list(total)
-    for k in range(1, 400):
-        term = [t / k for t in qmul_mp(term, p)]
-        total = [a + b for a, b in zip(total, term)]
-        if max(abs(t) for t in term) < mp.mpf(10) ** (-ref.DPS - 5) and k > 3:
-            break
-    return total
-
-
-def rot_mp(q):
-    w, x, y, z = q
-    return mp.matrix([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
 def dq_exp_mp(xi):
     """[q_r, ½ (0, t) ⊗ q_r] from the definitions: q_r by the quaternion series, t from expm(hat xi)."""
     m = ref.mpf_vec(xi)
-    qr = qexp_mp(m[:3])
+    qr = ref.quat_exp(m[:3])
     X = ref.exp("se3", m)
-    qd = [v / 2 for v in qmul_mp([mp.mpf(0), X[0, 3], X[1, 3], X[2, 3]], qr)]
+    qd = [v / 2 for v in ref.quat_mul([mp.mpf(0), X[0, 3], X[1, 3], X[2, 3]], qr)]
     return qr + qd
 
 
@@ -58,8 +30,8 @@ def dq_log_mp(dq):
     q = [mp.mpf(float(v)) for v in dq]
     qr, qd = q[:4], q[4:]
     conj = [qr[0], -qr[1], -qr[2], -qr[3]]
-    t = [2 * v for v in qmul_mp(qd, conj)[1:]]
-    R = rot_mp(qr)
+    t = [2 * v for v in ref.quat_mul(qd, conj)[1:]]
+    R = ref.quat_to_rotation(qr)
     X = mp.matrix(4, 4)
     for i in range(3):
         for j in range(3):
