@@ -19,6 +19,31 @@ from ._jit import kernel
 
 
 @kernel
+def _whiten_residual(Rf, e, out):
+    """out = −Rf·e (the right-hand side b); returns ½‖Rf·e‖²."""
+    total = 0.0
+    for r in range(Rf.shape[0]):
+        acc = 0.0
+        for k in range(e.shape[0]):
+            acc += Rf[r, k] * e[k]
+        out[r] = -acc
+        total += 0.5 * acc * acc
+    return total
+
+
+@kernel
+def _whiten_jacobian(Rf, H, out):
+    """out = Rf·H."""
+    n = H.shape[1]
+    for r in range(Rf.shape[0]):
+        for c in range(n):
+            acc = 0.0
+            for k in range(H.shape[0]):
+                acc += Rf[r, k] * H[k, c]
+            out[r, c] = acc
+
+
+@kernel
 def _between_lin(g, X, i1, i2, Minv, AdMinv, R, A1, A2, b):
     """Whitened A1 = R·H1, A2 = R·H2, b = −R·e for every between factor; returns Σ ½‖R e‖²."""
     n = AdMinv.shape[1]
@@ -28,21 +53,9 @@ def _between_lin(g, X, i1, i2, Minv, AdMinv, R, A1, A2, b):
     total = 0.0
     for f in range(i1.shape[0]):
         _factors.between(g, Minv[f], AdMinv[f], X[i1[f]], X[i2[f]], e, H1, H2)
-        Rf = R[f]
-        for r in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += Rf[r, k] * e[k]
-            b[f, r] = -acc
-            total += 0.5 * acc * acc
-            for c in range(n):
-                s1 = 0.0
-                s2 = 0.0
-                for k in range(n):
-                    s1 += Rf[r, k] * H1[k, c]
-                    s2 += Rf[r, k] * H2[k, c]
-                A1[f, r, c] = s1
-                A2[f, r, c] = s2
+        total += _whiten_residual(R[f], e, b[f])
+        _whiten_jacobian(R[f], H1, A1[f])
+        _whiten_jacobian(R[f], H2, A2[f])
     return total
 
 
@@ -54,30 +67,8 @@ def _prior_lin(g, X, i1, Pinv, R, A1, b):
     total = 0.0
     for f in range(i1.shape[0]):
         _factors.prior(g, Pinv[f], X[i1[f]], e, H)
-        Rf = R[f]
-        for r in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += Rf[r, k] * e[k]
-            b[f, r] = -acc
-            total += 0.5 * acc * acc
-            for c in range(n):
-                s1 = 0.0
-                for k in range(n):
-                    s1 += Rf[r, k] * H[k, c]
-                A1[f, r, c] = s1
-    return total
-
-
-@kernel
-def _whitened_sq(Rf, e):
-    """½‖Rf·e‖²."""
-    total = 0.0
-    for r in range(Rf.shape[0]):
-        acc = 0.0
-        for k in range(e.shape[0]):
-            acc += Rf[r, k] * e[k]
-        total += 0.5 * acc * acc
+        total += _whiten_residual(R[f], e, b[f])
+        _whiten_jacobian(R[f], H, A1[f])
     return total
 
 
@@ -85,20 +76,22 @@ def _whitened_sq(Rf, e):
 def _between_err(g, X, i1, i2, Minv, R):
     """Σ ½‖R·Log(M⁻¹·X1⁻¹·X2)‖² (no Jacobians)."""
     e = np.empty(R.shape[2])
+    scratch = np.empty(R.shape[1])
     total = 0.0
     for f in range(i1.shape[0]):
         _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
-        total += _whitened_sq(R[f], e)
+        total += _whiten_residual(R[f], e, scratch)
     return total
 
 
 @kernel
 def _prior_err(g, X, i1, Pinv, R):
     e = np.empty(R.shape[2])
+    scratch = np.empty(R.shape[1])
     total = 0.0
     for f in range(i1.shape[0]):
         _factors.prior_error(g, Pinv[f], X[i1[f]], e)
-        total += _whitened_sq(R[f], e)
+        total += _whiten_residual(R[f], e, scratch)
     return total
 
 
