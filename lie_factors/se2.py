@@ -160,7 +160,7 @@ def _dexp(x, out):
     tc = th * _c(th)
     tb = th * b
     # seed 000, Eq. (83) corrected: third column (θ c x + b y, θ c y - b x); the seed
-    # drops the factor θ on c (see docs/_errata_2d.md)
+    # drops the factor θ on c (see docs/errata.md)
     out[0, 0] = a
     out[0, 1] = -tb
     out[0, 2] = tc * x[0] + b * x[1]

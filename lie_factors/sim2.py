@@ -76,7 +76,7 @@ def _phi(lam, th):
     p = (er * lam + ei * th) / n2
     q = (ei * lam - er * th) / n2
     # φ2 = (e^z - 1 - z) z̄²/|z|⁴ = (φ1 - 1)/z; the literal seed Eqs. (103)-(104) are off
-    # by a factor 1/(λ² + θ²) (docs/_errata_2d.md)
+    # by a factor 1/(λ² + θ²) (docs/errata.md)
     nr = er - lam
     ni = ei - th
     n4 = n2 * n2

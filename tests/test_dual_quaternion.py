@@ -109,7 +109,7 @@ def test_compose_inverse():
     np.testing.assert_allclose(DQ.to_matrix(DQ.inverse(A)), se3.inverse(se3.exp(a)), atol=1e-13)
 
 
-# ------------------------------------------------------------ seed 004 checks (docs/_errata_3d.md)
+# ------------------------------------------------------------ seed 004 checks (docs/errata.md)
 
 
 def test_seed_exp_formula_verified():

@@ -310,7 +310,7 @@ def test_gtsam_pose2_small_angle_is_inaccurate_ours_is_not():
     print("GTSAM Pose2 (ExpmapDerivative, LogmapDerivative) errors:", gt_err)
 
 
-# --- errata (docs/_errata_2d.md) -------------------------------------------------------------------
+# --- errata (docs/errata.md) -------------------------------------------------------------------
 
 
 def test_erratum_eq80_ad_cubed():

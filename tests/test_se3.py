@@ -135,7 +135,7 @@ def test_dlog_closed_form_equals_seed_eq75_product():
         assert np.abs(se3.dlog(x)[3:, :3] - prod).max() <= 1e-13 * max(1, np.abs(prod).max())
 
 
-# ------------------------------------------------------------ errata (docs/_errata_3d.md)
+# ------------------------------------------------------------ errata (docs/errata.md)
 
 
 def test_erratum_eq65_coefficient_of_ad_is_b_not_a():

@@ -311,7 +311,7 @@ def test_gtsam_similarity2_small_angle_accuracy_recorded():
     print("GTSAM Similarity2.Expmap errors:", errs)
 
 
-# --- errata (docs/_errata_2d.md) -------------------------------------------------------------------
+# --- errata (docs/errata.md) -------------------------------------------------------------------
 
 
 def _Q_P(x):
