@@ -30,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from lie_factors import atomic  # noqa: E402
 from lie_factors import posegraph as P  # noqa: E402
 DEFAULT_DATASETS = ["parking-garage", "sphere2500", "torus3D", "intel", "MIT", "CSAIL", "smallGrid3D"]
 DEFAULT_BACKENDS = ["native", "custom", "batch"]
@@ -112,7 +113,7 @@ def main(argv=None) -> int:
 
     if args.output:
         try:
-            P.check_writable(args.output)  # before spending minutes optimizing
+            atomic.check_writable(args.output)  # before spending minutes optimizing
         except P.PoseGraphError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
@@ -139,7 +140,7 @@ def main(argv=None) -> int:
             "`rel. diff` = |backend − native| / native final error.\n\n"
             + table + "\n"
         )
-        P.replace_atomically(args.output, lambda tmp: Path(tmp).write_text(text), suffix=".md")
+        atomic.replace_atomically(args.output, lambda tmp: Path(tmp).write_text(text), suffix=".md")
         log(f"wrote {args.output}")
     return 0
 

@@ -53,6 +53,8 @@ import numpy as np
 from . import _batch_loops
 from . import factors as _factors
 from ._batch_loops import col_sumsq, linear_error1, linear_error2
+from .errors import PoseGraphError
+from .results import IterationInfo, OptimizeResult
 from ._jacobian_storage import pointers, scatter1, scatter2, write_diagonal
 
 __all__ = ["BatchLevenbergMarquardt", "BatchResult", "optimize", "run_batch", "BatchError"]
@@ -939,11 +941,10 @@ def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iter
               params: gtsam.LevenbergMarquardtParams | None = None):
     """``posegraph.optimize``-compatible entry point for ``--backend batch``.
 
-    ``progress`` receives a :class:`lie_factors.posegraph.IterationInfo` after
-    each iteration; returns a :class:`lie_factors.posegraph.OptimizeResult`.
+    ``progress`` receives a :class:`lie_factors.results.IterationInfo` after
+    each iteration; returns a :class:`lie_factors.results.OptimizeResult`.
     ``max_iterations=0`` runs none.
     """
-    from .posegraph import IterationInfo, OptimizeResult, PoseGraphError
 
     if params is None:
         params = gtsam.LevenbergMarquardtParams()

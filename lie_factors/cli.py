@@ -60,7 +60,7 @@ def _progress(args) -> Callable | None:
     """Per-iteration progress printer on stderr, or None with --quiet."""
     if args.quiet:
         return None
-    from lie_factors.posegraph import format_iteration
+    from lie_factors.results import format_iteration
 
     def report(info):
         print(format_iteration(info), file=sys.stderr, flush=True)
@@ -102,6 +102,7 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
 
 
 def _run_posegraph(args) -> int:
+    from lie_factors import atomic, g2o
     from lie_factors import posegraph as pgm
 
     # Everything that can be wrong with the invocation is checked before the
@@ -109,7 +110,7 @@ def _run_posegraph(args) -> int:
     pgm.get_backend(args.backend)
     for path in (args.output, args.plot):
         if path:
-            pgm.check_writable(path)
+            atomic.check_writable(path)
     pgm.load_factors(args.backend)
     pg = pgm.load(args.dataset)
 
@@ -123,14 +124,14 @@ def _run_posegraph(args) -> int:
                f"{record.iterations} iterations, {record.seconds:.3f} s, {status}")
 
     if args.output:
-        pgm.write_g2o(args.output, pg.between, result.values)
+        g2o.write_g2o(args.output, pg.between, result.values)
         _say(args, f"wrote {args.output}")
     if args.plot:
         from lie_factors.plotting import plot_trajectories
 
         trajectories = {"initial": pgm.positions(pg.initial, pg.is3d),
                         "optimized": pgm.positions(result.values, pg.is3d)}
-        pgm.replace_atomically(args.plot, lambda tmp: plot_trajectories(
+        atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
             tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d), suffix=".png")
         _say(args, f"wrote {args.plot}")
     if args.json:
@@ -161,7 +162,7 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
 
 
 def _run_demo(args) -> int:
-    from lie_factors import demo
+    from lie_factors import atomic, demo, g2o
     from lie_factors import posegraph as pgm
 
     if args.poses < 2:
@@ -175,8 +176,8 @@ def _run_demo(args) -> int:
     except OSError as exc:
         raise CLIError(f"{out_dir}: cannot create directory ({exc.strerror})") from None
     png = os.path.join(out_dir, "trajectory.png")
-    g2o = os.path.join(out_dir, "optimized.g2o")
-    pgm.check_writable(g2o)
+    g2o_path = os.path.join(out_dir, "optimized.g2o")
+    atomic.check_writable(g2o_path)
     factors = pgm.load_factors(args.backend)
 
     problem = demo.simulate(args.poses, args.seed)
@@ -191,18 +192,18 @@ def _run_demo(args) -> int:
                f"({result.iterations} iterations, {result.seconds:.3f} s, {status})")
     _say(args, f"ATE (RMSE)  {ate0:12.4f} m -> {ate1:.4f} m")
 
-    pgm.write_g2o(g2o, demo.between_graph(problem), result.values)
+    g2o.write_g2o(g2o_path, demo.between_graph(problem), result.values)
     from lie_factors.plotting import plot_trajectories
 
     truth = [T.translation() for T in problem.truth]
-    pgm.replace_atomically(png, lambda tmp: plot_trajectories(
+    atomic.replace_atomically(png, lambda tmp: plot_trajectories(
         tmp,
         {"ground truth": truth,
          "initial": pgm.positions(problem.initial, True),
          "optimized": pgm.positions(result.values, True)},
         f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m"),
         suffix=".png")
-    _say(args, f"wrote {png} and {g2o}")
+    _say(args, f"wrote {png} and {g2o_path}")
     if args.json:
         _emit_json({
             "backend": args.backend,
@@ -292,7 +293,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (also used as the console-script entry)."""
-    from lie_factors.posegraph import PoseGraphError
+    from lie_factors.errors import PoseGraphError
 
     parser, commands = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)

@@ -2,9 +2,9 @@
 
 Pipeline (each step a function, the CLI and the benchmark just chain them):
 
-1. :func:`resolve_dataset` — a path, or the name of a file shipped with GTSAM
+1. :func:`lie_factors.g2o.resolve_dataset` — a path, or the name of a file shipped with GTSAM
    (``sphere2500.txt``) found with ``gtsam.findExampleDataFile``.
-2. :func:`check_g2o` — our own line-by-line check, so a bad file gives
+2. :func:`lie_factors.g2o.check_g2o` — our own line-by-line check, so a bad file gives
    ``file:line: what was expected`` instead of GTSAM silently skipping lines
    (``readG2o`` drops every edge after a ``#`` comment, for instance).
 3. :func:`load` — ``gtsam.readG2o(path, is3D)``; poses without a vertex line
@@ -14,25 +14,8 @@ Pipeline (each step a function, the CLI and the benchmark just chain them):
 5. :func:`optimize` — Levenberg–Marquardt driven one ``iterate()`` at a time
    from Python, with GTSAM's own stopping rule, reporting each iteration.
 
-Supported records (g2o, and the TORO-style ``EDGE3``/``VERTEX3`` GTSAM ships):
-
-=================  ====  ====================================================
-tag                dim   fields after the tag
-=================  ====  ====================================================
-VERTEX_SE2         2     id x y θ
-EDGE_SE2           2     id1 id2 x y θ + 6 upper-triangular information
-VERTEX_SE3:QUAT    3     id x y z qx qy qz qw
-EDGE_SE3:QUAT      3     id1 id2 x y z qx qy qz qw + 21 information
-VERTEX3            3     id x y z roll pitch yaw
-EDGE3              3     id1 id2 x y z roll pitch yaw + 21 information
-=================  ====  ====================================================
-
-Information ordering: g2o writes SE(3) information as [t, R]; GTSAM's Pose3
-tangent is [ω, v], and ``readG2o`` permutes the blocks of ``EDGE_SE3:QUAT``
-information accordingly (checked: a file diag(100·I₃, 25·I₃) yields the noise
-model diag(25·I₃, 100·I₃)).  ``EDGE3`` information is taken by ``readG2o`` as
-is (no permutation).  SE(2) information is [x, y, θ] in both.  We never touch
-the noise models: both backends get exactly the ones ``readG2o`` built.
+g2o formats (checking, reading, writing) live in :mod:`lie_factors.g2o`; result
+types in :mod:`lie_factors.results`.
 """
 
 from __future__ import annotations
@@ -40,251 +23,18 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tempfile
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 import gtsam
 
-
-class PoseGraphError(Exception):
-    """A user-facing problem (bad file, unknown backend, ...): one clear line."""
-
-
-# --------------------------------------------------------------------------- #
-# Dataset resolution and checking
-# --------------------------------------------------------------------------- #
-
-def resolve_dataset(name: str) -> str:
-    """Return a readable file path for ``name``: an existing path, else a GTSAM example.
-
-    Raises :class:`PoseGraphError` if it is neither.
-    """
-    if os.path.isdir(name):
-        raise PoseGraphError(f"{name}: is a directory, expected a g2o file")
-    if os.path.isfile(name):
-        return name
-    # Only bare names are looked up among GTSAM's examples: a path with a
-    # directory that does not exist is a typo, not a dataset name.
-    if os.path.dirname(name) == "":
-        try:
-            return gtsam.findExampleDataFile(name)
-        except (RuntimeError, OSError):  # the Python wrapper raises FileNotFoundError
-            pass
-        raise PoseGraphError(
-            f"{name}: no such file, and not a dataset shipped with GTSAM "
-            f"(gtsam.findExampleDataFile)"
-        )
-    raise PoseGraphError(f"{name}: no such file")
-
-
-@dataclass(frozen=True)
-class _Record:
-    kind: str  # "vertex" or "edge"
-    dim: int  # 2 or 3
-    ids: int
-    pose: int
-    info: int
-    pose_desc: str
-
-    @property
-    def nfields(self) -> int:
-        return self.ids + self.pose + self.info
-
-
-_RECORDS = {
-    "VERTEX_SE2": _Record("vertex", 2, 1, 3, 0, "x y θ"),
-    "EDGE_SE2": _Record("edge", 2, 2, 3, 6, "x y θ"),
-    "VERTEX_SE3:QUAT": _Record("vertex", 3, 1, 7, 0, "x y z qx qy qz qw"),
-    "EDGE_SE3:QUAT": _Record("edge", 3, 2, 7, 21, "x y z qx qy qz qw"),
-    "VERTEX3": _Record("vertex", 3, 1, 6, 0, "x y z roll pitch yaw"),
-    "EDGE3": _Record("edge", 3, 2, 6, 21, "x y z roll pitch yaw"),
-}
-
-#: Largest accepted | ‖q‖ − 1 | for a g2o quaternion.  Files print 6–7 digits
-#: (the shared datasets deviate by ≤ 2e-6); GTSAM does not renormalize, so a
-#: clearly non-unit quaternion would become a non-orthogonal "rotation".
-QUAT_NORM_TOL = 1e-3
-
-
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" if n == 1 else f"{n} {word}s"
-
-
-def _expects(tag: str, rec: _Record) -> str:
-    parts = [_plural(rec.ids, "id"), _plural(rec.pose, "pose value")]
-    if rec.info:
-        parts.append(_plural(rec.info, "information value"))
-    text = ", ".join(parts[:-1]) + " and " + parts[-1]
-    return f"{tag} expects {text} ({rec.nfields} fields)"
-
-
-def _upper_to_symmetric(values: np.ndarray, n: int) -> np.ndarray:
-    """Row-major upper triangle, shape (n(n+1)/2,) → symmetric (n, n)."""
-    M = np.zeros((n, n))
-    M[np.triu_indices(n)] = values
-    return M + np.triu(M, 1).T
-
-
-@dataclass
-class G2oSummary:
-    """What :func:`check_g2o` learned about a file.
-
-    ``vertices``: id → line number; ``edges``: list of (id1, id2, line number);
-    ``is3d``: SE(3) file; ``has_comments``: lines GTSAM's reader mishandles.
-    """
-
-    path: str
-    is3d: bool
-    vertices: dict[int, int]
-    edges: list[tuple[int, int, int]]
-    has_comments: bool = False
-
-    @property
-    def pose_ids(self) -> list[int]:
-        ids = set(self.vertices)
-        for i, j, _ in self.edges:
-            ids.add(i)
-            ids.add(j)
-        return sorted(ids)
-
-
-def check_g2o(path: str) -> G2oSummary:
-    """Validate a g2o file line by line; raise :class:`PoseGraphError` on the first problem.
-
-    Checks: known tag, field count, integer ids, numeric and finite values,
-    one dimension (2-D or 3-D) per file, unit quaternions, positive-definite
-    information, no duplicate vertex, no self-loop, edges only between known
-    vertices (when the file has vertices), at least one edge, and a connected
-    graph (a second component would have no prior: its gauge is free and the
-    linear system singular).
-    """
-    name = os.path.basename(path)
-    try:
-        with open(path, "r", encoding="utf-8", errors="replace") as fh:
-            lines = fh.read().splitlines()
-    except OSError as exc:
-        raise PoseGraphError(f"{path}: cannot read ({exc.strerror})") from None
-
-    dim = None
-    dim_line = 0
-    vertices: dict[int, int] = {}
-    edges: list[tuple[int, int, int]] = []
-    has_comments = False
-    for lineno, line in enumerate(lines, start=1):
-        tokens = line.split()
-        if not tokens:
-            continue
-        if tokens[0].startswith("#"):
-            has_comments = True
-            continue
-        tag, fields = tokens[0], tokens[1:]
-        where = f"{name}:{lineno}"
-        rec = _RECORDS.get(tag)
-        if rec is None:
-            known = ", ".join(_RECORDS)
-            raise PoseGraphError(f"{where}: unknown tag {tag!r} (expected one of {known})")
-        if dim is None:
-            dim, dim_line = rec.dim, lineno
-        elif rec.dim != dim:
-            raise PoseGraphError(
-                f"{where}: {tag} is a {rec.dim}-D record but line {dim_line} made this a "
-                f"{dim}-D file"
-            )
-        if len(fields) != rec.nfields:
-            raise PoseGraphError(f"{where}: {_expects(tag, rec)}, got {len(fields)} fields")
-        ids = []
-        for k in range(rec.ids):
-            try:
-                ids.append(int(fields[k]))
-            except ValueError:
-                raise PoseGraphError(
-                    f"{where}: field {k + 2} ({fields[k]!r}) should be an integer id"
-                ) from None
-            if ids[-1] < 0:
-                raise PoseGraphError(f"{where}: field {k + 2}: negative id {ids[-1]}")
-        values = np.empty(rec.pose + rec.info)
-        for k, tok in enumerate(fields[rec.ids:]):
-            try:
-                values[k] = float(tok)
-            except ValueError:
-                raise PoseGraphError(
-                    f"{where}: field {rec.ids + k + 2} ({tok!r}) is not a number"
-                ) from None
-            if not math.isfinite(values[k]):
-                raise PoseGraphError(f"{where}: field {rec.ids + k + 2} ({tok!r}) is not finite")
-        pose = values[: rec.pose]
-        if tag.endswith(":QUAT"):
-            qnorm = float(np.linalg.norm(pose[3:7]))
-            if abs(qnorm - 1.0) > QUAT_NORM_TOL:
-                raise PoseGraphError(
-                    f"{where}: quaternion qx qy qz qw has norm {qnorm:.6g}, expected 1"
-                )
-        if rec.kind == "vertex":
-            (vid,) = ids
-            if vid in vertices:
-                raise PoseGraphError(
-                    f"{where}: vertex {vid} already defined on line {vertices[vid]}"
-                )
-            vertices[vid] = lineno
-            continue
-        i, j = ids
-        if i == j:
-            raise PoseGraphError(f"{where}: edge connects vertex {i} to itself")
-        n = 3 if dim == 2 else 6
-        info = _upper_to_symmetric(values[rec.pose:], n)
-        eig_min = float(np.linalg.eigvalsh(info)[0])
-        # Relative threshold: a PSD-but-singular matrix printed with rounding
-        # can show −1e-17; that is still not usable as a noise model.
-        if not eig_min > 1e-12 * max(1.0, float(np.max(np.abs(info)))):
-            raise PoseGraphError(
-                f"{where}: information matrix is not positive definite "
-                f"(smallest eigenvalue {eig_min:.3g})"
-            )
-        edges.append((i, j, lineno))
-
-    if dim is None:
-        raise PoseGraphError(f"{name}: empty graph (no vertices and no edges)")
-    if not edges:
-        raise PoseGraphError(f"{name}: empty graph (no edges, nothing to optimize)")
-    if vertices:
-        for i, j, lineno in edges:
-            for v in (i, j):
-                if v not in vertices:
-                    raise PoseGraphError(f"{name}:{lineno}: edge {i}-{j} refers to unknown vertex {v}")
-    summary = G2oSummary(path, dim == 3, vertices, edges, has_comments)
-    _check_connected(summary, name)
-    return summary
-
-
-def _adjacency(pairs) -> dict[int, list[int]]:
-    adj: dict[int, list[int]] = {}
-    for i, j in pairs:
-        adj.setdefault(i, []).append(j)
-        adj.setdefault(j, []).append(i)
-    return adj
-
-
-def _check_connected(summary: G2oSummary, name: str) -> None:
-    ids = summary.pose_ids
-    adj = _adjacency((i, j) for i, j, _ in summary.edges)
-    seen = {ids[0]}
-    queue = deque([ids[0]])
-    while queue:
-        for nb in adj.get(queue.popleft(), ()):
-            if nb not in seen:
-                seen.add(nb)
-                queue.append(nb)
-    if len(seen) != len(ids):
-        lost = next(v for v in ids if v not in seen)
-        raise PoseGraphError(
-            f"{name}: graph is not connected: pose {lost} cannot be reached from pose {ids[0]} "
-            f"({len(ids) - len(seen)} of {len(ids)} poses unreachable; only pose {ids[0]} gets a prior)"
-        )
+from .errors import PoseGraphError
+from .g2o import check_g2o, read_g2o, resolve_dataset
+from .results import IterationInfo, OptimizeResult
 
 
 # --------------------------------------------------------------------------- #
@@ -317,26 +67,11 @@ class PoseGraph:
         return int(self.between.size())
 
 
-def _read_g2o(path: str, summary: G2oSummary):
-    if not summary.has_comments:
-        return gtsam.readG2o(path, summary.is3d)
-    # GTSAM's reader stops reading edges after a comment line; give it a copy without them.
-    fd, tmp = tempfile.mkstemp(suffix=".g2o")
-    try:
-        with os.fdopen(fd, "w") as out, open(path, encoding="utf-8", errors="replace") as src:
-            for line in src:
-                if not line.lstrip().startswith("#"):
-                    out.write(line)
-        return gtsam.readG2o(tmp, summary.is3d)
-    finally:
-        os.unlink(tmp)
-
-
 def load(dataset: str) -> PoseGraph:
     """Resolve, check and read ``dataset``; raise :class:`PoseGraphError` if unusable."""
     path = resolve_dataset(dataset)
     summary = check_g2o(path)
-    graph, initial = _read_g2o(path, summary)
+    graph, initial = read_g2o(path, summary)
     if graph.size() != len(summary.edges):
         # Our checker and GTSAM's reader disagree: refuse rather than optimize half a file.
         raise PoseGraphError(
@@ -460,32 +195,9 @@ def build_graph(pg: PoseGraph, backend: str) -> gtsam.NonlinearFactorGraph:
     first = pg.initial.atPose3(pg.first_key) if pg.is3d else pg.initial.atPose2(pg.first_key)
     graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d)))
     return graph
-
-
 # --------------------------------------------------------------------------- #
 # Optimization, one iteration at a time
 # --------------------------------------------------------------------------- #
-
-@dataclass
-class IterationInfo:
-    """One LM iteration: number (1-based), error after it, λ after it, wall seconds."""
-
-    iteration: int
-    error: float
-    lambda_: float
-    seconds: float
-
-
-@dataclass
-class OptimizeResult:
-    values: gtsam.Values
-    iterations: int
-    initial_error: float
-    final_error: float
-    seconds: float
-    converged: bool
-    history: list[IterationInfo] = field(default_factory=list)
-
 
 def optimize(
     graph: gtsam.NonlinearFactorGraph,
@@ -548,12 +260,6 @@ BACKENDS.update(
 )
 
 
-def format_iteration(info: IterationInfo) -> str:
-    """One progress line, in the spirit of GTSAM's SUMMARY verbosity."""
-    return (f"iter {info.iteration:4d}  error {info.error:.6e}  lambda {info.lambda_:.2e}  "
-            f"time {info.seconds:.3f} s")
-
-
 # --------------------------------------------------------------------------- #
 # Results and output files
 # --------------------------------------------------------------------------- #
@@ -606,66 +312,6 @@ def run(
         converged=result.converged,
     )
     return record, result, pg
-
-
-def check_writable(path: str) -> None:
-    """Raise :class:`PoseGraphError` unless a file can be created next to ``path``.
-
-    Called before optimizing, so a long run is not wasted on a typo.  We create
-    (and remove) a probe file instead of trusting ``os.access``, which says yes
-    to root on read-only mounts.
-    """
-    if os.path.isdir(path):
-        raise PoseGraphError(f"{path}: is a directory, expected a file name")
-    directory = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(directory):
-        raise PoseGraphError(f"{path}: directory {directory} does not exist")
-    try:
-        fd, probe = tempfile.mkstemp(dir=directory, prefix=".lie-factors-probe-")
-    except OSError as exc:
-        raise PoseGraphError(f"{path}: cannot write to {directory} ({exc.strerror})") from None
-    os.close(fd)
-    os.unlink(probe)
-
-
-def replace_atomically(path: str, write: Callable[[str], None], suffix: str = "") -> None:
-    """Call ``write(tmp)`` on a temporary file next to ``path``, then ``os.replace`` it.
-
-    An existing ``path`` is untouched if ``write`` fails.
-    """
-    directory = os.path.dirname(os.path.abspath(path))
-    try:
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix=".lie-factors-", suffix=suffix)
-    except OSError as exc:
-        raise PoseGraphError(f"{path}: cannot write to {directory} ({exc.strerror})") from None
-    os.close(fd)
-    try:
-        write(tmp)
-        if not os.path.exists(tmp) or os.path.getsize(tmp) == 0:
-            raise PoseGraphError(f"{path}: writing produced an empty file")
-        # mkstemp creates 0600; give the result the mode a plain open() would
-        # (or keep the mode of the file being replaced).
-        if os.path.exists(path):
-            mode = os.stat(path).st_mode & 0o777
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            mode = 0o666 & ~umask
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def write_g2o(path: str, between: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-    """``gtsam.writeG2o`` via a temporary file.
-
-    ``between`` must be the native graph: writeG2o only recognises GTSAM's own
-    BetweenFactor classes, so custom factors would silently lose the edges.
-    """
-    replace_atomically(path, lambda tmp: gtsam.writeG2o(between, values, tmp), suffix=".g2o")
 
 
 def positions(values: gtsam.Values, is3d: bool) -> np.ndarray:

@@ -9,6 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from lie_factors import atomic, g2o, results
 from lie_factors import posegraph as P
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -35,7 +36,7 @@ def chain2d(n: int = 4) -> str:
 # ----------------------------------------------------------------- checking
 
 def test_shipped_dataset_checks_clean():
-    s = P.check_g2o(str(SMALL))
+    s = g2o.check_g2o(str(SMALL))
     assert s.is3d and len(s.vertices) == 125 and len(s.edges) == 297
 
 
@@ -65,22 +66,22 @@ def test_shipped_dataset_checks_clean():
 )
 def test_bad_files_name_line_and_problem(tmp_path, text, expected):
     with pytest.raises(P.PoseGraphError) as info:
-        P.check_g2o(write(tmp_path, text))
+        g2o.check_g2o(write(tmp_path, text))
     assert expected in str(info.value)
     assert "\n" not in str(info.value)
 
 
 def test_missing_file_and_directory(tmp_path):
     with pytest.raises(P.PoseGraphError, match="no such file"):
-        P.resolve_dataset(str(tmp_path / "absent.g2o"))
+        g2o.resolve_dataset(str(tmp_path / "absent.g2o"))
     with pytest.raises(P.PoseGraphError, match="not a dataset shipped with GTSAM"):
-        P.resolve_dataset("surely-not-a-gtsam-dataset.g2o")
+        g2o.resolve_dataset("surely-not-a-gtsam-dataset.g2o")
     with pytest.raises(P.PoseGraphError, match="is a directory"):
-        P.resolve_dataset(str(tmp_path))
+        g2o.resolve_dataset(str(tmp_path))
 
 
 def test_gtsam_example_name_resolves():
-    assert P.resolve_dataset("sphere2500.txt").endswith("sphere2500.txt")
+    assert g2o.resolve_dataset("sphere2500.txt").endswith("sphere2500.txt")
 
 
 # ------------------------------------------------------------------ loading
@@ -125,7 +126,7 @@ def test_stepwise_lm_matches_gtsam_optimize():
     assert result.final_error == pytest.approx(graph.error(values), rel=1e-12)
     assert result.converged and result.initial_error > result.final_error
     assert [s.iteration for s in seen] == list(range(1, len(seen) + 1))
-    assert "lambda" in P.format_iteration(seen[0])
+    assert "lambda" in results.format_iteration(seen[0])
 
 
 def test_max_iterations_respected():
@@ -181,7 +182,7 @@ def test_custom_matches_native_2d(tmp_path):
 def test_write_g2o_roundtrip_and_atomic(tmp_path):
     record, result, pg = P.run(str(SMALL), "native")
     out = tmp_path / "opt.g2o"
-    P.write_g2o(str(out), pg.between, result.values)
+    g2o.write_g2o(str(out), pg.between, result.values)
     again = P.load(str(out))
     assert again.poses == 125 and again.edges == 297
     graph = P.build_graph(again, "native")
@@ -199,14 +200,14 @@ def test_failed_write_leaves_existing_file(tmp_path):
         raise RuntimeError("disk full")
 
     with pytest.raises(RuntimeError):
-        P.replace_atomically(str(out), boom)
+        atomic.replace_atomically(str(out), boom)
     assert out.read_text() == "precious\n"
     assert [p.name for p in tmp_path.iterdir()] == ["keep.g2o"]
 
 
 def test_check_writable(tmp_path):
-    P.check_writable(str(tmp_path / "ok.g2o"))
+    atomic.check_writable(str(tmp_path / "ok.g2o"))
     with pytest.raises(P.PoseGraphError, match="does not exist"):
-        P.check_writable(str(tmp_path / "missing" / "x.g2o"))
+        atomic.check_writable(str(tmp_path / "missing" / "x.g2o"))
     with pytest.raises(P.PoseGraphError, match="is a directory"):
-        P.check_writable(str(tmp_path))
+        atomic.check_writable(str(tmp_path))

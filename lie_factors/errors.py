@@ -1,0 +1,5 @@
+"""Exceptions shared by the pose-graph modules (kept apart so that none imports another for them)."""
+
+
+class PoseGraphError(Exception):
+    """A user-facing problem (bad file, unknown backend, ...): one clear line."""
