@@ -167,10 +167,13 @@ def _anchored(pg: _PoseGraph) -> _PoseGraph:
     """``pg`` with a prior at the identity on the smallest key if it has none."""
     if pg.priors:
         return pg
+    # The variances of the prior GTSAM's Pose2/Pose3SLAMExample_g2o.py use (and lago's own).
     if pg.is3d:
-        prior = gtsam.PriorFactorPose3(pg.keys[0], gtsam.Pose3(), gtsam.noiseModel.Unit.Create(6))
+        noise = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4]))
+        prior = gtsam.PriorFactorPose3(pg.keys[0], gtsam.Pose3(), noise)
     else:
-        prior = gtsam.PriorFactorPose2(pg.keys[0], gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3))
+        noise = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
+        prior = gtsam.PriorFactorPose2(pg.keys[0], gtsam.Pose2(), noise)
     return _PoseGraph(pg.is3d, pg.between, [prior], pg.keys)
 
 
