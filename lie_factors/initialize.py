@@ -21,7 +21,9 @@ composed odometry of the file leads GTSAM's LM to a local minimum (error
 ``auto``
     3-D: chordal; 2-D: lago, then chordal; then file, then spanning-tree — the
     first that runs.  Each method that cannot run is reported with a one-line
-    reason in :attr:`Initialization.skipped`.
+    reason in :attr:`Initialization.skipped`.  A graph with factors other than
+    Between/Prior on Pose2/Pose3 (landmarks, Sim(3)) starts from the given
+    values.
 
 Anchor and priors, as GTSAM's initializers treat them (``InitializePose.h``):
 every ``PriorFactor`` becomes a between factor from a fictitious pose at the
@@ -382,7 +384,15 @@ def initialize(graph: gtsam.NonlinearFactorGraph, method: str = "auto",
     if method not in METHODS:
         raise InitializationError(f"unknown initialization {method!r} (choose from {', '.join(METHODS)})")
     t0 = time.perf_counter()
-    pg = _convert(graph)
+    try:
+        pg = _convert(graph)
+    except InitializationError as exc:
+        # Not a pure Pose2/Pose3 graph (landmarks, Sim(3), ...): only the given values can start it.
+        if method == "file" and initial is not None:
+            return Initialization(initial, "file", time.perf_counter() - t0)
+        if method != "auto" or initial is None:
+            raise InitializationError(f"{method}: {exc}") from None
+        return Initialization(initial, "file", time.perf_counter() - t0, [("chordal", str(exc))])
     order = auto_order(pg.is3d, initial is not None) if method == "auto" else [method]
     skipped: list[tuple[str, str]] = []
     for name in order:

@@ -263,8 +263,17 @@ def test_robust_noise_uses_its_gaussian_part():
 def test_bad_graphs_are_refused():
     graph = gtsam.NonlinearFactorGraph()
     graph.add(gtsam.BetweenFactorPoint3(0, 1, np.zeros(3), gtsam.noiseModel.Unit.Create(3)))
-    with pytest.raises(I.InitializationError, match=r"factor 0 \(BetweenFactorPoint3\) is not"):
+    with pytest.raises(I.InitializationError, match=r"^auto: factor 0 \(BetweenFactorPoint3\) is not"):
         I.initialize(graph)
+    # …but given values, auto and file start from them.
+    values = gtsam.Values()
+    values.insert(0, np.zeros(3))
+    values.insert(1, np.ones(3))
+    got = I.initialize(graph, "auto", values)
+    assert got.method == "file" and got.values is values and "BetweenFactorPoint3" in got.skipped[0][1]
+    assert I.initialize(graph, "file", values).values is values
+    with pytest.raises(I.InitializationError, match=r"^chordal: factor 0 \(BetweenFactorPoint3\)"):
+        I.initialize(graph, "chordal", values)
     with pytest.raises(I.InitializationError, match="no between factors"):
         I.initialize(gtsam.NonlinearFactorGraph())
     mixed, _ = pose2_loop()
