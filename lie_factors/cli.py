@@ -87,8 +87,9 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     from lie_factors.posegraph import BACKENDS
 
     p.add_argument("dataset", metavar="DATASET",
-                   help="g2o file (2-D VERTEX_SE2/EDGE_SE2 or 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
-                        "EDGE3), or the name of a file shipped with GTSAM, e.g. sphere2500.txt")
+                   help="g2o file (2-D VERTEX_SE2/EDGE_SE2, 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
+                        "EDGE3, or Sim(3) VERTEX_SIM3:EXPMAP/EDGE_SIM3:EXPMAP), or the name of a "
+                        "file shipped with GTSAM, e.g. sphere2500.txt")
     p.add_argument("--backend", default="custom", metavar="NAME",
                    help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
                         "native = GTSAM's own factors, the reference)")
@@ -114,7 +115,7 @@ def _run_posegraph(args) -> int:
     pgm.load_factors(args.backend)
     pg = pgm.load(args.dataset)
 
-    kind = "SE(3)" if pg.is3d else "SE(2)"
+    kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
     init = "spanning tree of the edges" if pg.initialized_from_edges else "vertices in the file"
     _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges "
                f"(initial guess: {init}); backend {args.backend}")
@@ -129,8 +130,8 @@ def _run_posegraph(args) -> int:
     if args.plot:
         from lie_factors.plotting import plot_trajectories
 
-        trajectories = {"initial": pgm.positions(pg.initial, pg.is3d),
-                        "optimized": pgm.positions(result.values, pg.is3d)}
+        trajectories = {"initial": pgm.positions(pg.initial, pg.is3d, pg.group),
+                        "optimized": pgm.positions(result.values, pg.is3d, pg.group)}
         atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
             tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d), suffix=".png")
         _say(args, f"wrote {args.plot}")
