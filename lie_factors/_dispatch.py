@@ -11,10 +11,10 @@ The ids are the ``GID`` attribute of each group module.
 
 from __future__ import annotations
 
-from . import se2, se3, sim2, so3
+from . import se2, se3, sim2, sim3, so3
 from ._jit import kernel
 
-SO3, SE3, SE2, SIM2 = so3.GID, se3.GID, se2.GID, sim2.GID
+SO3, SE3, SE2, SIM2, SIM3 = so3.GID, se3.GID, se2.GID, sim2.GID, sim3.GID
 
 
 @kernel
@@ -26,6 +26,8 @@ def dim(g):
         return se3.DIM
     if g == SE2:
         return se2.DIM
+    if g == SIM3:
+        return sim3.DIM
     return sim2.DIM
 
 
@@ -37,6 +39,8 @@ def inverse(g, X, out):
         se3._inverse(X, out)
     elif g == SE2:
         se2._inverse(X, out)
+    elif g == SIM3:
+        sim3._inverse(X, out)
     else:
         sim2._inverse(X, out)
 
@@ -49,6 +53,8 @@ def compose(g, X, Y, out):
         se3._compose(X, Y, out)
     elif g == SE2:
         se2._compose(X, Y, out)
+    elif g == SIM3:
+        sim3._compose(X, Y, out)
     else:
         sim2._compose(X, Y, out)
 
@@ -61,6 +67,8 @@ def log(g, X, out):
         se3._log(X, out)
     elif g == SE2:
         se2._log(X, out)
+    elif g == SIM3:
+        sim3._log(X, out)
     else:
         sim2._log(X, out)
 
@@ -73,6 +81,8 @@ def exp(g, x, out):
         se3._exp(x, out)
     elif g == SE2:
         se2._exp(x, out)
+    elif g == SIM3:
+        sim3._exp(x, out)
     else:
         sim2._exp(x, out)
 
@@ -85,5 +95,7 @@ def dlog(g, x, out):
         se3._dlog(x, out)
     elif g == SE2:
         se2._dlog(x, out)
+    elif g == SIM3:
+        sim3._dlog(x, out)
     else:
         sim2._dlog(x, out)
