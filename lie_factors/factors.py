@@ -36,7 +36,7 @@ from types import ModuleType
 import gtsam
 import numpy as np
 
-from . import _dispatch, _validate, se2, se3, sim2, so3
+from . import _dispatch, _validate, se2, se3, sim2, sim3, so3
 from ._jit import kernel
 
 __all__ = [
@@ -44,10 +44,12 @@ __all__ = [
     "BetweenFactorPose3",
     "BetweenFactorPose2",
     "BetweenFactorSimilarity2",
+    "BetweenFactorSimilarity3",
     "PriorFactorRot3",
     "PriorFactorPose3",
     "PriorFactorPose2",
     "PriorFactorSimilarity2",
+    "PriorFactorSimilarity3",
     "GROUPS",
 ]
 
@@ -131,6 +133,7 @@ GROUPS = {
     "Pose3": GroupSpec("Pose3", gtsam.Pose3, se3, "atPose3", 3),
     "Pose2": GroupSpec("Pose2", gtsam.Pose2, se2, "atPose2", 2),
     "Similarity2": GroupSpec("Similarity2", gtsam.Similarity2, sim2, "atSimilarity2", 2),
+    "Similarity3": GroupSpec("Similarity3", gtsam.Similarity3, sim3, "atSimilarity3", 3),
 }
 
 
@@ -142,7 +145,7 @@ def _checked_element(spec: GroupSpec, value, what: str, factor: str) -> np.ndarr
     m = spec.kernels.MAT
     _validate.square(X, m, f"{factor}: {what}")
     _validate.rotation_block(X, f"{factor}: {what}", spec.rot_dim)
-    if spec.name == "Similarity2" and not X[2, 2] > 0:
+    if spec.name.startswith("Similarity") and not X[m - 1, m - 1] > 0:
         raise ValueError(f"{factor}: {what} has non-positive scale")
     return X
 
@@ -275,6 +278,14 @@ class BetweenFactorSimilarity2(BetweenFactor):
     spec = GROUPS["Similarity2"]
 
 
+class BetweenFactorSimilarity3(BetweenFactor):
+    """``BetweenFactorSimilarity3(key1, key2, measured: gtsam.Similarity3, noise_model)``
+    (7-dim, [ω, u, λ]).  GTSAM's own has H1 = −Ad((X1⁻¹X2)⁻¹), H2 = I (no Logmap
+    derivative); these are exact."""
+
+    spec = GROUPS["Similarity3"]
+
+
 class PriorFactorRot3(PriorFactor):
     """``PriorFactorRot3(key, prior: gtsam.Rot3, noise_model)``."""
 
@@ -297,3 +308,9 @@ class PriorFactorSimilarity2(PriorFactor):
     """``PriorFactorSimilarity2(key, prior: gtsam.Similarity2, noise_model)``."""
 
     spec = GROUPS["Similarity2"]
+
+
+class PriorFactorSimilarity3(PriorFactor):
+    """``PriorFactorSimilarity3(key, prior: gtsam.Similarity3, noise_model)``."""
+
+    spec = GROUPS["Similarity3"]
