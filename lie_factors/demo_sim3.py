@@ -38,8 +38,8 @@ import numpy as np
 SIGMAS = np.array([0.003, 0.003, 0.003, 0.03, 0.03, 0.03, 0.01])
 #: Loop-closure noise model (same order).
 CLOSURE_SIGMAS = np.array([0.003, 0.003, 0.003, 0.05, 0.05, 0.05, 0.01])
-#: Unmodelled odometry bias per step: rotation drift (rad) and scale drift (λ; e^0.02 = 2 %).
-DRIFT = np.array([0.003, 0.0, 0.01, 0.0, 0.0, 0.0, 0.02])
+#: Unmodelled odometry bias per step: rotation drift (rad) and scale drift (λ; e^0.01 = 1 %).
+DRIFT = np.array([0.003, 0.0, 0.01, 0.0, 0.0, 0.0, 0.01])
 #: The first pose is known: it fixes the gauge (rotation, translation and scale).
 PRIOR_SIGMAS = np.full(7, 1e-4)
 LAPS = 2
