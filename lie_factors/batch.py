@@ -192,6 +192,8 @@ def _to_gtsam(spec, M: np.ndarray):
     if name == "Similarity2":
         return gtsam.Similarity2(gtsam.Rot2.atan2(M[1, 0], M[0, 0]), np.array([M[0, 2], M[1, 2]]),
                                  1.0 / M[2, 2])
+    if name == "Similarity3":
+        return gtsam.Similarity3(M)
     raise AssertionError(name)
 
 

@@ -180,7 +180,7 @@ def test_demo_file_round_trip(demo_file, tmp_path):
         assert np.max(np.abs(x1 - x2)) <= 1e-12 * max(1.0, np.max(np.abs(x1)))
 
 
-@pytest.mark.parametrize("backend", ["native", "custom"])
+@pytest.mark.parametrize("backend", ["native", "custom", "batch"])
 def test_posegraph_cli_on_demo_file(demo_file, tmp_path, capsys, backend):
     out = tmp_path / f"{backend}.g2o"
     status = cli.main(["posegraph", str(demo_file), "--backend", backend, "--json", "--quiet",
@@ -202,6 +202,7 @@ def test_custom_and_native_reach_the_same_optimum_from_dead_reckoning(tmp_path):
     problem = demo_sim3.simulate(40, 1)
     path = tmp_path / "start.g2o"
     g2o.write_g2o(str(path), demo_sim3.between_graph(problem), problem.initial)
-    records = {b: P.run(str(path), b, 100)[0] for b in ("native", "custom")}
+    records = {b: P.run(str(path), b, 100)[0] for b in ("native", "custom", "batch")}
     assert records["custom"].final_error <= records["native"].final_error * (1 + 1e-9)
+    assert records["batch"].final_error == pytest.approx(records["custom"].final_error, rel=1e-9)
     assert records["custom"].final_error < 1e-2 * records["custom"].initial_error
