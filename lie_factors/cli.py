@@ -246,8 +246,6 @@ def _run_demo(args) -> int:
 def _run_demo_sim3(args) -> int:
     """The scale-drift scenario (:mod:`lie_factors.demo_sim3`): ours and GTSAM's native
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
-    import gtsam
-
     from lie_factors import atomic, demo_sim3, g2o
     from lie_factors import posegraph as pgm
 
@@ -258,27 +256,16 @@ def _run_demo_sim3(args) -> int:
     png = os.path.join(args.output, "trajectory.png")
     g2o_path = os.path.join(args.output, "optimized.g2o")
     atomic.check_writable(g2o_path)
-    factors = pgm.load_factors(args.backend)
+    pgm.load_factors(args.backend)  # a clear error now if ours are unavailable
 
     problem = demo_sim3.simulate(args.poses, args.seed)
-    graph = demo_sim3.build_graph(problem, factors)
-    native_graph = demo_sim3.build_graph(problem, gtsam)
-    # The true gradient needs exact Jacobians: always lie_factors' factors.
-    exact = graph if args.backend == "custom" else demo_sim3.build_graph(problem, pgm.load_factors("custom"))
     _say(args, f"demo sim3: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, scale drift e^{demo_sim3.DRIFT[6]:g} per step, "
                f"seed {args.seed}, backend {args.backend} beside native")
-    optimize = pgm.get_backend(args.backend).optimize
-    ours = optimize(graph, problem.initial, max_iterations=args.max_iterations,
-                    progress=_progress(args), params=demo_sim3.lm_params(args.max_iterations))
-    native = pgm.optimize(native_graph, problem.initial, args.max_iterations, None,
-                          demo_sim3.lm_params(args.max_iterations))
-    ate0 = demo_sim3.ate_rmse(problem.initial, problem.truth)
-    ate_ours = demo_sim3.ate_rmse(ours.values, problem.truth)
-    ate_native = demo_sim3.ate_rmse(native.values, problem.truth)
-    g0 = demo_sim3.true_gradient_norm(exact, problem.initial)
-    g_ours = demo_sim3.true_gradient_norm(exact, ours.values)
-    g_native = demo_sim3.true_gradient_norm(exact, native.values)
+    c = demo_sim3.compare(problem, args.backend, args.max_iterations, _progress(args))
+    ours, native, graph = c.ours, c.native, c.graph
+    ate0, ate_ours, ate_native = c.ate_initial, c.ate_ours, c.ate_native
+    g0, g_ours, g_native = c.gradient_initial, c.gradient_ours, c.gradient_native
 
     def status(r):
         return "converged" if r.converged else "not converged"
@@ -292,7 +279,7 @@ def _run_demo_sim3(args) -> int:
     _say(args, f"{'iterations':18s}{'':14s}{ours.iterations:16d}{native.iterations:16d}")
     _say(args, f"{'seconds':18s}{'':14s}{ours.seconds:16.3f}{native.seconds:16.3f}")
     _say(args, f"{'':18s}{'':14s}{status(ours):>16s}{status(native):>16s}")
-    verdict = "a stationary point" if g_ours <= 1e-6 * g0 else "NOT a stationary point"
+    verdict = "a stationary point" if c.stationary else "NOT a stationary point"
     _say(args, f"ours reached {verdict} (|g|/|g0| = {g_ours / g0:.2e}, target <= 1e-06); "
                f"native stopped at |g|/|g0| = {g_native / g0:.2e}")
 

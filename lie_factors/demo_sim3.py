@@ -165,3 +165,52 @@ def lm_params(max_iterations: int = 100) -> gtsam.LevenbergMarquardtParams:
     params.setRelativeErrorTol(1e-12)
     params.setAbsoluteErrorTol(1e-12)
     return params
+
+
+@dataclass
+class Comparison:
+    """Ours and GTSAM's native factors on one problem: results, ATEs, true gradient norms.
+
+    ``ours``/``native``: :class:`lie_factors.results.OptimizeResult`; ``graph``: the
+    graph ours optimized; gradients are ‖∇cost‖ at the start and at each result.
+    """
+
+    problem: Problem
+    graph: gtsam.NonlinearFactorGraph
+    ours: object
+    native: object
+    ate_initial: float
+    ate_ours: float
+    ate_native: float
+    gradient_initial: float
+    gradient_ours: float
+    gradient_native: float
+
+    @property
+    def stationary(self) -> bool:
+        """Done-when of issue 9: ours' true gradient ≤ 1e-6 of the initial one."""
+        return self.gradient_ours <= 1e-6 * self.gradient_initial
+
+
+def compare(problem: Problem, backend: str = "custom", max_iterations: int = 100,
+            progress=None) -> Comparison:
+    """Optimize ``problem`` with our factors (``backend`` custom or batch, of
+    :mod:`lie_factors.posegraph`) and with GTSAM's native ones, same start and
+    :func:`lm_params`; ``progress`` gets our iterations."""
+    from . import factors
+    from . import posegraph as pgm
+
+    graph = build_graph(problem, factors)
+    native_graph = build_graph(problem, gtsam)
+    optimize = pgm.get_backend(backend).optimize
+    ours = optimize(graph, problem.initial, max_iterations=max_iterations, progress=progress,
+                    params=lm_params(max_iterations))
+    native = pgm.optimize(native_graph, problem.initial, max_iterations, None, lm_params(max_iterations))
+    return Comparison(
+        problem, graph, ours, native,
+        ate_rmse(problem.initial, problem.truth), ate_rmse(ours.values, problem.truth),
+        ate_rmse(native.values, problem.truth),
+        true_gradient_norm(graph, problem.initial), true_gradient_norm(graph, ours.values),
+        true_gradient_norm(graph, native.values),
+    )
+
