@@ -206,3 +206,19 @@ def test_custom_and_native_reach_the_same_optimum_from_dead_reckoning(tmp_path):
     assert records["custom"].final_error <= records["native"].final_error * (1 + 1e-9)
     assert records["batch"].final_error == pytest.approx(records["custom"].final_error, rel=1e-9)
     assert records["custom"].final_error < 1e-2 * records["custom"].initial_error
+
+
+def test_initialization_methods_on_a_sim3_file(tmp_path):
+    """--init on Similarity3 graphs: auto takes the file's vertices, spanning-tree composes the
+    edges, GTSAM's chordal/LAGO initializers (Pose2/Pose3 only) are refused with a reason."""
+    problem = demo_sim3.simulate(20, 3)
+    path = tmp_path / "start.g2o"
+    g2o.write_g2o(str(path), demo_sim3.between_graph(problem), problem.initial)
+    record, result, _ = P.run(str(path), "custom", 50, init="auto")
+    assert record.init == "file"
+    assert ref.rel_err(result.start.atSimilarity3(19).matrix(), problem.initial.atSimilarity3(19).matrix()) <= 1e-13
+    record, result, _ = P.run(str(path), "custom", 50, init="spanning-tree")
+    assert record.init == "spanning-tree" and result.start.atSimilarity3(19).scale() > 0
+    for method in ("chordal", "lago"):
+        with pytest.raises(g2o.PoseGraphError, match="Similarity3"):
+            P.run(str(path), "native", 50, init=method)
