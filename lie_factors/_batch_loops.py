@@ -1,7 +1,8 @@
 """Whole-graph numba loops of the batch solver, over the factors' own kernels.
 
-Every loop is a cached top-level kernel taking the group id ``g``
-(:mod:`lie_factors._dispatch`); the per-factor work is
+Every loop is a cached top-level kernel taking the group tag ``g``
+(:mod:`lie_factors._dispatch`: each group compiles its own specialization,
+holding only its own cores); the per-factor work is
 :func:`lie_factors.factors.between` / :func:`~lie_factors.factors.prior` (error
 and Jacobians) and their ``*_error`` halves, so no formula is repeated here.
 Arrays: ``X`` (N, m, m) poses of one group; ``i1``, ``i2`` (F,) indices into
@@ -124,7 +125,7 @@ def _relative_log(g, X0, X, out):
 
 def bound_to(spec):
     """(between_lin, prior_lin, between_err, prior_err, retract, relative_log) bound to one group."""
-    g = spec.gid
+    g = spec.group
     return (
         lambda *a: _between_lin(g, *a),
         lambda *a: _prior_lin(g, *a),
