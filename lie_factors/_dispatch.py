@@ -26,8 +26,8 @@ and pass ``g`` on to other generic kernels; call it from Python with a tag
 (``_dispatch.SE3``, ``GroupSpec.group``). Calling a core that is not listed
 here: add one line below (``name = _core("_name", doc)``).
 
-Adding a group is a registration: ``SIM3 = register(sim3, rot_dim=3,
-corner=POSITIVE)`` with a module that has ``DIM``, ``MAT`` and the cores
+Adding a group is a registration, like ``SIM3 = register(sim3, rot_dim=3,
+corner=POSITIVE)`` below, with a module that has ``DIM``, ``MAT`` and the cores
 ``_inverse, _compose, _log, _exp, _dlog, _Ad``.
 
 The tag costs ≈1 µs per call from Python over an integer (numba reads its
@@ -45,7 +45,7 @@ from numba.core.imputils import lower_constant
 from numba.core.typing import signature
 from numba.extending import NativeValue, intrinsic, models, register_model, typeof_impl, unbox
 
-from . import se2, se3, sim2, so3
+from . import se2, se3, sim2, sim3, so3
 
 #: ``corner`` of :func:`register`: what the bottom-right entry of an element must be.
 NO_CORNER, ONE, POSITIVE = 0, 1, 2
@@ -128,6 +128,7 @@ SO3 = register(so3, rot_dim=3, corner=NO_CORNER)
 SE3 = register(se3, rot_dim=3, corner=ONE)
 SE2 = register(se2, rot_dim=2, corner=ONE)
 SIM2 = register(sim2, rot_dim=2, corner=POSITIVE)
+SIM3 = register(sim3, rot_dim=3, corner=POSITIVE)
 
 
 def _group(g) -> Group:
