@@ -82,10 +82,11 @@ _SE3_ONLY = textwrap.dedent(
     values.insert(1, a.compose(gtsam.Pose3.Expmap(np.full(6, 0.05))))
     graph.linearize(values)
     run_batch(graph, values, 3, None, None)
-    compiled = {m.__name__.split(".")[-1]: sorted(
-        name for name in dir(m)
-        if name.startswith("_") and getattr(getattr(m, name), "signatures", None))
-        for m in (se2, sim2, sim3, se3)}
+    def own_compiled(m):  # kernels defined in m (not imported into it) that were compiled
+        return sorted(name for name, f in vars(m).items()
+                      if getattr(f, "signatures", None) and f.py_func.__module__ == m.__name__)
+
+    compiled = {m.__name__.split(".")[-1]: own_compiled(m) for m in (se2, sim2, sim3, se3)}
     print(json.dumps(compiled))
     """
 )
