@@ -412,3 +412,31 @@ def test_pattern_scatter_map_addresses_csc_entries():
                 assert pat.rowind[p] == pat.offsets[row] + i
     assert list(a_is_row) == [1, 0]
     assert np.all(pat.rowind[pat.diagpos] == np.arange(pat.n))
+
+
+def test_pardiso_solver_matches_cholmod():
+    """The optional MKL PARDISO backend (extra "pardiso") gives CHOLMOD's run."""
+    pytest.importorskip("pypardiso")  # optional extra, not installed by .[test]
+    lie, _, initial = _landmark_graph(True, seed=3)
+    a = batch.optimize(lie, initial, linear_solver="cholmod")
+    b = batch.optimize(lie, initial, linear_solver="pardiso")
+    assert b.linear_solver == "pardiso" and a.iterations == b.iterations
+    np.testing.assert_allclose(b.errors, a.errors, rtol=1e-9)
+
+
+def test_falls_back_to_gtsam_without_cvxopt_and_says_so_once(monkeypatch):
+    from lie_factors.batch import solvers
+
+    monkeypatch.setattr(solvers, "cholmod_available", lambda: False)
+    monkeypatch.setattr(solvers, "_fallback_warned", False)
+    lie, _, initial = make_problem("Pose2", n=6, seed=2)
+    with pytest.warns(RuntimeWarning, match="cvxopt.*GTSAM"):
+        res = batch.optimize(lie, initial)
+    assert res.linear_solver == "gtsam" and res.converged
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert batch.optimize(lie, initial).linear_solver == "gtsam"
+    with pytest.raises(batch.BatchError, match="needs cvxopt"):
+        batch.optimize(lie, initial, linear_solver="cholmod")

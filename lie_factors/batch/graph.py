@@ -286,14 +286,18 @@ class Problem:
             if g.kind == "between":
                 g.v2, g.o2 = b.var[g.i2], b.offsets[g.i2]
         # Variables not in a group (landmarks, ...), incl. those in no factor.
-        self.other = gtsam.Values(initial)
-        for k in managed:
-            self.other.erase(k)
-        self.other_keys = [k for k in native_keys if k not in managed]
-        self._managed_initial = gtsam.Values(initial)
-        for k in initial.keys():
-            if int(k) not in managed:
+        unmanaged = [int(k) for k in initial.keys() if int(k) not in managed]
+        if unmanaged:
+            self.other = gtsam.Values(initial)
+            for k in managed:
+                self.other.erase(k)
+            self._managed_initial = gtsam.Values(initial)
+            for k in unmanaged:
                 self._managed_initial.erase(k)
+        else:  # a pure pose graph: no per-key erasing
+            self.other = gtsam.Values()
+            self._managed_initial = initial
+        self.other_keys = [k for k in native_keys if k not in managed]
         self._native_setup()
 
     def _native_setup(self):
