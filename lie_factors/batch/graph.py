@@ -451,6 +451,19 @@ class Problem:
             self.native_linear = lin
         return total
 
+    def linearized_sqnorms(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Squared whitened residual norm of every factor at the last linearization, (graph size,).
+
+        Native factors: ‖b‖² of GTSAM's linearization (already robust-weighted
+        if their noise model is Robust).  Empty graph slots: 0.
+        """
+        out = np.zeros(self.graph_size) if out is None else out
+        for g in self.groups:
+            out[g.fidx] = g.sq
+        if self.native_arrays is not None:
+            out[self.native_arrays.fidx] = self.native_arrays.sq
+        return out
+
     def retract(self, delta: np.ndarray):
         """(elements, other Values) at ``X·Exp(δ)`` per variable (not applied; see :meth:`accept`)."""
         Xs = {}
