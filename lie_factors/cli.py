@@ -83,6 +83,18 @@ def _emit_json(record: dict) -> None:
 # posegraph
 # --------------------------------------------------------------------------- #
 
+#: lie_factors.initialize.METHODS, spelled out so that building the parser
+#: does not import GTSAM (a test checks they agree).
+INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
+
+INIT_DESCRIPTIONS = {
+    "chordal": "chordal relaxation (gtsam.InitializePose3)",
+    "lago": "LAGO (gtsam.lago)",
+    "spanning-tree": "measurements composed along a spanning tree",
+    "file": "vertices in the file",
+}
+
+
 def _add_posegraph(p: argparse.ArgumentParser) -> None:
     from lie_factors.posegraph import BACKENDS
 
@@ -94,12 +106,18 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                         "native = GTSAM's own factors, the reference)")
     p.add_argument("--max-iterations", type=_nonnegative_int, default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")
+    p.add_argument("--init", default="auto", choices=INIT_METHODS,
+                   help="where LM starts: chordal = GTSAM's chordal relaxation (InitializePose3), "
+                        "lago = GTSAM's LAGO (2-D, diagonal noise only), spanning-tree = "
+                        "measurements composed along a BFS tree, file = the file's vertices; "
+                        "auto (default) = chordal in 3-D, lago then chordal in 2-D, then file, "
+                        "then spanning-tree: the first that applies")
     p.add_argument("--robust", metavar="LOSS[:K]",
                    help="robust loss on the loop closures (edges between non-consecutive poses): "
                         "huber | cauchy | tukey | gm | dcs, optionally with its parameter, e.g. huber:1.345")
     p.add_argument("--robust-all", action="store_true",
                    help="apply the --robust loss to every edge, odometry included")
-    p.add_argument("--gnc", choices=("tls", "gm"), metavar="{tls,gm}",
+    p.add_argument("--gnc", metavar="{tls,gm}",
                    help="graduated non-convexity (GTSAM's GncOptimizer semantics) with truncated "
                         "least squares or Geman-McClure; odometry edges are known inliers; "
                         "the JSON gains 'outliers' (rejected edges, 0-based file order)")
@@ -116,6 +134,8 @@ CLI_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
 
 def _robust_loss(args):
     """The --robust option as a RobustLoss (None without it); CLIError on a bad name or parameter."""
+    if args.gnc is not None and args.gnc not in ("tls", "gm"):
+        raise CLIError(f"--gnc: unknown loss {args.gnc!r} (choose from tls, gm)")
     if args.robust is None:
         if args.robust_all:
             raise CLIError("--robust-all needs --robust LOSS")
@@ -160,24 +180,33 @@ def _run_posegraph(args) -> int:
     pg = pgm.load(args.dataset)
 
     kind = "SE(3)" if pg.is3d else "SE(2)"
-    init = "spanning tree of the edges" if pg.initialized_from_edges else "vertices in the file"
-    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges "
-               f"(initial guess: {init}); backend {args.backend}")
+    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges"
+               f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
+               f"backend {args.backend}")
     if robust is not None:
         what = "every edge" if args.robust_all else "the loop closures"
         _say(args, f"robust loss {robust} on {what}")
+
+    def report_start(start):
+        for method, reason in start.skipped:
+            _say(args, f"init {method} not applicable: {reason}")
+        _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]} ({start.seconds:.3f} s)")
+
     record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args),
-                                 robust=robust, robust_all=args.robust_all, gnc=args.gnc,
+                                 init=args.init, on_init=report_start, robust=robust,
+                                 robust_all=args.robust_all, gnc=args.gnc,
                                  gnc_progress=_gnc_progress(args))
     status = "converged" if record.converged else "stopped (not converged)"
     if args.gnc:
         n_lc = len(pgm.loop_closures(pg))
         _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop closures; "
                    f"error {record.initial_error:.6g} -> weighted {record.final_error:.6g} after "
-                   f"{record.iterations} GNC iterations, {record.seconds:.3f} s, {status}")
+                   f"{record.iterations} GNC iterations, {record.seconds:.3f} s "
+                   f"(+ {record.init_seconds:.3f} s initialization), {status}")
     else:
         _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
-                   f"{record.iterations} iterations, {record.seconds:.3f} s, {status}")
+                   f"{record.iterations} iterations, {record.seconds:.3f} s "
+                   f"(+ {record.init_seconds:.3f} s initialization), {status}")
 
     if args.output:
         g2o.write_g2o(args.output, pg.between, result.values)
@@ -185,7 +214,7 @@ def _run_posegraph(args) -> int:
     if args.plot:
         from lie_factors.plotting import plot_trajectories
 
-        trajectories = {"initial": pgm.positions(pg.initial, pg.is3d),
+        trajectories = {f"initial ({record.init})": pgm.positions(result.start, pg.is3d),
                         "optimized": pgm.positions(result.values, pg.is3d)}
         atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
             tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d), suffix=".png")

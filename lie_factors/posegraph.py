@@ -11,7 +11,9 @@ Pipeline (each step a function, the CLI and the benchmark just chain them):
    are initialized by composing measurements along a BFS spanning tree.
 4. :func:`build_graph` — the between factors re-created with the chosen
    backend's constructors, plus a prior on the first pose.
-5. :func:`optimize` — Levenberg–Marquardt driven one ``iterate()`` at a time
+5. :func:`lie_factors.initialize.initialize` — where LM starts: GTSAM's chordal
+   relaxation (3-D) or LAGO (2-D) by default, the file's vertices on request.
+6. :func:`optimize` — Levenberg–Marquardt driven one ``iterate()`` at a time
    from Python, with GTSAM's own stopping rule, reporting each iteration.
 
 g2o formats (checking, reading, writing) live in :mod:`lie_factors.g2o`; result
@@ -24,7 +26,6 @@ import dataclasses
 import math
 import os
 import time
-from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -34,6 +35,8 @@ import gtsam
 
 from .errors import PoseGraphError
 from .g2o import check_g2o, read_g2o, resolve_dataset
+from .initialize import METHODS as INIT_METHODS
+from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
 from .results import IterationInfo, OptimizeResult
 
 
@@ -92,36 +95,6 @@ def load(dataset: str) -> PoseGraph:
         first_key=summary.pose_ids[0],
         initialized_from_edges=from_edges,
     )
-
-
-def spanning_tree_initial(graph: gtsam.NonlinearFactorGraph, is3d: bool, root: int) -> gtsam.Values:
-    """Initial poses from composing measurements along a BFS tree rooted at ``root``.
-
-    The root is the identity.  BFS (rather than plain odometry order) reaches
-    every pose of a connected graph even when ids are not a chain, and takes
-    each pose through the fewest measurements, so drift stays smallest.
-    Edge i→j with measurement Z means x_j = x_i·Z, hence x_i = x_j·Z⁻¹.
-    """
-    identity = gtsam.Pose3() if is3d else gtsam.Pose2()
-    adj: dict[int, list[tuple[int, object, bool]]] = {}
-    for k in range(graph.size()):
-        f = graph.at(k)
-        i, j = f.keys()
-        Z = f.measured()
-        adj.setdefault(i, []).append((j, Z, True))
-        adj.setdefault(j, []).append((i, Z, False))
-    poses = {root: identity}
-    queue = deque([root])
-    while queue:
-        i = queue.popleft()
-        for j, Z, forward in adj.get(i, ()):
-            if j not in poses:
-                poses[j] = poses[i].compose(Z if forward else Z.inverse())
-                queue.append(j)
-    values = gtsam.Values()
-    for key in sorted(poses):
-        values.insert(key, poses[key])
-    return values
 
 
 # --------------------------------------------------------------------------- #
@@ -277,7 +250,9 @@ class RunRecord:
     """What ``lie-factors posegraph --json`` prints (``to_dict``).
 
     ``factors`` counts the optimized graph: the file's edges + 1 prior;
-    ``seconds`` is optimization only (LM construction + iterations, not loading);
+    ``seconds`` is optimization only (LM construction + iterations, not loading
+    and not initialization); ``init`` is the initialization method used
+    (:data:`lie_factors.initialize.METHODS`) and ``init_seconds`` its cost;
     ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖²
     (Σ ρ(‖whitened residual‖) for robust factors).  ``robust``: the loss
     (``name:k``, with ``+all`` if on every edge); ``gnc``: the GNC loss.  With
@@ -296,6 +271,8 @@ class RunRecord:
     final_error: float
     seconds: float
     converged: bool
+    init: str = "file"
+    init_seconds: float = 0.0
     robust: str | None = None
     gnc: str | None = None
     outliers: list[int] | None = None
@@ -321,26 +298,43 @@ def run(
     backend: str = "native",
     max_iterations: int = 100,
     progress: Callable[[IterationInfo], None] | None = None,
+    init: str = "auto",
+    on_init: Callable[[Initialization], None] | None = None,
     robust=None,
     robust_all: bool = False,
     gnc: str | None = None,
     gnc_progress: Callable | None = None,
 ) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
-    """Load (unless given a :class:`PoseGraph`), build with ``backend``, optimize.
+    """Load (unless given a :class:`PoseGraph`), build with ``backend``, initialize, optimize.
 
-    ``robust``: a :class:`lie_factors.robust.RobustLoss` on the loop closures
-    (all edges with ``robust_all``).  ``gnc``: "tls" or "gm" runs graduated
-    non-convexity instead of plain LM (odometry edges and the prior are known
-    inliers; ``max_iterations`` limits each inner LM; ``gnc_progress(it, λ,
-    cost, lm_iterations)`` after each outer iteration).
+    ``init``: a method of :func:`lie_factors.initialize.initialize`, run on the
+    graph ``backend`` built (so every backend starts from the same values);
+    ``file`` is the file's vertices.  ``on_init`` is called with the
+    :class:`~lie_factors.initialize.Initialization` before LM starts.
+    ``result.start`` holds the values LM started from.
+
+    ``robust``: a :class:`lie_factors.batch.robust.RobustLoss` on the loop
+    closures (all edges with ``robust_all``).  ``gnc``: "tls" or "gm" runs
+    graduated non-convexity instead of plain LM (odometry edges and the prior
+    are known inliers; ``max_iterations`` limits each inner LM;
+    ``gnc_progress(it, λ, cost, lm_iterations)`` after each outer iteration).
     """
     pg = load(dataset) if isinstance(dataset, str) else dataset
     get_backend(backend)
+    if gnc is not None and loop_closures(pg).size == 0:
+        raise PoseGraphError(f"{pg.name}: --gnc needs loop closures (edges between non-consecutive "
+                             "poses); this graph has none")
+    graph = build_graph(pg, backend)
+    start = initialize(graph, init, None if pg.initialized_from_edges else pg.initial)
+    if on_init is not None:
+        on_init(start)
     if gnc is not None:
-        return _run_gnc(pg, backend, max_iterations, gnc, gnc_progress)
-    graph = build_graph(pg, backend, robust, robust_all)
+        return _run_gnc(pg, graph, start, backend, max_iterations, gnc, gnc_progress)
+    if robust is not None:
+        graph = build_graph(pg, backend, robust, robust_all)
     opt = get_backend(backend).optimize or optimize
-    result = opt(graph, pg.initial, max_iterations=max_iterations, progress=progress)
+    result = opt(graph, start.values, max_iterations=max_iterations, progress=progress)
+    result.start = start.values
     record = RunRecord(
         backend=backend,
         dataset=pg.name,
@@ -352,12 +346,14 @@ def run(
         final_error=result.final_error,
         seconds=result.seconds,
         converged=result.converged,
+        init=start.method,
+        init_seconds=start.seconds,
         robust=None if robust is None else str(robust) + ("+all" if robust_all else ""),
     )
     return record, result, pg
 
 
-def _run_gnc(pg: PoseGraph, backend: str, max_iterations: int, loss: str,
+def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, loss: str,
              gnc_progress: Callable | None) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
     """GNC per backend: native = gtsam.GncLMOptimizer; custom = our outer loop over GTSAM's LM
     with lie_factors factors (GTSAM's GncOptimizer cannot clone CustomFactors); batch = our
@@ -365,31 +361,28 @@ def _run_gnc(pg: PoseGraph, backend: str, max_iterations: int, loss: str,
     from lie_factors import gnc as gncm
 
     closures = loop_closures(pg)
-    if closures.size == 0:
-        raise PoseGraphError(f"{pg.name}: --gnc needs loop closures (edges between non-consecutive "
-                             "poses); this graph has none")
-    graph = build_graph(pg, backend)
     known = np.setdiff1d(np.arange(graph.size()), closures)  # odometry + the prior
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(int(max_iterations))
     params = gncm.GncParams(loss=loss, known_inliers=known.tolist(), lm_params=lm)
     try:
         if backend == "native":
-            res = gncm.gtsam_gnc(graph, pg.initial, params)
+            res = gncm.gtsam_gnc(graph, start.values, params)
         elif backend == "batch":
             from lie_factors.batch_gnc import BatchInner
 
-            res = gncm.gnc_optimize(BatchInner(graph, pg.initial, lm), params, gnc_progress)
+            res = gncm.gnc_optimize(BatchInner(graph, start.values, lm), params, gnc_progress)
         else:
-            res = gncm.gnc_optimize(gncm.GtsamInner(graph, pg.initial, lm), params, gnc_progress)
+            res = gncm.gnc_optimize(gncm.GtsamInner(graph, start.values, lm), params, gnc_progress)
     except RuntimeError as exc:
         raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
     values = res.values
     if not isinstance(values, gtsam.Values):
         values = values.to_values()
-    initial_error = float(graph.error(pg.initial))
+    initial_error = float(graph.error(start.values))
     result = OptimizeResult(values, res.iterations, initial_error, res.cost, res.seconds,
                             res.stop != "maxIterations", [])
+    result.start = start.values
     outliers = [int(k) for k in res.outliers if k < pg.between.size()]
     record = RunRecord(
         backend=backend,
@@ -404,6 +397,8 @@ def _run_gnc(pg: PoseGraph, backend: str, max_iterations: int, loss: str,
         converged=result.converged,
         gnc=loss,
         outliers=outliers,
+        init=start.method,
+        init_seconds=start.seconds,
     )
     return record, result, pg
 
