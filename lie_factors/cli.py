@@ -128,7 +128,7 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
 
 
-#: --robust LOSS names (the CLI's subset of lie_factors.robust.LOSSES)
+#: --robust LOSS names (the CLI's subset of lie_factors.batch.robust.LOSSES)
 CLI_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
 
 
@@ -140,7 +140,7 @@ def _robust_loss(args):
         if args.robust_all:
             raise CLIError("--robust-all needs --robust LOSS")
         return None
-    from lie_factors.robust import parse_loss
+    from lie_factors.batch.robust import parse_loss
 
     name = args.robust.partition(":")[0].strip().lower()
     if name not in CLI_LOSSES:

@@ -157,7 +157,7 @@ def build_graph(pg: PoseGraph, backend: str, robust=None,
 
     The prior pins the first pose at its initial value (identity for edge-only
     files), fixing the gauge.  With ``robust`` (a
-    :class:`lie_factors.robust.RobustLoss`) the loop closures' noise models —
+    :class:`lie_factors.batch.robust.RobustLoss`) the loop closures' noise models —
     every edge's with ``robust_all`` — become ``noiseModel.Robust(loss,
     Gaussian)``.  Edge k of the file is factor k; the prior is the last factor.
     """
@@ -232,6 +232,15 @@ def _optimize_batch(graph, initial, max_iterations=100, progress=None, params=No
     from lie_factors.batch import run_batch
 
     return run_batch(graph, initial, max_iterations, progress, params)
+
+
+def _optimize_batch_robust(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+    # Robust noise models vectorized (Σ ρ, rows reweighted by √w) instead of linearized by GTSAM.
+    from lie_factors.batch import run_batch
+    from lie_factors.batch.robust import WeightedLevenbergMarquardt
+
+    return run_batch(graph, initial, max_iterations, progress, params,
+                     optimizer_class=WeightedLevenbergMarquardt)
 
 
 BACKENDS.update(
@@ -333,6 +342,8 @@ def run(
     if robust is not None:
         graph = build_graph(pg, backend, robust, robust_all)
     opt = get_backend(backend).optimize or optimize
+    if robust is not None and backend == "batch":
+        opt = _optimize_batch_robust
     result = opt(graph, start.values, max_iterations=max_iterations, progress=progress)
     result.start = start.values
     record = RunRecord(
@@ -358,7 +369,7 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
     """GNC per backend: native = gtsam.GncLMOptimizer; custom = our outer loop over GTSAM's LM
     with lie_factors factors (GTSAM's GncOptimizer cannot clone CustomFactors); batch = our
     outer loop over the batch solver."""
-    from lie_factors import gnc as gncm
+    from lie_factors.batch import gnc as gncm
 
     closures = loop_closures(pg)
     known = np.setdiff1d(np.arange(graph.size()), closures)  # odometry + the prior
@@ -369,9 +380,7 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
         if backend == "native":
             res = gncm.gtsam_gnc(graph, start.values, params)
         elif backend == "batch":
-            from lie_factors.batch_gnc import BatchInner
-
-            res = gncm.gnc_optimize(BatchInner(graph, start.values, lm), params, gnc_progress)
+            res = gncm.gnc_optimize(gncm.BatchInner(graph, start.values, lm), params, gnc_progress)
         else:
             res = gncm.gnc_optimize(gncm.GtsamInner(graph, start.values, lm), params, gnc_progress)
     except RuntimeError as exc:

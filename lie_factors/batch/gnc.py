@@ -32,8 +32,12 @@ for GM):
 
 The inner solver is anything with the small interface of :class:`InnerSolver`;
 :class:`GtsamInner` runs GTSAM's own ``LevenbergMarquardtOptimizer`` on
-re-weighted copies of the graph (GTSAM's ``makeWeightedGraph``), and the batch
-solver provides a vectorized one.  An outlier is a factor whose final weight is
+re-weighted copies of the graph (GTSAM's ``makeWeightedGraph``);
+:class:`BatchInner` runs the batch LM on one graph read once, with the weights
+as per-factor scales of its normal equations and a restart from the initial
+values per solve (the sparsity pattern and CHOLMOD's symbolic analysis are
+reused across all of GNC's solves); :func:`gtsam_gnc` is GTSAM's
+``GncLMOptimizer`` itself, the reference.  An outlier is a factor whose final weight is
 below ½ (for TLS the weights end within ``weightsTol`` of 0 or 1).
 """
 
@@ -46,11 +50,12 @@ from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
-from ._jit import kernel
-from .robust import chi2_inlier_threshold
+from .._jit import kernel
+from .robust import WeightedLevenbergMarquardt, chi2_inlier_threshold
 
 __all__ = [
-    "GncParams", "GncResult", "InnerSolver", "GtsamInner", "gnc_optimize", "gnc_weights",
+    "GncParams", "GncResult", "InnerSolver", "GtsamInner", "BatchInner", "gnc_optimize", "gnc_weights",
+    "gtsam_gnc",
     "TLS", "GM", "LINEAR", "SUPERLINEAR",
 ]
 
@@ -365,7 +370,7 @@ def with_noise(factor, noise):
     GTSAM's ``CustomFactor`` cannot be cloned, so lie_factors' factors are
     re-created from their measurement instead.
     """
-    from . import factors as F
+    from .. import factors as F
 
     if isinstance(factor, F.BetweenFactor):
         k1, k2 = factor.keys()
@@ -476,3 +481,60 @@ def _gaussian_error(factor, values) -> float:
     if hasattr(noise, "noise") and type(noise).__name__ == "Robust":
         return 0.5 * float(noise.noise().squaredMahalanobisDistance(factor.unwhitenedError(values)))
     return float(factor.error(values))
+
+
+# --------------------------------------------------------------------------- #
+# Inner solver: the batch LM, one graph read for all of GNC
+# --------------------------------------------------------------------------- #
+
+class _BatchState:
+    """An estimate of the batch problem (element arrays + other Values); ``to_values()`` → gtsam.Values."""
+
+    def __init__(self, lm, Xs, other):
+        self._lm, self.Xs, self.other = lm, Xs, other
+
+    def to_values(self):
+        P = self._lm.problem
+        P.accept(dict(self.Xs), self.other)
+        return P.values()
+
+
+class _GncLevenbergMarquardt(WeightedLevenbergMarquardt):
+    # GNC converts only its final estimate to a gtsam.Values.
+    def values(self):
+        return None
+
+
+class BatchInner:
+    """:class:`InnerSolver` on :class:`~lie_factors.batch.robust.WeightedLevenbergMarquardt`.
+
+    GNC's graph (robust noise models replaced by their Gaussian part, as
+    ``GncOptimizer``'s constructor does) is read once; each solve restarts LM
+    from the initial values with the GNC weights as per-factor scales ``s_f``:
+    the rows of factor f scaled by √s_f, i.e. information ``s_f·Ω_f`` — GTSAM's
+    ``makeWeightedGraph`` without building a graph.
+    """
+
+    def __init__(self, graph, initial, lm_params=None, linear_solver: str = "auto"):
+        import gtsam
+
+        stripped = gtsam.NonlinearFactorGraph()
+        for k in range(graph.size()):
+            f = graph.at(k)
+            noise = _gaussian_part(f.noiseModel())
+            stripped.add(f if noise is f.noiseModel() else with_noise(f, noise))
+        self.lm = _GncLevenbergMarquardt(stripped, initial, lm_params, linear_solver=linear_solver)
+        self.size = int(stripped.size())
+        self.dims = np.array([stripped.at(k).dim() for k in range(self.size)], dtype=np.int64)
+        P = self.lm.problem
+        self.initial = _BatchState(self.lm, {n: b.X0 for n, b in P.blocks.items()},
+                                   gtsam.Values(P.other))
+
+    def factor_errors(self, state) -> np.ndarray:
+        return self.lm.factor_errors(state.Xs, state.other)
+
+    def optimize(self, weights: np.ndarray):
+        self.lm.restart(weights)
+        res = self.lm.optimize()
+        P = self.lm.problem
+        return _BatchState(self.lm, P.elements(), P.other), int(res.iterations)

@@ -39,16 +39,19 @@ from __future__ import annotations
 
 import math
 import re
+import time
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
-from ._jit import kernel
+from .._jit import kernel
+from .optimizer import BatchLevenbergMarquardt
 
 __all__ = [
     "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH",
     "LOSSES", "RobustLoss", "parse_loss", "from_gtsam", "weight", "loss",
-    "weights_and_losses", "chi2_inlier_threshold",
+    "weights_and_losses", "chi2_inlier_threshold", "WeightedLevenbergMarquardt", "graph_losses",
 ]
 
 GAUSSIAN = 0
@@ -250,6 +253,16 @@ def from_gtsam(mestimator) -> RobustLoss | None:
         text = mestimator.serialize()
     except Exception:  # pragma: no cover - every mEstimator in gtsam 4.3 serializes
         return None
+    key = (name, text)
+    if key not in _FROM_GTSAM:
+        _FROM_GTSAM[key] = _parse_checked(name, text, mestimator)
+    return _FROM_GTSAM[key]
+
+
+_FROM_GTSAM: dict = {}  # (name, serialization) → RobustLoss | None: graphs share few estimators
+
+
+def _parse_checked(name: str, text: str, mestimator) -> RobustLoss | None:
     m = _FLOAT.search(text)
     if m is None:
         return None
@@ -303,3 +316,138 @@ def chi2_inlier_threshold(dim: int, probability: float = 0.99) -> float:
         gnc.setInlierCostThresholdsAtProbability(float(probability))
         _CHI2_CACHE[key] = float(np.asarray(gnc.getInlierCostThresholds())[0])
     return _CHI2_CACHE[key]
+
+
+# --------------------------------------------------------------------------- #
+# Levenberg–Marquardt on robust / weighted factors
+# --------------------------------------------------------------------------- #
+
+def graph_losses(problem) -> tuple[np.ndarray, np.ndarray]:
+    """(kinds, ks) per graph slot from ``problem.robust`` (slot → RobustLoss); GAUSSIAN elsewhere."""
+    kinds = np.zeros(problem.graph_size, dtype=np.int64)
+    ks = np.ones(problem.graph_size)
+    for slot, rl in problem.robust.items():
+        kinds[slot] = rl.kind
+        ks[slot] = rl.k
+    return kinds, ks
+
+
+class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
+    """Batch LM on ``Σ_f s_f·ρ_f(‖R_f e_f‖)``: robust noise models and GNC weights.
+
+    ``ρ_f`` is factor f's robust loss (``noiseModel.Robust`` with a Huber,
+    Cauchy, Tukey, Geman–McClure, DCS or Welsch estimator and Block
+    reweighting; ½d² for Gaussian noise) and ``s_f`` a fixed scale (the GNC
+    weight, 1 by default; :meth:`restart` sets it).  At each linearization the
+    whitened rows of factor f are scaled by ``√(s_f·w_f(d_f))`` — GTSAM's
+    ``Robust::WhitenSystem`` (and, with s, its ``makeWeightedGraph``) — through
+    the solver's per-factor weights; the error is the robust one, as GTSAM's
+    ``NoiseModelFactor::error``.  The LM loop (λ schedule, model fidelity,
+    convergence) is :class:`~lie_factors.batch.optimizer.BatchLevenbergMarquardt`'s.
+
+    Factors GTSAM linearizes itself (native factors, other estimators) keep
+    GTSAM's own robust handling and are only scaled by ``s_f``.
+    """
+
+    group_robust = True
+
+    def __init__(self, graph, initial, params=None, scale=None, **kwargs):
+        super().__init__(graph, initial, params, **kwargs)
+        P = self.problem
+        F = P.graph_size
+        self.kinds, self.ks = graph_losses(P)
+        self.scale = np.ones(F) if scale is None else np.asarray(scale, dtype=np.float64).copy()
+        self._group_slots = (np.concatenate([g.fidx for g in P.groups]) if P.groups
+                             else np.zeros(0, dtype=np.int64))
+        self._native_slots = (P.native_arrays.fidx if P.native_arrays is not None
+                              else np.zeros(0, dtype=np.int64))
+        self._gk = self.kinds[self._group_slots]
+        self._gkk = self.ks[self._group_slots]
+        self._w = np.empty(len(self._group_slots))
+        self._rho = np.empty(len(self._group_slots))
+        self._other0 = gtsam.Values(P.other)
+        t = time.perf_counter()
+        self._error = self.objective()
+        self.timings["error"] += time.perf_counter() - t
+        self.errors = [self._error]
+
+    # ------------------------------------------------------------ objective
+    def objective(self, Xs=None, other=None) -> float:
+        """Σ_f s_f·ρ_f at the given (or current) estimate."""
+        P = self.problem
+        sq = np.zeros(P.graph_size)
+        P.error(Xs, other, sq_out=sq)
+        return self._weighted(sq)
+
+    def _weighted(self, sq: np.ndarray) -> float:
+        gs = self._group_slots
+        weights_and_losses(self._gk, self._gkk, sq[gs], self._w, self._rho)
+        total = float(np.dot(self.scale[gs], self._rho))
+        ns = self._native_slots
+        if len(ns):
+            total += 0.5 * float(np.dot(self.scale[ns], sq[ns]))  # sq = 2·(GTSAM's error)
+        return total
+
+    def factor_errors(self, Xs=None, other=None) -> np.ndarray:
+        """(graph size,) each factor's unscaled error (½‖R e‖² for Gaussian noise, ρ for robust)."""
+        P = self.problem
+        sq = np.zeros(P.graph_size)
+        P.error(Xs, other, sq_out=sq)
+        gs = self._group_slots
+        weights_and_losses(self._gk, self._gkk, sq[gs], self._w, self._rho)
+        out = 0.5 * sq
+        out[gs] = self._rho
+        return out
+
+    # ------------------------------------------------------------ LM hooks
+    def _linearize(self) -> float:
+        T = self.timings
+        t = time.perf_counter()
+        P = self.problem
+        P.linearize()
+        sys_w = self.system.weights
+        total = 0.0
+        for g in P.groups:
+            sq = g.sq
+            w = np.empty(g.E)
+            rho = np.empty(g.E)
+            weights_and_losses(self.kinds[g.fidx], self.ks[g.fidx], sq, w, rho)
+            sw = self.scale[g.fidx] * w
+            sys_w[g.fidx] = sw
+            total += 0.5 * float(np.dot(sw, sq))
+        nat = P.native_arrays
+        if nat is not None:
+            sys_w[nat.fidx] = self.scale[nat.fidx]
+            total += 0.5 * float(np.dot(self.scale[nat.fidx], nat.sq))
+        t1 = time.perf_counter()
+        self.system.assemble()
+        T["linearize"] += t1 - t
+        T["assemble"] += time.perf_counter() - t1
+        return total
+
+    def _try_step(self, delta):
+        T = self.timings
+        t = time.perf_counter()
+        Xs, other = self.problem.retract(delta)
+        t1 = time.perf_counter()
+        new_error = self.objective(Xs, other)
+        T["retract"] += t1 - t
+        T["error"] += time.perf_counter() - t1
+        return Xs, other, new_error
+
+    # ------------------------------------------------------------ restarts (GNC)
+    def restart(self, scale: np.ndarray) -> None:
+        """Back to the initial values and LM state, with factor scales ``scale`` (GNC's weights)."""
+        P = self.problem
+        for b in P.blocks.values():
+            b.X = b.X0.copy()
+        P.other = gtsam.Values(self._other0)
+        self.scale = np.asarray(scale, dtype=np.float64).copy()
+        self.lambda_ = 0.0 if self.gauss_newton else self.lambda_initial
+        self.current_factor = self.lambda_factor
+        self._iterations = 0
+        self.inner_iterations = 0
+        self.timings = dict.fromkeys(self.timings, 0.0)
+        self._error = self.objective()
+        self.errors = [self._error]
+        self.lambdas = [self.lambda_]
