@@ -63,6 +63,16 @@ def _say(args, text: str) -> None:
         print(text, flush=True)
 
 
+def _report_compile(args) -> None:
+    """One stderr line if this process compiled numba kernels (a first run on this machine)."""
+    from lie_factors.timing import compile_seconds
+
+    seconds = compile_seconds()
+    if seconds > 0 and not args.quiet:
+        print(f"{PROG}: compiled numba kernels in {seconds:.1f} s (first run on this machine; "
+              "cached for later runs, not counted in the optimization time)", file=sys.stderr, flush=True)
+
+
 def _emit_json(record: dict) -> None:
     # Last stdout line, one object: scripts can do `tail -n1 | jq`.
     print(json.dumps(record, sort_keys=False), flush=True)
@@ -161,6 +171,7 @@ def _run_posegraph(args) -> int:
 
     record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args),
                                  init=args.init, on_init=report_start)
+    _report_compile(args)
     status = "converged" if record.converged else "stopped (not converged)"
     _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
                f"{record.iterations} iterations, {record.seconds:.3f} s "
@@ -225,7 +236,9 @@ def _run_demo(args) -> int:
     graph = demo.build_graph(problem, factors)
     _say(args, f"demo: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
-    result = pgm.optimize(graph, problem.initial, args.max_iterations, _progress(args))
+    result = pgm.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
+                                                    _progress(args))
+    _report_compile(args)
     ate0 = demo.ate_rmse(problem.initial, problem.truth)
     ate1 = demo.ate_rmse(result.values, problem.truth)
     status = "converged" if result.converged else "stopped (not converged)"
