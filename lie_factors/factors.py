@@ -59,11 +59,19 @@ __all__ = [
 def between_error(g, Minv, X1, X2, e):
     """e = Log(M⁻¹·X1⁻¹·X2) on group ``g`` (a :mod:`lie_factors._dispatch` tag)."""
     m = X1.shape[0]
+    # C-ordered copies: GTSAM hands out Fortran-ordered matrices, the batch
+    # loops C-ordered ones; with copies every core is compiled for C only.
+    A = np.empty((m, m))
+    B = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            A[i, j] = X1[i, j]
+            B[i, j] = X2[i, j]
     X1inv = np.empty((m, m))
     rel = np.empty((m, m))
     E = np.empty((m, m))
-    _dispatch.inverse(g, X1, X1inv)
-    _dispatch.compose(g, X1inv, X2, rel)
+    _dispatch.inverse(g, A, X1inv)
+    _dispatch.compose(g, X1inv, B, rel)
     _dispatch.compose(g, Minv, rel, E)
     _dispatch.log(g, E, e)
 
@@ -159,25 +167,28 @@ def check_element(g, X):
 
 @kernel
 def between_setup(g, M, Minv, AdMinv):
-    """Construction of a Between factor: check M, then Minv = M⁻¹, AdMinv = Ad(M⁻¹)."""
+    """Construction of a factor: check M, then Minv = M⁻¹, AdMinv = Ad(M⁻¹).
+
+    Prior factors use it too (they are Between factors from the identity).
+    """
     code = check_element(g, M)
     if code == OK:
-        _dispatch.inverse(g, M, Minv)
+        m = M.shape[0]
+        A = np.empty((m, m))  # C-ordered, like every other input of the cores
+        for i in range(m):
+            for j in range(m):
+                A[i, j] = M[i, j]
+        _dispatch.inverse(g, A, Minv)
         _dispatch.Ad(g, Minv, AdMinv)
-    return code
-
-
-@kernel
-def prior_setup(g, P, Pinv):
-    """Construction of a Prior factor: check P, then Pinv = P⁻¹."""
-    code = check_element(g, P)
-    if code == OK:
-        _dispatch.inverse(g, P, Pinv)
     return code
 
 
 #: Groups whose factors were constructed in this process (see :func:`warm_up_constructed`).
 _constructed: set = set()
+
+#: Identity of each group, Fortran-ordered like the matrices GTSAM hands out (so
+#: a Prior factor's call of :func:`between` has the Between factors' signature).
+_IDENTITY = {name: np.asfortranarray(np.eye(g.mat)) for name, g in _dispatch.GROUPS.items()}
 
 
 def warm_up(group) -> None:
@@ -188,11 +199,10 @@ def warm_up(group) -> None:
     out Fortran-ordered matrices, our own buffers are C-ordered.
     """
     n, m = group.dim, group.mat
-    M = np.asfortranarray(np.eye(m))
+    I = _IDENTITY[group.name]
     Minv, Ad = np.eye(m), np.eye(n)
     e, H1, H2 = np.empty(n), np.empty((n, n)), np.empty((n, n))
-    between(group, Minv, Ad, M, M, e, H1, H2)
-    prior(group, Minv, M, e, H1)
+    between(group, Minv, Ad, I, I, e, H1, H2)
 
 
 def warm_up_constructed() -> None:
@@ -335,7 +345,12 @@ class BetweenFactor(gtsam.CustomFactor):
 
 
 class PriorFactor(gtsam.CustomFactor):
-    """Prior factor on ``spec``: error Log(prior⁻¹·X), Jacobian dlog(−e)."""
+    """Prior factor on ``spec``: error Log(prior⁻¹·X), Jacobian dlog(−e).
+
+    Evaluated as the Between factor from the identity, Log(prior⁻¹·I⁻¹·X) (the
+    same numbers: products with I are exact), so a graph of priors and
+    between factors compiles one kernel, not two.
+    """
 
     spec: GroupSpec
 
@@ -348,7 +363,8 @@ class PriorFactor(gtsam.CustomFactor):
         group = spec.group
         P = prior.matrix()
         Pinv = np.empty((group.mat, group.mat))
-        code = prior_setup(group, P, Pinv)
+        AdPinv = np.empty((group.dim, group.dim))
+        code = between_setup(group, P, Pinv, AdPinv)
         if code != OK:
             raise _element_error(spec, P, code, "prior", name)
         _constructed.add(group)
@@ -356,6 +372,7 @@ class PriorFactor(gtsam.CustomFactor):
         self._prior = prior
         self._key = k
         self._Pinv = Pinv
+        self._AdPinv = AdPinv
         self._group = group
         self._name = name
 
@@ -366,10 +383,12 @@ class PriorFactor(gtsam.CustomFactor):
     def _evaluate(self, this, values, H):
         spec = self.spec
         X = _fetch(values, self._key, spec, self._name)
-        n = spec.group.dim
+        group = self._group
+        n = group.dim
         e = np.empty(n)
+        H1 = np.empty((n, n))
         J = np.empty((n, n))
-        prior(self._group, self._Pinv, X, e, J)
+        between(group, self._Pinv, self._AdPinv, _IDENTITY[group.name], X, e, H1, J)
         if H is not None:
             H[0] = J
         return e
