@@ -265,7 +265,21 @@ def _check_type(spec: GroupSpec, value, what: str, factor: str) -> None:
         raise TypeError(f"{factor}: {what} must be a gtsam.{spec.name}, got {type(value).__name__}")
 
 
+#: tangent dimension → the noise model last found to fit it. Graphs typically
+#: share one noise model object among many factors; GTSAM noise models are
+#: immutable, and holding the object (not its id) makes ``is`` exact.
+_noise_checked: dict = {}
+
+
 def _checked_noise(spec: GroupSpec, noise_model, factor: str):
+    if _noise_checked.get(spec.group.dim) is noise_model:
+        return noise_model
+    _check_noise(spec, noise_model, factor)
+    _noise_checked[spec.group.dim] = noise_model
+    return noise_model
+
+
+def _check_noise(spec: GroupSpec, noise_model, factor: str) -> None:
     if not isinstance(noise_model, gtsam.noiseModel.Base):
         raise TypeError(f"{factor}: noise_model must be a gtsam.noiseModel, got {type(noise_model).__name__}")
     if noise_model.dim() != spec.dim:
@@ -273,7 +287,6 @@ def _checked_noise(spec: GroupSpec, noise_model, factor: str):
             f"{factor}: noise model has dimension {noise_model.dim()}, "
             f"but {spec.name} has dimension {spec.dim}"
         )
-    return noise_model
 
 
 def _checked_key(key, factor: str) -> int:
@@ -304,26 +317,31 @@ class BetweenFactor(gtsam.CustomFactor):
     spec: GroupSpec
 
     def __init__(self, key1, key2, measured, noise_model):
-        name = type(self).__name__
+        # Graphs of 1e5 factors are built in Python loops: the common case (int
+        # keys, the exact GTSAM type, a noise model already checked) runs with
+        # no helper call; anything else goes through the checking helpers.
         spec = self.spec
-        k1, k2 = _checked_key(key1, name), _checked_key(key2, name)
-        _check_type(spec, measured, "measured", name)
-        _checked_noise(spec, noise_model, name)
         group = spec.group
+        if type(key1) is not int or type(key2) is not int or key1 < 0 or key2 < 0:
+            key1 = _checked_key(key1, type(self).__name__)
+            key2 = _checked_key(key2, type(self).__name__)
+        if type(measured) is not spec.cls:
+            _check_type(spec, measured, "measured", type(self).__name__)
+        if _noise_checked.get(group.dim) is not noise_model:
+            _checked_noise(spec, noise_model, type(self).__name__)
         M = measured.matrix()
         Minv = np.empty((group.mat, group.mat))
         AdMinv = np.empty((group.dim, group.dim))
         code = between_setup(group, M, Minv, AdMinv)
         if code != OK:
-            raise _element_error(spec, M, code, "measured", name)
+            raise _element_error(spec, M, code, "measured", type(self).__name__)
         _constructed.add(group)
-        super().__init__(noise_model, [k1, k2], self._evaluate)
+        gtsam.CustomFactor.__init__(self, noise_model, [key1, key2], self._evaluate)
         self._measured = measured
-        self._key1, self._key2 = k1, k2
+        self._key1 = key1
+        self._key2 = key2
         self._Minv = Minv
         self._AdMinv = AdMinv
-        self._group = group
-        self._name = name
 
     def measured(self):
         """The measured relative transform, as the GTSAM object given."""
@@ -331,13 +349,13 @@ class BetweenFactor(gtsam.CustomFactor):
 
     def _evaluate(self, this, values, H):
         spec = self.spec
-        X1 = _fetch(values, self._key1, spec, self._name)
-        X2 = _fetch(values, self._key2, spec, self._name)
+        X1 = _fetch(values, self._key1, spec, type(self).__name__)
+        X2 = _fetch(values, self._key2, spec, type(self).__name__)
         n = spec.group.dim
         e = np.empty(n)
         H1 = np.empty((n, n))
         H2 = np.empty((n, n))
-        between(self._group, self._Minv, self._AdMinv, X1, X2, e, H1, H2)
+        between(spec.group, self._Minv, self._AdMinv, X1, X2, e, H1, H2)
         if H is not None:
             H[0] = H1
             H[1] = H2
@@ -355,26 +373,26 @@ class PriorFactor(gtsam.CustomFactor):
     spec: GroupSpec
 
     def __init__(self, key, prior, noise_model):
-        name = type(self).__name__
         spec = self.spec
-        k = _checked_key(key, name)
-        _check_type(spec, prior, "prior", name)
-        _checked_noise(spec, noise_model, name)
         group = spec.group
+        if type(key) is not int or key < 0:
+            key = _checked_key(key, type(self).__name__)
+        if type(prior) is not spec.cls:
+            _check_type(spec, prior, "prior", type(self).__name__)
+        if _noise_checked.get(group.dim) is not noise_model:
+            _checked_noise(spec, noise_model, type(self).__name__)
         P = prior.matrix()
         Pinv = np.empty((group.mat, group.mat))
         AdPinv = np.empty((group.dim, group.dim))
         code = between_setup(group, P, Pinv, AdPinv)
         if code != OK:
-            raise _element_error(spec, P, code, "prior", name)
+            raise _element_error(spec, P, code, "prior", type(self).__name__)
         _constructed.add(group)
-        super().__init__(noise_model, [k], self._evaluate)
+        gtsam.CustomFactor.__init__(self, noise_model, [key], self._evaluate)
         self._prior = prior
-        self._key = k
+        self._key = key
         self._Pinv = Pinv
         self._AdPinv = AdPinv
-        self._group = group
-        self._name = name
 
     def prior(self):
         """The prior value, as the GTSAM object given."""
@@ -382,8 +400,8 @@ class PriorFactor(gtsam.CustomFactor):
 
     def _evaluate(self, this, values, H):
         spec = self.spec
-        X = _fetch(values, self._key, spec, self._name)
-        group = self._group
+        X = _fetch(values, self._key, spec, type(self).__name__)
+        group = spec.group
         n = group.dim
         e = np.empty(n)
         H1 = np.empty((n, n))
