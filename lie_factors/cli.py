@@ -116,7 +116,9 @@ def _run_posegraph(args) -> int:
 
     kind = "SE(3)" if pg.is3d else "SE(2)"
     init = "spanning tree of the edges" if pg.initialized_from_edges else "vertices in the file"
-    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges "
+    lms = (f", {pg.landmark_count} landmarks, {pg.observations} landmark measurements"
+           if pg.observations else "")
+    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges{lms} "
                f"(initial guess: {init}); backend {args.backend}")
     record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args))
     status = "converged" if record.converged else "stopped (not converged)"
@@ -124,15 +126,19 @@ def _run_posegraph(args) -> int:
                f"{record.iterations} iterations, {record.seconds:.3f} s, {status}")
 
     if args.output:
-        g2o.write_g2o(args.output, pg.between, result.values)
+        g2o.write_g2o(args.output, pg.native_graph(), result.values)
         _say(args, f"wrote {args.output}")
     if args.plot:
         from lie_factors.plotting import plot_trajectories
 
         trajectories = {"initial": pgm.positions(pg.initial, pg.is3d),
                         "optimized": pgm.positions(result.values, pg.is3d)}
+        points = ({"initial landmarks": pgm.landmark_positions(pg.initial, pg.is3d),
+                   "optimized landmarks": pgm.landmark_positions(result.values, pg.is3d)}
+                  if pg.landmark_count else None)
         atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
-            tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d), suffix=".png")
+            tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d, points=points),
+            suffix=".png")
         _say(args, f"wrote {args.plot}")
     if args.json:
         _emit_json(record.to_dict())

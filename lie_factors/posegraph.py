@@ -46,8 +46,11 @@ class PoseGraph:
     """A checked g2o file read by GTSAM.
 
     ``between``: native GTSAM graph of BetweenFactorPose2/3 exactly as
-    ``readG2o`` built it (no prior) — also what :func:`write_g2o` writes;
-    ``initial``: Values with every pose; ``first_key``: smallest id, gets the prior.
+    ``readG2o`` built them (no prior); ``landmarks``: the landmark
+    measurements (GTSAM's BearingRangeFactor2D/3D, pose key → landmark key
+    ``symbol('l', j)``), used as they are by every backend; ``initial``:
+    Values with every pose and landmark; ``first_key``: smallest pose id, gets
+    the prior.
     """
 
     path: str
@@ -57,14 +60,42 @@ class PoseGraph:
     initial: gtsam.Values
     first_key: int
     initialized_from_edges: bool
+    landmarks: gtsam.NonlinearFactorGraph = dataclasses.field(default_factory=gtsam.NonlinearFactorGraph)
 
     @property
     def poses(self) -> int:
-        return int(self.initial.size())
+        return len(pose_keys(self.initial))
+
+    @property
+    def landmark_count(self) -> int:
+        return int(self.initial.size()) - self.poses
 
     @property
     def edges(self) -> int:
         return int(self.between.size())
+
+    @property
+    def observations(self) -> int:
+        return int(self.landmarks.size())
+
+    def native_graph(self) -> gtsam.NonlinearFactorGraph:
+        """The file's factors as GTSAM built them (what :func:`lie_factors.g2o.write_g2o` writes)."""
+        graph = gtsam.NonlinearFactorGraph(self.between)
+        graph.push_back(self.landmarks)
+        return graph
+
+
+def is_landmark_key(key: int) -> bool:
+    return gtsam.Symbol(int(key)).chr() != 0
+
+
+def pose_keys(values: gtsam.Values) -> list[int]:
+    """Sorted pose keys of ``values`` (plain ids; landmarks are ``symbol('l', j)``)."""
+    return sorted(k for k in values.keys() if not is_landmark_key(k))
+
+
+def landmark_keys(values: gtsam.Values) -> list[int]:
+    return sorted(k for k in values.keys() if is_landmark_key(k))
 
 
 def load(dataset: str) -> PoseGraph:
@@ -72,26 +103,64 @@ def load(dataset: str) -> PoseGraph:
     path = resolve_dataset(dataset)
     summary = check_g2o(path)
     graph, initial = read_g2o(path, summary)
-    if graph.size() != len(summary.edges):
-        # Our checker and GTSAM's reader disagree: refuse rather than optimize half a file.
-        raise PoseGraphError(
-            f"{os.path.basename(path)}: gtsam.readG2o read {graph.size()} edges, "
-            f"the file has {len(summary.edges)}"
-        )
-    from_edges = not summary.vertices
+    between = gtsam.NonlinearFactorGraph()
+    landmarks = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        f = graph.at(k)
+        keys = f.keys()
+        (landmarks if any(is_landmark_key(key) for key in keys) else between).add(f)
+    pose_ids = summary.pose_ids
+    from_edges = len(summary.pose_vertex_ids) == 0
     if from_edges:
         # readG2o leaves 3-D edge-only files (sphere2500.txt) without Values; for
         # 2-D it chains odometry itself.  Do the same thing for both: a spanning tree.
-        initial = spanning_tree_initial(graph, summary.is3d, summary.pose_ids[0])
+        poses = spanning_tree_initial(between, summary.is3d, pose_ids[0])
+        for key in landmark_keys(initial):
+            if int(gtsam.Symbol(key).index()) in set(summary.landmark_vertex_ids.tolist()):
+                poses.insert(key, initial.atPoint3(key) if summary.is3d else initial.atPoint2(key))
+        initial = poses
+    identity = gtsam.Pose3() if summary.is3d else gtsam.Pose2()
+    for i in pose_ids:
+        if not initial.exists(i):
+            # Seen only in landmark measurements: GTSAM's reader starts it at the identity too.
+            initial.insert(i, identity)
+    _initialize_landmarks(initial, landmarks, summary)
     return PoseGraph(
         path=path,
         name=os.path.basename(path),
         is3d=summary.is3d,
-        between=graph,
+        between=between,
         initial=initial,
-        first_key=summary.pose_ids[0],
+        first_key=pose_ids[0],
         initialized_from_edges=from_edges,
+        landmarks=landmarks,
     )
+
+
+def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFactorGraph, summary) -> None:
+    """Landmarks without a vertex line: placed by their first measurement from its pose.
+
+    (``readG2o`` does this for ``BR``/``LANDMARK`` from the pose it had at that
+    line; we redo it from the final initial poses, and for ``LANDMARK2``.)
+    3-D measurements always have landmark vertices (GTSAM requires them).
+    """
+    if summary.is3d:
+        return
+    with_vertex = {gtsam.symbol("l", int(j)) for j in summary.landmark_vertex_ids.tolist()}
+    done = set()
+    for k in range(landmarks.size()):
+        f = landmarks.at(k)
+        pose_key, point_key = f.keys()
+        if point_key in with_vertex or point_key in done:
+            continue
+        br = f.measured()
+        theta, r = br.bearing().theta(), br.range()
+        point = initial.atPose2(pose_key).transformFrom(np.array([r * math.cos(theta), r * math.sin(theta)]))
+        if initial.exists(point_key):
+            initial.update(point_key, point)
+        else:
+            initial.insert(point_key, point)
+        done.add(point_key)
 
 
 def spanning_tree_initial(graph: gtsam.NonlinearFactorGraph, is3d: bool, root: int) -> gtsam.Values:
@@ -179,7 +248,8 @@ def prior_noise(is3d: bool) -> gtsam.noiseModel.Base:
 
 
 def build_graph(pg: PoseGraph, backend: str) -> gtsam.NonlinearFactorGraph:
-    """Graph of ``pg.edges`` between factors + 1 prior, built with ``backend``'s constructors.
+    """Graph of ``pg.edges`` between factors + 1 prior, built with ``backend``'s constructors,
+    followed by the landmark measurements (GTSAM's own factors in every backend).
 
     The prior pins the first pose at its initial value (identity for edge-only
     files), fixing the gauge.
@@ -194,6 +264,7 @@ def build_graph(pg: PoseGraph, backend: str) -> gtsam.NonlinearFactorGraph:
         graph.add(Between(i, j, f.measured(), f.noiseModel()))
     first = pg.initial.atPose3(pg.first_key) if pg.is3d else pg.initial.atPose2(pg.first_key)
     graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d)))
+    graph.push_back(pg.landmarks)
     return graph
 # --------------------------------------------------------------------------- #
 # Optimization, one iteration at a time
@@ -268,7 +339,8 @@ BACKENDS.update(
 class RunRecord:
     """What ``lie-factors posegraph --json`` prints (``to_dict``).
 
-    ``factors`` counts the optimized graph: the file's edges + 1 prior;
+    ``factors`` counts the optimized graph: the file's edges and landmark
+    measurements + 1 prior; ``landmarks`` the landmark variables;
     ``seconds`` is optimization only (LM construction + iterations, not loading);
     ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖².
     """
@@ -277,6 +349,7 @@ class RunRecord:
     dataset: str
     dimension: int
     poses: int
+    landmarks: int
     factors: int
     iterations: int
     initial_error: float
@@ -304,6 +377,7 @@ def run(
         dataset=pg.name,
         dimension=3 if pg.is3d else 2,
         poses=pg.poses,
+        landmarks=pg.landmark_count,
         factors=int(graph.size()),
         iterations=result.iterations,
         initial_error=result.initial_error,
@@ -316,11 +390,23 @@ def run(
 
 def positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
     """Translations of the poses in ``values`` in key order, shape (N, 3) (z = 0 in 2-D)."""
-    keys = sorted(values.keys())
+    keys = pose_keys(values)
     if is3d:
         return np.array([values.atPose3(k).translation() for k in keys]).reshape(-1, 3)
     out = np.zeros((len(keys), 3))
     for n, k in enumerate(keys):
         p = values.atPose2(k)
         out[n, :2] = (p.x(), p.y())
+    return out
+
+
+def landmark_positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
+    """Landmark points of ``values`` in key order, shape (M, 3) (z = 0 in 2-D)."""
+    keys = landmark_keys(values)
+    out = np.zeros((len(keys), 3))
+    for n, k in enumerate(keys):
+        if is3d:
+            out[n] = values.atPoint3(k)
+        else:
+            out[n, :2] = values.atPoint2(k)
     return out

@@ -147,9 +147,9 @@ SE2_INFO = "1 0 0 1 0 1"
 @pytest.mark.parametrize(
     "text, fragments",
     [
-        ("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 1 1\n", ["bad.g2o:1:", "EDGE_SE3:QUAT expects 2 ids", "got 12 fields"]),
-        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 5 1 0 0 " + SE2_INFO + "\n",
-         ["bad.g2o:3:", "unknown vertex 5"]),
+        ("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 1 1\n", ["bad.g2o:1:", "EDGE_SE3:QUAT expects 30 fields", "got 12"]),
+        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 5 6 1 0 0 " + SE2_INFO + "\n",
+         ["bad.g2o", "not connected", "pose 1 cannot be reached from pose 0"]),
         ("VERTEX_SE2 0 0 0 0\n", ["empty graph"]),
         ("", ["empty graph"]),
         ("VERTEX_SE2 0 0 0 0\nWHAT 1\n", ["bad.g2o:2:", "unknown tag 'WHAT'"]),
