@@ -227,8 +227,9 @@ def test_python_m_bad_input_no_traceback(tmp_path):
     bad.write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n" * 1 + "EDGE_SE3:QUAT 0 1 1 2 3\n")
     p = run_module("posegraph", str(bad), "--backend", "native")
     assert p.returncode == 2
-    assert p.stderr.strip() == ("lie-factors: error: sphere.g2o:2: EDGE_SE3:QUAT expects 2 ids, "
-                                "7 pose values and 21 information values (30 fields), got 5 fields")
+    assert p.stderr.strip() == ("lie-factors: error: sphere.g2o:2: EDGE_SE3:QUAT expects 30 fields "
+                                "(id1 id2 x y z qx qy qz qw + 21 information (6×6 upper triangle)), "
+                                "got 5")
     assert p.stdout == ""
 
 
