@@ -395,6 +395,14 @@ def _read_bytes(path: str) -> bytes:
         raise PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})") from None
 
 
+class _LineError(PoseGraphError):
+    """A malformed line; ``lineno`` lets the earliest of several be reported."""
+
+    def __init__(self, lineno: int, message: str):
+        super().__init__(message)
+        self.lineno = lineno
+
+
 def _parse_line(name: str, lineno: int, tokens: list[bytes], dim_of: list):
     """Check one line the slow, exact way: (record, ids, values), or raise the precise error.
 
@@ -405,36 +413,36 @@ def _parse_line(name: str, lineno: int, tokens: list[bytes], dim_of: list):
     rec = RECORDS.get(tag.decode("ascii")) if tag.isascii() else None
     if rec is None:
         known = ", ".join(RECORDS)
-        raise PoseGraphError(f"{where}: unknown tag {_show(tag)} "
+        raise _LineError(lineno, f"{where}: unknown tag {_show(tag)} "
                              f"(gtsam.readG2o would skip the line; expected one of {known})")
     if dim_of[0] is None:
         dim_of[0] = (rec.dim, lineno)
     elif rec.dim != dim_of[0][0]:
         dim, first = dim_of[0]
-        raise PoseGraphError(f"{where}: {rec.tag} is a {rec.dim}-D record but line {first} made "
+        raise _LineError(lineno, f"{where}: {rec.tag} is a {rec.dim}-D record but line {first} made "
                              f"this a {dim}-D file (gtsam.readG2o reads one or the other)")
     fields = tokens[1:]
     if len(fields) != rec.nfields:
-        raise PoseGraphError(f"{where}: {_expects(rec)}, got {len(fields)}")
+        raise _LineError(lineno, f"{where}: {_expects(rec)}, got {len(fields)}")
     nids = len(rec.ids)
     ids = []
     for k, tok in enumerate(fields[:nids]):
         if not _INT_RE.match(tok):
-            raise PoseGraphError(f"{where}: field {k + 2} ({_show(tok)}) should be an integer id")
+            raise _LineError(lineno, f"{where}: field {k + 2} ({_show(tok)}) should be an integer id")
         value = int(tok)
         if value < 0:
-            raise PoseGraphError(f"{where}: field {k + 2}: negative id {value}")
+            raise _LineError(lineno, f"{where}: field {k + 2}: negative id {value}")
         if value > MAX_ID:
-            raise PoseGraphError(f"{where}: field {k + 2}: id {value} is larger than 2^56 - 1 "
+            raise _LineError(lineno, f"{where}: field {k + 2}: id {value} is larger than 2^56 - 1 "
                                  f"(GTSAM landmark keys keep 56 bits for the id)")
         ids.append(value)
     values = []
     for k, tok in enumerate(fields[nids:], start=nids):
         value = _as_float(tok)
         if value is None:
-            raise PoseGraphError(f"{where}: field {k + 2} ({_show(tok)}) is not a number")
+            raise _LineError(lineno, f"{where}: field {k + 2} ({_show(tok)}) is not a number")
         if not math.isfinite(value):
-            raise PoseGraphError(f"{where}: field {k + 2} ({_show(tok)}) is not finite")
+            raise _LineError(lineno, f"{where}: field {k + 2} ({_show(tok)}) is not finite")
         values.append(value)
     return rec, ids, values
 
@@ -518,9 +526,11 @@ def _fast_groups(data: bytes):
     win[cut] = 0
     codes, inverse = np.unique(np.ascontiguousarray(win).view(f"S{W}").ravel(), return_inverse=True)
     inverse = inverse.ravel()
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.concatenate(([0], np.cumsum(np.bincount(inverse, minlength=len(codes)))))
     groups, comments = {}, []
     for c, code in enumerate(codes.tolist()):
-        lines = used[inverse == c]
+        lines = used[order[bounds[c]:bounds[c + 1]]]
         if code[:1] == b"#":
             comments.append(lines)
         else:
@@ -585,30 +595,72 @@ def _fragile_rows(first_two: np.ndarray) -> np.ndarray:
     return np.asarray(exact, dtype=np.int64)
 
 
-def _fast_parse(data: bytes):
-    """Vectorized parse: (rows, comment lines, fragile lines), or None if the slow path must run."""
+def _fast_parse(name: str, data: bytes):
+    """Vectorized parse: (rows, comment lines, fragile lines), or None if the slow path must run.
+
+    A tag group that does not parse cleanly is re-parsed line by line (exact);
+    unknown tags and a second dimension are located from the groups.  The
+    earliest problem line of all is the one reported.
+    """
     grouped = _fast_groups(data)
     if grouped is None:
         return None
     groups, starts, ends, comments = grouped
+    if not groups:
+        return {}, (comments + 1).tolist(), []
+    first_line = {tag: int(lines[0]) for tag, lines in groups.items()}
+    first_tag = min(first_line, key=first_line.get)
+    first_rec = RECORDS.get(first_tag.decode("ascii")) if first_tag.isascii() else None
+    problems: list[tuple[int, str]] = []
     rows: dict[str, Rows] = {}
-    dims = set()
+    alien = []  # first lines of unknown tags and of the other dimension's records
     for tag_b, lines in groups.items():
         rec = RECORDS.get(tag_b.decode("ascii")) if tag_b.isascii() else None
-        if rec is None:
-            return None
-        dims.add(rec.dim)
-        if len(dims) > 1:
-            return None
+        if rec is None or (first_rec is not None and rec.dim != first_rec.dim):
+            alien.append(int(lines[0]))
+            continue
         parsed = _parse_group(rec, data, lines, starts, ends)
         if parsed is None:
-            return None
+            try:
+                parsed = _slow_group(name, rec, data, lines, starts, ends)
+            except _LineError as exc:
+                problems.append((exc.lineno, str(exc)))
+                continue
         rows[rec.tag] = parsed
+    if alien:  # only the earliest matters (a CSV file has thousands of "tags")
+        i = min(alien)
+        first = (first_rec.dim, first_line[first_tag] + 1) if first_rec is not None else None
+        try:
+            _parse_line(name, i + 1, data[starts[i]:ends[i]].split(), [first])
+        except _LineError as exc:
+            problems.append((exc.lineno, str(exc)))
+    if problems:
+        raise PoseGraphError(min(problems)[1])
     fragile = []
     for r in rows.values():
         if r.fragile is not None and len(r.fragile):
             fragile.extend(r.lines[r.fragile].tolist())
     return rows, (comments + 1).tolist(), sorted(fragile)
+
+
+def _slow_group(name: str, rec: Record, data: bytes, lines, starts, ends) -> Rows:
+    """Line-by-line parse of one tag's lines (0-based indices); raises at its first bad line."""
+    dim_of = [(rec.dim, int(lines[0]) + 1)]
+    ids, values, fragile = [], [], []
+    for row, i in enumerate(lines.tolist()):
+        tokens = data[starts[i]:ends[i]].split()
+        _, row_ids, row_values = _parse_line(name, i + 1, tokens, dim_of)
+        ids.append(row_ids)
+        values.append(row_values)
+        if _may_stop_gtsam(rec) and not all(_size_t_readable(t) for t in tokens[1:3]):
+            fragile.append(row)
+    n = len(lines)
+    rows = Rows(rec.tag, np.array(ids, dtype=np.int64).reshape(n, len(rec.ids)),
+                np.array(values, dtype=np.float64).reshape(n, len(rec.values) + rec.info),
+                lines + 1)
+    if _may_stop_gtsam(rec):
+        rows.fragile = np.asarray(fragile, dtype=np.int64)
+    return rows
 
 
 def check_g2o(path: str) -> G2oSummary:
@@ -629,7 +681,7 @@ def check_g2o(path: str) -> G2oSummary:
     """
     name = os.path.basename(path)
     data = _read_bytes(path)
-    parsed = _fast_parse(data)
+    parsed = _fast_parse(name, data)
     if parsed is None:
         parsed = _slow_parse(name, data)
     rows, comments, fragile = parsed
