@@ -954,17 +954,44 @@ def _landmark2_lines(graph: gtsam.NonlinearFactorGraph) -> list[str]:
     return lines
 
 
-def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-    """``gtsam.writeG2o`` (+ ``LANDMARK2`` lines for 2-D landmark factors) via a temporary file.
+def _landmark_vertex_lines(values: gtsam.Values, written: set[int]) -> list[str]:
+    """VERTEX_XY / VERTEX_TRACKXYZ lines for the landmarks gtsam.writeG2o did not write.
 
+    A Point2/Point3 inserted from Python is stored as a dynamic-size vector,
+    which writeG2o silently skips; those written by GTSAM are in ``written``.
+    """
+    lines = []
+    for key in sorted(values.keys()):
+        sym = gtsam.Symbol(key)
+        if sym.chr() != ord("l") or sym.index() in written:
+            continue
+        # Stored as fixed-size (GTSAM's reader) or dynamic (from Python): try both getters.
+        try:
+            p = np.asarray(values.atPoint3(key), dtype=float)
+        except RuntimeError:
+            p = np.asarray(values.atPoint2(key), dtype=float)
+        tag = "VERTEX_TRACKXYZ" if p.size == 3 else "VERTEX_XY"
+        lines.append(f"{tag} {sym.index()} " + " ".join(repr(float(x)) for x in p))
+    return lines
+
+
+def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    """``gtsam.writeG2o`` + the landmark records it drops, via a temporary file.
+
+    GTSAM writes poses, pose–pose edges and 3-D landmark measurements
+    (``EDGE_SE3_TRACKXYZ`` with an identity ``PARAMS_SE3OFFSET``); we add
+    the landmark vertices and the 2-D landmark measurements as ``LANDMARK2``
+    (pose-frame x y + information, exact inverse of how we read them).
     ``graph`` must hold GTSAM's own factors: writeG2o recognises only
     BetweenFactorPose2/3 and BearingRangeFactor3D, so custom factors would
     silently lose the edges.
     """
-    extra = _landmark2_lines(graph)
-
     def write(tmp: str) -> None:
         gtsam.writeG2o(graph, values, tmp)
+        with open(tmp, "rb") as fh:
+            written = {int(line.split()[1]) for line in fh
+                       if line.startswith((b"VERTEX_XY ", b"VERTEX_TRACKXYZ "))}
+        extra = _landmark_vertex_lines(values, written) + _landmark2_lines(graph)
         if extra:
             with open(tmp, "a") as fh:
                 fh.write("\n".join(extra) + "\n")

@@ -157,9 +157,9 @@ def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFacto
         theta, r = br.bearing().theta(), br.range()
         point = initial.atPose2(pose_key).transformFrom(np.array([r * math.cos(theta), r * math.sin(theta)]))
         if initial.exists(point_key):
-            initial.update(point_key, point)
-        else:
-            initial.insert(point_key, point)
+            # erase + insert: update() from Python would store a dynamic Vector, not a Point2.
+            initial.erase(point_key)
+        initial.insert(point_key, point)
         done.add(point_key)
 
 
@@ -293,6 +293,9 @@ def optimize(
     try:
         opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
         initial_error = new_error = float(opt.error())
+        if not math.isfinite(initial_error):
+            raise PoseGraphError(f"the initial error is {initial_error}: some residual overflows "
+                                 f"(coordinates or information values too large?)")
         converged = new_error <= params.getErrorTol()
         history = []
         while not converged and opt.iterations() < max_iterations:
