@@ -241,9 +241,21 @@ def register(record: Record) -> Record:
 for _tag in ("VERTEX_SE2", "VERTEX2", "VERTEX"):
     register(Record(_tag, 2, "pose", ("id",), ("x", "y", "θ")))
 register(Record("VERTEX_XY", 2, "landmark", ("id",), ("x", "y")))
+def _check_info_se2(rows: Rows):
+    """g2o-ordered 3×3 information; say so when the row reads as TORO-ordered instead."""
+    for bad, msg in _check_info(3, 3)(rows):
+        v = rows.values[bad, 3:9]
+        # TORO: inf_ff inf_fs inf_ss inf_rr inf_fr inf_sr
+        toro = np.array([[v[0], v[1], v[4]], [v[1], v[2], v[5]], [v[4], v[5], v[3]]])
+        if np.linalg.eigvalsh(toro)[0] > 0:
+            msg += (" in g2o order (I11 I12 I13 I22 I23 I33); it is positive definite in TORO order "
+                    "(ff fs ss rr fr sr), which gtsam.readG2o does not read either")
+        yield bad, msg
+
+
 for _tag in ("EDGE_SE2", "EDGE2", "EDGE", "ODOMETRY"):
     register(Record(_tag, 2, "between", ("id1", "id2"), ("x", "y", "θ"), info=6,
-                    checks=(_check_info(3, 3),)))
+                    checks=(_check_info_se2,)))
 register(Record("BR", 2, "observation", ("pose", "landmark"),
                 ("bearing", "range", "σ_bearing", "σ_range"), checks=(_check_br,)))
 register(Record("LANDMARK", 2, "observation", ("pose", "landmark"), ("x", "y", "v1", "v2", "v3"),
