@@ -61,7 +61,7 @@ def _angles(lo: float, hi: float, k: int, rng) -> list[float]:
 
 def rotation_slice(group: str) -> slice:
     """Where the rotation angle sits in the group's tangent vector."""
-    return {"so3": slice(0, 3), "se3": slice(0, 3), "se2": slice(2, 3), "sim2": slice(2, 3)}[group]
+    return {"so3": slice(0, 3), "se3": slice(0, 3), "se2": slice(2, 3), "sim2": slice(2, 3), "sim3": slice(0, 3)}[group]
 
 
 def _tangent(group: str, theta: float, rng) -> np.ndarray:

@@ -11,7 +11,9 @@ Pipeline (each step a function, the CLI and the benchmark just chain them):
    are initialized by composing measurements along a BFS spanning tree.
 4. :func:`build_graph` — the between factors re-created with the chosen
    backend's constructors, plus a prior on the first pose.
-5. :func:`optimize` — Levenberg–Marquardt driven one ``iterate()`` at a time
+5. :func:`lie_factors.initialize.initialize` — where LM starts: GTSAM's chordal
+   relaxation (3-D) or LAGO (2-D) by default, the file's vertices on request.
+6. :func:`optimize` — Levenberg–Marquardt driven one ``iterate()`` at a time
    from Python, with GTSAM's own stopping rule, reporting each iteration.
 
 g2o formats (checking, reading, writing) live in :mod:`lie_factors.g2o`; result
@@ -24,7 +26,6 @@ import dataclasses
 import math
 import os
 import time
-from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -34,6 +35,8 @@ import gtsam
 
 from .errors import PoseGraphError
 from .g2o import check_g2o, read_g2o, resolve_dataset
+from .initialize import METHODS as INIT_METHODS
+from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
 from .results import IterationInfo, OptimizeResult
 
 
@@ -61,6 +64,7 @@ class PoseGraph:
     first_key: int
     initialized_from_edges: bool
     landmarks: gtsam.NonlinearFactorGraph = dataclasses.field(default_factory=gtsam.NonlinearFactorGraph)
+    landmark_vertex_keys: frozenset = frozenset()
 
     @property
     def poses(self) -> int:
@@ -124,7 +128,8 @@ def load(dataset: str) -> PoseGraph:
         if not initial.exists(i):
             # Seen only in landmark measurements: GTSAM's reader starts it at the identity too.
             initial.insert(i, identity)
-    _initialize_landmarks(initial, landmarks, summary)
+    with_vertex = frozenset(gtsam.symbol("l", int(j)) for j in summary.landmark_vertex_ids.tolist())
+    _initialize_landmarks(initial, landmarks, summary.is3d, with_vertex)
     return PoseGraph(
         path=path,
         name=os.path.basename(path),
@@ -134,19 +139,20 @@ def load(dataset: str) -> PoseGraph:
         first_key=pose_ids[0],
         initialized_from_edges=from_edges,
         landmarks=landmarks,
+        landmark_vertex_keys=with_vertex,
     )
 
 
-def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFactorGraph, summary) -> None:
-    """Landmarks without a vertex line: placed by their first measurement from its pose.
+def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFactorGraph, is3d: bool,
+                          with_vertex: frozenset) -> None:
+    """Landmarks without a vertex line: placed by their first measurement from its pose (in place).
 
     (``readG2o`` does this for ``BR``/``LANDMARK`` from the pose it had at that
-    line; we redo it from the final initial poses, and for ``LANDMARK2``.)
+    line; we redo it from the current initial poses, and for ``LANDMARK2``.)
     3-D measurements always have landmark vertices (GTSAM requires them).
     """
-    if summary.is3d:
+    if is3d:
         return
-    with_vertex = {gtsam.symbol("l", int(j)) for j in summary.landmark_vertex_ids.tolist()}
     done = set()
     for k in range(landmarks.size()):
         f = landmarks.at(k)
@@ -163,33 +169,21 @@ def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFacto
         done.add(point_key)
 
 
-def spanning_tree_initial(graph: gtsam.NonlinearFactorGraph, is3d: bool, root: int) -> gtsam.Values:
-    """Initial poses from composing measurements along a BFS tree rooted at ``root``.
+def _poses_only(values: gtsam.Values, is3d: bool) -> gtsam.Values:
+    out = gtsam.Values()
+    for k in pose_keys(values):
+        out.insert(k, values.atPose3(k) if is3d else values.atPose2(k))
+    return out
 
-    The root is the identity.  BFS (rather than plain odometry order) reaches
-    every pose of a connected graph even when ids are not a chain, and takes
-    each pose through the fewest measurements, so drift stays smallest.
-    Edge i→j with measurement Z means x_j = x_i·Z, hence x_i = x_j·Z⁻¹.
-    """
-    identity = gtsam.Pose3() if is3d else gtsam.Pose2()
-    adj: dict[int, list[tuple[int, object, bool]]] = {}
-    for k in range(graph.size()):
-        f = graph.at(k)
-        i, j = f.keys()
-        Z = f.measured()
-        adj.setdefault(i, []).append((j, Z, True))
-        adj.setdefault(j, []).append((i, Z, False))
-    poses = {root: identity}
-    queue = deque([root])
-    while queue:
-        i = queue.popleft()
-        for j, Z, forward in adj.get(i, ()):
-            if j not in poses:
-                poses[j] = poses[i].compose(Z if forward else Z.inverse())
-                queue.append(j)
-    values = gtsam.Values()
-    for key in sorted(poses):
-        values.insert(key, poses[key])
+
+def _with_landmarks(poses: gtsam.Values, pg: "PoseGraph") -> gtsam.Values:
+    """``poses`` + every landmark: the file's vertex, else placed from its first measurement."""
+    if not pg.landmark_count:
+        return poses
+    values = gtsam.Values(poses)
+    for key in landmark_keys(pg.initial):
+        values.insert(key, pg.initial.atPoint3(key) if pg.is3d else pg.initial.atPoint2(key))
+    _initialize_landmarks(values, pg.landmarks, pg.is3d, pg.landmark_vertex_keys)
     return values
 
 
@@ -344,7 +338,9 @@ class RunRecord:
 
     ``factors`` counts the optimized graph: the file's edges and landmark
     measurements + 1 prior; ``landmarks`` the landmark variables;
-    ``seconds`` is optimization only (LM construction + iterations, not loading);
+    ``seconds`` is optimization only (LM construction + iterations, not loading
+    and not initialization); ``init`` is the initialization method used
+    (:data:`lie_factors.initialize.METHODS`) and ``init_seconds`` its cost;
     ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖².
     """
 
@@ -359,6 +355,8 @@ class RunRecord:
     final_error: float
     seconds: float
     converged: bool
+    init: str = "file"
+    init_seconds: float = 0.0
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -369,12 +367,33 @@ def run(
     backend: str = "native",
     max_iterations: int = 100,
     progress: Callable[[IterationInfo], None] | None = None,
+    init: str = "auto",
+    on_init: Callable[[Initialization], None] | None = None,
 ) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
-    """Load (unless given a :class:`PoseGraph`), build with ``backend``, optimize."""
+    """Load (unless given a :class:`PoseGraph`), build with ``backend``, initialize, optimize.
+
+    ``init``: a method of :func:`lie_factors.initialize.initialize`, run on the
+    graph ``backend`` built (so every backend starts from the same values);
+    ``file`` is the file's vertices.  Landmarks keep their file vertex, or are
+    placed from their first measurement.  ``on_init`` is called with the
+    :class:`~lie_factors.initialize.Initialization` before LM starts.
+    ``result.start`` holds the values LM started from.
+    """
     pg = load(dataset) if isinstance(dataset, str) else dataset
     graph = build_graph(pg, backend)
+    # The initializers handle poses: give them the pose-pose part (build_graph
+    # puts the landmark measurements last), then place the landmarks.
+    pose_part = gtsam.NonlinearFactorGraph()
+    for k in range(pg.edges + 1):
+        pose_part.add(graph.at(k))
+    file_poses = None if pg.initialized_from_edges else _poses_only(pg.initial, pg.is3d)
+    start = initialize(pose_part, init, file_poses)
+    start_values = _with_landmarks(start.values, pg)
+    if on_init is not None:
+        on_init(start)
     opt = get_backend(backend).optimize or optimize
-    result = opt(graph, pg.initial, max_iterations=max_iterations, progress=progress)
+    result = opt(graph, start_values, max_iterations=max_iterations, progress=progress)
+    result.start = start_values
     record = RunRecord(
         backend=backend,
         dataset=pg.name,
@@ -387,6 +406,8 @@ def run(
         final_error=result.final_error,
         seconds=result.seconds,
         converged=result.converged,
+        init=start.method,
+        init_seconds=start.seconds,
     )
     return record, result, pg
 

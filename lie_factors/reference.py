@@ -43,6 +43,12 @@ def hat_sim2(x):
     return mp.matrix([[0, -x[2], x[0]], [x[2], 0, x[1]], [0, 0, -x[3]]])
 
 
+def hat_sim3(x):
+    w, u, lam = x[:3], x[3:6], x[6]
+    S = _skew(w)
+    return mp.matrix([S[0] + [u[0]], S[1] + [u[1]], S[2] + [u[2]], [0, 0, 0, -lam]])
+
+
 def vee_so3(M):
     return [M[2, 1], M[0, 2], M[1, 0]]
 
@@ -59,11 +65,16 @@ def vee_sim2(M):
     return [M[0, 2], M[1, 2], M[1, 0], -M[2, 2]]
 
 
+def vee_sim3(M):
+    return [M[2, 1], M[0, 2], M[1, 0], M[0, 3], M[1, 3], M[2, 3], -M[3, 3]]
+
+
 GROUPS = {
     "so3": (3, hat_so3, vee_so3),
     "se3": (6, hat_se3, vee_se3),
     "se2": (3, hat_se2, vee_se2),
     "sim2": (4, hat_sim2, vee_sim2),
+    "sim3": (7, hat_sim3, vee_sim3),
 }
 
 
@@ -97,22 +108,34 @@ def exp(group: str, x):
 
 
 def dexp(group: str, x):
-    """sum_i ad_x^i/(i+1)!, summed until terms fall below 10^-DPS of the sum."""
+    """sum_i ad_x^i/(i+1)!, summed until terms fall below 10^-DPS of the sum (1-norms).
+
+    Plain lists of mpf and the nonzero entries of ad_x only: the same sum as with
+    mp.matrix products, ~2× faster (the test sweeps call this a few hundred times).
+    """
     A = ad(group, x)
     n = A.rows
-    total = mp.eye(n)
-    term = mp.eye(n)
+    cols = [[(k, A[k, j]) for k in range(n) if A[k, j] != 0] for j in range(n)]
+    total = [[mp.mpf(int(i == j)) for j in range(n)] for i in range(n)]
+    term = [row[:] for row in total]
     tol = mp.mpf(10) ** (-DPS)
+
+    def norm1(M):
+        return max(mp.fsum(abs(M[r][c]) for r in range(n)) for c in range(n))
+
     i = 0
     while True:
         i += 1
-        term = term * A / (i + 1)
-        total += term
-        if mp.mnorm(term, 1) <= tol * max(mp.mnorm(total, 1), 1) and i > 3:
+        d = i + 1
+        term = [[mp.fsum(row[k] * a for k, a in cols[j]) / d for j in range(n)] for row in term]
+        for r in range(n):
+            for c in range(n):
+                total[r][c] += term[r][c]
+        if i > 3 and norm1(term) <= tol * max(norm1(total), 1):
             break
         if i > 2000:
             raise RuntimeError("dexp series did not converge")
-    return total
+    return mp.matrix(total)
 
 
 def dlog(group: str, x):

@@ -27,6 +27,8 @@ class OptimizeResult:
     seconds: float
     converged: bool
     history: list[IterationInfo] = field(default_factory=list)
+    #: the values LM started from (set by lie_factors.posegraph.run)
+    start: gtsam.Values | None = None
 
 
 def format_iteration(info: IterationInfo) -> str:

@@ -84,12 +84,14 @@ def _max_diff(group, a: gtsam.Values, b: gtsam.Values):
     return max(np.abs(getattr(a, at)(k).matrix() - getattr(b, at)(k).matrix()).max() for k in a.keys())
 
 
+@pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
 @pytest.mark.parametrize("group", ["Pose3", "Pose2", "Rot3", "Similarity2"])
-def test_matches_custom_and_native_lm(group):
+def test_matches_custom_and_native_lm(group, linear_solver):
     lie, native, initial = make_problem(group, full=True)
     v_custom, it_custom, e_custom = _gtsam_lm(lie, initial)
     v_native, it_native, e_native = _gtsam_lm(native, initial)
-    res = batch.optimize(lie, initial)
+    res = batch.optimize(lie, initial, linear_solver=linear_solver)
+    assert res.linear_solver == linear_solver
     assert res.iterations == it_custom
     assert res.final_error == pytest.approx(e_custom, rel=1e-9, abs=1e-12)
     assert lie.error(res.values) == pytest.approx(res.final_error, rel=1e-9, abs=1e-12)
@@ -107,8 +109,9 @@ def test_matches_custom_and_native_lm(group):
     assert all(b <= a for a, b in zip(res.errors, res.errors[1:]))
 
 
+@pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
 @pytest.mark.parametrize("diagonal", [False, True])
-def test_lambda_sequence_matches_gtsam(diagonal):
+def test_lambda_sequence_matches_gtsam(diagonal, linear_solver):
     lie, _, initial = make_problem("Pose3", seed=7)
     params = gtsam.LevenbergMarquardtParams()
     params.setDiagonalDamping(diagonal)
@@ -122,13 +125,14 @@ def test_lambda_sequence_matches_gtsam(diagonal):
         lambdas.append(opt.lambda_())
         if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
             break
-    res = batch.optimize(lie, initial, params)
+    res = batch.optimize(lie, initial, params, linear_solver=linear_solver)
     assert res.iterations == opt.iterations()
     np.testing.assert_allclose(res.errors, errors, rtol=1e-8)
     np.testing.assert_allclose(res.lambdas, lambdas, rtol=1e-12)
 
 
-def test_mixed_graph_native_factors_and_other_variables():
+@pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
+def test_mixed_graph_native_factors_and_other_variables(linear_solver):
     lie, native, initial = make_problem("Pose3", seed=3)
     rng = np.random.default_rng(5)
     # Native factors on managed keys, a Point3 variable only native factors touch,
@@ -152,7 +156,7 @@ def test_mixed_graph_native_factors_and_other_variables():
     initial.insert(gtsam.symbol("l", 2), rng.normal(size=3))
     _, it_custom, e_custom = _gtsam_lm(lie, initial)
     v_native, _, e_native = _gtsam_lm(native, initial)
-    res = batch.optimize(lie, initial)
+    res = batch.optimize(lie, initial, linear_solver=linear_solver)
     assert res.iterations == it_custom
     assert res.final_error == pytest.approx(e_custom, rel=1e-9)
     assert res.final_error == pytest.approx(e_native, rel=1e-6)
@@ -266,16 +270,145 @@ def test_run_batch_for_cli():
     assert res.converged
 
 
-def test_inplace_factors_match_rebuilt_graph():
-    """The persistent, updated-in-place JacobianFactors give the same run as rebuilding."""
-    lie, _, initial = make_problem("Pose3", seed=12)
+def _landmark_graph(is3d, seed=21, landmarks=5):
+    """A pose ring (lie_factors factors) observing Point2/Point3 landmarks with GTSAM's BearingRange factors."""
+    group = "Pose3" if is3d else "Pose2"
+    lie, native, initial = make_problem(group, n=8, seed=seed)
+    rng = np.random.default_rng(seed)
+    d = 3 if is3d else 2
+    Factor = gtsam.BearingRangeFactor3D if is3d else gtsam.BearingRangeFactor2D
+    nm = gtsam.noiseModel.Isotropic.Sigma(3 if is3d else 2, 0.05)  # (bearing, range)
+    at = initial.atPose3 if is3d else initial.atPose2
+    for j in range(landmarks):
+        L = gtsam.symbol("l", j)
+        p = rng.normal(scale=2.0, size=d)
+        for i in rng.choice(8, size=3, replace=False):
+            pose = at(int(i))
+            f = Factor(int(i), L, pose.bearing(p), pose.range(p), nm)
+            lie.add(f)
+            native.add(f)
+        initial.insert(L, p + rng.normal(scale=0.1, size=d))
+    if is3d:
+        f = gtsam.BetweenFactorPoint3(gtsam.symbol("l", 0), gtsam.symbol("l", 1),
+                                      initial.atPoint3(gtsam.symbol("l", 1)) - initial.atPoint3(gtsam.symbol("l", 0)),
+                                      gtsam.noiseModel.Isotropic.Sigma(3, 0.3))
+        lie.add(f)
+        native.add(f)
+    return lie, native, initial
+
+
+@pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
+@pytest.mark.parametrize("is3d", [False, True])
+def test_landmarks_point2_point3(is3d, linear_solver):
+    lie, native, initial = _landmark_graph(is3d)
     params = gtsam.LevenbergMarquardtParams()
-    params.setlambdaInitial(1e2)
-    a = batch.BatchLevenbergMarquardt(lie, initial, params)
-    ra = a.optimize()
-    assert a._persistent is True
-    b = batch.BatchLevenbergMarquardt(lie, initial, params, inplace=False)
-    rb = b.optimize()
-    assert b._persistent is False
-    assert ra.iterations == rb.iterations and ra.inner_iterations == rb.inner_iterations
-    np.testing.assert_allclose(ra.errors, rb.errors, rtol=1e-12)
+    opt = gtsam.LevenbergMarquardtOptimizer(lie, initial, params)
+    errors = [opt.error()]
+    while True:
+        cur = opt.error()
+        opt.iterate()
+        errors.append(opt.error())
+        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
+            break
+    res = batch.optimize(lie, initial, params, linear_solver=linear_solver)
+    assert res.iterations == opt.iterations()
+    np.testing.assert_allclose(res.errors, errors, rtol=1e-6)
+    v = opt.values()
+    for j in range(5):
+        L = gtsam.symbol("l", j)
+        got = res.values.atPoint3(L) if is3d else res.values.atPoint2(L)
+        want = v.atPoint3(L) if is3d else v.atPoint2(L)
+        np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_assembled_system_equals_gtsam_hessian_with_weights():
+    """H and g (with per-factor weights) against GTSAM's own linearization of each factor."""
+    lie, _, initial = _landmark_graph(True, seed=4)
+    opt = batch.BatchLevenbergMarquardt(lie, initial)
+    rng = np.random.default_rng(1)
+    w = rng.uniform(0.0, 2.0, size=lie.size())
+    w[3] = 0.0
+    opt.system.weights[:] = w
+    opt.problem.linearize()
+    opt.system.assemble()
+    P = opt.problem
+    n = P.total_dim
+    H = np.zeros((n, n))
+    g = np.zeros(n)
+    for i in range(lie.size()):
+        lf = lie.at(i).linearize(initial)
+        A, b = lf.jacobian()
+        J = np.zeros((A.shape[0], n))
+        c = 0
+        for k in lf.keys():
+            o, d = P.offset[int(k)], int(P.var_dims[P.var_index[int(k)]])
+            J[:, o:o + d] = A[:, c:c + d]
+            c += d
+        H += w[i] * J.T @ J
+        g += w[i] * J.T @ b
+    got = opt.system.to_scipy().toarray()
+    scale = np.abs(H).max()
+    assert np.abs(got - H).max() < 1e-10 * scale
+    np.testing.assert_allclose(opt.system.rhs, g, rtol=1e-9, atol=1e-9 * np.abs(g).max())
+    # the per-factor residual hook: squared whitened norms, 2·error() each
+    sq = np.empty(lie.size())
+    total = P.error(sq_out=sq)
+    np.testing.assert_allclose(sq, [2 * lie.at(i).error(initial) for i in range(lie.size())], rtol=1e-10)
+    assert total == pytest.approx(lie.error(initial), rel=1e-12)
+
+
+@pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
+def test_gauss_newton_matches_gtsam(linear_solver):
+    lie, _, initial = _landmark_graph(False, seed=9)
+    params = gtsam.GaussNewtonParams()
+    opt = gtsam.GaussNewtonOptimizer(lie, initial, params)
+    errors = [opt.error()]
+    while True:
+        cur = opt.error()
+        opt.iterate()
+        errors.append(opt.error())
+        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
+            break
+    res = batch.optimize(lie, initial, params, linear_solver=linear_solver)
+    assert res.iterations == opt.iterations()
+    np.testing.assert_allclose(res.errors, errors, rtol=1e-6)
+    assert set(res.lambdas) == {0.0}
+
+
+@pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
+def test_gauss_newton_without_prior_is_indeterminant(linear_solver):
+    lie, _, initial = make_problem("Pose3", seed=5)
+    gauge_free = gtsam.NonlinearFactorGraph()
+    for i in range(lie.size()):
+        if not isinstance(lie.at(i), factors.PriorFactor):
+            gauge_free.add(lie.at(i))
+    with pytest.raises(batch.IndeterminantLinearSystem, match="not positive definite.*prior"):
+        batch.optimize(gauge_free, initial, gtsam.GaussNewtonParams(), linear_solver=linear_solver)
+    from lie_factors.errors import PoseGraphError
+    with pytest.raises(PoseGraphError, match="positive definite"):
+        batch.run_batch(gauge_free, initial, params=gtsam.GaussNewtonParams(), linear_solver=linear_solver)
+    # LM's damping makes the same system solvable; the result is finite.
+    res = batch.optimize(gauge_free, initial, linear_solver=linear_solver)
+    assert np.isfinite(res.final_error) and res.final_error < res.errors[0]
+
+
+def test_unknown_linear_solver_rejected():
+    lie, _, initial = make_problem("Pose2", n=5, seed=1)
+    with pytest.raises(ValueError, match="linear_solver"):
+        batch.optimize(lie, initial, linear_solver="lu")
+
+
+def test_pattern_scatter_map_addresses_csc_entries():
+    dims = np.array([3, 6, 2, 6])
+    pat = batch.Pattern(dims, np.array([[0, 3], [2, 1], [3, 0]]))
+    base, stride, a_is_row = pat.lookup(np.array([3, 1]), np.array([0, 2]))
+    for blk, (a, b) in enumerate([(3, 0), (2, 1)]):
+        row, col = max(a, b), min(a, b)
+        for j in range(dims[col]):
+            for i in range(dims[row]):
+                p = base[blk] + j * stride[blk] + i
+                c = pat.offsets[col] + j
+                assert pat.colptr[c] <= p < pat.colptr[c + 1]
+                assert pat.rowind[p] == pat.offsets[row] + i
+    assert list(a_is_row) == [1, 0]
+    assert np.all(pat.rowind[pat.diagpos] == np.arange(pat.n))

@@ -94,7 +94,7 @@ def test_demo_output_is_a_file(tmp_path, capsys):
 def test_posegraph_native_outputs(tmp_path, capsys):
     out_g2o, out_png = tmp_path / "o.g2o", tmp_path / "o.png"
     status, out, err = run_main(capsys, "posegraph", SMALL, "--backend", "native", "--json",
-                                "--output", str(out_g2o), "--plot", str(out_png))
+                                "--init", "file", "--output", str(out_g2o), "--plot", str(out_png))
     assert status == 0
     rec = last_json(out)
     assert rec["backend"] == "native" and rec["dataset"] == "smallGrid3D.g2o"

@@ -140,10 +140,10 @@ def test_max_iterations_respected():
 
 
 def test_run_record_fields():
-    record, result, pg = P.run(str(SMALL), "native")
+    record, result, pg = P.run(str(SMALL), "native", init="file")
     d = record.to_dict()
     for key in ("backend", "dataset", "poses", "factors", "iterations", "initial_error",
-                "final_error", "seconds", "converged"):
+                "final_error", "seconds", "converged", "init", "init_seconds"):
         assert key in d
     assert d["poses"] == 125 and d["factors"] == 298  # 297 edges + the prior
     assert d["final_error"] == pytest.approx(517.9253346774, rel=1e-9)

@@ -1,7 +1,7 @@
-"""Group-generic properties, one suite parametrized over so3, se3, se2 and sim2.
+"""Group-generic properties, one suite parametrized over so3, se3, se2, sim2 and sim3.
 
 Each identity is checked on hypothesis-drawn tangent vectors (rotation angles
-spanning tiny to near 2π, translations 1e-3…1e2, Sim(2) scales ±3) and on
+spanning tiny to near 2π, translations 1e-3…1e2, Sim(2)/Sim(3) log-scales λ in ±3) and on
 batches with random leading shapes.
 """
 
@@ -12,10 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lie_factors import se2, se3, series, sim2, so3
+from lie_factors import se2, se3, series, sim2, sim3, so3
 from lie_factors.crosscheck import rotation_slice
 
-GROUPS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2}
+GROUPS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2, "sim3": sim3}
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -34,6 +34,8 @@ def tangents(draw, name, max_angle=np.pi * 0.999):
     x[r] = angle * (w / norm if norm > 0 else np.eye(len(w))[0])
     if name == "sim2":
         x[3] = draw(st.floats(-3, 3))
+    if name == "sim3":
+        x[6] = draw(st.floats(-3, 3))
     return x
 
 

@@ -1,0 +1,34 @@
+"""Batch Levenberg–Marquardt / Gauss–Newton: the whole graph as arrays, normal equations, sparse Cholesky.
+
+Why: GTSAM's Python ``CustomFactor`` converts the whole ``Values`` on every
+callback from inside a C++ optimizer (~30× slower than native GTSAM), and
+GTSAM's elimination redoes its symbolic work every iteration.  Here
+
+* :mod:`~lie_factors.batch.graph` reads the graph into arrays (lie_factors
+  factors grouped by kind and group; every other factor is linearized by GTSAM)
+  and linearizes/evaluates/retracts them with the numba loops of
+  :mod:`~lie_factors.batch.loops` (the factors' own kernels);
+* :mod:`~lie_factors.batch.system` assembles ``H = Σ w JᵀJ``, ``g = Σ w Jᵀb``
+  into a block-sparse matrix whose pattern and scatter map are computed once;
+* :mod:`~lie_factors.batch.solvers` factors ``H + damping`` with CHOLMOD
+  (symbolic analysis once per graph; cvxopt) or GTSAM's elimination;
+* :mod:`~lie_factors.batch.optimizer` runs GTSAM's LM / Gauss–Newton loop.
+
+Usage::
+
+    from lie_factors import batch
+    result = batch.optimize(graph, initial)          # params=LevenbergMarquardtParams | GaussNewtonParams
+    result.values, result.iterations, result.errors, result.seconds, result.timings
+"""
+
+from .graph import BatchError, Problem
+from .optimizer import (BatchLevenbergMarquardt, BatchResult, IndeterminantLinearSystem, TIMING_KEYS,
+                        optimize, run_batch)
+from .solvers import LINEAR_SOLVERS, NotPositiveDefinite, cholmod_available
+from .system import LinearSystem, Pattern
+
+__all__ = [
+    "BatchError", "BatchLevenbergMarquardt", "BatchResult", "IndeterminantLinearSystem", "LINEAR_SOLVERS",
+    "LinearSystem", "NotPositiveDefinite", "Pattern", "Problem", "TIMING_KEYS", "cholmod_available",
+    "optimize", "run_batch",
+]

@@ -1,0 +1,464 @@
+"""Reading a NonlinearFactorGraph + Values into arrays; linearizing, evaluating, retracting them.
+
+* lie_factors factors with Gaussian noise are grouped by (kind, group): their
+  constants (``M⁻¹``, ``Ad(M⁻¹)``, whitening ``R``, variable indices) become
+  arrays, and the numba loops of :mod:`lie_factors.batch.loops` linearize and
+  evaluate a whole group per call;
+* every other factor (native GTSAM factors on any variable type — Pose2/3,
+  Point2/3 landmarks, ... — and lie_factors factors with robust or constrained
+  noise) is *native*: GTSAM linearizes it (one ``NonlinearFactorGraph.linearize``
+  call), and its augmented information matrix is copied into one flat array for
+  the assembly kernel;
+* the elements of each group are an ``(N, m, m)`` array; other variables stay
+  in a ``gtsam.Values`` and are retracted by GTSAM.
+
+Variables are numbered in key order among those some factor touches (the
+columns of the linear system); a variable in no factor never moves (GTSAM's
+damped step for it is 0).
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import gtsam
+import numpy as np
+
+from .. import factors as _factors
+from .loops import GroupLoops
+
+
+class BatchError(ValueError):
+    """Bad input to the batch optimizer (unsupported factor, missing key, ...)."""
+
+
+def key_name(key: int) -> str:
+    return gtsam.DefaultKeyFormatter(int(key))
+
+
+def first_line(exc: BaseException, limit: int = 200) -> str:
+    """First line of an exception message, truncated (GTSAM messages can embed whole objects)."""
+    text = str(exc).strip().splitlines()
+    return (text[0] if text else type(exc).__name__)[:limit]
+
+
+def _whitening(noise_model):
+    """Upper-triangular R with ‖R e‖² = Mahalanobis², or None if GTSAM must linearize."""
+    if isinstance(noise_model, (gtsam.noiseModel.Robust, gtsam.noiseModel.Constrained)):
+        return None
+    if not isinstance(noise_model, gtsam.noiseModel.Gaussian):
+        return None
+    return noise_model.R()
+
+
+class VarBlock:
+    """The variables of one group: keys, element matrices ``X`` (N, m, m), offsets into δ."""
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.loops = GroupLoops(spec)
+        self.keys: list[int] = []
+        self.index: dict[int, int] = {}
+        self.X: np.ndarray | None = None
+        self.offsets: np.ndarray | None = None
+
+
+class FactorGroup:
+    """All lie_factors factors of one (kind, group) with Gaussian noise.
+
+    Arrays (F = factor count, n = group dimension): ``fidx`` graph positions,
+    ``i1``/``i2`` element indices, ``v1``/``v2`` variable (column block)
+    indices, ``o1``/``o2`` scalar offsets, ``C`` M⁻¹ or P⁻¹, ``Ad`` Ad(M⁻¹),
+    ``R`` whitening; outputs of a linearization ``A1``, ``A2``, ``b``, ``sq``.
+    """
+
+    def __init__(self, kind, spec):
+        self.kind, self.spec = kind, spec
+        self.rows: list = []  # (graph index, local idx1, idx2 | None, constant, AdMinv | None, R)
+
+    def finalize(self, block: VarBlock):
+        n = self.spec.dim
+        E = len(self.rows)
+        self.E = E
+        self.loops = block.loops
+        self.fidx = np.array([r[0] for r in self.rows], dtype=np.int64)
+        self.i1 = np.array([r[1] for r in self.rows], dtype=np.int64)
+        self.C = np.ascontiguousarray(np.array([r[3] for r in self.rows], dtype=np.float64))
+        self.R = np.ascontiguousarray(np.array([r[5] for r in self.rows], dtype=np.float64).reshape(E, n, n))
+        if self.kind == "between":
+            self.i2 = np.array([r[2] for r in self.rows], dtype=np.int64)
+            self.Ad = np.ascontiguousarray(np.array([r[4] for r in self.rows], dtype=np.float64))
+            self.A2 = np.empty((E, n, n))
+        self.A1 = np.empty((E, n, n))
+        self.b = np.empty((E, n))
+        self.sq = np.empty(E)
+        self.rows = None
+
+    def linearize(self, X):
+        if self.kind == "between":
+            self.loops.between_lin(X, self.i1, self.i2, self.C, self.Ad, self.R, self.A1, self.A2,
+                                   self.b, self.sq)
+        else:
+            self.loops.prior_lin(X, self.i1, self.C, self.R, self.A1, self.b, self.sq)
+
+    def evaluate(self, X, sq):
+        if self.kind == "between":
+            self.loops.between_err(X, self.i1, self.i2, self.C, self.R, sq)
+        else:
+            self.loops.prior_err(X, self.i1, self.C, self.R, sq)
+
+
+def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
+    """(N, m, m) matrices of ``keys`` in ``values``; BatchError naming a missing/mistyped key."""
+    m = spec.kernels.MAT
+    X = np.empty((len(keys), m, m))
+    for k in keys:
+        if not values.exists(k):
+            raise BatchError(f"key {key_name(k)} is used by a {spec.name} factor "
+                             "but is missing from the initial Values")
+    if spec.name in ("Pose3", "Pose2"):
+        # Bulk extraction in C++ (all values of that type, in key order).
+        if spec.name == "Pose3":
+            typed = gtsam.utilities.allPose3s(values)
+            E = np.asarray(gtsam.utilities.extractPose3(values))
+        else:
+            typed = gtsam.utilities.allPose2s(values)
+            E = np.asarray(gtsam.utilities.extractPose2(values))
+        tkeys = np.asarray(typed.keys(), dtype=np.uint64)
+        want = np.asarray(keys, dtype=np.uint64)
+        pos = np.searchsorted(tkeys, want)
+        pos = np.minimum(pos, max(len(tkeys) - 1, 0))
+        bad = np.nonzero((len(tkeys) == 0) | (tkeys[pos] != want))[0] if len(want) else []
+        if len(bad):
+            k = keys[bad[0]]
+            raise BatchError(f"key {key_name(k)} must hold a gtsam.{spec.name} "
+                             f"(it is used by a {spec.name} factor)")
+        E = E[pos]
+        X[:] = 0.0
+        if spec.name == "Pose3":
+            X[:, :3, :3] = E[:, :9].reshape(-1, 3, 3)
+            X[:, :3, 3] = E[:, 9:12]
+            X[:, 3, 3] = 1.0
+        else:
+            c, s_ = np.cos(E[:, 2]), np.sin(E[:, 2])
+            X[:, 0, 0], X[:, 0, 1], X[:, 1, 0], X[:, 1, 1] = c, -s_, s_, c
+            X[:, 0, 2], X[:, 1, 2], X[:, 2, 2] = E[:, 0], E[:, 1], 1.0
+        return X
+    at = getattr(values, spec.at)
+    for j, k in enumerate(keys):
+        try:
+            X[j] = at(k).matrix()
+        except RuntimeError:
+            raise BatchError(f"key {key_name(k)} must hold a gtsam.{spec.name} "
+                             f"(it is used by a {spec.name} factor)") from None
+    return X
+
+
+def _pose2(M):
+    return gtsam.Pose2(M[0, 2], M[1, 2], math.atan2(M[1, 0], M[0, 0]))
+
+
+def _similarity2(M):
+    return gtsam.Similarity2(gtsam.Rot2.atan2(M[1, 0], M[0, 0]), np.array([M[0, 2], M[1, 2]]), 1.0 / M[2, 2])
+
+
+#: Groups whose GTSAM type has no constructor from its matrix; others use ``spec.cls(M)``.
+_FROM_MATRIX = {"Pose2": _pose2, "Similarity2": _similarity2}
+
+
+def to_gtsam(spec, M: np.ndarray):
+    """The GTSAM object of the element matrix ``M``."""
+    make = _FROM_MATRIX.get(spec.name)
+    return make(M) if make is not None else spec.cls(M)
+
+
+class Problem:
+    """The graph's variables and factors as arrays, and the current estimate.
+
+    State: ``blocks[name].X`` (group elements) and ``other`` (a gtsam.Values
+    with every other variable).  ``var_keys``/``var_dims`` (V,) are the
+    variables of the linear system, ``offset[key]`` their scalar offsets.
+    """
+
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values):
+        if not isinstance(graph, gtsam.NonlinearFactorGraph):
+            raise TypeError(f"graph must be a gtsam.NonlinearFactorGraph, got {type(graph).__name__}")
+        if not isinstance(initial, gtsam.Values):
+            raise TypeError(f"initial must be a gtsam.Values, got {type(initial).__name__}")
+        self.graph = graph
+        self.graph_size = int(graph.size())
+        self.blocks: dict[str, VarBlock] = {}
+        self.groups: list[FactorGroup] = []
+        self.native: list = []  # (graph index, factor, keys)
+        self._read_factors(graph, initial)
+        self._number_variables(initial)
+
+    # ---------------------------------------------------------------- reading
+    def _read_factors(self, graph, initial):
+        groups: dict = {}
+        kinds: dict = {}
+        gaussian = (gtsam.noiseModel.Gaussian, gtsam.noiseModel.Diagonal,
+                    gtsam.noiseModel.Isotropic, gtsam.noiseModel.Unit)
+        at = graph.at
+        for i in range(graph.size()):
+            f = at(i)
+            if f is None:
+                continue
+            cls = type(f)
+            entry = kinds.get(cls)
+            if entry is None:
+                kind = ("between" if issubclass(cls, _factors.BetweenFactor)
+                        else "prior" if issubclass(cls, _factors.PriorFactor) else None)
+                if kind is None:
+                    entry = kinds[cls] = (None, None, None)
+                else:
+                    spec = cls.spec
+                    block = self.blocks.setdefault(spec.name, VarBlock(spec))
+                    g = groups.get((kind, spec.name))
+                    if g is None:
+                        g = groups[(kind, spec.name)] = FactorGroup(kind, spec)
+                        self.groups.append(g)
+                    entry = kinds[cls] = (kind, block.index, g.rows)
+            kind, index, rows = entry
+            R = None
+            if kind is not None:
+                nm = f.noiseModel()
+                R = nm.R() if type(nm) in gaussian else _whitening(nm)
+                if kind == "between" and f._key1 == f._key2:
+                    R = None  # a factor on one variable twice: GTSAM's linearization handles it
+            if R is None:
+                if not isinstance(f, gtsam.NonlinearFactor):
+                    raise BatchError(f"factor {i}: unsupported type {type(f).__name__}")
+                keys = [int(k) for k in f.keys()]
+                for k in keys:
+                    if not initial.exists(k):
+                        raise BatchError(f"factor {i} ({type(f).__name__}): key {key_name(k)} "
+                                         "is missing from the initial Values")
+                self.native.append((i, f, keys))
+                continue
+            if kind == "between":
+                k1, k2 = f._key1, f._key2
+                rows.append((i, index.setdefault(k1, len(index)), index.setdefault(k2, len(index)),
+                             f._Minv, f._AdMinv, R))
+            else:
+                k1 = f._key
+                rows.append((i, index.setdefault(k1, len(index)), None, f._Pinv, None, R))
+        for block in self.blocks.values():
+            block.keys = list(block.index)  # dicts keep insertion order = local index order
+
+    def _number_variables(self, initial):
+        managed = {}
+        for name, block in self.blocks.items():
+            for k in block.keys:
+                if k in managed:
+                    raise BatchError(f"key {key_name(k)} is used by both {managed[k]} and "
+                                     f"{block.spec.name} factors")
+                managed[k] = name
+            block.X = _read_matrices(initial, block.spec, block.keys)
+        for g in self.groups:
+            g.finalize(self.blocks[g.spec.name])
+        self.managed = managed
+        native_keys = sorted({k for _, _, ks in self.native for k in ks})
+        self._native_keys = native_keys
+        zero = initial.zeroVectors() if self.native else None
+        active = sorted(set(managed) | set(native_keys))
+        dims = []
+        for k in active:
+            name = managed.get(k)
+            dims.append(self.blocks[name].spec.dim if name is not None else int(np.asarray(zero.at(k)).shape[0]))
+        self.var_keys = active
+        self.var_dims = np.array(dims, dtype=np.int64)
+        self.var_index = {k: v for v, k in enumerate(active)}
+        offs = np.zeros(len(active), dtype=np.int64)
+        if len(active) > 1:
+            np.cumsum(self.var_dims[:-1], out=offs[1:])
+        self.var_offsets = offs
+        self.offset = dict(zip(active, offs.tolist()))
+        self.total_dim = int(self.var_dims.sum())
+        for block in self.blocks.values():
+            block.var = np.array([self.var_index[k] for k in block.keys], dtype=np.int64)
+            block.offsets = offs[block.var]
+            block.X0 = block.X.copy()
+        for g in self.groups:
+            b = self.blocks[g.spec.name]
+            g.v1, g.o1 = b.var[g.i1], b.offsets[g.i1]
+            if g.kind == "between":
+                g.v2, g.o2 = b.var[g.i2], b.offsets[g.i2]
+        # Variables not in a group (landmarks, ...), incl. those in no factor.
+        self.other = gtsam.Values(initial)
+        for k in managed:
+            self.other.erase(k)
+        self.other_keys = [k for k in native_keys if k not in managed]
+        self._managed_initial = gtsam.Values(initial)
+        for k in initial.keys():
+            if int(k) not in managed:
+                self._managed_initial.erase(k)
+        self._native_setup()
+
+    def _native_setup(self):
+        self.native_graph = gtsam.NonlinearFactorGraph()
+        for _, f, _ in self.native:
+            self.native_graph.push_back(f)
+        if not self.native:
+            self.native_arrays = None
+            self.native_pairs = np.zeros((0, 2), dtype=np.int64)
+            return
+        sizes, kv, kl, kd, ks, ps, istart = [], [], [], [], [0], [0], [0]
+        pairs = []
+        for _, f, keys in self.native:
+            loc = 0
+            vs = [self.var_index[k] for k in keys]
+            for v in vs:
+                kv.append(v)
+                kl.append(loc)
+                d = int(self.var_dims[v])
+                kd.append(d)
+                loc += d
+            sizes.append(loc)
+            ks.append(len(kv))
+            ps.append(ps[-1] + len(keys) ** 2)
+            istart.append(istart[-1] + (loc + 1) ** 2)
+            pairs.extend((a, b) for a in vs for b in vs if a > b)
+        self.native_pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        self.native_arrays = SimpleNamespace(
+            fidx=np.array([i for i, _, _ in self.native], dtype=np.int64),
+            size=np.array(sizes, dtype=np.int64),
+            key_var=np.array(kv, dtype=np.int64), key_local=np.array(kl, dtype=np.int64),
+            key_dim=np.array(kd, dtype=np.int64), key_start=np.array(ks, dtype=np.int64),
+            pair_start=np.array(ps[:-1], dtype=np.int64),
+            info_start=np.array(istart[:-1], dtype=np.int64), info=np.zeros(istart[-1]),
+            sq=np.zeros(len(self.native)),
+        )
+
+    # ---------------------------------------------------------------- state
+    def elements(self) -> dict:
+        return {name: b.X for name, b in self.blocks.items()}
+
+    def native_values(self, Xs=None, other=None) -> gtsam.Values | None:
+        """A gtsam.Values holding the keys the native factors need (None if there are none)."""
+        if not self.native:
+            return None
+        Xs = self.elements() if Xs is None else Xs
+        other = self.other if other is None else other
+        v = gtsam.Values(other)
+        for k in self._native_keys:
+            name = self.managed.get(k)
+            if name is not None:
+                b = self.blocks[name]
+                v.insert(k, to_gtsam(b.spec, Xs[name][b.index[k]]))
+        return v
+
+    def accept(self, Xs, other) -> None:
+        for name, X in Xs.items():
+            self.blocks[name].X = X
+        self.other = other
+
+    def values(self) -> gtsam.Values:
+        """The current estimate as a gtsam.Values (all keys of the initial Values).
+
+        Built in C++ as ``initial.retract(ξ)`` with ξ = Log(X₀⁻¹·X) per
+        variable (vectorized on the kernels): ~5× faster than constructing
+        every pose from Python, and exact to rounding (checked in the tests).
+        """
+        vv = gtsam.VectorValues()
+        insert = vv.insert
+        for b in self.blocks.values():
+            xi = np.empty((len(b.keys), b.spec.dim))
+            b.loops.relative_log(b.X0, b.X, xi)
+            for k, x in zip(b.keys, xi):
+                insert(k, x)
+        out = self._managed_initial.retract(vv)
+        out.insert(self.other)
+        return out
+
+    # ---------------------------------------------------------------- evaluation
+    def error(self, Xs=None, other=None, sq_out: np.ndarray | None = None) -> float:
+        """GTSAM's graph error ½·Σ‖whitened residual‖² (native factors: their own error()).
+
+        ``sq_out`` (graph size,): receives every factor's squared whitened
+        residual norm (2·error() for native factors).
+        """
+        Xs = self.elements() if Xs is None else Xs
+        total = 0.0
+        for g in self.groups:
+            sq = np.empty(g.E)
+            g.evaluate(Xs[g.spec.name], sq)
+            total += 0.5 * float(sq.sum())
+            if sq_out is not None:
+                sq_out[g.fidx] = sq
+        if self.native:
+            nv = self.native_values(Xs, other)
+            try:
+                if sq_out is None:
+                    total += float(self.native_graph.error(nv))
+                else:
+                    for i, f, _ in self.native:
+                        e = float(f.error(nv))
+                        sq_out[i] = 2.0 * e
+                        total += e
+            except Exception as exc:
+                raise self._native_failure(nv, "evaluated", exc) from None
+        return float(total)
+
+    def _native_failure(self, nv, what, exc):
+        for i, f, _ in self.native:
+            try:
+                f.error(nv)
+            except Exception as e:
+                return BatchError(f"factor {i} ({type(f).__name__}) could not be {what}: "
+                                  f"{type(e).__name__}: {first_line(e)}")
+        return BatchError(f"a native factor could not be {what}: {type(exc).__name__}: {first_line(exc)}")
+
+    def linearize(self) -> float:
+        """Whitened blocks of every factor at the current estimate; returns the error ½Σ‖b‖².
+
+        Groups: ``A1``, ``A2``, ``b``, ``sq`` arrays.  Native factors:
+        ``native_arrays.info`` (augmented information) and ``native_linear``
+        (the GaussianFactorGraph, for the GTSAM linear solver).
+        """
+        self.linearization = object()  # identifies this linearization (solvers cache per one)
+        total = 0.0
+        for g in self.groups:
+            g.linearize(self.blocks[g.spec.name].X)
+            total += 0.5 * float(g.sq.sum())
+        self.native_linear = None
+        if self.native:
+            nv = self.native_values()
+            try:
+                lin = self.native_graph.linearize(nv)
+            except Exception as exc:
+                raise self._native_failure(nv, "linearized", exc) from None
+            nat = self.native_arrays
+            info, start, size = nat.info, nat.info_start, nat.size
+            for j in range(len(self.native)):
+                lf = lin.at(j)
+                if lf is None:
+                    raise BatchError(f"factor {self.native[j][0]} ({type(self.native[j][1]).__name__}) "
+                                     "did not linearize")
+                if isinstance(lf, gtsam.JacobianFactor) and lf.isConstrained():
+                    raise BatchError(f"factor {self.native[j][0]} has a constrained noise model: "
+                                     "use linear_solver='gtsam'")
+                D1 = size[j] + 1
+                M = np.asarray(lf.augmentedInformation())
+                info[start[j]:start[j] + D1 * D1] = M.ravel()
+                nat.sq[j] = M[-1, -1]
+            total += 0.5 * float(nat.sq.sum())
+            self.native_linear = lin
+        return total
+
+    def retract(self, delta: np.ndarray):
+        """(elements, other Values) at ``X·Exp(δ)`` per variable (not applied; see :meth:`accept`)."""
+        Xs = {}
+        for name, b in self.blocks.items():
+            out = np.empty_like(b.X)
+            b.loops.retract(b.X, delta, b.offsets, out)
+            Xs[name] = out
+        other = self.other
+        if self.other_keys:
+            vv = gtsam.VectorValues()
+            for k in self.other_keys:
+                o = self.offset[k]
+                vv.insert(k, delta[o:o + self.var_dims[self.var_index[k]]])
+            other = self.other.retract(vv)
+        return Xs, other

@@ -1,0 +1,174 @@
+"""Whole-graph numba loops over the factors' own kernels: linearize, evaluate, retract.
+
+Every loop is a cached top-level kernel taking the group id ``g``
+(:mod:`lie_factors._dispatch`); the per-factor work is
+:func:`lie_factors.factors.between` / :func:`~lie_factors.factors.prior` (error
+and Jacobians) and their ``*_error`` halves, so no formula is repeated here.
+
+Arrays: ``X`` (N, m, m) elements of one group; ``i1``, ``i2`` (F,) indices into
+``X``; ``Minv``/``Pinv`` (F, m, m); ``AdMinv`` (F, n, n); ``R`` (F, n, n)
+whitening; outputs ``A1``, ``A2`` (F, n, n), ``b`` (F, n) and ``sq`` (F,), the
+squared whitened residual norm ‖R·e‖² of every factor (the per-factor array a
+robust reweighting needs; the Gaussian error is ½·Σ sq).
+
+The loops over factors are ``prange`` loops over contiguous chunks (scratch
+allocated once per chunk), so they use every numba thread; each factor writes
+only its own outputs, so there are no races.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .. import _dispatch
+from .. import factors as _factors
+from .._jit import kernel
+
+#: Like :data:`lie_factors._jit.kernel`, with ``prange`` loops run on numba's threads.
+parallel_kernel = njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+
+#: Factors per parallel chunk: large enough that thread start-up and scratch allocation vanish.
+CHUNK = 256
+
+
+@kernel
+def _whiten_residual(Rf, e, out):
+    """out = −Rf·e (the right-hand side b); returns ‖Rf·e‖²."""
+    total = 0.0
+    for r in range(Rf.shape[0]):
+        acc = 0.0
+        for k in range(e.shape[0]):
+            acc += Rf[r, k] * e[k]
+        out[r] = -acc
+        total += acc * acc
+    return total
+
+
+@kernel
+def _whiten_jacobian(Rf, H, out):
+    """out = Rf·H."""
+    n = H.shape[1]
+    for r in range(Rf.shape[0]):
+        for c in range(n):
+            acc = 0.0
+            for k in range(H.shape[0]):
+                acc += Rf[r, k] * H[k, c]
+            out[r, c] = acc
+
+
+@parallel_kernel
+def _between_lin(g, X, i1, i2, Minv, AdMinv, R, A1, A2, b, sq):
+    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e and sq = ‖R e‖² for every between factor."""
+    n = AdMinv.shape[1]
+    F = i1.shape[0]
+    for c in prange((F + CHUNK - 1) // CHUNK):
+        e = np.empty(n)
+        H1 = np.empty((n, n))
+        H2 = np.empty((n, n))
+        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
+            _factors.between(g, Minv[f], AdMinv[f], X[i1[f]], X[i2[f]], e, H1, H2)
+            sq[f] = _whiten_residual(R[f], e, b[f])
+            _whiten_jacobian(R[f], H1, A1[f])
+            _whiten_jacobian(R[f], H2, A2[f])
+
+
+@parallel_kernel
+def _prior_lin(g, X, i1, Pinv, R, A1, b, sq):
+    n = R.shape[1]
+    F = i1.shape[0]
+    for c in prange((F + CHUNK - 1) // CHUNK):
+        e = np.empty(n)
+        H = np.empty((n, n))
+        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
+            _factors.prior(g, Pinv[f], X[i1[f]], e, H)
+            sq[f] = _whiten_residual(R[f], e, b[f])
+            _whiten_jacobian(R[f], H, A1[f])
+
+
+@parallel_kernel
+def _between_err(g, X, i1, i2, Minv, R, sq):
+    """sq[f] = ‖R·Log(M⁻¹·X1⁻¹·X2)‖² (no Jacobians)."""
+    n = R.shape[2]
+    F = i1.shape[0]
+    for c in prange((F + CHUNK - 1) // CHUNK):
+        e = np.empty(n)
+        scratch = np.empty(R.shape[1])
+        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
+            _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
+            sq[f] = _whiten_residual(R[f], e, scratch)
+
+
+@parallel_kernel
+def _prior_err(g, X, i1, Pinv, R, sq):
+    n = R.shape[2]
+    F = i1.shape[0]
+    for c in prange((F + CHUNK - 1) // CHUNK):
+        e = np.empty(n)
+        scratch = np.empty(R.shape[1])
+        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
+            _factors.prior_error(g, Pinv[f], X[i1[f]], e)
+            sq[f] = _whiten_residual(R[f], e, scratch)
+
+
+@parallel_kernel
+def _retract(g, X, delta, offsets, out):
+    """out[i] = X[i]·Exp(delta[offsets[i] : offsets[i] + n]) (GTSAM's retract); offset −1: unchanged."""
+    n = _dispatch.dim(g)
+    m = X.shape[1]
+    N = X.shape[0]
+    for c in prange((N + CHUNK - 1) // CHUNK):
+        D = np.empty((m, m))
+        x = np.empty(n)
+        for i in range(c * CHUNK, min(N, (c + 1) * CHUNK)):
+            o = offsets[i]
+            if o < 0:
+                out[i] = X[i]
+                continue
+            for k in range(n):
+                x[k] = delta[o + k]
+            _dispatch.exp(g, x, D)
+            _dispatch.compose(g, X[i], D, out[i])
+
+
+@kernel
+def _relative_log(g, X0, X, out):
+    """out[i] = Log(X0[i]⁻¹·X[i]) (no validation: GTSAM values drift off SO(n) by ~1e-9)."""
+    m = X.shape[1]
+    inv = np.empty((m, m))
+    rel = np.empty((m, m))
+    for i in range(X.shape[0]):
+        _dispatch.inverse(g, X0[i], inv)
+        _dispatch.compose(g, inv, X[i], rel)
+        _dispatch.log(g, rel, out[i])
+
+
+class GroupLoops:
+    """The loops above bound to one group (``spec.gid``)."""
+
+    def __init__(self, spec):
+        self.g = spec.gid
+
+    def between_lin(self, *a):
+        _between_lin(self.g, *a)
+
+    def prior_lin(self, *a):
+        _prior_lin(self.g, *a)
+
+    def between_err(self, *a):
+        _between_err(self.g, *a)
+
+    def prior_err(self, *a):
+        _prior_err(self.g, *a)
+
+    def retract(self, *a):
+        _retract(self.g, *a)
+
+    def relative_log(self, *a):
+        _relative_log(self.g, *a)
+
+
+def threads() -> int:
+    """numba threads the parallel loops use (``numba.set_num_threads`` changes it)."""
+    return numba.get_num_threads()

@@ -1,0 +1,375 @@
+"""Levenberg–Marquardt and Gauss–Newton over the batch linear system, with GTSAM's semantics.
+
+The loop of GTSAM's ``LevenbergMarquardtOptimizer`` (``tryLambda`` /
+``iterate`` / ``defaultOptimize`` / ``checkConvergence``) and
+``GaussNewtonOptimizer``; what differs is only how a linear step is computed
+(:mod:`lie_factors.batch.system` assembles ``H + damping``,
+:mod:`lie_factors.batch.solvers` factors it).  See
+:class:`BatchLevenbergMarquardt`.
+
+Usage::
+
+    from lie_factors import batch
+    result = batch.optimize(graph, initial)                 # LM, GTSAM's default params
+    result = batch.optimize(graph, initial, gtsam.GaussNewtonParams())
+    result.values, result.iterations, result.errors, result.seconds, result.timings
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import gtsam
+import numpy as np
+
+from ..errors import PoseGraphError
+from ..results import IterationInfo, OptimizeResult
+from . import solvers
+from .graph import BatchError, Problem, first_line
+from .solvers import NotPositiveDefinite
+from .system import LinearSystem
+
+#: GTSAM defaults that the Python wrapper does not expose (LevenbergMarquardtParams.h).
+MIN_MODEL_FIDELITY = 1e-3
+MIN_DIAGONAL = 1e-6
+MAX_DIAGONAL = 1e32
+
+#: Keys of ``BatchResult.timings`` (seconds, summed over the run).
+TIMING_KEYS = ("setup", "linearize", "assemble", "factorize", "retract", "error", "values", "other")
+
+
+class IndeterminantLinearSystem(NotPositiveDefinite):
+    """Gauss–Newton's undamped system is not positive definite (e.g. no prior fixes the gauge)."""
+
+
+@dataclass
+class BatchResult:
+    """What :func:`optimize` returns.
+
+    ``errors[0]`` is the initial error, ``errors[k]`` the error after iteration
+    k; ``lambdas[k]`` is λ after iteration k (``lambdas[0]`` the initial λ; 0
+    for Gauss–Newton).  ``timings`` splits ``seconds`` into :data:`TIMING_KEYS`:
+    ``factorize`` is numeric factorization + solve (the symbolic analysis is
+    in ``setup``), ``error`` includes the linearized-cost change.
+    """
+
+    values: gtsam.Values
+    iterations: int
+    errors: list[float]
+    lambdas: list[float]
+    seconds: float
+    converged: bool
+    inner_iterations: int = 0
+    timings: dict = field(default_factory=dict)
+    linear_solver: str = ""
+
+    @property
+    def initial_error(self) -> float:
+        return self.errors[0]
+
+    @property
+    def final_error(self) -> float:
+        return self.errors[-1]
+
+
+class BatchLevenbergMarquardt:
+    """Levenberg–Marquardt (or Gauss–Newton) over ``graph`` from ``initial``, mirroring GTSAM.
+
+    ``params``: ``gtsam.LevenbergMarquardtParams`` (default) or
+    ``gtsam.GaussNewtonParams`` (same loop, no damping, a non-positive-definite
+    system raises :class:`IndeterminantLinearSystem`).  ``linear_solver``:
+    ``"auto"`` (CHOLMOD if cvxopt is installed, else GTSAM with a warning),
+    ``"cholmod"`` or ``"gtsam"``.
+
+    LM semantics (GTSAM ``LevenbergMarquardtOptimizer``/``LevenbergMarquardtState``):
+
+    * damping ``λ·I`` on every variable of the linear system, or with
+      ``diagonalDamping`` ``λ·clamp(diag(JᵀJ), 1e-6, 1e32)``, for each λ tried;
+    * a step is tried only if the linearized cost decreases; it is accepted if
+      ``fidelity = Δcost / Δlinearized > minModelFidelity (1e-3)``, provided
+      ``Δlinearized > ε·linearized error``; a system that cannot be factored
+      counts as a failed try;
+    * accepted: ``λ ← max(lowerBound, λ·max(1/3, 1 − (2·fidelity − 1)³))``,
+      factor ← 2·factor (or ``λ ← λ/factor`` with ``useFixedLambdaFactor``);
+      rejected: ``λ ← λ·factor``, factor ← 2·factor (unless fixed); give up
+      once ``λ ≥ lambdaUpperBound``, or stop trying when
+      ``|Δcost| < relativeErrorTol·error``;
+    * :meth:`optimize`: nothing if error ≤ errorTol or iterations ≥
+      maxIterations, else iterate while iterations < maxIterations, not
+      ``gtsam.checkConvergence`` and the error is finite.
+
+    Hooks for robust cost functions / GNC: ``self.system.weights`` (one per
+    graph factor) scale each factor's whitened contribution at the next
+    linearization, and ``self.problem.error(sq_out=array)`` returns every
+    factor's squared whitened residual norm.
+    """
+
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
+                 params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
+                 min_model_fidelity: float = MIN_MODEL_FIDELITY, linear_solver: str = "auto"):
+        t0 = time.perf_counter()
+        self.params = params if params is not None else gtsam.LevenbergMarquardtParams()
+        if not isinstance(self.params, (gtsam.LevenbergMarquardtParams, gtsam.GaussNewtonParams)):
+            raise TypeError("params must be gtsam.LevenbergMarquardtParams or gtsam.GaussNewtonParams, "
+                            f"got {type(self.params).__name__}")
+        self.gauss_newton = isinstance(self.params, gtsam.GaussNewtonParams)
+        self.min_model_fidelity = float(min_model_fidelity)
+        self._read_params()
+        self.problem = Problem(graph, initial)
+        self.system = LinearSystem(self.problem)
+        self.solver = solvers.make(linear_solver, self.system)
+        self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
+        self.lambda_ = 0.0 if self.gauss_newton else self.lambda_initial
+        self.current_factor = self.lambda_factor
+        self._iterations = 0
+        self.inner_iterations = 0
+        t1 = time.perf_counter()
+        self._error = self.problem.error()
+        self.timings["error"] += time.perf_counter() - t1
+        self.errors = [self._error]
+        self.lambdas = [self.lambda_]
+        self.timings["setup"] += t1 - t0
+
+    # ---------------------------------------------------------------- params
+    def _read_params(self):
+        p = self.params
+        self.max_iterations = int(p.getMaxIterations())
+        self.relative_tol = float(p.getRelativeErrorTol())
+        self.absolute_tol = float(p.getAbsoluteErrorTol())
+        self.error_tol = float(p.getErrorTol())
+        self.verbosity = str(p.getVerbosity())
+        self._verbose_error = self.verbosity in ("ERROR", "VALUES", "DELTA", "LINEAR")
+        self._verbose_termination = self.verbosity not in ("SILENT",)
+        if self.gauss_newton:
+            self.lambda_initial = self.lambda_factor = 0.0
+            self._summary = self._trylambda = False
+            return
+        self.lambda_initial = float(p.getlambdaInitial())
+        self.lambda_factor = float(p.getlambdaFactor())
+        self.lambda_upper = float(p.getlambdaUpperBound())
+        self.lambda_lower = float(p.getlambdaLowerBound())
+        self.diagonal_damping = bool(p.getDiagonalDamping())
+        self.fixed_factor = bool(p.getUseFixedLambdaFactor())
+        verbosity_lm = str(p.getVerbosityLM())
+        self._summary = verbosity_lm == "SUMMARY"
+        self._trylambda = verbosity_lm in ("TRYLAMBDA", "TRYCONFIG", "DAMPED", "TRYDELTA")
+
+    # ---------------------------------------------------------------- state
+    @property
+    def blocks(self):
+        return self.problem.blocks
+
+    @property
+    def linear_solver(self) -> str:
+        return self.solver.name
+
+    def error(self) -> float:
+        return self._error
+
+    def iterations(self) -> int:
+        return self._iterations
+
+    def lambda_value(self) -> float:
+        return self.lambda_
+
+    def values(self) -> gtsam.Values:
+        return self.problem.values()
+
+    # ---------------------------------------------------------------- steps
+    def _linearize(self) -> float:
+        T = self.timings
+        t = time.perf_counter()
+        linear_error0 = self.problem.linearize()
+        t1 = time.perf_counter()
+        self.system.assemble()
+        T["linearize"] += t1 - t
+        T["assemble"] += time.perf_counter() - t1
+        return linear_error0
+
+    def _solve(self, scale):
+        t = time.perf_counter()
+        try:
+            return self.solver.solve(scale)
+        finally:
+            self.timings["factorize"] += time.perf_counter() - t
+
+    def _try_step(self, delta):
+        """(elements, other, new error) at the retracted ``delta``."""
+        T = self.timings
+        t = time.perf_counter()
+        Xs, other = self.problem.retract(delta)
+        t1 = time.perf_counter()
+        new_error = self.problem.error(Xs, other)
+        T["retract"] += t1 - t
+        T["error"] += time.perf_counter() - t1
+        return Xs, other, new_error
+
+    def _try_lambda(self, linear_error0: float, hdiag) -> bool:
+        scale = (np.full(self.system.n, self.lambda_) if hdiag is None
+                 else self.lambda_ * hdiag)
+        model_fidelity = 0.0
+        success = False
+        stop = False
+        new_error = math.inf
+        cost_change = 0.0
+        try:
+            delta = self._solve(scale)
+        except NotPositiveDefinite:  # GTSAM: IndeterminantLinearSystemException, λ goes up
+            delta = None
+        if delta is not None:
+            t = time.perf_counter()
+            linear_change = self.system.linear_change(delta)
+            self.timings["error"] += time.perf_counter() - t
+            if self._trylambda:
+                print(f"linear delta norm = {np.linalg.norm(delta)}")
+                print(f"newlinearizedError = {linear_error0 - linear_change:.15g}  "
+                      f"linearizedCostChange = {linear_change:.15g}")
+            if linear_change >= 0:
+                Xs, other, new_error = self._try_step(delta)
+                cost_change = self._error - new_error
+                if linear_change > np.finfo(float).eps * linear_error0:
+                    model_fidelity = cost_change / linear_change
+                    success = model_fidelity > self.min_model_fidelity
+                    if self._trylambda:
+                        print(f"modelFidelity: {model_fidelity}")
+                if abs(cost_change) < self.relative_tol * self._error:
+                    stop = True
+        if self._summary:
+            print(f"{self._iterations:4d} {new_error:12.6e} {cost_change:12.4e} "
+                  f"{self.lambda_:10.2e} {int(success):4d}")
+        if success:
+            self.problem.accept(Xs, other)
+            self._error = new_error
+            if self.fixed_factor:
+                self.lambda_ /= self.current_factor
+            else:
+                self.lambda_ *= max(1.0 / 3.0, 1.0 - (2.0 * model_fidelity - 1.0) ** 3)
+                self.current_factor *= 2.0
+            self.lambda_ = max(self.lambda_lower, self.lambda_)
+            self._iterations += 1
+            self.inner_iterations += 1
+            return True
+        if not stop:
+            self.lambda_ *= self.current_factor
+            self.inner_iterations += 1
+            if not self.fixed_factor:
+                self.current_factor *= 2.0
+            if self.lambda_ >= self.lambda_upper:
+                if self._verbose_termination or self._summary:
+                    print("Warning:  Levenberg-Marquardt giving up because "
+                          "cannot decrease error with maximum lambda")
+                return True
+            return False
+        if self._trylambda:
+            print("Levenberg-Marquardt: stopping as relative cost reduction is small")
+        return True
+
+    def iterate(self) -> None:
+        """One iteration: linearize and assemble once, then (LM) try λ until a step is accepted or LM gives up."""
+        linear_error0 = self._linearize()
+        if self.gauss_newton:
+            try:
+                delta = self._solve(None)
+            except NotPositiveDefinite as exc:
+                raise IndeterminantLinearSystem(
+                    f"Gauss-Newton: {exc}; the graph does not determine every variable "
+                    "(e.g. no prior fixes the gauge) - add a prior or use Levenberg-Marquardt") from None
+            Xs, other, self._error = self._try_step(delta)
+            self.problem.accept(Xs, other)
+            self._iterations += 1
+            self.inner_iterations += 1
+            return
+        if self._summary and self.inner_iterations == 0:
+            print(f"Initial error: {self._error}, values: {len(self.problem.var_keys)}")
+        hdiag = None
+        if self.diagonal_damping:
+            hdiag = np.clip(self.system.hessian_diagonal(), MIN_DIAGONAL, MAX_DIAGONAL)
+        while not self._try_lambda(linear_error0, hdiag):
+            pass
+
+    def optimize(self, progress: Callable[[int, float, float], None] | None = None) -> BatchResult:
+        """GTSAM's ``defaultOptimize``; ``progress(iteration, error, lambda)`` after each iterate."""
+        t0 = time.perf_counter()
+        new_error = self._error
+        converged = False
+        if new_error <= self.error_tol:
+            if self._verbose_error:
+                print(f"Exiting, as error = {new_error} < {self.error_tol}")
+            converged = True
+        elif self._iterations < self.max_iterations:
+            while True:
+                current_error = new_error
+                self.iterate()
+                new_error = self._error
+                self.errors.append(new_error)
+                self.lambdas.append(self.lambda_)
+                if self._verbose_error:
+                    print(f"newError: {new_error}")
+                if progress is not None:
+                    progress(self._iterations, new_error, self.lambda_)
+                converged = bool(gtsam.checkConvergence(
+                    self.relative_tol, self.absolute_tol, self.error_tol, current_error, new_error))
+                if (self._iterations >= self.max_iterations or converged
+                        or not math.isfinite(current_error)):
+                    break
+        t1 = time.perf_counter()
+        values = self.values()
+        self.timings["values"] += time.perf_counter() - t1
+        seconds = time.perf_counter() - t0 + self.timings["setup"]
+        timings = dict(self.timings)
+        timings["other"] = seconds - sum(v for k, v in timings.items() if k != "other")
+        return BatchResult(values, self._iterations, list(self.errors), list(self.lambdas), seconds,
+                           converged, self.inner_iterations, timings, self.solver.name)
+
+
+def optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
+             params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
+             progress: Callable[[int, float, float], None] | None = None,
+             linear_solver: str = "auto") -> BatchResult:
+    """Batch Levenberg–Marquardt or Gauss–Newton (see :class:`BatchLevenbergMarquardt`)."""
+    t0 = time.perf_counter()
+    opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=linear_solver)
+    result = opt.optimize(progress)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 100,
+              progress: Callable | None = None,
+              params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
+              linear_solver: str = "auto") -> OptimizeResult:
+    """``posegraph.optimize``-compatible entry point for ``--backend batch``.
+
+    ``progress`` receives a :class:`lie_factors.results.IterationInfo` after
+    each iteration; returns a :class:`lie_factors.results.OptimizeResult`.
+    ``max_iterations=0`` runs none.  Bad input and unsolvable systems raise
+    :class:`lie_factors.errors.PoseGraphError`.
+    """
+    if params is None:
+        params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    t_start = time.perf_counter()
+    history: list = []
+    last = [t_start]
+
+    def hook(it, err, lam):
+        now = time.perf_counter()
+        info = IterationInfo(int(it), float(err), float(lam), now - last[0])
+        last[0] = now
+        history.append(info)
+        if progress is not None:
+            progress(info)
+
+    try:
+        opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=linear_solver)
+        last[0] = time.perf_counter()
+        res = opt.optimize(hook)
+    except BatchError as exc:
+        raise PoseGraphError(f"batch backend: {exc}") from None
+    except RuntimeError as exc:
+        raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
+    return OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
+                          time.perf_counter() - t_start, res.converged, history)

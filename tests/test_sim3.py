@@ -1,0 +1,400 @@
+"""Sim(3) kernels, tangent [ω, u, λ], against lie_factors.reference (mpmath, 50 digits).
+
+error = max|ours − ref| / max(1, max|ref|) ≤ 1e-14 (CONVENTIONS.md) over
+θ = 0, 1e-200, 1e-15 … π (exp, log, Ad) and to 2π − 1e-3 (dexp, dlog), crossed with
+λ ∈ {0, ±1e-9, ±1e-5, ±θ, ±0.5, ±5}, translations 1e-3…1e2 in random directions,
+nearly parallel and perpendicular to ω; every branch threshold of the module
+(and of the SO(3) coefficient functions it evaluates at θ and at the quadrature
+nodes sθ) straddled by ×(1 ± 1e-9).
+"""
+
+from __future__ import annotations
+
+import math
+
+import gtsam
+import mpmath as mp
+import numpy as np
+import pytest
+
+from lie_factors import _coeffs as C
+from lie_factors import reference as ref
+from lie_factors import sim3
+
+TOL = 1e-14
+PI = math.pi
+G = "sim3"
+
+THETAS = [0.0, 1e-200, 1e-15, 1e-8, 1e-4, 1e-2, 0.3, 1.0, 2.0, 3.0, PI - 1e-12, PI]
+THETAS_BEYOND_PI = [PI * (1 + 1e-9), 4.0, 5.0, 6.0, 2 * PI - 1e-3]
+NORMS = [1e-3, 1.0, 1e2]
+MODES = ["random", "parallel", "perpendicular"]
+
+
+def _lambdas(th):
+    return [0.0] + [s * v for v in (1e-9, 1e-5, th, 0.5, 5.0) for s in (1.0, -1.0)]
+
+
+def _straddle(thr):
+    return [thr * (1 - 1e-9), thr * (1 + 1e-9)]
+
+
+_S_MAX = float(sim3._GL_S[-1])  # largest quadrature node: the first where sθ crosses a threshold
+THRESHOLD_THETAS = [
+    t
+    for thr in (
+        C.A_TAYLOR, C.C_TAYLOR, C.QA_TAYLOR, C.E_TAYLOR, sim3.DLOG_SPECTRAL,
+        C.A_TAYLOR / _S_MAX, C.C_TAYLOR / _S_MAX, C.QA_TAYLOR / _S_MAX, 2 * C.A_TAYLOR / _S_MAX,
+    )
+    for t in _straddle(thr)
+]
+
+
+def _grid(thetas, lam_subset=None):
+    out = []
+    for th in thetas:
+        lams = _lambdas(th) if lam_subset is None else lam_subset
+        out.extend((th, lam) for lam in lams)
+    return out
+
+
+def _special():
+    """(θ, λ) straddling the panel count ((|λ| + θ)·width = QUAD_PANEL) and the cut at |λ| = QUAD_CUT."""
+    out = []
+    for f in _straddle(sim3.QUAD_PANEL):
+        out += [(1.0, f - 1.0), (1.0, 1.0 - f), (f - 0.5, 0.5)]
+    for f in _straddle(sim3.QUAD_CUT):
+        out += [(1.0, f), (0.7, -f)]
+    # λ² + θ² → 0 along other directions than λ = ±θ
+    for r in (1e-200, 1e-12, 1e-6, 1e-3):
+        out += [(r, 3 * r), (3 * r, -r)]
+    return out
+
+
+def _threshold_pairs():
+    lams = [(0.0, -0.5), (1e-9, 5.0), (-1e-5, 0.5)]
+    return [(th, lam) for k, th in enumerate(THRESHOLD_THETAS) for lam in lams[k % 3]]
+
+
+PAIRS = _grid(THETAS) + _threshold_pairs() + _special()
+PAIRS_2PI = PAIRS + _grid(THETAS_BEYOND_PI) + _grid(_straddle(PI), [0.0, -1e-9, 0.5])
+
+
+def _points(pairs, seed=0):
+    rng = np.random.default_rng(seed)
+    pts = []
+    for k, (th, lam) in enumerate(pairs):
+        d = rng.standard_normal((2, 3))
+        n = d[0] / np.linalg.norm(d[0])
+        mode = MODES[k % 3]
+        if mode == "random":
+            u = d[1]
+        elif mode == "parallel":
+            u = n + 1e-7 * d[1]
+        else:
+            u = np.cross(n, d[1])
+        u = NORMS[(k // 3) % 3] * u / np.linalg.norm(u)
+        pts.append(np.r_[th * n, u, lam])
+    return pts
+
+
+def _mp(x):
+    return ref.mpf_vec(x)
+
+
+def _worst(pairs_errs):
+    worst = max(pairs_errs, key=lambda p: p[0])
+    return worst
+
+
+# --- accuracy sweeps --------------------------------------------------------------------------
+
+
+def test_exp_accuracy():
+    errs = [(ref.rel_err(sim3.exp(x), ref.exp(G, _mp(x))), tuple(x)) for x in _points(PAIRS)]
+    assert _worst(errs)[0] <= TOL, _worst(errs)
+
+
+def test_dexp_dlog_accuracy():
+    worst = {"dexp": (0.0, None), "dlog": (0.0, None)}
+    for x in _points(PAIRS_2PI, seed=1):
+        D = ref.dexp(G, _mp(x))
+        for name, ours, r in (("dexp", sim3.dexp(x), D), ("dlog", sim3.dlog(x), mp.inverse(D))):
+            e = ref.rel_err(ours, r)
+            if e > worst[name][0]:
+                worst[name] = (e, tuple(x))
+    assert worst["dexp"][0] <= TOL, worst
+    assert worst["dlog"][0] <= TOL, worst
+
+
+def _log_ref(X, x):
+    """vee(log X) from the definition exp = expm(hat): ω = logm(R) (principal, θ < 3), λ = −ln X33,
+    and u from t = T u, T's columns the translation of expm(hat(ω, e_j, λ)) (linear in u).
+    Near π, Newton on expm(hat x) = X (mp.logm may pick a complex branch there)."""
+    th = float(np.linalg.norm(x[:3]))
+    if th >= 3.0:
+        return ref.log_near(G, X, _mp(x))
+    Xm = mp.matrix(np.asarray(X).tolist())
+    w = ref.vee_so3(mp.logm(Xm[0:3, 0:3]))
+    w = [mp.re(v) for v in w]
+    lam = -mp.log(Xm[3, 3])
+    T = mp.matrix(3, 3)
+    for j in range(3):
+        e = [0, 0, 0]
+        e[j] = 1
+        E = mp.expm(ref.hat_sim3(w + e + [lam]))
+        for i in range(3):
+            T[i, j] = E[i, 3]
+    u = mp.lu_solve(T, mp.matrix([Xm[0, 3], Xm[1, 3], Xm[2, 3]]))
+    return w + [u[0], u[1], u[2], lam]
+
+
+def test_log_reference_agrees_with_logm():
+    x = np.array([0.3, -0.9, 0.5, 1.0, -2.0, 0.4, 0.8])
+    X = sim3.exp(x)
+    assert ref.rel_err(np.array(ref.log(G, X), dtype=float), _log_ref(X, x)) < 1e-15
+
+
+def test_log_accuracy():
+    pairs = [(th, lam) for th, lam in PAIRS if th < PI and abs(lam) < 40]
+    errs = []
+    for x in _points(pairs, seed=2):
+        X = sim3.exp(x)
+        errs.append((ref.rel_err(sim3.log(X), _log_ref(X, x)), tuple(x)))
+    assert _worst(errs)[0] <= TOL, _worst(errs)
+
+
+def test_log_at_pi():
+    for x in _points([(PI, lam) for lam in (0.0, 1e-9, -0.5, 5.0)], seed=3):
+        X = sim3.exp(x)
+        y = sim3.log(X)
+        assert abs(np.linalg.norm(y[:3]) - PI) < 1e-15
+        assert ref.rel_err(sim3.exp(y), mp.matrix(X.tolist())) <= TOL
+
+
+def _Ad_ref(X):
+    Xm = mp.matrix(np.asarray(X).tolist())
+    Xi = mp.inverse(Xm)
+    R = mp.matrix(7, 7)
+    for j in range(7):
+        e = [0] * 7
+        e[j] = 1
+        col = ref.vee_sim3(Xm * ref.hat_sim3(e) * Xi)
+        for i in range(7):
+            R[i, j] = col[i]
+    return R
+
+
+def test_Ad_definition():
+    pairs = [(th, lam) for th, lam in PAIRS if abs(lam) < 40]
+    errs = []
+    for x in _points(pairs, seed=4)[::2]:
+        X = sim3.exp(x)
+        errs.append((ref.rel_err(sim3.Ad(X), _Ad_ref(X)), tuple(x)))
+    assert _worst(errs)[0] <= TOL, _worst(errs)
+
+
+def test_ad_accuracy():
+    for x in _points(PAIRS_2PI[::3], seed=5):
+        assert ref.rel_err(sim3.ad(x), ref.ad(G, _mp(x))) == 0.0
+
+
+def test_Ad_exp_is_expm_ad():
+    # Ad(exp(x)) = exp(ad x)  (seed 000, Eq. 9)
+    for x in _points([(0.0, 0.0), (1e-5, -1e-5), (0.7, 0.3), (3.0, -2.0), (2.0, 4.0)], seed=6):
+        assert ref.rel_err(sim3.Ad(sim3.exp(x)), mp.expm(ref.ad(G, _mp(x)))) <= TOL
+
+
+def test_hat_vee_exact():
+    for x in _points(PAIRS[::5], seed=7):
+        H = sim3.hat(x)
+        np.testing.assert_array_equal(H, ref.to_numpy(ref.hat_sim3(_mp(x))))
+        np.testing.assert_array_equal(sim3.vee(H), x)
+
+
+def test_compose_inverse():
+    pts = [x for x in _points(PAIRS[::3], seed=8) if abs(x[6]) < 40]
+    for x, y in zip(pts, pts[::-1]):
+        X, Y = sim3.exp(x), sim3.exp(y)
+        Xm, Ym = mp.matrix(X.tolist()), mp.matrix(Y.tolist())
+        assert ref.rel_err(sim3.compose(X, Y), Xm * Ym) <= TOL
+        assert ref.rel_err(sim3.inverse(X), mp.inverse(Xm)) <= TOL
+
+
+def test_log_exp_roundtrip():
+    for x in _points([(th, lam) for th, lam in PAIRS if th < 3.0], seed=9):
+        y = sim3.log(sim3.exp(x))
+        assert np.max(np.abs(y - x)) <= 1e-14 * max(1.0, np.max(np.abs(x))), x
+
+
+def test_dexp_is_left_jacobian():
+    """exp(x + ε) exp(x)⁻¹ = I + hat(dexp(x) ε) + O(ε²), at 50 digits with ε = 1e-20."""
+    x = np.array([0.4, -1.1, 1.3, 0.7, -0.2, 2.0, -0.6])
+    eps = mp.mpf(10) ** -20
+    J = sim3.dexp(x)
+    E0i = mp.inverse(ref.exp(G, _mp(x)))
+    for j in range(7):
+        xe = _mp(x)
+        xe[j] += eps
+        col = [v / eps for v in ref.vee_sim3(ref.exp(G, xe) * E0i - mp.eye(4))]
+        assert max(abs(col[i] - J[i, j]) for i in range(7)) < 1e-14
+
+
+def test_dlog_spectral_and_product_forms_agree_at_switch():
+    """Both forms of D_log's lower-left block are accurate on both sides of DLOG_SPECTRAL."""
+    for f in (1 - 1e-9, 1 + 1e-9):
+        for x in _points([(sim3.DLOG_SPECTRAL * f, lam) for lam in (0.0, 1e-5, -0.5, 5.0)], seed=10):
+            assert ref.rel_err(sim3.dlog(x), ref.dlog(G, _mp(x))) <= TOL
+
+
+# --- shapes and validation ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("batch", [(), (4,), (2, 5), (0,)])
+def test_shapes_broadcast(batch):
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=batch + (7,))
+    X = sim3.exp(x)
+    assert X.shape == batch + (4, 4)
+    assert sim3.log(X).shape == batch + (7,)
+    assert sim3.hat(x).shape == batch + (4, 4)
+    assert sim3.vee(sim3.hat(x)).shape == batch + (7,)
+    for f in (sim3.ad, sim3.dexp, sim3.dlog):
+        assert f(x).shape == batch + (7, 7)
+    assert sim3.Ad(X).shape == batch + (7, 7)
+    assert sim3.inverse(X).shape == batch + (4, 4)
+    assert sim3.compose(X, X).shape == batch + (4, 4)
+    flat = x.reshape(-1, 7)
+    if flat.shape[0]:
+        loop = np.stack([sim3.dlog(v) for v in flat])
+        np.testing.assert_array_equal(sim3.dlog(x).reshape(-1, 7, 7), loop)
+
+
+def test_compose_broadcasts_batch_axes():
+    rng = np.random.default_rng(1)
+    X = sim3.exp(rng.normal(size=(4, 1, 7)))
+    Y = sim3.exp(rng.normal(size=(5, 7)))
+    Z = sim3.compose(X, Y)
+    assert Z.shape == (4, 5, 4, 4)
+    np.testing.assert_allclose(Z[2, 3], X[2, 0] @ Y[3], rtol=1e-15, atol=1e-15)
+
+
+@pytest.mark.parametrize("f", [sim3.hat, sim3.exp, sim3.ad, sim3.dexp, sim3.dlog])
+def test_bad_tangent(f):
+    with pytest.raises(ValueError, match=r"\(\.\.\., 7\)"):
+        f(np.zeros(6))
+    with pytest.raises(ValueError, match=r"\(\.\.\., 7\)"):
+        f(np.float64(1.0))
+    with pytest.raises(ValueError, match="NaN"):
+        f(np.array([0.0, np.nan, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        f(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf]))
+    with pytest.raises(ValueError, match="convert"):
+        f("abc")
+
+
+@pytest.mark.parametrize("f", [sim3.vee, sim3.log, sim3.Ad, sim3.inverse])
+def test_bad_matrix_shape(f):
+    with pytest.raises(ValueError, match=r"\(\.\.\., 4, 4\)"):
+        f(np.eye(3))
+    X = np.eye(4)
+    X[1, 3] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        f(X)
+
+
+@pytest.mark.parametrize("f", [sim3.log, sim3.Ad, sim3.inverse, lambda X: sim3.compose(np.eye(4), X)])
+def test_not_a_group_element(f):
+    X = np.eye(4)
+    X[0, 1] = 0.2  # not orthonormal
+    with pytest.raises(ValueError, match="orthonormal"):
+        f(X)
+    with pytest.raises(ValueError, match="reflection"):
+        f(np.diag([-1.0, 1.0, 1.0, 1.0]))
+    X = np.eye(4)
+    X[3, 1] = 1e-3
+    with pytest.raises(ValueError, match="last row"):
+        f(X)
+    for corner in (0.0, -0.5, -np.finfo(float).tiny):
+        X = np.eye(4)
+        X[3, 3] = corner  # 1/s ≤ 0: no scale s > 0
+        with pytest.raises(ValueError, match="s > 0"):
+            f(X)
+
+
+def test_tiny_positive_corner_is_accepted():
+    X = np.eye(4)
+    X[3, 3] = 1e-300  # s = 1e300 is a valid (huge) scale
+    assert sim3.log(X)[6] == pytest.approx(-math.log(1e-300), rel=1e-15)
+
+
+# --- GTSAM --------------------------------------------------------------------------------------
+
+_MODERATE = [
+    np.array(v)
+    for v in (
+        [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7],
+        [1.3, -0.2, 0.5, -4.0, 2.0, 0.3, -1.0],
+        [-0.05, 0.02, 0.01, 10.0, -3.0, 1.0, 3.0],
+        [2.0, 1.0, -1.5, 0.3, 0.3, -0.2, 0.0],
+        [0.0, 0.0, 0.0, 1.0, 2.0, 3.0, -0.4],
+    )
+]
+
+
+@pytest.mark.parametrize("v", _MODERATE, ids=str)
+def test_gtsam_similarity3_same_convention(v):
+    """gtsam.Similarity3 uses our tangent [ω, u, λ], Hat and matrix [[R, t], [0, 1/s]] unchanged."""
+    S = gtsam.Similarity3.Expmap(v)
+    X = sim3.exp(v)
+    assert np.max(np.abs(S.matrix() - X)) < 1e-12 * max(1.0, np.abs(X).max())
+    assert abs(S.scale() - 1.0 / X[3, 3]) < 1e-12 * S.scale()  # GTSAM's scale() = e^λ
+    assert np.max(np.abs(gtsam.Similarity3.Logmap(S) - sim3.log(S.matrix()))) < 1e-10 * max(1.0, np.abs(v).max())
+    assert np.max(np.abs(np.asarray(gtsam.Similarity3.Hat(v)) - sim3.hat(v))) == 0.0
+    assert np.max(np.abs(gtsam.Similarity3.Vee(sim3.hat(v)) - v)) == 0.0
+    assert np.max(np.abs(S.AdjointMap() - sim3.Ad(S.matrix()))) < 1e-12 * max(1.0, np.abs(S.AdjointMap()).max())
+    assert np.max(np.abs(S.adjointMap(v) - sim3.ad(v))) == 0.0
+    Y = gtsam.Similarity3.Expmap(v[::-1].copy())
+    assert np.max(np.abs(S.compose(Y).matrix() - sim3.compose(X, Y.matrix()))) < 1e-12 * 100
+    assert np.max(np.abs(S.inverse().matrix() - sim3.inverse(X))) < 1e-12 * 100
+    # retract(δ) = X·Expmap(δ): the right perturbation the factors differentiate against
+    d = np.linspace(-0.3, 0.3, 7)
+    assert np.max(np.abs(S.retract(d).matrix() - sim3.compose(X, sim3.exp(d)))) < 1e-12 * 100
+
+
+def test_gtsam_similarity3_accuracy_recorded():
+    """Ours ≤ 1e-14 where GTSAM's Expmap is less accurate (small λ); GTSAM's error is printed."""
+    errs = {}
+    for th, lam in ((0.3, 3e-5), (1e-4, 1e-4), (1e-6, -1e-6), (0.0, 1e-7), (2.0, 1e-9)):
+        v = np.r_[th * np.array([0.6, 0.0, 0.8]), 0.3, -0.2, 1.5, lam]
+        r = ref.exp(G, _mp(v))
+        assert ref.rel_err(sim3.exp(v), r) <= TOL
+        errs[(th, lam)] = ref.rel_err(gtsam.Similarity3.Expmap(v).matrix(), r)
+    print("GTSAM Similarity3.Expmap errors:", errs)
+
+
+# --- the derivation map (/work/shared/notes/sim3-derivation.md), checked -----------------------
+
+
+def test_note_coefficient_limits_at_zero():
+    """a1 = 1, b1 = 1/2, c1 = 1/6, d1 = −1/12, e1 = −1/60, φ2 → 1/2 at θ = λ = 0."""
+    a1, b1, c1, d1, e1, r1, a2, b2, c2 = sim3._integrals(0.0, 0.0)
+    for got, want in ((a1, 1), (b1, 1 / 2), (c1, 1 / 6), (d1, -1 / 12), (e1, -1 / 60), (a2, 1 / 2), (r1, 1)):
+        assert abs(got - want) <= 4 * np.finfo(float).eps * abs(want)  # a quadrature sum: a few ulps
+
+
+def test_note_W_inverse_and_psi_column():
+    """W⁻¹ = (1/a1) I + b3 Ω + c3 Ω² (note's b3, c3) and D_log's λ column ψ(Ω + λI) u."""
+    x = np.array([0.7, -0.4, 1.1, 2.0, -1.0, 0.5, -0.8])
+    w, u, lam = x[:3], x[3:6], x[6]
+    th = np.linalg.norm(w)
+    a1, b1, c1, *_ = sim3._integrals(lam, th)
+    m = (a1 - c1 * th**2) ** 2 + b1**2 * th**2
+    b3, c3 = -b1 / m, (b1**2 - a1 * c1 + c1**2 * th**2) / (a1 * m)
+    Om = sim3.hat(np.r_[w, 0, 0, 0, 0])[:3, :3]
+    Wi = np.eye(3) / a1 + b3 * Om + c3 * Om @ Om
+    D = ref.dlog(G, _mp(x))
+    assert ref.rel_err(Wi, D[3:6, 3:6]) < 1e-14
+    B = mp.matrix((Om + lam * np.eye(3)).tolist())
+    psi = mp.inverse(B) - mp.inverse(mp.expm(B) - mp.eye(3))
+    assert ref.rel_err(sim3.dlog(x)[3:6, 6], psi * mp.matrix(u.tolist())) < 1e-14
