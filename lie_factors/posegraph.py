@@ -387,7 +387,12 @@ def run(
     for k in range(pg.edges + 1):
         pose_part.add(graph.at(k))
     file_poses = None if pg.initialized_from_edges else _poses_only(pg.initial, pg.is3d)
-    start = initialize(pose_part, init, file_poses)
+    if pg.edges == 0 and init in ("auto", "file"):
+        # Landmark measurements only (e.g. one pose seeing one landmark): no pose
+        # graph for an initializer to relax; the file's values are the start.
+        start = Initialization(_poses_only(pg.initial, pg.is3d), "file", 0.0)
+    else:
+        start = initialize(pose_part, init, file_poses)
     start_values = _with_landmarks(start.values, pg)
     if on_init is not None:
         on_init(start)
