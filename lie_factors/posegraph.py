@@ -386,7 +386,8 @@ def run(
     pose_part = gtsam.NonlinearFactorGraph()
     for k in range(pg.edges + 1):
         pose_part.add(graph.at(k))
-    file_poses = None if pg.initialized_from_edges else _poses_only(pg.initial, pg.is3d)
+    file_poses = (None if pg.initialized_from_edges
+                  else _poses_only(pg.initial, pg.is3d) if pg.landmark_count else pg.initial)
     if pg.edges == 0 and init in ("auto", "file"):
         # Landmark measurements only (e.g. one pose seeing one landmark): no pose
         # graph for an initializer to relax; the file's values are the start.
