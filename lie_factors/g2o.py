@@ -35,6 +35,36 @@ exactly to first order, Λ_br = Jᵀ Λ_xyz J with J = [r·B, u] (B the bearing'
 tangent basis, u = p/r) — what ``readG2o`` does for ``EDGE_SE3_TRACKXYZ``
 (checked to 1e-13 on random information matrices), and what we do for
 ``LANDMARK2`` in 2-D (B = (−u_y, u_x)).
+
+Sim(3) records (g2o's ``types_seven_dof_expmap``, written by ORB-SLAM-style
+systems) are read and written here, not by GTSAM, which does not know them.
+g2o's ``Sim3`` (R, t, s) acts as p ↦ s·R·p + t, its vertex estimate is the
+world→camera transform S_iw, and its edge measurement is S_ji = S_jw·S_iw⁻¹ with
+error log(S_ji·S_iw·S_jw⁻¹).  What the file holds is the 7-vector
+``log(S_iw⁻¹)`` (vertex: camera→world) or ``log(S_ji⁻¹)`` (edge), in g2o's
+tangent order [ω, υ, σ] with exp(ω, υ, σ) = (exp(ω×), W·υ, e^σ), i.e. the
+matrix exponential of [[ω× + σI, υ], [0, 0]].  The conversion to GTSAM:
+
+* element: g2o (R, t, s) is GTSAM's ``Similarity3(R, t/s, s)`` — the same
+  similarity, since GTSAM's matrix [[R, t/s], [0, 1/s]] is g2o's [[sR, t], [0, 1]]
+  divided by s (a homogeneous matrix means the same map after scaling);
+* tangent: [[ω×, υ], [0, −σ]] (GTSAM's ``Hat``) = [[ω× + σI, υ], [0, 0]] − σI₄,
+  and σI₄ commutes with everything, so GTSAM's ``Expmap([ω, υ, σ])`` is g2o's
+  exp of the same 7 numbers, divided by e^σ: *the file's vector is GTSAM's
+  Similarity3 tangent, unchanged*;
+* poses: camera→world S_iw⁻¹ is the GTSAM pose X_i (body→world, as everywhere
+  in GTSAM), and S_ji⁻¹ = S_iw·S_jw⁻¹ = X_i⁻¹·X_j is the ``measured`` of
+  ``BetweenFactorSimilarity3(i, j, ...)``;
+* errors and information: g2o's error log(S_ji·S_iw·S_jw⁻¹) = log(Z⁻¹·X_i⁻¹·X_j)
+  is GTSAM's between error, so the 7×7 information (upper triangle, row-major)
+  is used as is, without permutation.
+
+So a vertex becomes ``Similarity3(sim3.exp(v))`` and is written as
+``sim3.log(X.matrix())``; we use the exact exp/log of :mod:`lie_factors.sim3`
+(g2o's own ``Sim3(Vector7)`` treats |σ| < 1e-5 as σ = 0 in W, which moves t by
+up to |σ|/2 relative).  The vertex's four camera values (focal lengths and
+principal point, unused by pose graphs) are checked for being numbers and
+dropped; we write g2o's defaults ``1 1 0 0``.
 """
 
 from __future__ import annotations
@@ -121,6 +151,11 @@ class Record:
     gtsam: bool = True
     checks: tuple[RowCheck, ...] = ()
     note: str = ""
+    group: str = ""  # GTSAM pose type when the dimension alone does not say it
+
+    @property
+    def group_name(self) -> str:
+        return self.group or ("Pose3" if self.dim == 3 else "Pose2")
 
     @property
     def nfields(self) -> int:
@@ -276,6 +311,27 @@ register(Record("EDGE_SE3_TRACKXYZ", 3, "observation", ("pose", "landmark", "off
                 ("x", "y", "z"), info=6, checks=(_check_range(0, 3), _check_info(3, 3))))
 register(Record("PARAMS_SE3OFFSET", 3, "param", ("id",), ("x", "y", "z") + _QUAT,
                 checks=(_check_quaternion(3),)))
+
+#: Largest accepted |λ| of a Sim(3) record: e^±700 is still a normal double.
+SIM3_MAX_LOG_SCALE = 700.0
+
+
+def _check_log_scale(rows: Rows):
+    lam = rows.values[:, 6]
+    bad = _first(~(np.abs(lam) < SIM3_MAX_LOG_SCALE))
+    if bad is not None:
+        yield bad, (f"log-scale λ = {lam[bad]:.6g} is out of range (|λ| < {SIM3_MAX_LOG_SCALE:g}, "
+                    f"the scale e^λ must be a finite, non-zero double)")
+
+
+_SIM3 = ("ω1", "ω2", "ω3", "υ1", "υ2", "υ3", "σ")
+register(Record("VERTEX_SIM3:EXPMAP", 3, "pose", ("id",), _SIM3 + ("fx", "fy", "cx", "cy"),
+                gtsam=False, group="Similarity3", checks=(_check_log_scale,),
+                note="read by lie_factors; the camera values are checked and dropped"))
+register(Record("EDGE_SIM3:EXPMAP", 3, "between", ("id1", "id2"), _SIM3, info=28, gtsam=False,
+                group="Similarity3", checks=(_check_log_scale, _check_info(7, 7)),
+                note="read by lie_factors"))
+SIM3_TAGS = ("VERTEX_SIM3:EXPMAP", "EDGE_SIM3:EXPMAP")
 del _tag
 
 #: Ids are GTSAM keys; a landmark key packs the character 'l' into the top 8
@@ -311,6 +367,11 @@ class G2oSummary:
     @property
     def has_comments(self) -> bool:
         return bool(self.comment_lines)
+
+    @property
+    def group(self) -> str:
+        """GTSAM type of the poses: Pose2, Pose3 or Similarity3."""
+        return RECORDS[next(iter(self.rows))].group_name
 
     @property
     def pose_vertex_ids(self) -> np.ndarray:
@@ -407,6 +468,11 @@ def _read_bytes(path: str) -> bytes:
         raise PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})") from None
 
 
+def _family(rec: Record) -> tuple[int, str]:
+    """Records that may share a file: same dimension and pose type."""
+    return rec.dim, rec.group_name
+
+
 class _LineError(PoseGraphError):
     """A malformed line; ``lineno`` lets the earliest of several be reported."""
 
@@ -428,11 +494,14 @@ def _parse_line(name: str, lineno: int, tokens: list[bytes], dim_of: list):
         raise _LineError(lineno, f"{where}: unknown tag {_show(tag)} "
                              f"(gtsam.readG2o would skip the line; expected one of {known})")
     if dim_of[0] is None:
-        dim_of[0] = (rec.dim, lineno)
-    elif rec.dim != dim_of[0][0]:
-        dim, first = dim_of[0]
-        raise _LineError(lineno, f"{where}: {rec.tag} is a {rec.dim}-D record but line {first} made "
-                             f"this a {dim}-D file (gtsam.readG2o reads one or the other)")
+        dim_of[0] = (rec, lineno)
+    elif _family(rec) != _family(dim_of[0][0]):
+        first_rec, first = dim_of[0]
+        if rec.dim != first_rec.dim:
+            raise _LineError(lineno, f"{where}: {rec.tag} is a {rec.dim}-D record but line {first} made "
+                                     f"this a {first_rec.dim}-D file (gtsam.readG2o reads one or the other)")
+        raise _LineError(lineno, f"{where}: {rec.tag} is a {rec.group_name} record but line {first} "
+                                 f"made this a {first_rec.group_name} file")
     fields = tokens[1:]
     if len(fields) != rec.nfields:
         raise _LineError(lineno, f"{where}: {_expects(rec)}, got {len(fields)}")
@@ -628,7 +697,7 @@ def _fast_parse(name: str, data: bytes):
     alien = []  # first lines of unknown tags and of the other dimension's records
     for tag_b, lines in groups.items():
         rec = RECORDS.get(tag_b.decode("ascii")) if tag_b.isascii() else None
-        if rec is None or (first_rec is not None and rec.dim != first_rec.dim):
+        if rec is None or (first_rec is not None and _family(rec) != _family(first_rec)):
             alien.append(int(lines[0]))
             continue
         parsed = _parse_group(rec, data, lines, starts, ends)
@@ -641,7 +710,7 @@ def _fast_parse(name: str, data: bytes):
         rows[rec.tag] = parsed
     if alien:  # only the earliest matters (a CSV file has thousands of "tags")
         i = min(alien)
-        first = (first_rec.dim, first_line[first_tag] + 1) if first_rec is not None else None
+        first = (first_rec, first_line[first_tag] + 1) if first_rec is not None else None
         try:
             _parse_line(name, i + 1, data[starts[i]:ends[i]].split(), [first])
         except _LineError as exc:
@@ -657,7 +726,7 @@ def _fast_parse(name: str, data: bytes):
 
 def _slow_group(name: str, rec: Record, data: bytes, lines, starts, ends) -> Rows:
     """Line-by-line parse of one tag's lines (0-based indices); raises at its first bad line."""
-    dim_of = [(rec.dim, int(lines[0]) + 1)]
+    dim_of = [(rec, int(lines[0]) + 1)]
     ids, values, fragile = [], [], []
     for row, i in enumerate(lines.tolist()):
         tokens = data[starts[i]:ends[i]].split()
@@ -922,6 +991,8 @@ def read_g2o(path: str, summary: G2oSummary):
     Verifies that GTSAM read as many factors and vertices as the check found
     (a disagreement is refused rather than half a file optimized).
     """
+    if summary.group == "Similarity3":
+        return _read_sim3(summary)
     tmp = _gtsam_copy(path, summary)
     try:
         try:
@@ -998,6 +1069,10 @@ def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     BetweenFactorPose2/3 and BearingRangeFactor3D, so custom factors would
     silently lose the edges.
     """
+    if _is_sim3_graph(graph):
+        write_sim3_g2o(path, graph, values)
+        return
+
     def write(tmp: str) -> None:
         gtsam.writeG2o(graph, values, tmp)
         with open(tmp, "rb") as fh:
@@ -1007,5 +1082,96 @@ def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
         if extra:
             with open(tmp, "a") as fh:
                 fh.write("\n".join(extra) + "\n")
+
+    replace_atomically(path, write, suffix=".g2o")
+
+
+# --------------------------------------------------------------------------- #
+# Sim(3) records (the conversion is derived in the module docstring)
+# --------------------------------------------------------------------------- #
+
+def similarity3_from_g2o(v) -> gtsam.Similarity3:
+    """The GTSAM element of a g2o Sim(3) record's 7 numbers [ω, υ, σ]: ``Expmap`` of them.
+
+    Shapes: ``v`` (7,).  Exact (``lie_factors.sim3.exp``).
+    """
+    from . import sim3
+
+    return gtsam.Similarity3(sim3.exp(np.asarray(v, dtype=np.float64)))
+
+
+def similarity3_to_g2o(X: gtsam.Similarity3) -> np.ndarray:
+    """The 7 numbers g2o writes for GTSAM element ``X``: its ``Logmap`` [ω, u, λ], shape (7,)."""
+    from . import sim3
+
+    return sim3.log(np.asarray(X.matrix(), dtype=np.float64))
+
+
+def _is_sim3_graph(graph: gtsam.NonlinearFactorGraph) -> bool:
+    return graph.size() > 0 and isinstance(graph.at(0), gtsam.BetweenFactorSimilarity3)
+
+
+def _read_sim3(summary: G2oSummary):
+    """(graph of ``gtsam.BetweenFactorSimilarity3``, Values of ``gtsam.Similarity3``) of a checked Sim(3) file.
+
+    Noise models are ``Gaussian.Information`` of the file's 7×7 information matrices.
+    """
+    graph = gtsam.NonlinearFactorGraph()
+    initial = gtsam.Values()
+    vertices = summary.rows.get("VERTEX_SIM3:EXPMAP")
+    if vertices is not None:
+        for (i,), v in zip(vertices.ids.tolist(), vertices.values):
+            initial.insert(i, similarity3_from_g2o(v[:7]))
+    edges = summary.rows.get("EDGE_SIM3:EXPMAP")
+    if edges is not None:
+        for (i, j), v in zip(edges.ids.tolist(), edges.values):
+            info = _upper_to_symmetric(v[7:], 7)
+            graph.add(gtsam.BetweenFactorSimilarity3(i, j, similarity3_from_g2o(v[:7]),
+                                                     gtsam.noiseModel.Gaussian.Information(info)))
+    return graph, initial
+
+
+def read_sim3_g2o(path: str):
+    """:func:`check_g2o` + the Sim(3) reading of a file: (graph, initial)."""
+    return _read_sim3(check_g2o(path))
+
+
+def _numbers(values) -> str:
+    # repr: the shortest text that reads back as the same double
+    return " ".join(repr(float(v)) for v in values)
+
+
+def write_sim3_g2o(path: str, between: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    """Write ``VERTEX_SIM3:EXPMAP`` / ``EDGE_SIM3:EXPMAP`` lines, atomically.
+
+    ``between``: native ``gtsam.BetweenFactorSimilarity3`` factors (anything else
+    raises ``TypeError``, nothing is written); ``values``: ``gtsam.Similarity3``
+    per key, written in key order.  Each vertex gets g2o's default camera
+    ``1 1 0 0``; each edge the information matrix of its Gaussian noise model.
+    """
+    lines = []
+    for key in sorted(values.keys()):
+        v = similarity3_to_g2o(values.atSimilarity3(key))
+        lines.append(f"VERTEX_SIM3:EXPMAP {key} {_numbers(v)} 1 1 0 0\n")
+    iu = np.triu_indices(7)
+    for k in range(between.size()):
+        f = between.at(k)
+        if not isinstance(f, gtsam.BetweenFactorSimilarity3):
+            raise TypeError(f"write_sim3_g2o: factor {k} is a {type(f).__name__}, "
+                            "expected gtsam.BetweenFactorSimilarity3")
+        noise = f.noiseModel()
+        if not isinstance(noise, gtsam.noiseModel.Gaussian) or isinstance(
+                noise, (gtsam.noiseModel.Robust, gtsam.noiseModel.Constrained)):
+            raise TypeError(f"write_sim3_g2o: factor {k} has a {type(noise).__name__} noise model; "
+                            "g2o stores only Gaussian information matrices")
+        info = np.asarray(noise.information())
+        i, j = f.keys()
+        lines.append(f"EDGE_SIM3:EXPMAP {i} {j} {_numbers(similarity3_to_g2o(f.measured()))} "
+                     f"{_numbers(info[iu])}\n")
+    text = "".join(lines)
+
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8") as out:
+            out.write(text)
 
     replace_atomically(path, write, suffix=".g2o")

@@ -53,7 +53,9 @@ class PoseGraph:
     measurements (GTSAM's BearingRangeFactor2D/3D, pose key → landmark key
     ``symbol('l', j)``), used as they are by every backend; ``initial``:
     Values with every pose and landmark; ``first_key``: smallest pose id, gets
-    the prior.
+    the prior; ``group``: GTSAM type of the poses, Pose2, Pose3 or Similarity3
+    (the latter read by :func:`lie_factors.g2o.read_g2o` from Sim(3) records;
+    ``is3d`` is true for it).
     """
 
     path: str
@@ -65,6 +67,11 @@ class PoseGraph:
     initialized_from_edges: bool
     landmarks: gtsam.NonlinearFactorGraph = dataclasses.field(default_factory=gtsam.NonlinearFactorGraph)
     landmark_vertex_keys: frozenset = frozenset()
+    group: str = ""
+
+    def __post_init__(self):
+        if not self.group:
+            self.group = "Pose3" if self.is3d else "Pose2"
 
     @property
     def poses(self) -> int:
@@ -118,12 +125,12 @@ def load(dataset: str) -> PoseGraph:
     if from_edges:
         # readG2o leaves 3-D edge-only files (sphere2500.txt) without Values; for
         # 2-D it chains odometry itself.  Do the same thing for both: a spanning tree.
-        poses = spanning_tree_initial(between, summary.is3d, pose_ids[0])
+        poses = spanning_tree_initial(between, summary.is3d, pose_ids[0], getattr(gtsam, summary.group)())
         for key in landmark_keys(initial):
             if int(gtsam.Symbol(key).index()) in set(summary.landmark_vertex_ids.tolist()):
                 poses.insert(key, initial.atPoint3(key) if summary.is3d else initial.atPoint2(key))
         initial = poses
-    identity = gtsam.Pose3() if summary.is3d else gtsam.Pose2()
+    identity = getattr(gtsam, summary.group)()
     for i in pose_ids:
         if not initial.exists(i):
             # Seen only in landmark measurements: GTSAM's reader starts it at the identity too.
@@ -140,6 +147,7 @@ def load(dataset: str) -> PoseGraph:
         initialized_from_edges=from_edges,
         landmarks=landmarks,
         landmark_vertex_keys=with_vertex,
+        group=summary.group,
     )
 
 
@@ -169,10 +177,11 @@ def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFacto
         done.add(point_key)
 
 
-def _poses_only(values: gtsam.Values, is3d: bool) -> gtsam.Values:
+def _poses_only(values: gtsam.Values, group: str) -> gtsam.Values:
     out = gtsam.Values()
+    get = getattr(values, f"at{group}")
     for k in pose_keys(values):
-        out.insert(k, values.atPose3(k) if is3d else values.atPose2(k))
+        out.insert(k, get(k))
     return out
 
 
@@ -234,8 +243,11 @@ def load_factors(backend: str):
         raise PoseGraphError(f"backend {backend!r} is not available: {exc}") from None
 
 
-def prior_noise(is3d: bool) -> gtsam.noiseModel.Base:
-    """The prior GTSAM's Pose2/Pose3SLAMExample_g2o.py put on the first pose."""
+def prior_noise(is3d: bool, group: str | None = None) -> gtsam.noiseModel.Base:
+    """The prior GTSAM's Pose2/Pose3SLAMExample_g2o.py put on the first pose
+    (Similarity3: Pose3's, and the log-scale as tight as the rotation)."""
+    if group == "Similarity3":
+        return gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-6]))
     if is3d:
         return gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4]))
     return gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
@@ -249,15 +261,15 @@ def build_graph(pg: PoseGraph, backend: str) -> gtsam.NonlinearFactorGraph:
     files), fixing the gauge.
     """
     F = load_factors(backend)
-    Between = F.BetweenFactorPose3 if pg.is3d else F.BetweenFactorPose2
-    Prior = F.PriorFactorPose3 if pg.is3d else F.PriorFactorPose2
+    Between = getattr(F, f"BetweenFactor{pg.group}")
+    Prior = getattr(F, f"PriorFactor{pg.group}")
     graph = gtsam.NonlinearFactorGraph()
     for k in range(pg.between.size()):
         f = pg.between.at(k)
         i, j = f.keys()
         graph.add(Between(i, j, f.measured(), f.noiseModel()))
-    first = pg.initial.atPose3(pg.first_key) if pg.is3d else pg.initial.atPose2(pg.first_key)
-    graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d)))
+    first = getattr(pg.initial, f"at{pg.group}")(pg.first_key)
+    graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d, pg.group)))
     graph.push_back(pg.landmarks)
     return graph
 # --------------------------------------------------------------------------- #
@@ -387,11 +399,11 @@ def run(
     for k in range(pg.edges + 1):
         pose_part.add(graph.at(k))
     file_poses = (None if pg.initialized_from_edges
-                  else _poses_only(pg.initial, pg.is3d) if pg.landmark_count else pg.initial)
+                  else _poses_only(pg.initial, pg.group) if pg.landmark_count else pg.initial)
     if pg.edges == 0 and init in ("auto", "file"):
         # Landmark measurements only (e.g. one pose seeing one landmark): no pose
         # graph for an initializer to relax; the file's values are the start.
-        start = Initialization(_poses_only(pg.initial, pg.is3d), "file", 0.0)
+        start = Initialization(_poses_only(pg.initial, pg.group), "file", 0.0)
     else:
         start = initialize(pose_part, init, file_poses)
     start_values = _with_landmarks(start.values, pg)
@@ -418,9 +430,15 @@ def run(
     return record, result, pg
 
 
-def positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
-    """Translations of the poses in ``values`` in key order, shape (N, 3) (z = 0 in 2-D)."""
+def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.ndarray:
+    """Translations of the poses in ``values`` in key order, shape (N, 3) (z = 0 in 2-D).
+
+    Similarity3 (``group``): the image of the origin, s·t (GTSAM's action p ↦ s(Rp + t)).
+    """
     keys = pose_keys(values)
+    if group == "Similarity3":
+        origin = np.zeros(3)
+        return np.array([values.atSimilarity3(k).transformFrom(origin) for k in keys]).reshape(-1, 3)
     if is3d:
         return np.array([values.atPose3(k).translation() for k in keys]).reshape(-1, 3)
     out = np.zeros((len(keys), 3))
