@@ -525,6 +525,7 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
         dataset=pg.name,
         dimension=3 if pg.is3d else 2,
         poses=pg.poses,
+        landmarks=pg.landmark_count,
         factors=int(graph.size()),
         iterations=res.iterations,
         initial_error=initial_error,
