@@ -114,6 +114,7 @@ def _worst(pairs_errs):
 
 def test_exp_accuracy():
     errs = [(ref.rel_err(sim3.exp(x), ref.exp(G, _mp(x))), tuple(x)) for x in _points(PAIRS)]
+    print("sim3.exp worst", _worst(errs))
     assert _worst(errs)[0] <= TOL, _worst(errs)
 
 
@@ -125,6 +126,7 @@ def test_dexp_dlog_accuracy():
             e = ref.rel_err(ours, r)
             if e > worst[name][0]:
                 worst[name] = (e, tuple(x))
+    print("sim3.dexp/dlog worst", worst)
     assert worst["dexp"][0] <= TOL, worst
     assert worst["dlog"][0] <= TOL, worst
 
@@ -163,6 +165,7 @@ def test_log_accuracy():
     for x in _points(pairs, seed=2):
         X = sim3.exp(x)
         errs.append((ref.rel_err(sim3.log(X), _log_ref(X, x)), tuple(x)))
+    print("sim3.log worst", _worst(errs))
     assert _worst(errs)[0] <= TOL, _worst(errs)
 
 
@@ -193,6 +196,7 @@ def test_Ad_definition():
     for x in _points(pairs, seed=4)[::2]:
         X = sim3.exp(x)
         errs.append((ref.rel_err(sim3.Ad(X), _Ad_ref(X)), tuple(x)))
+    print("sim3.Ad worst", _worst(errs))
     assert _worst(errs)[0] <= TOL, _worst(errs)
 
 
@@ -365,14 +369,18 @@ def test_gtsam_similarity3_same_convention(v):
 
 
 def test_gtsam_similarity3_accuracy_recorded():
-    """Ours ≤ 1e-14 where GTSAM's Expmap is less accurate (small λ); GTSAM's error is printed."""
+    """Ours ≤ 1e-14 where GTSAM's Expmap is less accurate (small λ); GTSAM's error is printed.
+
+    Erratum (docs/errata.md): issue 9 says Expmap equals expm(Hat) to 2e-16; at λ = 3e-5 it
+    is off by 5e-12 … 8e-12 (relative, |u| ≈ 1.6), at λ = 1e-5 by 5e-13 … 9e-13."""
     errs = {}
-    for th, lam in ((0.3, 3e-5), (1e-4, 1e-4), (1e-6, -1e-6), (0.0, 1e-7), (2.0, 1e-9)):
+    for th, lam in ((0.3, 3e-5), (0.3, 1e-5), (1e-4, 1e-4), (1e-6, -1e-6), (0.0, 1e-7), (2.0, 1e-9)):
         v = np.r_[th * np.array([0.6, 0.0, 0.8]), 0.3, -0.2, 1.5, lam]
         r = ref.exp(G, _mp(v))
         assert ref.rel_err(sim3.exp(v), r) <= TOL
         errs[(th, lam)] = ref.rel_err(gtsam.Similarity3.Expmap(v).matrix(), r)
     print("GTSAM Similarity3.Expmap errors:", errs)
+    assert errs[(0.3, 3e-5)] > 1e-12 and errs[(0.3, 1e-5)] > 1e-13
 
 
 # --- the derivation map (/work/shared/notes/sim3-derivation.md), checked -----------------------
