@@ -32,8 +32,6 @@ from . import _jit, _validate
 
 DIM = 3
 MAT = 3
-#: Group id used by lie_factors._dispatch.
-GID = 2
 
 #: |θ| below this: a_θ, b_θ from their Taylor polynomials (closed forms are 0/0
 #: at θ = 0; the omitted θ⁶/5040 term is < 2e-28 here).

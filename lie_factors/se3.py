@@ -29,8 +29,6 @@ from lie_factors._jit import kernel
 
 DIM = 6
 MAT = 4
-#: Group id used by lie_factors._dispatch.
-GID = 1
 
 
 # ---------------------------------------------------------------- 3×3 helpers on 9-tuples

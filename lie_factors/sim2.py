@@ -41,8 +41,6 @@ from . import _jit, _validate
 
 DIM = 4
 MAT = 3
-#: Group id used by lie_factors._dispatch.
-GID = 3
 
 #: |z| = |λ + iθ| below this: φ1, φ2 from their power series. Above it the closed
 #: form of φ2 = (e^z - 1 - z)/z² has absolute error ≲ 3ε/|z|² ≤ 7e-16.

@@ -80,8 +80,6 @@ from lie_factors.se3 import _lin9, _rod9
 
 DIM = 7
 MAT = 4
-#: Group id used by lie_factors._dispatch.
-GID = 4
 
 #: Gauss–Legendre nodes per panel.
 QUAD_NODES = 12

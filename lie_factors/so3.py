@@ -25,8 +25,6 @@ from lie_factors._jit import kernel
 
 DIM = 3
 MAT = 3
-#: Group id used by lie_factors._dispatch.
-GID = 0
 
 #: log: for cos θ below this the axis is taken from the symmetric part of R.
 #: s = vee(R − Rᵀ)/2 = sin θ · n carries an absolute error ~ε, so the axis

@@ -1,7 +1,8 @@
 """Whole-graph numba loops over the factors' own kernels: linearize, evaluate, retract.
 
-Every loop is a cached top-level kernel taking the group id ``g``
-(:mod:`lie_factors._dispatch`); the per-factor work is
+Every loop is a cached top-level kernel taking the group tag ``g``
+(:mod:`lie_factors._dispatch`: one specialization per group, holding only
+that group's cores); the per-factor work is
 :func:`lie_factors.factors.between` / :func:`~lie_factors.factors.prior` (error
 and Jacobians) and their ``*_error`` halves, so no formula is repeated here.
 
@@ -145,10 +146,10 @@ def _relative_log(g, X0, X, out):
 
 
 class GroupLoops:
-    """The loops above bound to one group (``spec.gid``)."""
+    """The loops above bound to one group (``spec.group``, a :mod:`lie_factors._dispatch` tag)."""
 
     def __init__(self, spec):
-        self.g = spec.gid
+        self.g = spec.group
 
     def between_lin(self, *a):
         _between_lin(self.g, *a)

@@ -1,0 +1,103 @@
+"""Group tags (lie_factors._dispatch): one specialization per group, nothing else compiled."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from numba import njit
+from numba.core.errors import TypingError
+
+from lie_factors import _dispatch, factors, se2, se3, sim2, sim3, so3
+
+GROUPS = [(_dispatch.SO3, so3, 3), (_dispatch.SE3, se3, 3), (_dispatch.SE2, se2, 2), (_dispatch.SIM2, sim2, 2),
+          (_dispatch.SIM3, sim3, 3)]
+
+
+@njit
+def _constants(g):
+    return _dispatch.dim(g), _dispatch.mat(g), _dispatch.rot_dim(g), _dispatch.corner(g)
+
+
+@njit
+def _exp_log(g, x, X, y):
+    _dispatch.exp(g, x, X)
+    _dispatch.log(g, X, y)
+
+
+@pytest.mark.parametrize("tag, module, rot", GROUPS, ids=lambda v: getattr(v, "name", None))
+def test_tag_reaches_its_own_group(tag, module, rot):
+    assert _constants(tag) == (module.DIM, module.MAT, rot, tag.corner)
+    x = np.linspace(0.1, 0.4, module.DIM)
+    X = np.empty((module.MAT, module.MAT))
+    y = np.empty(module.DIM)
+    _exp_log(tag, x, X, y)
+    np.testing.assert_allclose(X, module.exp(x), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(y, x, rtol=0, atol=1e-14)
+
+
+def test_tags_are_distinct_types_and_pickle_by_name():
+    types = {tag._numba_type_ for tag, _, _ in GROUPS}
+    assert len(types) == len(GROUPS)
+    for tag, _, _ in GROUPS:
+        assert pickle.loads(pickle.dumps(tag)) is tag
+        assert pickle.loads(pickle.dumps(tag._numba_type_)) == tag._numba_type_
+
+
+def test_integer_group_id_is_a_typing_error():
+    with pytest.raises(TypingError, match="group tag"):
+        _constants(1)
+
+
+def test_registering_a_group_twice_is_refused():
+    with pytest.raises(ValueError, match="already registered"):
+        _dispatch.register(se3, rot_dim=3, corner=_dispatch.ONE)
+
+
+def test_factor_specs_use_the_registered_tags():
+    assert {spec.group for spec in factors.GROUPS.values()} <= {t for t, _, _ in GROUPS}
+
+
+_SE3_ONLY = textwrap.dedent(
+    """
+    import json
+    import numpy as np
+    import gtsam
+    from lie_factors import factors, se2, sim2, sim3, se3
+    from lie_factors.batch import run_batch
+
+    noise = gtsam.noiseModel.Isotropic.Sigma(6, 0.1)
+    a = gtsam.Pose3(gtsam.Rot3.Ypr(0.1, 0.2, 0.3), np.array([1.0, 2.0, 3.0]))
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(factors.PriorFactorPose3(0, gtsam.Pose3(), noise))
+    graph.add(factors.BetweenFactorPose3(0, 1, a, noise))
+    values = gtsam.Values()
+    values.insert(0, gtsam.Pose3())
+    values.insert(1, a.compose(gtsam.Pose3.Expmap(np.full(6, 0.05))))
+    graph.linearize(values)
+    run_batch(graph, values, 3, None, None)
+    def own_compiled(m):  # kernels defined in m (not imported into it) that were compiled
+        return sorted(name for name, f in vars(m).items()
+                      if getattr(f, "signatures", None) and f.py_func.__module__ == m.__name__)
+
+    compiled = {m.__name__.split(".")[-1]: own_compiled(m) for m in (se2, sim2, sim3, se3)}
+    print(json.dumps(compiled))
+    """
+)
+
+
+def test_se3_graph_compiles_no_other_group(tmp_path):
+    """Fresh numba cache: factors + batch solver on an SE(3) graph compile SE(3) cores only."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", _SE3_ONLY], env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr
+    compiled = json.loads(out.stdout.strip().splitlines()[-1])
+    assert compiled["se2"] == [] and compiled["sim2"] == [] and compiled["sim3"] == [], compiled
+    assert {"_inverse", "_compose", "_log", "_dlog", "_Ad", "_exp"} <= set(compiled["se3"]), compiled
