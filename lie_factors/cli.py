@@ -99,8 +99,9 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     from lie_factors.posegraph import BACKENDS
 
     p.add_argument("dataset", metavar="DATASET",
-                   help="g2o file (2-D VERTEX_SE2/EDGE_SE2 or 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
-                        "EDGE3), or the name of a file shipped with GTSAM, e.g. sphere2500.txt")
+                   help="g2o file (2-D VERTEX_SE2/EDGE_SE2, 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
+                        "EDGE3, or Sim(3) VERTEX_SIM3:EXPMAP/EDGE_SIM3:EXPMAP), or the name of a "
+                        "file shipped with GTSAM, e.g. sphere2500.txt")
     p.add_argument("--backend", default="custom", metavar="NAME",
                    help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
                         "native = GTSAM's own factors, the reference)")
@@ -132,7 +133,7 @@ def _run_posegraph(args) -> int:
     pgm.load_factors(args.backend)
     pg = pgm.load(args.dataset)
 
-    kind = "SE(3)" if pg.is3d else "SE(2)"
+    kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
     _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges"
                f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
                f"backend {args.backend}")
@@ -155,8 +156,8 @@ def _run_posegraph(args) -> int:
     if args.plot:
         from lie_factors.plotting import plot_trajectories
 
-        trajectories = {f"initial ({record.init})": pgm.positions(result.start, pg.is3d),
-                        "optimized": pgm.positions(result.values, pg.is3d)}
+        trajectories = {f"initial ({record.init})": pgm.positions(result.start, pg.is3d, pg.group),
+                        "optimized": pgm.positions(result.values, pg.is3d, pg.group)}
         atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
             tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d), suffix=".png")
         _say(args, f"wrote {args.plot}")
@@ -169,17 +170,29 @@ def _run_posegraph(args) -> int:
 # demo
 # --------------------------------------------------------------------------- #
 
+#: --scenario → (default --poses, what it is)
+DEMO_SCENARIOS = {
+    "se3": (300, "SE(3) odometry chain with loop closures, our factors (default)"),
+    "sim3": (150, "monocular scale drift: a Sim(3) pose graph, our factors beside GTSAM's native ones"),
+}
+
+
 def _add_demo(p: argparse.ArgumentParser) -> None:
     from lie_factors.posegraph import BACKENDS
 
-    p.add_argument("--poses", type=_positive_int, default=300, metavar="N",
-                   help="number of poses (default: 300, at least 2)")
+    p.add_argument("--scenario", default="se3", choices=list(DEMO_SCENARIOS),
+                   help="; ".join(f"{k}: {v[1]}" for k, v in DEMO_SCENARIOS.items()))
+    p.add_argument("--poses", type=_positive_int, default=None, metavar="N",
+                   help="number of poses (default: "
+                        + ", ".join(f"{v[0]} for {k}" for k, v in DEMO_SCENARIOS.items())
+                        + "; at least 2)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
     p.add_argument("--output", default="lie-factors-demo", metavar="DIR",
                    help="directory for trajectory.png and optimized.g2o "
                         "(default: ./lie-factors-demo, created if missing)")
     p.add_argument("--backend", default="custom", metavar="NAME",
-                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom)")
+                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
+                        "sim3 runs native beside it anyway)")
     p.add_argument("--max-iterations", type=_nonnegative_int, default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")
     p.add_argument("--json", action="store_true",
@@ -187,20 +200,28 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
 
 
-def _run_demo(args) -> int:
-    from lie_factors import atomic, demo, g2o
-    from lie_factors import posegraph as pgm
-
-    if args.poses < 2:
-        raise CLIError(f"--poses must be at least 2, got {args.poses}")
-    pgm.get_backend(args.backend)
-    out_dir = args.output
+def _demo_output_dir(out_dir: str) -> None:
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise CLIError(f"{out_dir}: exists and is not a directory")
     try:
         os.makedirs(out_dir, exist_ok=True)
     except OSError as exc:
         raise CLIError(f"{out_dir}: cannot create directory ({exc.strerror})") from None
+
+
+def _run_demo(args) -> int:
+    from lie_factors import atomic, demo, g2o
+    from lie_factors import posegraph as pgm
+
+    if args.poses is None:
+        args.poses = DEMO_SCENARIOS[args.scenario][0]
+    if args.poses < 2:
+        raise CLIError(f"--poses must be at least 2, got {args.poses}")
+    pgm.get_backend(args.backend)
+    if args.scenario == "sim3":
+        return _run_demo_sim3(args)
+    out_dir = args.output
+    _demo_output_dir(out_dir)
     png = os.path.join(out_dir, "trajectory.png")
     g2o_path = os.path.join(out_dir, "optimized.g2o")
     atomic.check_writable(g2o_path)
@@ -248,13 +269,95 @@ def _run_demo(args) -> int:
     return 0
 
 
+def _run_demo_sim3(args) -> int:
+    """The scale-drift scenario (:mod:`lie_factors.demo_sim3`): ours and GTSAM's native
+    factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
+    from lie_factors import atomic, demo_sim3, g2o
+    from lie_factors import posegraph as pgm
+
+    if args.backend == "native":
+        raise CLIError("--scenario sim3 always runs GTSAM's native factors beside ours; "
+                       "choose --backend custom or batch for ours")
+    _demo_output_dir(args.output)
+    png = os.path.join(args.output, "trajectory.png")
+    g2o_path = os.path.join(args.output, "optimized.g2o")
+    atomic.check_writable(g2o_path)
+    pgm.load_factors(args.backend)  # a clear error now if ours are unavailable
+
+    problem = demo_sim3.simulate(args.poses, args.seed)
+    _say(args, f"demo sim3: {args.poses} poses, {len(problem.odometry)} odometry edges, "
+               f"{len(problem.closures)} loop closures, scale drift e^{demo_sim3.DRIFT[6]:g} per step, "
+               f"seed {args.seed}, backend {args.backend} beside native")
+    c = demo_sim3.compare(problem, args.backend, args.max_iterations, _progress(args))
+    ours, native, graph = c.ours, c.native, c.graph
+    ate0, ate_ours, ate_native = c.ate_initial, c.ate_ours, c.ate_native
+    g0, g_ours, g_native = c.gradient_initial, c.gradient_ours, c.gradient_native
+
+    def status(r):
+        return "converged" if r.converged else "not converged"
+
+    col = f"ours ({args.backend})"
+    _say(args, f"{'':18s}{'initial':>14s}{col:>16s}{'GTSAM native':>16s}")
+    _say(args, f"{'error':18s}{ours.initial_error:14.6g}{ours.final_error:16.10g}{native.final_error:16.10g}")
+    _say(args, f"{'ATE (RMSE) [m]':18s}{ate0:14.4f}{ate_ours:16.4f}{ate_native:16.4f}")
+    _say(args, f"{'|true gradient|':18s}{g0:14.3g}{g_ours:16.3g}{g_native:16.3g}")
+    _say(args, f"{'  relative':18s}{1.0:14.3g}{g_ours / g0:16.3g}{g_native / g0:16.3g}")
+    _say(args, f"{'iterations':18s}{'':14s}{ours.iterations:16d}{native.iterations:16d}")
+    _say(args, f"{'seconds':18s}{'':14s}{ours.seconds:16.3f}{native.seconds:16.3f}")
+    _say(args, f"{'':18s}{'':14s}{status(ours):>16s}{status(native):>16s}")
+    verdict = "a stationary point" if c.stationary else "NOT a stationary point"
+    _say(args, f"ours reached {verdict} (|g|/|g0| = {g_ours / g0:.2e}, target <= 1e-06); "
+               f"native stopped at |g|/|g0| = {g_native / g0:.2e}")
+
+    g2o.write_g2o(g2o_path, demo_sim3.between_graph(problem), ours.values)
+    from lie_factors.plotting import plot_trajectories
+
+    n = args.poses
+    truth = demo_sim3.true_centres(problem.truth)
+    atomic.replace_atomically(png, lambda tmp: plot_trajectories(
+        tmp,
+        {"ground truth": truth,
+         "initial": demo_sim3.camera_centres(problem.initial, n),
+         "ours": demo_sim3.camera_centres(ours.values, n),
+         "native": demo_sim3.camera_centres(native.values, n)},
+        f"Sim(3) scale drift: {n} poses, ATE {ate0:.2f} m -> ours {ate_ours:.3f} m, "
+        f"native {ate_native:.3f} m"),
+        suffix=".png")
+    _say(args, f"wrote {png} and {g2o_path}")
+    if args.json:
+        _emit_json({
+            "backend": args.backend,
+            "scenario": "sim3",
+            "dataset": f"demo-sim3(poses={n}, seed={args.seed})",
+            "dimension": 3,
+            "poses": n,
+            "factors": int(graph.size()),
+            "iterations": ours.iterations,
+            "initial_error": ours.initial_error,
+            "final_error": ours.final_error,
+            "seconds": ours.seconds,
+            "converged": ours.converged,
+            "ate_rmse_initial": ate0,
+            "ate_rmse": ate_ours,
+            "native_ate_rmse": ate_native,
+            "native_final_error": native.final_error,
+            "native_iterations": native.iterations,
+            "native_converged": native.converged,
+            "gradient_norm_initial": g0,
+            "gradient_norm": g_ours,
+            "native_gradient_norm": g_native,
+        })
+    return 0
+
+
 # --------------------------------------------------------------------------- #
 # registry
 # --------------------------------------------------------------------------- #
 
 #: name → (help, add_arguments(parser), run(args) -> exit status)
 SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
-    "demo": ("simulate and optimize an SE(3) odometry chain with loop closures", _add_demo, _run_demo),
+    "demo": ("simulate and optimize a pose graph: SE(3) odometry with loop closures, or "
+             "(--scenario sim3) Sim(3) monocular scale drift", _add_demo, _run_demo),
     "posegraph": ("optimize a g2o pose graph with Levenberg-Marquardt", _add_posegraph, _run_posegraph),
 }
 

@@ -45,10 +45,12 @@ __all__ = [
     "BetweenFactorPose3",
     "BetweenFactorPose2",
     "BetweenFactorSimilarity2",
+    "BetweenFactorSimilarity3",
     "PriorFactorRot3",
     "PriorFactorPose3",
     "PriorFactorPose2",
     "PriorFactorSimilarity2",
+    "PriorFactorSimilarity3",
     "GROUPS",
     "warm_up",
 ]
@@ -222,6 +224,7 @@ GROUPS = {
     "Pose3": GroupSpec("Pose3", gtsam.Pose3, _dispatch.SE3, "atPose3"),
     "Pose2": GroupSpec("Pose2", gtsam.Pose2, _dispatch.SE2, "atPose2"),
     "Similarity2": GroupSpec("Similarity2", gtsam.Similarity2, _dispatch.SIM2, "atSimilarity2"),
+    "Similarity3": GroupSpec("Similarity3", gtsam.Similarity3, _dispatch.SIM3, "atSimilarity3"),
 }
 
 
@@ -388,6 +391,14 @@ class BetweenFactorSimilarity2(BetweenFactor):
     spec = GROUPS["Similarity2"]
 
 
+class BetweenFactorSimilarity3(BetweenFactor):
+    """``BetweenFactorSimilarity3(key1, key2, measured: gtsam.Similarity3, noise_model)``
+    (7-dim, [ω, u, λ]).  GTSAM's own has H1 = −Ad((X1⁻¹X2)⁻¹), H2 = I (no Logmap
+    derivative); these are exact."""
+
+    spec = GROUPS["Similarity3"]
+
+
 class PriorFactorRot3(PriorFactor):
     """``PriorFactorRot3(key, prior: gtsam.Rot3, noise_model)``."""
 
@@ -410,3 +421,9 @@ class PriorFactorSimilarity2(PriorFactor):
     """``PriorFactorSimilarity2(key, prior: gtsam.Similarity2, noise_model)``."""
 
     spec = GROUPS["Similarity2"]
+
+
+class PriorFactorSimilarity3(PriorFactor):
+    """``PriorFactorSimilarity3(key, prior: gtsam.Similarity3, noise_model)``."""
+
+    spec = GROUPS["Similarity3"]

@@ -20,7 +20,8 @@ composed odometry of the file leads GTSAM's LM to a local minimum (error
     the values given (a g2o file's vertices, usually composed odometry).
 ``auto``
     3-D: chordal; 2-D: lago, then chordal; then file, then spanning-tree — the
-    first that runs.  Each method that cannot run is reported with a one-line
+    first that runs.  Similarity3 graphs (Sim(3) g2o files): file, then
+    spanning-tree (GTSAM's chordal and LAGO initializers are for Pose3/Pose2).  Each method that cannot run is reported with a one-line
     reason in :attr:`Initialization.skipped`.
 
 Anchor and priors, as GTSAM's initializers treat them (``InitializePose.h``):
@@ -60,7 +61,7 @@ class InitializationError(PoseGraphError):
 class Initialization:
     """Result of :func:`initialize`.
 
-    ``values``: one Pose2/Pose3 per pose key; ``method``: the method that produced
+    ``values``: one Pose2/Pose3/Similarity3 per pose key; ``method``: the method that produced
     them; ``seconds``: its wall time (conversion included); ``skipped``: under
     ``auto``, ``(method, reason)`` for each method tried before it.
     """
@@ -80,9 +81,14 @@ class _PoseGraph:
     """The between and prior factors of a graph as GTSAM's own factor classes."""
 
     is3d: bool
-    between: list  # gtsam.BetweenFactorPose2/3
-    priors: list  # gtsam.PriorFactorPose2/3
+    between: list  # gtsam.BetweenFactorPose2/3 (or Similarity3)
+    priors: list  # gtsam.PriorFactorPose2/3 (or Similarity3)
     keys: list[int]  # sorted pose keys
+    group: str = ""  # GTSAM type of the poses; Pose3/Pose2 by is3d if empty
+
+    def __post_init__(self):
+        if not self.group:
+            self.group = "Pose3" if self.is3d else "Pose2"
 
 
 def _measurement_kind(value) -> str | None:
@@ -90,7 +96,13 @@ def _measurement_kind(value) -> str | None:
         return "3"
     if isinstance(value, gtsam.Pose2):
         return "2"
+    if isinstance(value, gtsam.Similarity3):
+        return "Similarity3"
     return None
+
+
+#: measurement kind → GTSAM type name
+_GROUP_OF_KIND = {"3": "Pose3", "2": "Pose2", "Similarity3": "Similarity3"}
 
 
 def _noise(model):
@@ -102,7 +114,7 @@ def _noise(model):
 
 
 def _convert(graph: gtsam.NonlinearFactorGraph) -> _PoseGraph:
-    """Between/Prior factors on Pose2/Pose3 — GTSAM's or lie_factors' — as GTSAM's own classes.
+    """Between/Prior factors on Pose2/Pose3/Similarity3 — GTSAM's or lie_factors' — as GTSAM's own classes.
 
     Same measured value, same noise model (a robust model's Gaussian part).
     Raises :class:`InitializationError` for any other factor or a mix of 2-D and 3-D.
@@ -116,7 +128,7 @@ def _convert(graph: gtsam.NonlinearFactorGraph) -> _PoseGraph:
         if len(fkeys) == 2 and hasattr(f, "measured"):
             kind = _measurement_kind(f.measured())
             if kind is not None:
-                cls = gtsam.BetweenFactorPose3 if kind == "3" else gtsam.BetweenFactorPose2
+                cls = getattr(gtsam, f"BetweenFactor{_GROUP_OF_KIND[kind]}")
                 between.append(cls(fkeys[0], fkeys[1], f.measured(), _noise(f.noiseModel())))
                 kinds.add(kind)
                 keys.update(fkeys)
@@ -124,20 +136,22 @@ def _convert(graph: gtsam.NonlinearFactorGraph) -> _PoseGraph:
         if len(fkeys) == 1 and hasattr(f, "prior"):
             kind = _measurement_kind(f.prior())
             if kind is not None:
-                cls = gtsam.PriorFactorPose3 if kind == "3" else gtsam.PriorFactorPose2
+                cls = getattr(gtsam, f"PriorFactor{_GROUP_OF_KIND[kind]}")
                 priors.append(cls(fkeys[0], f.prior(), _noise(f.noiseModel())))
                 kinds.add(kind)
                 keys.update(fkeys)
                 continue
         raise InitializationError(
-            f"factor {k} ({type(f).__name__}) is not a Between or Prior factor on Pose2/Pose3; "
+            f"factor {k} ({type(f).__name__}) is not a Between or Prior factor on Pose2/Pose3/Similarity3; "
             "the initializers handle pose graphs only"
         )
     if not between:
-        raise InitializationError("the graph has no between factors on Pose2/Pose3")
+        raise InitializationError("the graph has no between factors on Pose2/Pose3/Similarity3")
     if len(kinds) > 1:
-        raise InitializationError("the graph mixes Pose2 and Pose3 factors")
-    return _PoseGraph(kinds.pop() == "3", between, priors, sorted(keys))
+        raise InitializationError("the graph mixes " + " and ".join(sorted(_GROUP_OF_KIND[k] for k in kinds))
+                                  + " factors")
+    group = _GROUP_OF_KIND[kinds.pop()]
+    return _PoseGraph(group != "Pose2", between, priors, sorted(keys), group)
 
 
 def _check_anchored(pg: _PoseGraph) -> None:
@@ -168,13 +182,16 @@ def _anchored(pg: _PoseGraph) -> _PoseGraph:
     if pg.priors:
         return pg
     # The variances of the prior GTSAM's Pose2/Pose3SLAMExample_g2o.py use (and lago's own).
-    if pg.is3d:
+    if pg.group == "Similarity3":
+        noise = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-6]))
+        prior = gtsam.PriorFactorSimilarity3(pg.keys[0], gtsam.Similarity3(), noise)
+    elif pg.is3d:
         noise = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4]))
         prior = gtsam.PriorFactorPose3(pg.keys[0], gtsam.Pose3(), noise)
     else:
         noise = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
         prior = gtsam.PriorFactorPose2(pg.keys[0], gtsam.Pose2(), noise)
-    return _PoseGraph(pg.is3d, pg.between, [prior], pg.keys)
+    return _PoseGraph(pg.is3d, pg.between, [prior], pg.keys, pg.group)
 
 
 def _native_graph(pg: _PoseGraph, rename: dict[int, int] | None = None) -> gtsam.NonlinearFactorGraph:
@@ -217,7 +234,7 @@ def _run_gtsam(pg: _PoseGraph, call) -> gtsam.Values:
 # --------------------------------------------------------------------------- #
 
 def _check_values(values: gtsam.Values, pg: _PoseGraph, what: str) -> gtsam.Values:
-    at = values.atPose3 if pg.is3d else values.atPose2
+    at = getattr(values, f"at{pg.group}")
     for k in pg.keys:
         if not values.exists(k):
             raise InitializationError(f"{what} has no value for pose {k}")
@@ -225,11 +242,13 @@ def _check_values(values: gtsam.Values, pg: _PoseGraph, what: str) -> gtsam.Valu
             at(k)
         except RuntimeError:
             raise InitializationError(
-                f"{what}: pose {k} is not a {'Pose3' if pg.is3d else 'Pose2'}") from None
+                f"{what}: pose {k} is not a {pg.group}") from None
     return values
 
 
 def _chordal(pg: _PoseGraph) -> gtsam.Values:
+    if pg.group == "Similarity3":
+        raise InitializationError("GTSAM's chordal initializer is for Pose2/Pose3 graphs; this one is Similarity3")
     if pg.is3d:
         return _check_values(_run_gtsam(pg, gtsam.InitializePose3.initialize), pg, "chordal initializer")
     planar = _planar_pose3_graph(pg)
@@ -282,7 +301,7 @@ def _planar_pose3_graph(pg: _PoseGraph) -> _PoseGraph:
 
 def _lago(pg: _PoseGraph) -> gtsam.Values:
     if pg.is3d:
-        raise InitializationError("LAGO is for Pose2 graphs; this one is Pose3")
+        raise InitializationError(f"LAGO is for Pose2 graphs; this one is {pg.group}")
     for f in pg.between + pg.priors:
         if not isinstance(f.noiseModel(), gtsam.noiseModel.Diagonal):
             where = (f"edge {f.keys()[0]}-{f.keys()[1]}" if len(f.keys()) == 2
@@ -362,15 +381,15 @@ def _spanning_tree(pg: _PoseGraph) -> gtsam.Values:
 # Entry point
 # --------------------------------------------------------------------------- #
 
-def auto_order(is3d: bool, have_values: bool) -> list[str]:
+def auto_order(is3d: bool, have_values: bool, group: str | None = None) -> list[str]:
     """The methods ``auto`` tries, in order."""
-    order = ["chordal"] if is3d else ["lago", "chordal"]
+    order = [] if group == "Similarity3" else ["chordal"] if is3d else ["lago", "chordal"]
     return order + (["file"] if have_values else []) + ["spanning-tree"]
 
 
 def initialize(graph: gtsam.NonlinearFactorGraph, method: str = "auto",
                initial: gtsam.Values | None = None) -> Initialization:
-    """Initial values for a pose graph of Between/Prior factors on Pose2 or Pose3.
+    """Initial values for a pose graph of Between/Prior factors on Pose2, Pose3 or Similarity3.
 
     ``graph``: GTSAM's own factors or lie_factors.factors' (converted to GTSAM's
     with the same measured value and noise model, since GTSAM's initializers
@@ -383,7 +402,7 @@ def initialize(graph: gtsam.NonlinearFactorGraph, method: str = "auto",
         raise InitializationError(f"unknown initialization {method!r} (choose from {', '.join(METHODS)})")
     t0 = time.perf_counter()
     pg = _convert(graph)
-    order = auto_order(pg.is3d, initial is not None) if method == "auto" else [method]
+    order = auto_order(pg.is3d, initial is not None, pg.group) if method == "auto" else [method]
     skipped: list[tuple[str, str]] = []
     for name in order:
         try:

@@ -14,6 +14,8 @@ _STYLES = {
     "ground truth": dict(color="black", lw=1.5, ls="--"),
     "initial": dict(color="tab:red", lw=1.0, alpha=0.8),
     "optimized": dict(color="tab:blue", lw=1.2),
+    "ours": dict(color="tab:blue", lw=1.2),
+    "native": dict(color="tab:orange", lw=1.0, ls="-."),
 }
 
 

@@ -50,7 +50,9 @@ class PoseGraph:
 
     ``between``: native GTSAM graph of BetweenFactorPose2/3 exactly as
     ``readG2o`` built it (no prior) — also what :func:`write_g2o` writes;
-    ``initial``: Values with every pose; ``first_key``: smallest id, gets the prior.
+    ``initial``: Values with every pose; ``first_key``: smallest id, gets the prior;
+    ``group``: GTSAM type of the poses, Pose2, Pose3 or Similarity3 (the latter
+    read by :func:`lie_factors.g2o.read_sim3_g2o`; ``is3d`` is true for it).
     """
 
     path: str
@@ -60,6 +62,11 @@ class PoseGraph:
     initial: gtsam.Values
     first_key: int
     initialized_from_edges: bool
+    group: str = ""
+
+    def __post_init__(self):
+        if not self.group:
+            self.group = "Pose3" if self.is3d else "Pose2"
 
     @property
     def poses(self) -> int:
@@ -85,7 +92,8 @@ def load(dataset: str) -> PoseGraph:
     if from_edges:
         # readG2o leaves 3-D edge-only files (sphere2500.txt) without Values; for
         # 2-D it chains odometry itself.  Do the same thing for both: a spanning tree.
-        initial = spanning_tree_initial(graph, summary.is3d, summary.pose_ids[0])
+        initial = spanning_tree_initial(graph, summary.is3d, summary.pose_ids[0],
+                                        getattr(gtsam, summary.group)())
     return PoseGraph(
         path=path,
         name=os.path.basename(path),
@@ -94,6 +102,7 @@ def load(dataset: str) -> PoseGraph:
         initial=initial,
         first_key=summary.pose_ids[0],
         initialized_from_edges=from_edges,
+        group=summary.group,
     )
 
 
@@ -144,8 +153,11 @@ def load_factors(backend: str):
         raise PoseGraphError(f"backend {backend!r} is not available: {exc}") from None
 
 
-def prior_noise(is3d: bool) -> gtsam.noiseModel.Base:
-    """The prior GTSAM's Pose2/Pose3SLAMExample_g2o.py put on the first pose."""
+def prior_noise(is3d: bool, group: str | None = None) -> gtsam.noiseModel.Base:
+    """The prior GTSAM's Pose2/Pose3SLAMExample_g2o.py put on the first pose
+    (Similarity3: Pose3's, and the log-scale as tight as the rotation)."""
+    if group == "Similarity3":
+        return gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-6]))
     if is3d:
         return gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4]))
     return gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
@@ -158,15 +170,15 @@ def build_graph(pg: PoseGraph, backend: str) -> gtsam.NonlinearFactorGraph:
     files), fixing the gauge.
     """
     F = load_factors(backend)
-    Between = F.BetweenFactorPose3 if pg.is3d else F.BetweenFactorPose2
-    Prior = F.PriorFactorPose3 if pg.is3d else F.PriorFactorPose2
+    Between = getattr(F, f"BetweenFactor{pg.group}")
+    Prior = getattr(F, f"PriorFactor{pg.group}")
     graph = gtsam.NonlinearFactorGraph()
     for k in range(pg.between.size()):
         f = pg.between.at(k)
         i, j = f.keys()
         graph.add(Between(i, j, f.measured(), f.noiseModel()))
-    first = pg.initial.atPose3(pg.first_key) if pg.is3d else pg.initial.atPose2(pg.first_key)
-    graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d)))
+    first = getattr(pg.initial, f"at{pg.group}")(pg.first_key)
+    graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d, pg.group)))
     return graph
 # --------------------------------------------------------------------------- #
 # Optimization, one iteration at a time
@@ -306,9 +318,15 @@ def run(
     return record, result, pg
 
 
-def positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
-    """Translations of the poses in ``values`` in key order, shape (N, 3) (z = 0 in 2-D)."""
+def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.ndarray:
+    """Translations of the poses in ``values`` in key order, shape (N, 3) (z = 0 in 2-D).
+
+    Similarity3 (``group``): the image of the origin, s·t (GTSAM's action p ↦ s(Rp + t)).
+    """
     keys = sorted(values.keys())
+    if group == "Similarity3":
+        origin = np.zeros(3)
+        return np.array([values.atSimilarity3(k).transformFrom(origin) for k in keys]).reshape(-1, 3)
     if is3d:
         return np.array([values.atPose3(k).translation() for k in keys]).reshape(-1, 3)
     out = np.zeros((len(keys), 3))

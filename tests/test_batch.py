@@ -412,3 +412,78 @@ def test_pattern_scatter_map_addresses_csc_entries():
                 assert pat.rowind[p] == pat.offsets[row] + i
     assert list(a_is_row) == [1, 0]
     assert np.all(pat.rowind[pat.diagpos] == np.arange(pat.n))
+
+
+def test_pardiso_solver_matches_cholmod():
+    """The optional MKL PARDISO backend (extra "pardiso") gives CHOLMOD's run."""
+    pytest.importorskip("pypardiso")  # optional extra, not installed by .[test]
+    lie, _, initial = _landmark_graph(True, seed=3)
+    a = batch.optimize(lie, initial, linear_solver="cholmod")
+    b = batch.optimize(lie, initial, linear_solver="pardiso")
+    assert b.linear_solver == "pardiso" and a.iterations == b.iterations
+    np.testing.assert_allclose(b.errors, a.errors, rtol=1e-9)
+
+
+def test_falls_back_to_gtsam_without_cvxopt_and_says_so_once(monkeypatch):
+    from lie_factors.batch import solvers
+
+    monkeypatch.setattr(solvers, "cholmod_available", lambda: False)
+    monkeypatch.setattr(solvers, "_fallback_warned", False)
+    lie, _, initial = make_problem("Pose2", n=6, seed=2)
+    with pytest.warns(RuntimeWarning, match="cvxopt.*GTSAM"):
+        res = batch.optimize(lie, initial)
+    assert res.linear_solver == "gtsam" and res.converged
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert batch.optimize(lie, initial).linear_solver == "gtsam"
+    with pytest.raises(batch.BatchError, match="needs cvxopt"):
+        batch.optimize(lie, initial, linear_solver="cholmod")
+
+
+def test_reweight_and_cost_hooks_reproduce_gtsam_robust_huber():
+    """IRLS through the hooks (w = Huber weight, cost = Σ ρ) == GTSAM's LM on Robust(Huber) factors."""
+    k = 1.5
+    rng = np.random.default_rng(17)
+    d = 3
+    truth = [gtsam.Pose2.Expmap(rng.normal(size=3)) for _ in range(10)]
+    plain, robust = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(k)
+    edges = [(i, i + 1) for i in range(9)] + [(0, 5), (2, 8), (1, 9), (3, 7)]
+    for n, (a, b) in enumerate(edges):
+        z = _retract(truth[a].between(truth[b]), rng.normal(scale=0.05 if n % 4 else 0.8, size=d))
+        nm = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1, 0.1, 0.05]))
+        plain.add(factors.BetweenFactorPose2(a, b, z, nm))
+        robust.add(gtsam.BetweenFactorPose2(a, b, z, gtsam.noiseModel.Robust.Create(huber, nm)))
+    prior = gtsam.noiseModel.Isotropic.Sigma(d, 0.01)
+    plain.add(factors.PriorFactorPose2(0, truth[0], prior))
+    robust.add(gtsam.PriorFactorPose2(0, truth[0], prior))
+    initial = gtsam.Values()
+    for i, t in enumerate(truth):
+        initial.insert(i, _retract(t, rng.normal(scale=0.2, size=d)))
+
+    is_robust = np.arange(plain.size()) < len(edges)  # the prior (last) stays Gaussian
+
+    def weight(sq):
+        r = np.sqrt(sq)
+        return np.where(is_robust & (r > k), k / np.maximum(r, k), 1.0)
+
+    def cost(sq):
+        r = np.sqrt(sq)
+        return float(np.sum(np.where(is_robust & (r > k), k * r - 0.5 * k * k, 0.5 * sq)))
+
+    params = gtsam.LevenbergMarquardtParams()
+    opt = gtsam.LevenbergMarquardtOptimizer(robust, initial, params)
+    errors = [opt.error()]
+    while True:
+        cur = opt.error()
+        opt.iterate()
+        errors.append(opt.error())
+        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
+            break
+    res = batch.optimize(plain, initial, params, reweight=weight, cost=cost)
+    assert res.iterations == opt.iterations()
+    np.testing.assert_allclose(res.errors, errors, rtol=1e-6)
+    assert res.final_error < 0.9 * errors[0]
+    assert any(weight(np.array([2 * plain.at(i).error(res.values)]))[0] < 1 for i in range(plain.size()))

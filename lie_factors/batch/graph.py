@@ -286,14 +286,18 @@ class Problem:
             if g.kind == "between":
                 g.v2, g.o2 = b.var[g.i2], b.offsets[g.i2]
         # Variables not in a group (landmarks, ...), incl. those in no factor.
-        self.other = gtsam.Values(initial)
-        for k in managed:
-            self.other.erase(k)
-        self.other_keys = [k for k in native_keys if k not in managed]
-        self._managed_initial = gtsam.Values(initial)
-        for k in initial.keys():
-            if int(k) not in managed:
+        unmanaged = [int(k) for k in initial.keys() if int(k) not in managed]
+        if unmanaged:
+            self.other = gtsam.Values(initial)
+            for k in managed:
+                self.other.erase(k)
+            self._managed_initial = gtsam.Values(initial)
+            for k in unmanaged:
                 self._managed_initial.erase(k)
+        else:  # a pure pose graph: no per-key erasing
+            self.other = gtsam.Values()
+            self._managed_initial = initial
+        self.other_keys = [k for k in native_keys if k not in managed]
         self._native_setup()
 
     def _native_setup(self):
@@ -446,6 +450,19 @@ class Problem:
             total += 0.5 * float(nat.sq.sum())
             self.native_linear = lin
         return total
+
+    def linearized_sqnorms(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Squared whitened residual norm of every factor at the last linearization, (graph size,).
+
+        Native factors: ‖b‖² of GTSAM's linearization (already robust-weighted
+        if their noise model is Robust).  Empty graph slots: 0.
+        """
+        out = np.zeros(self.graph_size) if out is None else out
+        for g in self.groups:
+            out[g.fidx] = g.sq
+        if self.native_arrays is not None:
+            out[self.native_arrays.fidx] = self.native_arrays.sq
+        return out
 
     def retract(self, delta: np.ndarray):
         """(elements, other Values) at ``X·Exp(δ)`` per variable (not applied; see :meth:`accept`)."""

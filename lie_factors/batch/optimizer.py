@@ -101,16 +101,23 @@ class BatchLevenbergMarquardt:
       maxIterations, else iterate while iterations < maxIterations, not
       ``gtsam.checkConvergence`` and the error is finite.
 
-    Hooks for robust cost functions / GNC: ``self.system.weights`` (one per
-    graph factor) scale each factor's whitened contribution at the next
-    linearization, and ``self.problem.error(sq_out=array)`` returns every
-    factor's squared whitened residual norm.
+    Hooks for robust cost functions / GNC (arrays indexed by position in the
+    graph): ``reweight(sq) -> w`` is called after every linearization with the
+    squared whitened residual norms there (``Problem.linearized_sqnorms``);
+    ``w`` multiplies each factor's whitened AᵀA and Aᵀb (√w on its rows), and
+    the linearized error at δ = 0 becomes ½·Σ w·sq.  ``cost(sq) -> float``
+    replaces the error ½·Σ sq wherever the nonlinear error is evaluated (e.g.
+    Σ ρ(√sq) for an M-estimator).  Without ``reweight``, ``self.system.weights``
+    can be set directly (GNC: fixed weights per outer step).
     """
 
     def __init__(self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
                  params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
-                 min_model_fidelity: float = MIN_MODEL_FIDELITY, linear_solver: str = "auto"):
+                 min_model_fidelity: float = MIN_MODEL_FIDELITY, linear_solver: str = "auto",
+                 reweight: Callable[[np.ndarray], np.ndarray] | None = None,
+                 cost: Callable[[np.ndarray], float] | None = None):
         t0 = time.perf_counter()
+        self.reweight, self.cost = reweight, cost
         self.params = params if params is not None else gtsam.LevenbergMarquardtParams()
         if not isinstance(self.params, (gtsam.LevenbergMarquardtParams, gtsam.GaussNewtonParams)):
             raise TypeError("params must be gtsam.LevenbergMarquardtParams or gtsam.GaussNewtonParams, "
@@ -127,7 +134,7 @@ class BatchLevenbergMarquardt:
         self._iterations = 0
         self.inner_iterations = 0
         t1 = time.perf_counter()
-        self._error = self.problem.error()
+        self._error = self._evaluate()
         self.timings["error"] += time.perf_counter() - t1
         self.errors = [self._error]
         self.lambdas = [self.lambda_]
@@ -179,10 +186,26 @@ class BatchLevenbergMarquardt:
         return self.problem.values()
 
     # ---------------------------------------------------------------- steps
+    def _evaluate(self, Xs=None, other=None) -> float:
+        """The nonlinear error at (Xs, other) (default: the current estimate)."""
+        if self.cost is None:
+            return self.problem.error(Xs, other)
+        sq = np.zeros(self.problem.graph_size)
+        self.problem.error(Xs, other, sq_out=sq)
+        return float(self.cost(sq))
+
     def _linearize(self) -> float:
         T = self.timings
         t = time.perf_counter()
         linear_error0 = self.problem.linearize()
+        if self.reweight is not None:
+            sq = self.problem.linearized_sqnorms()
+            w = np.asarray(self.reweight(sq), dtype=np.float64)
+            if w.shape != sq.shape or not np.all(np.isfinite(w)) or np.any(w < 0):
+                raise BatchError(f"reweight must return {sq.shape[0]} finite non-negative weights")
+            self.system.weights[:] = w
+        if self.reweight is not None or np.any(self.system.weights != 1.0):
+            linear_error0 = 0.5 * float(self.system.weights @ self.problem.linearized_sqnorms())
         t1 = time.perf_counter()
         self.system.assemble()
         T["linearize"] += t1 - t
@@ -202,7 +225,7 @@ class BatchLevenbergMarquardt:
         t = time.perf_counter()
         Xs, other = self.problem.retract(delta)
         t1 = time.perf_counter()
-        new_error = self.problem.error(Xs, other)
+        new_error = self._evaluate(Xs, other)
         T["retract"] += t1 - t
         T["error"] += time.perf_counter() - t1
         return Xs, other, new_error
@@ -328,10 +351,11 @@ class BatchLevenbergMarquardt:
 def optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
              params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
              progress: Callable[[int, float, float], None] | None = None,
-             linear_solver: str = "auto") -> BatchResult:
-    """Batch Levenberg–Marquardt or Gauss–Newton (see :class:`BatchLevenbergMarquardt`)."""
+             linear_solver: str = "auto", **hooks) -> BatchResult:
+    """Batch Levenberg–Marquardt or Gauss–Newton (see :class:`BatchLevenbergMarquardt`;
+    ``hooks``: ``reweight``, ``cost``)."""
     t0 = time.perf_counter()
-    opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=linear_solver)
+    opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=linear_solver, **hooks)
     result = opt.optimize(progress)
     result.seconds = time.perf_counter() - t0
     return result
