@@ -9,13 +9,51 @@ broadcasting functions run the same cores over a flattened batch with
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from numba import njit
+from numba.core import event as _event
 
 #: Decorator for element cores. ``error_model="numpy"`` gives IEEE semantics
 #: (no Python ZeroDivisionError checks inside hot loops); ``cache=True`` keeps
 #: the compiled code in ``__pycache__`` so only the first import compiles.
 kernel = njit(cache=True, nogil=True, error_model="numpy")
+
+
+class _CompileClock(_event.Listener):
+    """Wall time numba spends compiling in this process (outermost compilations only;
+    loading from the on-disk cache is not a compilation and is not counted)."""
+
+    def __init__(self):
+        self.depth = 0
+        self.started = 0.0
+        self.total = 0.0
+
+    def on_start(self, event):
+        if self.depth == 0:
+            self.started = time.perf_counter()
+        self.depth += 1
+
+    def on_end(self, event):
+        self.depth -= 1
+        if self.depth == 0:
+            self.total += time.perf_counter() - self.started
+
+
+_clock = _CompileClock()
+_event.register("numba:compile", _clock)
+
+
+def compile_seconds() -> float:
+    """Seconds numba has spent compiling so far in this process (0 when all came from cache).
+
+    Timers subtract the difference of two readings so that reported
+    optimization times never include compilation.
+    """
+    if _clock.depth:  # asked from inside a compilation (a progress callback can't be, but be exact)
+        return _clock.total + time.perf_counter() - _clock.started
+    return _clock.total
 
 
 # Not cached: numba keys specialisations on the identity of the kernel passed

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import json
 import os
 import sys
@@ -36,24 +37,12 @@ class CLIError(Exception):
 # helpers
 # --------------------------------------------------------------------------- #
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is ONE line on stderr (``lie-factors: error: ...``), exit 2."""
 
-
-def _nonnegative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
+    def error(self, message):
+        print(f"{PROG}: error: {message} (see '{self.prog} --help')", file=sys.stderr)
+        sys.exit(EXIT_USAGE)
 
 
 def _progress(args) -> Callable | None:
@@ -74,9 +63,48 @@ def _say(args, text: str) -> None:
         print(text, flush=True)
 
 
+def _report_compile(args) -> None:
+    """One stderr line if this process compiled numba kernels (a first run on this machine)."""
+    from lie_factors.timing import compile_seconds
+
+    seconds = compile_seconds()
+    if seconds > 0 and not args.quiet:
+        print(f"{PROG}: compiled numba kernels in {seconds:.1f} s (first run on this machine; "
+              "cached for later runs, not counted in the optimization time)", file=sys.stderr, flush=True)
+
+
 def _emit_json(record: dict) -> None:
     # Last stdout line, one object: scripts can do `tail -n1 | jq`.
     print(json.dumps(record, sort_keys=False), flush=True)
+
+
+#: Limits of the numeric options: beyond them a run would not finish in any useful
+#: time (the demo's graph grows with --poses) or the value does not fit GTSAM's
+#: iteration counter; such values are refused with one line instead.
+MAX_DEMO_POSES = 100_000
+MAX_ITERATIONS = 1_000_000
+MAX_SEED = 2**63 - 1
+
+
+def _bounded_int(option: str, low: int, high: int) -> Callable[[str], int]:
+    """argparse type: an integer in [low, high], else argparse's one-line usage error (exit 2)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be from {low} to {high}, got {value}")
+        return value
+
+    parse.__name__ = option  # argparse names the type in some messages
+    return parse
+
+
+#: lie_factors.posegraph.BACKENDS, spelled out so that building the parser does
+#: not import GTSAM (a test checks they agree).
+BACKENDS = ("native", "custom", "batch")
 
 
 # --------------------------------------------------------------------------- #
@@ -96,8 +124,6 @@ INIT_DESCRIPTIONS = {
 
 
 def _add_posegraph(p: argparse.ArgumentParser) -> None:
-    from lie_factors.posegraph import BACKENDS
-
     p.add_argument("dataset", metavar="DATASET",
                    help="g2o file (2-D VERTEX_SE2/EDGE_SE2, 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
                         "EDGE3, or Sim(3) VERTEX_SIM3:EXPMAP/EDGE_SIM3:EXPMAP), or the name of a "
@@ -105,7 +131,8 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default="custom", metavar="NAME",
                    help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
                         "native = GTSAM's own factors, the reference)")
-    p.add_argument("--max-iterations", type=_nonnegative_int, default=100, metavar="K",
+    p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
+                   default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")
     p.add_argument("--init", default="auto", choices=INIT_METHODS,
                    help="where LM starts: chordal = GTSAM's chordal relaxation (InitializePose3), "
@@ -145,6 +172,7 @@ def _run_posegraph(args) -> int:
 
     record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args),
                                  init=args.init, on_init=report_start)
+    _report_compile(args)
     status = "converged" if record.converged else "stopped (not converged)"
     _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
                f"{record.iterations} iterations, {record.seconds:.3f} s "
@@ -178,22 +206,22 @@ DEMO_SCENARIOS = {
 
 
 def _add_demo(p: argparse.ArgumentParser) -> None:
-    from lie_factors.posegraph import BACKENDS
-
     p.add_argument("--scenario", default="se3", choices=list(DEMO_SCENARIOS),
                    help="; ".join(f"{k}: {v[1]}" for k, v in DEMO_SCENARIOS.items()))
-    p.add_argument("--poses", type=_positive_int, default=None, metavar="N",
+    p.add_argument("--poses", type=_bounded_int("--poses", 2, MAX_DEMO_POSES), default=None, metavar="N",
                    help="number of poses (default: "
                         + ", ".join(f"{v[0]} for {k}" for k, v in DEMO_SCENARIOS.items())
-                        + "; at least 2)")
-    p.add_argument("--seed", type=int, default=0, metavar="S", help="random seed (default: 0)")
+                        + f"; from 2 to {MAX_DEMO_POSES})")
+    p.add_argument("--seed", type=_bounded_int("--seed", 0, MAX_SEED), default=0, metavar="S",
+                   help="random seed, a non-negative integer (default: 0)")
     p.add_argument("--output", default="lie-factors-demo", metavar="DIR",
                    help="directory for trajectory.png and optimized.g2o "
                         "(default: ./lie-factors-demo, created if missing)")
     p.add_argument("--backend", default="custom", metavar="NAME",
                    help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
                         "sim3 runs native beside it anyway)")
-    p.add_argument("--max-iterations", type=_nonnegative_int, default=100, metavar="K",
+    p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
+                   default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")
     p.add_argument("--json", action="store_true",
                    help="print a JSON summary as the last line of stdout")
@@ -215,8 +243,6 @@ def _run_demo(args) -> int:
 
     if args.poses is None:
         args.poses = DEMO_SCENARIOS[args.scenario][0]
-    if args.poses < 2:
-        raise CLIError(f"--poses must be at least 2, got {args.poses}")
     pgm.get_backend(args.backend)
     if args.scenario == "sim3":
         return _run_demo_sim3(args)
@@ -231,7 +257,9 @@ def _run_demo(args) -> int:
     graph = demo.build_graph(problem, factors)
     _say(args, f"demo: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
-    result = pgm.optimize(graph, problem.initial, args.max_iterations, _progress(args))
+    result = pgm.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
+                                                    _progress(args))
+    _report_compile(args)
     ate0 = demo.ate_rmse(problem.initial, problem.truth)
     ate1 = demo.ate_rmse(result.values, problem.truth)
     status = "converged" if result.converged else "stopped (not converged)"
@@ -289,6 +317,7 @@ def _run_demo_sim3(args) -> int:
                f"{len(problem.closures)} loop closures, scale drift e^{demo_sim3.DRIFT[6]:g} per step, "
                f"seed {args.seed}, backend {args.backend} beside native")
     c = demo_sim3.compare(problem, args.backend, args.max_iterations, _progress(args))
+    _report_compile(args)
     ours, native, graph = c.ours, c.native, c.graph
     ate0, ate_ours, ate_native = c.ate_initial, c.ate_ours, c.ate_native
     g0, g_ours, g_native = c.gradient_initial, c.gradient_ours, c.gradient_native
@@ -380,24 +409,52 @@ def _unavailable(name: str, exc: Exception) -> tuple[str, Callable, Callable]:
     return (f"(unavailable: {reason})", add, run)
 
 
-def _load_optional() -> dict[str, tuple[str, Callable, Callable]]:
+def _load_one(name: str) -> tuple[str, Callable, Callable] | None:
+    """Import optional subcommand ``name``: its entry, a stand-in if broken, None if absent."""
+    module_name, help_text = OPTIONAL_SUBCOMMANDS[name]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name == module_name:  # not installed/written: simply not offered
+            return None
+        return _unavailable(name, exc)
+    except Exception as exc:  # a broken optional module must not take the whole CLI down
+        return _unavailable(name, exc)
+    doc = (module.__doc__ or help_text).strip().splitlines()[0]
+    if hasattr(module, "add_arguments"):
+        return (doc, module.add_arguments, module.main)
+    return (doc, _PASSTHROUGH, module.main)
+
+
+def _exists(module_name: str) -> bool:
+    try:
+        return importlib.util.find_spec(module_name) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def _deferred(name: str, help_text: str) -> tuple[str, Callable, Callable]:
+    """Entry of an optional subcommand that was not imported: listed in --help by its table
+    text, imported only when run (``lie-factors --help`` must not load GTSAM or numba)."""
+
+    def run(args):
+        return main([name, *args.argv])
+
+    return (help_text, _PASSTHROUGH_DEFERRED, run)
+
+
+def _load_optional(load=None) -> dict[str, tuple[str, Callable, Callable]]:
+    """Optional subcommands: those named in ``load`` (default: all) imported, the rest deferred."""
     found = {}
     for name, (module_name, help_text) in OPTIONAL_SUBCOMMANDS.items():
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:
-            if exc.name == module_name:  # not installed/written: simply not offered
-                continue
-            found[name] = _unavailable(name, exc)
-            continue
-        except Exception as exc:  # a broken optional module must not take the whole CLI down
-            found[name] = _unavailable(name, exc)
-            continue
-        doc = (module.__doc__ or help_text).strip().splitlines()[0]
-        if hasattr(module, "add_arguments"):
-            found[name] = (doc, module.add_arguments, module.main)
+        if load is None or name in load:
+            entry = _load_one(name)
+        elif _exists(module_name):
+            entry = _deferred(name, help_text)
         else:
-            found[name] = (doc, _PASSTHROUGH, module.main)
+            entry = None
+        if entry is not None:
+            found[name] = entry
     return found
 
 
@@ -405,9 +462,15 @@ def _PASSTHROUGH(parser):  # marker: main(argv) parses its own arguments
     parser.add_argument("argv", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
 
 
-def build_parser() -> tuple[argparse.ArgumentParser, dict]:
-    commands = {**SUBCOMMANDS, **_load_optional()}
-    parser = argparse.ArgumentParser(
+def _PASSTHROUGH_DEFERRED(parser):
+    parser.add_argument("argv", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+
+
+def build_parser(load=None) -> tuple[argparse.ArgumentParser, dict]:
+    """The parser and the subcommand table; optional subcommands not in ``load`` are
+    deferred (listed, imported when run); ``load=None`` imports them all."""
+    commands = {**SUBCOMMANDS, **_load_optional(load)}
+    parser = _Parser(
         prog=PROG,
         description="Closed-form Lie-group kernels and GTSAM factors: demos and pose-graph tools.",
     )
@@ -424,8 +487,9 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (also used as the console-script entry)."""
     from lie_factors.errors import PoseGraphError
 
-    parser, commands = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
+    # Import only the optional subcommand being run (none for --help).
+    parser, commands = build_parser(load=argv[:1])
     try:
         if argv and argv[0] in commands and commands[argv[0]][1] is _PASSTHROUGH:
             # Hand everything after the name over untouched (incl. --help).

@@ -53,6 +53,7 @@ __all__ = [
     "PriorFactorSimilarity3",
     "GROUPS",
     "warm_up",
+    "warm_up_constructed",
 ]
 
 
@@ -60,11 +61,19 @@ __all__ = [
 def between_error(g, Minv, X1, X2, e):
     """e = Log(M⁻¹·X1⁻¹·X2) on group ``g`` (a :mod:`lie_factors._dispatch` tag)."""
     m = X1.shape[0]
+    # C-ordered copies: GTSAM hands out Fortran-ordered matrices, the batch
+    # loops C-ordered ones; with copies every core is compiled for C only.
+    A = np.empty((m, m))
+    B = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            A[i, j] = X1[i, j]
+            B[i, j] = X2[i, j]
     X1inv = np.empty((m, m))
     rel = np.empty((m, m))
     E = np.empty((m, m))
-    _dispatch.inverse(g, X1, X1inv)
-    _dispatch.compose(g, X1inv, X2, rel)
+    _dispatch.inverse(g, A, X1inv)
+    _dispatch.compose(g, X1inv, B, rel)
     _dispatch.compose(g, Minv, rel, E)
     _dispatch.log(g, E, e)
 
@@ -160,38 +169,48 @@ def check_element(g, X):
 
 @kernel
 def between_setup(g, M, Minv, AdMinv):
-    """Construction of a Between factor: check M, then Minv = M⁻¹, AdMinv = Ad(M⁻¹)."""
+    """Construction of a factor: check M, then Minv = M⁻¹, AdMinv = Ad(M⁻¹).
+
+    Prior factors use it too (they are Between factors from the identity).
+    """
     code = check_element(g, M)
     if code == OK:
-        _dispatch.inverse(g, M, Minv)
+        m = M.shape[0]
+        A = np.empty((m, m))  # C-ordered, like every other input of the cores
+        for i in range(m):
+            for j in range(m):
+                A[i, j] = M[i, j]
+        _dispatch.inverse(g, A, Minv)
         _dispatch.Ad(g, Minv, AdMinv)
     return code
 
 
-@kernel
-def prior_setup(g, P, Pinv):
-    """Construction of a Prior factor: check P, then Pinv = P⁻¹."""
-    code = check_element(g, P)
-    if code == OK:
-        _dispatch.inverse(g, P, Pinv)
-    return code
+#: Groups whose factors were constructed in this process (see :func:`warm_up_constructed`).
+_constructed: set = set()
+
+#: Identity of each group, Fortran-ordered like the matrices GTSAM hands out (so
+#: a Prior factor's call of :func:`between` has the Between factors' signature).
+_IDENTITY = {name: np.asfortranarray(np.eye(g.mat)) for name, g in _dispatch.GROUPS.items()}
 
 
 def warm_up(group) -> None:
-    """Compile (or load from the on-disk cache) what a factor of ``group`` runs.
+    """Compile (or load from the on-disk cache) what evaluating a factor of ``group`` runs.
 
-    Called before the optimization clock starts, so that reported seconds never
+    Called before an optimization clock starts, so that reported seconds never
     include compilation. The layouts are those the factors pass: GTSAM hands
     out Fortran-ordered matrices, our own buffers are C-ordered.
     """
     n, m = group.dim, group.mat
-    M = np.asfortranarray(np.eye(m))
-    Minv, Ad = np.empty((m, m)), np.empty((n, n))
-    between_setup(group, M, Minv, Ad)
-    prior_setup(group, M, Minv)
+    I = _IDENTITY[group.name]
+    Minv, Ad = np.eye(m), np.eye(n)
     e, H1, H2 = np.empty(n), np.empty((n, n)), np.empty((n, n))
-    between(group, Minv, Ad, M, M, e, H1, H2)
-    prior(group, Minv, M, e, H1)
+    between(group, Minv, Ad, I, I, e, H1, H2)
+
+
+def warm_up_constructed() -> None:
+    """:func:`warm_up` every group a factor of this module was constructed on."""
+    for group in list(_constructed):
+        warm_up(group)
 
 
 @dataclass(frozen=True)
@@ -249,7 +268,21 @@ def _check_type(spec: GroupSpec, value, what: str, factor: str) -> None:
         raise TypeError(f"{factor}: {what} must be a gtsam.{spec.name}, got {type(value).__name__}")
 
 
+#: tangent dimension → the noise model last found to fit it. Graphs typically
+#: share one noise model object among many factors; GTSAM noise models are
+#: immutable, and holding the object (not its id) makes ``is`` exact.
+_noise_checked: dict = {}
+
+
 def _checked_noise(spec: GroupSpec, noise_model, factor: str):
+    if _noise_checked.get(spec.group.dim) is noise_model:
+        return noise_model
+    _check_noise(spec, noise_model, factor)
+    _noise_checked[spec.group.dim] = noise_model
+    return noise_model
+
+
+def _check_noise(spec: GroupSpec, noise_model, factor: str) -> None:
     if not isinstance(noise_model, gtsam.noiseModel.Base):
         raise TypeError(f"{factor}: noise_model must be a gtsam.noiseModel, got {type(noise_model).__name__}")
     if noise_model.dim() != spec.dim:
@@ -257,7 +290,6 @@ def _checked_noise(spec: GroupSpec, noise_model, factor: str):
             f"{factor}: noise model has dimension {noise_model.dim()}, "
             f"but {spec.name} has dimension {spec.dim}"
         )
-    return noise_model
 
 
 def _checked_key(key, factor: str) -> int:
@@ -288,25 +320,31 @@ class BetweenFactor(gtsam.CustomFactor):
     spec: GroupSpec
 
     def __init__(self, key1, key2, measured, noise_model):
-        name = type(self).__name__
+        # Graphs of 1e5 factors are built in Python loops: the common case (int
+        # keys, the exact GTSAM type, a noise model already checked) runs with
+        # no helper call; anything else goes through the checking helpers.
         spec = self.spec
-        k1, k2 = _checked_key(key1, name), _checked_key(key2, name)
-        _check_type(spec, measured, "measured", name)
-        _checked_noise(spec, noise_model, name)
         group = spec.group
+        if type(key1) is not int or type(key2) is not int or key1 < 0 or key2 < 0:
+            key1 = _checked_key(key1, type(self).__name__)
+            key2 = _checked_key(key2, type(self).__name__)
+        if type(measured) is not spec.cls:
+            _check_type(spec, measured, "measured", type(self).__name__)
+        if _noise_checked.get(group.dim) is not noise_model:
+            _checked_noise(spec, noise_model, type(self).__name__)
         M = measured.matrix()
         Minv = np.empty((group.mat, group.mat))
         AdMinv = np.empty((group.dim, group.dim))
         code = between_setup(group, M, Minv, AdMinv)
         if code != OK:
-            raise _element_error(spec, M, code, "measured", name)
-        super().__init__(noise_model, [k1, k2], self._evaluate)
+            raise _element_error(spec, M, code, "measured", type(self).__name__)
+        _constructed.add(group)
+        gtsam.CustomFactor.__init__(self, noise_model, [key1, key2], self._evaluate)
         self._measured = measured
-        self._key1, self._key2 = k1, k2
+        self._key1 = key1
+        self._key2 = key2
         self._Minv = Minv
         self._AdMinv = AdMinv
-        self._group = group
-        self._name = name
 
     def measured(self):
         """The measured relative transform, as the GTSAM object given."""
@@ -314,13 +352,13 @@ class BetweenFactor(gtsam.CustomFactor):
 
     def _evaluate(self, this, values, H):
         spec = self.spec
-        X1 = _fetch(values, self._key1, spec, self._name)
-        X2 = _fetch(values, self._key2, spec, self._name)
+        X1 = _fetch(values, self._key1, spec, type(self).__name__)
+        X2 = _fetch(values, self._key2, spec, type(self).__name__)
         n = spec.group.dim
         e = np.empty(n)
         H1 = np.empty((n, n))
         H2 = np.empty((n, n))
-        between(self._group, self._Minv, self._AdMinv, X1, X2, e, H1, H2)
+        between(spec.group, self._Minv, self._AdMinv, X1, X2, e, H1, H2)
         if H is not None:
             H[0] = H1
             H[1] = H2
@@ -328,28 +366,36 @@ class BetweenFactor(gtsam.CustomFactor):
 
 
 class PriorFactor(gtsam.CustomFactor):
-    """Prior factor on ``spec``: error Log(prior⁻¹·X), Jacobian dlog(−e)."""
+    """Prior factor on ``spec``: error Log(prior⁻¹·X), Jacobian dlog(−e).
+
+    Evaluated as the Between factor from the identity, Log(prior⁻¹·I⁻¹·X) (the
+    same numbers: products with I are exact), so a graph of priors and
+    between factors compiles one kernel, not two.
+    """
 
     spec: GroupSpec
 
     def __init__(self, key, prior, noise_model):
-        name = type(self).__name__
         spec = self.spec
-        k = _checked_key(key, name)
-        _check_type(spec, prior, "prior", name)
-        _checked_noise(spec, noise_model, name)
         group = spec.group
+        if type(key) is not int or key < 0:
+            key = _checked_key(key, type(self).__name__)
+        if type(prior) is not spec.cls:
+            _check_type(spec, prior, "prior", type(self).__name__)
+        if _noise_checked.get(group.dim) is not noise_model:
+            _checked_noise(spec, noise_model, type(self).__name__)
         P = prior.matrix()
         Pinv = np.empty((group.mat, group.mat))
-        code = prior_setup(group, P, Pinv)
+        AdPinv = np.empty((group.dim, group.dim))
+        code = between_setup(group, P, Pinv, AdPinv)
         if code != OK:
-            raise _element_error(spec, P, code, "prior", name)
-        super().__init__(noise_model, [k], self._evaluate)
+            raise _element_error(spec, P, code, "prior", type(self).__name__)
+        _constructed.add(group)
+        gtsam.CustomFactor.__init__(self, noise_model, [key], self._evaluate)
         self._prior = prior
-        self._key = k
+        self._key = key
         self._Pinv = Pinv
-        self._group = group
-        self._name = name
+        self._AdPinv = AdPinv
 
     def prior(self):
         """The prior value, as the GTSAM object given."""
@@ -357,11 +403,13 @@ class PriorFactor(gtsam.CustomFactor):
 
     def _evaluate(self, this, values, H):
         spec = self.spec
-        X = _fetch(values, self._key, spec, self._name)
-        n = spec.group.dim
+        X = _fetch(values, self._key, spec, type(self).__name__)
+        group = spec.group
+        n = group.dim
         e = np.empty(n)
+        H1 = np.empty((n, n))
         J = np.empty((n, n))
-        prior(self._group, self._Pinv, X, e, J)
+        between(group, self._Pinv, self._AdPinv, _IDENTITY[group.name], X, e, H1, J)
         if H is not None:
             H[0] = J
         return e

@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -38,6 +37,7 @@ from .g2o import check_g2o, read_g2o, resolve_dataset
 from .initialize import METHODS as INIT_METHODS
 from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
 from .results import IterationInfo, OptimizeResult
+from .timing import Stopwatch, warm_up_factors
 
 
 # --------------------------------------------------------------------------- #
@@ -198,12 +198,14 @@ def optimize(
     maxIterations, ``checkConvergence(relTol, absTol, errorTol, current, new)``
     is false and the error is finite.  (``max_iterations=0`` runs none; GTSAM
     would still run one.)  ``seconds`` covers building the optimizer (it
-    evaluates the initial error) and the iterations.
+    evaluates the initial error) and the iterations, never numba compilation
+    (kernels are warmed first; see :mod:`lie_factors.timing`).
     """
     if params is None:
         params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
-    t_start = time.perf_counter()
+    warm_up_factors()  # compile before the clock starts
+    clock = Stopwatch()
     try:
         opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
         initial_error = new_error = float(opt.error())
@@ -211,11 +213,11 @@ def optimize(
         history = []
         while not converged and opt.iterations() < max_iterations:
             current_error = new_error
-            t0 = time.perf_counter()
+            step = Stopwatch()
             opt.iterate()
             new_error = float(opt.error())
             info = IterationInfo(int(opt.iterations()), new_error, float(opt.lambda_()),
-                                 time.perf_counter() - t0)
+                                 step.seconds())
             history.append(info)
             if progress is not None:
                 progress(info)
@@ -226,7 +228,7 @@ def optimize(
     except RuntimeError as exc:
         # e.g. IndeterminantLinearSystemException: report it, don't dump a traceback.
         raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
-    seconds = time.perf_counter() - t_start
+    seconds = clock.seconds()
     return OptimizeResult(values, int(opt.iterations()), initial_error, new_error, seconds,
                           bool(converged), history)
 

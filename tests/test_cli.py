@@ -276,3 +276,57 @@ def test_optional_subcommand_parsing_its_own_argv(monkeypatch, tmp_path, capsys)
     monkeypatch.setitem(cli.OPTIONAL_SUBCOMMANDS, "raw", ("lf_argv_cmd", "raw"))
     status, out, _ = run_main(capsys, "raw", "--samples", "2", "--help")
     assert status == 3 and out == "got ['--samples', '2', '--help']\n"
+
+
+# ------------------------------------------------- startup and numeric options
+
+def test_help_imports_no_heavy_module():
+    """--help (top level and per subcommand) must not import GTSAM, numba, matplotlib or numpy."""
+    code = ("import sys\nfrom lie_factors import cli\n"
+            "for argv in (['--help'], ['posegraph', '--help'], ['demo', '--help']):\n"
+            "    try:\n        cli.main(argv)\n    except SystemExit as e:\n        assert e.code == 0\n"
+            "print(sorted(m for m in ('gtsam', 'numba', 'matplotlib', 'numpy') if m in sys.modules),"
+            " file=sys.stderr)\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr.strip() == "[]"
+    assert "crosscheck" in p.stdout  # deferred optional subcommands are still listed
+
+
+def test_backend_names_match_posegraph():
+    from lie_factors import posegraph
+
+    assert cli.BACKENDS == tuple(posegraph.BACKENDS)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["demo", "--poses", "0"], "--poses: must be from 2"),
+    (["demo", "--poses", "1"], "--poses: must be from 2"),
+    (["demo", "--poses", str(10**9)], f"--poses: must be from 2 to {cli.MAX_DEMO_POSES}"),
+    (["demo", "--poses", "many"], "--poses: expected an integer"),
+    (["demo", "--seed", "-1"], "--seed: must be from 0"),
+    (["demo", "--seed", str(2**64)], "--seed: must be from 0"),
+    (["demo", "--max-iterations", str(10**30)], "--max-iterations: must be from 0 to"),
+    (["demo", "--max-iterations", "-1"], "--max-iterations: must be from 0 to"),
+    (["posegraph", SMALL, "--max-iterations", str(10**30)], "--max-iterations: must be from 0 to"),
+    (["posegraph", SMALL, "--max-iterations", "1.5"], "--max-iterations: expected an integer"),
+    (["bogus"], "invalid choice"),
+    ([], "required"),
+])
+def test_numeric_and_usage_errors_are_one_line(capsys, argv, fragment):
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv)
+    assert info.value.code == 2
+    out, err = capsys.readouterr()
+    assert_one_line_error(2, out, err, fragment)
+    assert out == ""
+
+
+def test_largest_accepted_values_run(tmp_path, capsys):
+    # The limits are accepted (bounded work): the largest iteration limit and seed with a tiny demo.
+    status, out, _ = run_main(capsys, "demo", "--poses", "2", "--seed", str(cli.MAX_SEED),
+                              "--max-iterations", str(cli.MAX_ITERATIONS), "--backend", "native",
+                              "--quiet", "--json", "--output", str(tmp_path / "d"))
+    assert status == 0
+    assert json.loads(out.strip().splitlines()[-1])["poses"] == 2

@@ -13,7 +13,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import factors
+from lie_factors import _dispatch, _validate, factors
 from lie_factors import reference as ref
 
 RNG = np.random.default_rng(20261121)
@@ -470,3 +470,77 @@ def test_accessors():
     assert list(f.keys()) == [4, 5]
     p = factors.PriorFactorRot3(2, gtsam.Rot3.Yaw(0.2), noise("Rot3"))
     assert p.prior().equals(gtsam.Rot3.Yaw(0.2), 0.0)
+
+
+# --- construction: one compiled check of the raw matrix -----------------------------------------
+
+
+@pytest.mark.parametrize("tag, m, d", [(_dispatch.SO3, 3, 3), (_dispatch.SE3, 4, 3), (_dispatch.SE2, 3, 2),
+                                       (_dispatch.SIM2, 3, 2)], ids=lambda v: getattr(v, "name", None))
+def test_check_element_codes_straddle_the_tolerance(tag, m, d):
+    X = np.eye(m)
+    if tag.corner == _dispatch.POSITIVE:
+        X[-1, -1] = 0.5
+    assert factors.check_element(tag, X) == factors.OK
+    assert factors.check_element(tag, np.asfortranarray(X)) == factors.OK
+    tol = _validate.ORTHONORMAL_TOL
+    below, above = X.copy(), X.copy()
+    below[0, 0] += 0.4 * tol  # RᵀR − I ≈ 2·0.4·tol on the diagonal
+    above[0, 0] += 0.6 * tol
+    assert factors.check_element(tag, below) == factors.OK
+    assert factors.check_element(tag, above) == factors.NOT_ORTHONORMAL
+    bad = X.copy()
+    bad[0, 1] = np.nan
+    assert factors.check_element(tag, bad) == factors.NOT_FINITE
+    bad = X.copy()
+    bad[-1, -1] = np.inf
+    assert factors.check_element(tag, bad) == factors.NOT_FINITE
+    flip = X.copy()
+    flip[0, 0] = -1.0  # a reflection, still orthonormal
+    assert factors.check_element(tag, flip) == factors.REFLECTION
+    if tag.corner != _dispatch.NO_CORNER:
+        row = X.copy()
+        row[-1, 0] = 1e-300
+        assert factors.check_element(tag, row) == factors.BAD_LAST_ROW
+        corner = X.copy()
+        corner[-1, -1] = 2.0 if tag.corner == _dispatch.ONE else -0.5
+        expected = factors.BAD_LAST_ROW if tag.corner == _dispatch.ONE else factors.BAD_SCALE
+        assert factors.check_element(tag, corner) == expected
+
+
+def test_negative_similarity_scale_rejected():
+    with pytest.raises(ValueError, match="non-positive scale"):
+        factors.BetweenFactorSimilarity2(1, 2, gtsam.Similarity2(gtsam.Rot2(0.1), np.zeros(2), -2.0),
+                                         noise("Similarity2"))
+
+
+def test_keys_numpy_ints_accepted_bools_and_negatives_rejected():
+    f = factors.BetweenFactorPose2(np.int64(3), np.uint32(4), gtsam.Pose2(), noise("Pose2"))
+    assert list(f.keys()) == [3, 4]
+    for bad in (True, -1, 1.0, "1"):
+        with pytest.raises(TypeError, match="non-negative integers"):
+            factors.BetweenFactorPose2(bad, 4, gtsam.Pose2(), noise("Pose2"))
+        with pytest.raises(TypeError, match="non-negative integers"):
+            factors.PriorFactorPose2(bad, gtsam.Pose2(), noise("Pose2"))
+
+
+def test_noise_model_check_is_not_skipped_for_another_dimension():
+    shared = gtsam.noiseModel.Isotropic.Sigma(6, 1.0)
+    factors.BetweenFactorPose3(1, 2, gtsam.Pose3(), shared)  # checked and remembered for dim 6
+    with pytest.raises(ValueError, match="dimension 6"):
+        factors.BetweenFactorPose2(1, 2, gtsam.Pose2(), shared)
+    with pytest.raises(TypeError, match="noiseModel"):
+        factors.PriorFactorPose3(1, gtsam.Pose3(), None)
+
+
+def test_prior_equals_between_from_identity_and_native_prior():
+    P = gtsam.Pose3(gtsam.Rot3.Ypr(0.3, -0.2, 0.1), np.array([1.0, -2.0, 0.5]))
+    X = gtsam.Pose3(gtsam.Rot3.Ypr(0.1, 0.4, -0.3), np.array([0.2, 0.1, -0.4]))
+    values = gtsam.Values()
+    values.insert(7, X)
+    ours = factors.PriorFactorPose3(7, P, noise("Pose3"))
+    native = gtsam.PriorFactorPose3(7, P, noise("Pose3"))
+    np.testing.assert_allclose(ours.unwhitenedError(values), native.unwhitenedError(values), atol=1e-14)
+    A_ours = ours.linearize(values).jacobian()[0]
+    A_native = native.linearize(values).jacobian()[0]
+    np.testing.assert_allclose(A_ours, A_native, atol=1e-9)
