@@ -140,11 +140,57 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                         "measurements composed along a BFS tree, file = the file's vertices; "
                         "auto (default) = chordal in 3-D, lago then chordal in 2-D, then file, "
                         "then spanning-tree: the first that applies")
+    p.add_argument("--robust", metavar="LOSS[:K]",
+                   help="robust loss on the loop closures (edges between non-consecutive poses): "
+                        "huber | cauchy | tukey | gm | dcs, optionally with its parameter, e.g. huber:1.345")
+    p.add_argument("--robust-all", action="store_true",
+                   help="apply the --robust loss to every edge, odometry included")
+    p.add_argument("--gnc", metavar="{tls,gm}",
+                   help="graduated non-convexity (GTSAM's GncOptimizer semantics) with truncated "
+                        "least squares or Geman-McClure; odometry edges are known inliers; "
+                        "the JSON gains 'outliers' (rejected edges, 0-based file order)")
     p.add_argument("--output", metavar="FILE.g2o", help="write the optimized graph (g2o)")
     p.add_argument("--plot", metavar="FILE.png", help="plot initial and optimized trajectories")
     p.add_argument("--json", action="store_true",
                    help="print a JSON summary as the last line of stdout")
     p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
+
+
+#: --robust LOSS names (the CLI's subset of lie_factors.batch.robust.LOSSES)
+CLI_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
+
+
+def _robust_loss(args):
+    """The --robust option as a RobustLoss (None without it); CLIError on a bad name or parameter."""
+    if args.gnc is not None and args.gnc not in ("tls", "gm"):
+        raise CLIError(f"--gnc: unknown loss {args.gnc!r} (choose from tls, gm)")
+    if args.robust is None:
+        if args.robust_all:
+            raise CLIError("--robust-all needs --robust LOSS")
+        return None
+    from lie_factors.batch.robust import parse_loss
+
+    name = args.robust.partition(":")[0].strip().lower()
+    if name not in CLI_LOSSES:
+        raise CLIError(f"--robust: unknown loss {name!r} (choose from {', '.join(CLI_LOSSES)})")
+    try:
+        loss = parse_loss(args.robust)
+    except ValueError as exc:
+        raise CLIError(f"--robust: {exc}") from None
+    if args.gnc:
+        raise CLIError("--robust and --gnc are alternatives (GNC replaces the loss); give one")
+    return loss
+
+
+def _gnc_progress(args):
+    if args.quiet:
+        return None
+
+    def report(it, lam, cost, lm_iterations):
+        print(f"gnc iter {it + 1:3d}  lambda {lam:.3e}  weighted cost {cost:.6e}  "
+              f"({lm_iterations} LM iterations)", file=sys.stderr, flush=True)
+
+    return report
 
 
 def _run_posegraph(args) -> int:
@@ -154,6 +200,7 @@ def _run_posegraph(args) -> int:
     # Everything that can be wrong with the invocation is checked before the
     # (possibly long) optimization.
     pgm.get_backend(args.backend)
+    robust = _robust_loss(args)
     for path in (args.output, args.plot):
         if path:
             atomic.check_writable(path)
@@ -164,6 +211,9 @@ def _run_posegraph(args) -> int:
     _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges"
                f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
                f"backend {args.backend}")
+    if robust is not None:
+        what = "every edge" if args.robust_all else "the loop closures"
+        _say(args, f"robust loss {robust} on {what}")
 
     def report_start(start):
         for method, reason in start.skipped:
@@ -171,12 +221,21 @@ def _run_posegraph(args) -> int:
         _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]} ({start.seconds:.3f} s)")
 
     record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args),
-                                 init=args.init, on_init=report_start)
+                                 init=args.init, on_init=report_start, robust=robust,
+                                 robust_all=args.robust_all, gnc=args.gnc,
+                                 gnc_progress=_gnc_progress(args))
     _report_compile(args)
     status = "converged" if record.converged else "stopped (not converged)"
-    _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
-               f"{record.iterations} iterations, {record.seconds:.3f} s "
-               f"(+ {record.init_seconds:.3f} s initialization), {status}")
+    if args.gnc:
+        n_lc = len(pgm.loop_closures(pg))
+        _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop closures; "
+                   f"error {record.initial_error:.6g} -> weighted {record.final_error:.6g} after "
+                   f"{record.iterations} GNC iterations, {record.seconds:.3f} s "
+                   f"(+ {record.init_seconds:.3f} s initialization), {status}")
+    else:
+        _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
+                   f"{record.iterations} iterations, {record.seconds:.3f} s "
+                   f"(+ {record.init_seconds:.3f} s initialization), {status}")
 
     if args.output:
         g2o.write_g2o(args.output, pg.between, result.values)

@@ -163,20 +163,28 @@ def prior_noise(is3d: bool, group: str | None = None) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
 
 
-def build_graph(pg: PoseGraph, backend: str) -> gtsam.NonlinearFactorGraph:
+def build_graph(pg: PoseGraph, backend: str, robust=None,
+                robust_all: bool = False) -> gtsam.NonlinearFactorGraph:
     """Graph of ``pg.edges`` between factors + 1 prior, built with ``backend``'s constructors.
 
     The prior pins the first pose at its initial value (identity for edge-only
-    files), fixing the gauge.
+    files), fixing the gauge.  With ``robust`` (a
+    :class:`lie_factors.batch.robust.RobustLoss`) the loop closures' noise models —
+    every edge's with ``robust_all`` — become ``noiseModel.Robust(loss,
+    Gaussian)``.  Edge k of the file is factor k; the prior is the last factor.
     """
     F = load_factors(backend)
     Between = getattr(F, f"BetweenFactor{pg.group}")
     Prior = getattr(F, f"PriorFactor{pg.group}")
+    mestimator = robust.to_gtsam() if robust is not None else None
     graph = gtsam.NonlinearFactorGraph()
     for k in range(pg.between.size()):
         f = pg.between.at(k)
         i, j = f.keys()
-        graph.add(Between(i, j, f.measured(), f.noiseModel()))
+        noise = f.noiseModel()
+        if mestimator is not None and (robust_all or abs(int(i) - int(j)) != 1):
+            noise = gtsam.noiseModel.Robust.Create(mestimator, noise)
+        graph.add(Between(i, j, f.measured(), noise))
     first = getattr(pg.initial, f"at{pg.group}")(pg.first_key)
     graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d, pg.group)))
     return graph
@@ -240,6 +248,15 @@ def _optimize_batch(graph, initial, max_iterations=100, progress=None, params=No
     return run_batch(graph, initial, max_iterations, progress, params)
 
 
+def _optimize_batch_robust(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+    # Robust noise models vectorized (Σ ρ, rows reweighted by √w) instead of linearized by GTSAM.
+    from lie_factors.batch import run_batch
+    from lie_factors.batch.robust import WeightedLevenbergMarquardt
+
+    return run_batch(graph, initial, max_iterations, progress, params,
+                     optimizer_class=WeightedLevenbergMarquardt)
+
+
 BACKENDS.update(
     native=Backend(_native_factors, optimize, "GTSAM's own BetweenFactor/PriorFactor (reference)"),
     custom=Backend(_custom_factors, optimize, "lie_factors.factors (closed-form Jacobians)"),
@@ -259,7 +276,12 @@ class RunRecord:
     ``seconds`` is optimization only (LM construction + iterations, not loading
     and not initialization); ``init`` is the initialization method used
     (:data:`lie_factors.initialize.METHODS`) and ``init_seconds`` its cost;
-    ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖².
+    ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖²
+    (Σ ρ(‖whitened residual‖) for robust factors).  ``robust``: the loss
+    (``name:k``, with ``+all`` if on every edge); ``gnc``: the GNC loss.  With
+    GNC, ``iterations`` counts GNC's outer iterations, ``final_error`` is GNC's
+    weighted cost Σ w_k·½‖R_k e_k‖², and ``outliers`` lists the rejected edges
+    (0-based, in the file's edge order).
     """
 
     backend: str
@@ -274,9 +296,24 @@ class RunRecord:
     converged: bool
     init: str = "file"
     init_seconds: float = 0.0
+    robust: str | None = None
+    gnc: str | None = None
+    outliers: list[int] | None = None
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        d = dataclasses.asdict(self)
+        # robust / gnc / outliers appear only in runs that use them.
+        for key in ("robust", "gnc", "outliers"):
+            if d[key] is None:
+                del d[key]
+        return d
+
+
+def loop_closures(pg: PoseGraph) -> np.ndarray:
+    """Indices of the file's edges whose pose ids are not consecutive (|id1 − id2| ≠ 1)."""
+    return np.array([k for k in range(pg.between.size())
+                     if abs(int(pg.between.at(k).keys()[0]) - int(pg.between.at(k).keys()[1])) != 1],
+                    dtype=np.int64)
 
 
 def run(
@@ -286,6 +323,10 @@ def run(
     progress: Callable[[IterationInfo], None] | None = None,
     init: str = "auto",
     on_init: Callable[[Initialization], None] | None = None,
+    robust=None,
+    robust_all: bool = False,
+    gnc: str | None = None,
+    gnc_progress: Callable | None = None,
 ) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
     """Load (unless given a :class:`PoseGraph`), build with ``backend``, initialize, optimize.
 
@@ -294,13 +335,29 @@ def run(
     ``file`` is the file's vertices.  ``on_init`` is called with the
     :class:`~lie_factors.initialize.Initialization` before LM starts.
     ``result.start`` holds the values LM started from.
+
+    ``robust``: a :class:`lie_factors.batch.robust.RobustLoss` on the loop
+    closures (all edges with ``robust_all``).  ``gnc``: "tls" or "gm" runs
+    graduated non-convexity instead of plain LM (odometry edges and the prior
+    are known inliers; ``max_iterations`` limits each inner LM;
+    ``gnc_progress(it, λ, cost, lm_iterations)`` after each outer iteration).
     """
     pg = load(dataset) if isinstance(dataset, str) else dataset
+    get_backend(backend)
+    if gnc is not None and loop_closures(pg).size == 0:
+        raise PoseGraphError(f"{pg.name}: --gnc needs loop closures (edges between non-consecutive "
+                             "poses); this graph has none")
     graph = build_graph(pg, backend)
     start = initialize(graph, init, None if pg.initialized_from_edges else pg.initial)
     if on_init is not None:
         on_init(start)
+    if gnc is not None:
+        return _run_gnc(pg, graph, start, backend, max_iterations, gnc, gnc_progress)
+    if robust is not None:
+        graph = build_graph(pg, backend, robust, robust_all)
     opt = get_backend(backend).optimize or optimize
+    if robust is not None and backend == "batch":
+        opt = _optimize_batch_robust
     result = opt(graph, start.values, max_iterations=max_iterations, progress=progress)
     result.start = start.values
     record = RunRecord(
@@ -314,6 +371,55 @@ def run(
         final_error=result.final_error,
         seconds=result.seconds,
         converged=result.converged,
+        init=start.method,
+        init_seconds=start.seconds,
+        robust=None if robust is None else str(robust) + ("+all" if robust_all else ""),
+    )
+    return record, result, pg
+
+
+def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, loss: str,
+             gnc_progress: Callable | None) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
+    """GNC per backend: native = gtsam.GncLMOptimizer; custom = our outer loop over GTSAM's LM
+    with lie_factors factors (GTSAM's GncOptimizer cannot clone CustomFactors); batch = our
+    outer loop over the batch solver."""
+    from lie_factors.batch import gnc as gncm
+
+    closures = loop_closures(pg)
+    known = np.setdiff1d(np.arange(graph.size()), closures)  # odometry + the prior
+    lm = gtsam.LevenbergMarquardtParams()
+    lm.setMaxIterations(int(max_iterations))
+    params = gncm.GncParams(loss=loss, known_inliers=known.tolist(), lm_params=lm)
+    try:
+        if backend == "native":
+            res = gncm.gtsam_gnc(graph, start.values, params)
+        elif backend == "batch":
+            res = gncm.gnc_optimize(gncm.BatchInner(graph, start.values, lm), params, gnc_progress)
+        else:
+            res = gncm.gnc_optimize(gncm.GtsamInner(graph, start.values, lm), params, gnc_progress)
+    except RuntimeError as exc:
+        raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
+    values = res.values
+    if not isinstance(values, gtsam.Values):
+        values = values.to_values()
+    initial_error = float(graph.error(start.values))
+    result = OptimizeResult(values, res.iterations, initial_error, res.cost, res.seconds,
+                            res.stop != "maxIterations", [])
+    result.start = start.values
+    outliers = [int(k) for k in res.outliers if k < pg.between.size()]
+    record = RunRecord(
+        backend=backend,
+        dataset=pg.name,
+        dimension=3 if pg.is3d else 2,
+        poses=pg.poses,
+        factors=int(graph.size()),
+        iterations=res.iterations,
+        initial_error=initial_error,
+        final_error=res.cost,
+        seconds=res.seconds,
+        converged=result.converged,
+        gnc=loss,
+        outliers=outliers,
         init=start.method,
         init_seconds=start.seconds,
     )

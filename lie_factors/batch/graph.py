@@ -52,6 +52,12 @@ def _whitening(noise_model):
     return noise_model.R()
 
 
+def _robust_loss(noise_model):
+    from .robust import from_gtsam  # robust imports the optimizer, which imports this module
+
+    return from_gtsam(noise_model.robust())
+
+
 class VarBlock:
     """The variables of one group: keys, element matrices ``X`` (N, m, m), offsets into δ."""
 
@@ -181,7 +187,8 @@ class Problem:
     variables of the linear system, ``offset[key]`` their scalar offsets.
     """
 
-    def __init__(self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values):
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
+                 group_robust: bool = False):
         if not isinstance(graph, gtsam.NonlinearFactorGraph):
             raise TypeError(f"graph must be a gtsam.NonlinearFactorGraph, got {type(graph).__name__}")
         if not isinstance(initial, gtsam.Values):
@@ -191,6 +198,10 @@ class Problem:
         self.blocks: dict[str, VarBlock] = {}
         self.groups: list[FactorGroup] = []
         self.native: list = []  # (graph index, factor, keys)
+        # graph index → batch.robust.RobustLoss of robust factors grouped by their Gaussian part
+        # (only with group_robust: the optimizer must then apply the loss).
+        self.robust: dict = {}
+        self._group_robust = bool(group_robust)
         self._read_factors(graph, initial)
         self._number_variables(initial)
 
@@ -225,6 +236,14 @@ class Problem:
             if kind is not None:
                 nm = f.noiseModel()
                 R = nm.R() if type(nm) in gaussian else _whitening(nm)
+                if R is None and self._group_robust and isinstance(nm, gtsam.noiseModel.Robust):
+                    # Robust(Block estimator we vectorize, Gaussian): grouped by its Gaussian
+                    # part; the loss goes to self.robust (see batch.robust).
+                    loss = _robust_loss(nm)
+                    if loss is not None:
+                        R = _whitening(nm.noise())
+                        if R is not None:
+                            self.robust[i] = loss
                 if kind == "between" and f._key1 == f._key2:
                     R = None  # a factor on one variable twice: GTSAM's linearization handles it
             if R is None:

@@ -112,6 +112,9 @@ class BatchLevenbergMarquardt:
     can be set directly (GNC: fixed weights per outer step).
     """
 
+    #: Group lie_factors factors with robust noise (only subclasses that apply the loss do).
+    group_robust = False
+
     def __init__(self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
                  params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
                  min_model_fidelity: float = MIN_MODEL_FIDELITY, linear_solver: str = "auto",
@@ -126,7 +129,7 @@ class BatchLevenbergMarquardt:
         self.gauss_newton = isinstance(self.params, gtsam.GaussNewtonParams)
         self.min_model_fidelity = float(min_model_fidelity)
         self._read_params()
-        self.problem = Problem(graph, initial)
+        self.problem = Problem(graph, initial, group_robust=self.group_robust)
         self.system = LinearSystem(self.problem)
         self.solver = solvers.make(linear_solver, self.system)
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
@@ -365,12 +368,13 @@ def optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
 def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 100,
               progress: Callable | None = None,
               params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
-              linear_solver: str = "auto") -> OptimizeResult:
+              linear_solver: str = "auto", optimizer_class=None) -> OptimizeResult:
     """``posegraph.optimize``-compatible entry point for ``--backend batch``.
 
     ``progress`` receives a :class:`lie_factors.results.IterationInfo` after
     each iteration; returns a :class:`lie_factors.results.OptimizeResult`.
-    ``max_iterations=0`` runs none.  Bad input and unsolvable systems raise
+    ``max_iterations=0`` runs none; ``optimizer_class``: a subclass of
+    :class:`BatchLevenbergMarquardt` (e.g. ``batch.robust.WeightedLevenbergMarquardt``).  Bad input and unsolvable systems raise
     :class:`lie_factors.errors.PoseGraphError`.
     """
     if params is None:
@@ -389,7 +393,8 @@ def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iter
             progress(info)
 
     try:
-        opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=linear_solver)
+        cls = BatchLevenbergMarquardt if optimizer_class is None else optimizer_class
+        opt = cls(graph, initial, params, linear_solver=linear_solver)
         step.restart()
         res = opt.optimize(hook)
     except BatchError as exc:

@@ -1,0 +1,224 @@
+"""False loop closures: plain LM, robust losses and GNC-TLS, per backend, against the outlier-free optimum.
+
+For each graph the script
+
+1. optimizes the outlier-free graph with GTSAM's LM (the reference trajectory);
+2. plants ``--fraction`` × (number of loop closures) random false loop
+   closures (seeded; :func:`lie_factors.outliers.plant_false_loop_closures`:
+   random pose pairs ≥ 2 ids apart, uniformly random measurement, the noise
+   model of a real loop closure);
+3. runs every method on every backend from the same initial guess and prints
+   one row each: iterations, seconds, position RMSE against the reference (and
+   as a percentage of the reference trajectory's bounding-box diagonal), and
+   for GNC the precision/recall of the rejected edges against the planted ones.
+
+Methods: ``lm`` (plain LM), ``huber``/``cauchy``/``tukey``/``gm``/``dcs``
+(``noiseModel.Robust`` with that loss, default parameter, on the loop
+closures), ``gnc-tls`` (odometry and the prior as known inliers, thresholds
+½·χ²_dim(0.99)).  Backends: ``native`` (GTSAM's factors, LM and
+GncLMOptimizer), ``batch`` (lie_factors.batch).  Native GNC runs in a child
+process and is abandoned after ``--native-timeout`` seconds (reported as such).
+``custom`` is not run: GTSAM's CustomFactor pays a Values copy per callback
+inside C++ optimizers (README), which makes GNC's ~30 LM solves impractical.
+
+Usage::
+
+    python benchmarks/outliers.py                                   # all graphs, 20 %
+    python benchmarks/outliers.py --graphs intel chain1000 --methods lm gnc-tls
+
+Timing: best of ``--repeat`` runs, native and batch alternated (wrap in
+``flock /work/coord/bench.lock`` on a shared machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+import gtsam  # noqa: E402
+
+from lie_factors import demo, outliers, posegraph as pgm  # noqa: E402
+from lie_factors.batch import gnc as gncm  # noqa: E402
+from lie_factors.batch.robust import LOSSES, RobustLoss, WeightedLevenbergMarquardt  # noqa: E402
+
+DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data")
+GRAPHS = ("sphere2500", "intel", "city10000", "chain1000")
+METHODS = ("lm", "huber", "cauchy", "tukey", "gm", "dcs", "gnc-tls")
+
+
+def load_graph(name: str) -> pgm.PoseGraph:
+    """A shared dataset by name, or ``chainN``: the demo's SE(3) trajectory with N poses."""
+    if name.startswith("chain"):
+        n = int(name[5:])
+        prob = demo.simulate(n, seed=0)
+        return pgm.PoseGraph(path="", name=f"SE(3) chain {n}", is3d=True,
+                             between=demo.between_graph(prob), initial=prob.initial, first_key=0,
+                             initialized_from_edges=False)
+    path = os.path.join(DATA, name + ".g2o")
+    return pgm.load(path if os.path.exists(path) else name)
+
+
+def with_edges(pg: pgm.PoseGraph, between) -> pgm.PoseGraph:
+    return pgm.PoseGraph(pg.path, pg.name, pg.is3d, between, pg.initial, pg.first_key,
+                         pg.initialized_from_edges)
+
+
+def lm_params():
+    return gtsam.LevenbergMarquardtParams()
+
+
+# --------------------------------------------------------------------------- #
+# One run of a method on a backend → (values, iterations, seconds, rejected | None)
+# --------------------------------------------------------------------------- #
+
+def run_lm(pg, backend, loss):
+    graph = pgm.build_graph(pg, "native" if backend == "native" else "custom", loss)
+    t = time.perf_counter()
+    if backend == "native":
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, pg.initial, lm_params())
+        values = opt.optimize()
+        its = opt.iterations()
+    else:
+        res = WeightedLevenbergMarquardt(graph, pg.initial, lm_params()).optimize()
+        values, its = res.values, res.iterations
+    return values, int(its), time.perf_counter() - t, None, float(graph.error(values))
+
+
+def gnc_params(graph, pg):
+    closures = set(pgm.loop_closures(pg).tolist())
+    known = [k for k in range(graph.size()) if k not in closures]
+    return gncm.GncParams(loss="tls", known_inliers=known, lm_params=lm_params())
+
+
+def run_gnc(pg, backend):
+    graph = pgm.build_graph(pg, "native" if backend == "native" else "custom")
+    params = gnc_params(graph, pg)
+    t = time.perf_counter()
+    if backend == "native":
+        res = gncm.gtsam_gnc(graph, pg.initial, params)
+        values = res.values
+    else:
+        res = gncm.gnc_optimize(gncm.BatchInner(graph, pg.initial, lm_params()), params)
+        values = res.values.to_values()
+    seconds = time.perf_counter() - t
+    return values, res.iterations, seconds, res.outliers, res.cost
+
+
+def _native_gnc_child(name, fraction, seed, conn):
+    pg, planted, _ = prepare(name, fraction, seed, reference=False)
+    values, its, seconds, rejected, cost = run_gnc(pg, "native")
+    conn.send((positions(values, pg), its, seconds, rejected.tolist(), cost))
+    conn.close()
+
+
+def run_native_gnc_with_timeout(name, fraction, seed, timeout):
+    """Native GNC in a child process (GTSAM's C++ loop cannot be interrupted); None if it times out."""
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_native_gnc_child, args=(name, fraction, seed, child))
+    proc.start()
+    if parent.poll(timeout):
+        out = parent.recv()
+        proc.join()
+        return out
+    proc.kill()
+    proc.join()
+    return None
+
+
+# --------------------------------------------------------------------------- #
+# Scoring
+# --------------------------------------------------------------------------- #
+
+def positions(values, pg) -> np.ndarray:
+    return pgm.positions(values, pg.is3d)
+
+
+def prepare(name, fraction, seed, reference=True):
+    pg = load_graph(name)
+    ref = None
+    if reference:
+        graph = pgm.build_graph(pg, "native")
+        ref = positions(gtsam.LevenbergMarquardtOptimizer(graph, pg.initial, lm_params()).optimize(), pg)
+    n_lc = len(pgm.loop_closures(pg))
+    count = int(round(fraction * n_lc))
+    between, planted = outliers.plant_false_loop_closures(pg.between, sorted(pg.initial.keys()), count,
+                                                          seed, pg.is3d)
+    return with_edges(pg, between), planted, ref
+
+
+def rmse(P, ref) -> float:
+    return float(np.sqrt(np.mean(np.sum((P - ref) ** 2, axis=1))))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--graphs", nargs="+", default=list(GRAPHS),
+                    help=f"datasets in ../shared/data by name, or chainN (default: {' '.join(GRAPHS)})")
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--backends", nargs="+", default=["native", "batch"], choices=["native", "batch"])
+    ap.add_argument("--fraction", type=float, default=0.2,
+                    help="false loop closures planted, as a fraction of the true ones (default 0.2)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=1, help="timing: best of this many runs (default 1)")
+    ap.add_argument("--native-timeout", type=float, default=600.0,
+                    help="seconds after which native GNC is abandoned (default 600)")
+    args = ap.parse_args(argv)
+
+    print(f"# outliers: {args.fraction:.0%} false loop closures (relative to the true ones), "
+          f"seed {args.seed}, best of {args.repeat}")
+    print("| graph | method | backend | iterations | seconds | RMSE [m] | RMSE / bbox diag | "
+          "precision | recall | final error |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.graphs:
+        pg, planted, ref = prepare(name, args.fraction, args.seed)
+        diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
+        label = f"{pg.name} ({pg.poses} poses, {len(planted)} false / " \
+                f"{len(pgm.loop_closures(pg)) - len(planted)} true LC)"
+        for method in args.methods:
+            for backend in args.backends:
+                best = None
+                for _ in range(args.repeat):
+                    if method == "gnc-tls" and backend == "native":
+                        out = run_native_gnc_with_timeout(name, args.fraction, args.seed,
+                                                          args.native_timeout)
+                        if out is None:
+                            best = "timeout"
+                            break
+                        P, its, sec, rejected, err = out
+                    else:
+                        if method == "lm":
+                            values, its, sec, rejected, err = run_lm(pg, backend, None)
+                        elif method == "gnc-tls":
+                            values, its, sec, rejected, err = run_gnc(pg, backend)
+                        else:
+                            values, its, sec, rejected, err = run_lm(pg, backend,
+                                                                     RobustLoss(method, LOSSES[method][2]))
+                        P = positions(values, pg)
+                    if best is None or sec < best[2]:
+                        best = (P, its, sec, rejected, err)
+                if best == "timeout":
+                    print(f"| {label} | {method} | {backend} | – | > {args.native_timeout:.0f} "
+                          "(abandoned) | – | – | – | – | – |", flush=True)
+                    continue
+                P, its, sec, rejected, err = best
+                e = rmse(P, ref)
+                if rejected is not None:
+                    c = outliers.classify(rejected, planted)
+                    pr, rc = f"{c.precision:.3f}", f"{c.recall:.3f}"
+                else:
+                    pr = rc = "–"
+                print(f"| {label} | {method} | {backend} | {its} | {sec:.2f} | {e:.4g} | "
+                      f"{100 * e / diag:.3g} % | {pr} | {rc} | {err:.6g} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""False loop closures: which edges are loop closures, planting random wrong ones, scoring a classification.
+
+A *loop closure* is an edge between poses whose ids are not consecutive
+(``|id1 − id2| ≠ 1``); the consecutive ones are odometry.  The robust CLI
+options and GNC's known inliers use this split; the outlier benchmark and the
+tests plant false loop closures with :func:`plant_false_loop_closures`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+import gtsam
+
+__all__ = ["is_loop_closure", "loop_closure_mask", "plant_false_loop_closures", "Classification",
+           "classify"]
+
+
+def is_loop_closure(key1: int, key2: int) -> bool:
+    return abs(int(key1) - int(key2)) != 1
+
+
+def loop_closure_mask(graph: gtsam.NonlinearFactorGraph) -> np.ndarray:
+    """(size,) bool: True for two-key factors whose keys are not consecutive (unary factors: False)."""
+    mask = np.zeros(graph.size(), dtype=bool)
+    for k in range(graph.size()):
+        keys = graph.at(k).keys()
+        mask[k] = len(keys) == 2 and is_loop_closure(keys[0], keys[1])
+    return mask
+
+
+def _random_pose(rng, is3d: bool, translation_scale: float):
+    if is3d:
+        w = rng.normal(size=3)
+        w *= rng.uniform(0, np.pi) / np.linalg.norm(w)
+        return gtsam.Pose3(gtsam.Rot3.Expmap(w), rng.uniform(-translation_scale, translation_scale, 3))
+    t = rng.uniform(-translation_scale, translation_scale, 2)
+    return gtsam.Pose2(t[0], t[1], rng.uniform(-np.pi, np.pi))
+
+
+def plant_false_loop_closures(between: gtsam.NonlinearFactorGraph, keys: list[int], count: int,
+                              seed: int, is3d: bool, translation_scale: float = 10.0):
+    """A copy of ``between`` with ``count`` random false loop closures appended.
+
+    Each false edge joins two random poses at least 2 ids apart with a uniformly
+    random measurement (rotation angle up to π, translation up to
+    ``translation_scale`` per axis) and the noise model of a randomly chosen
+    existing loop closure (of an edge, if there is none), so that it looks like
+    a real one.  Returns ``(graph, outlier_slots)`` with the new edges' indices.
+    """
+    rng = np.random.default_rng(seed)
+    graph = gtsam.NonlinearFactorGraph()
+    existing = set()
+    noise_pool = []
+    lc = []
+    for k in range(between.size()):
+        f = between.at(k)
+        graph.add(f)
+        i, j = f.keys()
+        existing.add((min(i, j), max(i, j)))
+        noise_pool.append(f.noiseModel())
+        if is_loop_closure(i, j):
+            lc.append(f.noiseModel())
+    pool = lc or noise_pool
+    Between = gtsam.BetweenFactorPose3 if is3d else gtsam.BetweenFactorPose2
+    keys = list(keys)
+    if len(keys) < 3 and count:
+        raise ValueError("need at least 3 poses to plant a false loop closure")
+    slots = []
+    while len(slots) < count:
+        a, b = rng.choice(len(keys), size=2, replace=False)
+        i, j = keys[a], keys[b]
+        pair = (min(i, j), max(i, j))
+        if not is_loop_closure(i, j) or pair in existing:
+            continue
+        existing.add(pair)
+        noise = pool[rng.integers(len(pool))]
+        graph.add(Between(i, j, _random_pose(rng, is3d, translation_scale), noise))
+        slots.append(graph.size() - 1)
+    return graph, np.array(slots, dtype=np.int64)
+
+
+@dataclass
+class Classification:
+    """Precision/recall of rejected edges against the planted ones."""
+
+    true_positives: int
+    false_positives: int
+    false_negatives: int
+
+    @property
+    def precision(self) -> float:
+        n = self.true_positives + self.false_positives
+        return self.true_positives / n if n else 1.0
+
+    @property
+    def recall(self) -> float:
+        n = self.true_positives + self.false_negatives
+        return self.true_positives / n if n else 1.0
+
+
+def classify(rejected, planted) -> Classification:
+    r = {int(i) for i in rejected}
+    p = {int(i) for i in planted}
+    return Classification(len(r & p), len(r - p), len(p - r))
