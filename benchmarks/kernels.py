@@ -1,6 +1,6 @@
 """Kernel accuracy (the crosscheck table) and batched throughput.
 
-    python benchmarks/kernels.py [--samples 5] [--n 100000]
+    python benchmarks/kernels.py [--samples 5] [--n 100000] [--groups so3,se3,se2,sim2,sim3]
 
 Accuracy: ``lie_factors.crosscheck.run`` — ours and GTSAM's error against the
 50-digit reference per function and θ band. Throughput: each group's batched
@@ -17,13 +17,14 @@ import time
 
 import numpy as np
 
-from lie_factors import crosscheck, se2, se3, sim2, so3
+from lie_factors import crosscheck
 
 
-def throughput(n: int) -> list[tuple[str, float]]:
+def throughput(n: int, groups=crosscheck.GROUPS) -> list[tuple[str, float]]:
     rng = np.random.default_rng(0)
     rows = []
-    for name, G in (("so3", so3), ("se3", se3), ("se2", se2), ("sim2", sim2)):
+    for name in groups:
+        G = crosscheck.KERNELS[name]
         x = 10.0 * rng.normal(size=(n, G.DIM))
         r = crosscheck.rotation_slice(name)
         w = rng.normal(size=(n, r.stop - r.start))
@@ -45,14 +46,19 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=5)
     ap.add_argument("--n", type=int, default=100_000)
+    ap.add_argument("--groups", default=",".join(crosscheck.GROUPS), help="comma-separated (default: all)")
     args = ap.parse_args(argv)
-    rows = crosscheck.run(samples=args.samples, seed=0)
+    groups = tuple(g for g in args.groups.split(",") if g)
+    unknown = [g for g in groups if g not in crosscheck.KERNELS]
+    if unknown:
+        ap.error(f"unknown group(s) {', '.join(unknown)}; choose from {', '.join(crosscheck.GROUPS)}")
+    rows = crosscheck.run(samples=args.samples, seed=0, groups=groups)
     print(f"## Accuracy ({args.samples} random points per band)\n")
     print(crosscheck.format_table(rows))
     print(f"\nworst lie_factors error: {max(r.ours for r in rows):.1e}\n")
     print(f"## Batched throughput ({args.n} tangent vectors, median of 9)\n")
     print("| function | ms | ns per element |\n|---|---|---|")
-    for label, t in throughput(args.n):
+    for label, t in throughput(args.n, groups):
         print(f"| {label} | {t * 1e3:.2f} | {t / args.n * 1e9:.0f} |")
 
 

@@ -208,7 +208,9 @@ def _run_posegraph(args) -> int:
     pg = pgm.load(args.dataset)
 
     kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
-    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges"
+    lms = (f", {pg.landmark_count} landmarks, {pg.observations} landmark measurements"
+           if pg.observations else "")
+    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges{lms}"
                f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
                f"backend {args.backend}")
     if robust is not None:
@@ -238,15 +240,19 @@ def _run_posegraph(args) -> int:
                    f"(+ {record.init_seconds:.3f} s initialization), {status}")
 
     if args.output:
-        g2o.write_g2o(args.output, pg.between, result.values)
+        g2o.write_g2o(args.output, pg.native_graph(), result.values)
         _say(args, f"wrote {args.output}")
     if args.plot:
         from lie_factors.plotting import plot_trajectories
 
         trajectories = {f"initial ({record.init})": pgm.positions(result.start, pg.is3d, pg.group),
                         "optimized": pgm.positions(result.values, pg.is3d, pg.group)}
+        points = ({"initial landmarks": pgm.landmark_positions(result.start, pg.is3d),
+                   "optimized landmarks": pgm.landmark_positions(result.values, pg.is3d)}
+                  if pg.landmark_count else None)
         atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
-            tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d), suffix=".png")
+            tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d, points=points),
+            suffix=".png")
         _say(args, f"wrote {args.plot}")
     if args.json:
         _emit_json(record.to_dict())

@@ -116,7 +116,10 @@ def _unit(dq, name="dq"):
     if dq.size:
         qr, qd = dq[..., :4], dq[..., 4:]
         dev = np.abs(np.linalg.norm(qr, axis=-1) - 1.0)
-        orth = np.abs(np.sum(qr * qd, axis=-1)) / np.maximum(1.0, np.linalg.norm(qd, axis=-1))
+        # |q_r·q_d| / max(1, ‖q_d‖), computed on u = q_d / max(1, max|q_d|): the
+        # same ratio, but ‖q_d‖² cannot overflow (translations up to ~1e308).
+        u = qd / np.maximum(1.0, np.max(np.abs(qd), axis=-1, keepdims=True))
+        orth = np.abs(np.sum(qr * u, axis=-1)) / np.maximum(1.0, np.linalg.norm(u, axis=-1))
         if max(np.max(dev), np.max(orth)) > UNIT_TOL:
             raise ValueError(
                 f"{name}: expected unit dual quaternions of shape (..., 8) "

@@ -16,12 +16,15 @@ _STYLES = {
     "optimized": dict(color="tab:blue", lw=1.2),
     "ours": dict(color="tab:blue", lw=1.2),
     "native": dict(color="tab:orange", lw=1.0, ls="-."),
+    "initial landmarks": dict(color="tab:red", marker="x", s=12, alpha=0.6),
+    "optimized landmarks": dict(color="tab:green", marker="o", s=10),
 }
 
 
 def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str = "",
-                      three_d: bool = True) -> None:
-    """Save a PNG of named trajectories, each an array of positions, shape (N, 3).
+                      three_d: bool = True, points: dict[str, np.ndarray] | None = None) -> None:
+    """Save a PNG of named trajectories, each an array of positions, shape (N, 3),
+    and of named point sets (landmarks), shape (M, 3), drawn as markers.
 
     Left: top view (x, y).  Right (if ``three_d``): a 3-D view.  ``path`` is
     written as PNG whatever its suffix (callers write to a temporary name).
@@ -36,6 +39,12 @@ def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str
         top.plot(P[:, 0], P[:, 1], label=label, **style)
         if ax3 is not None:
             ax3.plot(P[:, 0], P[:, 1], P[:, 2], label=label, **style)
+    for label, P in (points or {}).items():
+        P = np.asarray(P, dtype=float).reshape(-1, 3)
+        style = _STYLES.get(label, {})
+        top.scatter(P[:, 0], P[:, 1], label=label, **style)
+        if ax3 is not None:
+            ax3.scatter(P[:, 0], P[:, 1], P[:, 2], label=label, **style)
     top.set_xlabel("x [m]")
     top.set_ylabel("y [m]")
     top.set_title("top view")

@@ -49,10 +49,13 @@ class PoseGraph:
     """A checked g2o file read by GTSAM.
 
     ``between``: native GTSAM graph of BetweenFactorPose2/3 exactly as
-    ``readG2o`` built it (no prior) — also what :func:`write_g2o` writes;
-    ``initial``: Values with every pose; ``first_key``: smallest id, gets the prior;
-    ``group``: GTSAM type of the poses, Pose2, Pose3 or Similarity3 (the latter
-    read by :func:`lie_factors.g2o.read_sim3_g2o`; ``is3d`` is true for it).
+    ``readG2o`` built them (no prior); ``landmarks``: the landmark
+    measurements (GTSAM's BearingRangeFactor2D/3D, pose key → landmark key
+    ``symbol('l', j)``), used as they are by every backend; ``initial``:
+    Values with every pose and landmark; ``first_key``: smallest pose id, gets
+    the prior; ``group``: GTSAM type of the poses, Pose2, Pose3 or Similarity3
+    (the latter read by :func:`lie_factors.g2o.read_g2o` from Sim(3) records;
+    ``is3d`` is true for it).
     """
 
     path: str
@@ -62,6 +65,8 @@ class PoseGraph:
     initial: gtsam.Values
     first_key: int
     initialized_from_edges: bool
+    landmarks: gtsam.NonlinearFactorGraph = dataclasses.field(default_factory=gtsam.NonlinearFactorGraph)
+    landmark_vertex_keys: frozenset = frozenset()
     group: str = ""
 
     def __post_init__(self):
@@ -70,11 +75,38 @@ class PoseGraph:
 
     @property
     def poses(self) -> int:
-        return int(self.initial.size())
+        return len(pose_keys(self.initial))
+
+    @property
+    def landmark_count(self) -> int:
+        return int(self.initial.size()) - self.poses
 
     @property
     def edges(self) -> int:
         return int(self.between.size())
+
+    @property
+    def observations(self) -> int:
+        return int(self.landmarks.size())
+
+    def native_graph(self) -> gtsam.NonlinearFactorGraph:
+        """The file's factors as GTSAM built them (what :func:`lie_factors.g2o.write_g2o` writes)."""
+        graph = gtsam.NonlinearFactorGraph(self.between)
+        graph.push_back(self.landmarks)
+        return graph
+
+
+def is_landmark_key(key: int) -> bool:
+    return gtsam.Symbol(int(key)).chr() != 0
+
+
+def pose_keys(values: gtsam.Values) -> list[int]:
+    """Sorted pose keys of ``values`` (plain ids; landmarks are ``symbol('l', j)``)."""
+    return sorted(k for k in values.keys() if not is_landmark_key(k))
+
+
+def landmark_keys(values: gtsam.Values) -> list[int]:
+    return sorted(k for k in values.keys() if is_landmark_key(k))
 
 
 def load(dataset: str) -> PoseGraph:
@@ -82,28 +114,86 @@ def load(dataset: str) -> PoseGraph:
     path = resolve_dataset(dataset)
     summary = check_g2o(path)
     graph, initial = read_g2o(path, summary)
-    if graph.size() != len(summary.edges):
-        # Our checker and GTSAM's reader disagree: refuse rather than optimize half a file.
-        raise PoseGraphError(
-            f"{os.path.basename(path)}: gtsam.readG2o read {graph.size()} edges, "
-            f"the file has {len(summary.edges)}"
-        )
-    from_edges = not summary.vertices
+    between = gtsam.NonlinearFactorGraph()
+    landmarks = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        f = graph.at(k)
+        keys = f.keys()
+        (landmarks if any(is_landmark_key(key) for key in keys) else between).add(f)
+    pose_ids = summary.pose_ids
+    from_edges = len(summary.pose_vertex_ids) == 0
     if from_edges:
         # readG2o leaves 3-D edge-only files (sphere2500.txt) without Values; for
         # 2-D it chains odometry itself.  Do the same thing for both: a spanning tree.
-        initial = spanning_tree_initial(graph, summary.is3d, summary.pose_ids[0],
-                                        getattr(gtsam, summary.group)())
+        poses = spanning_tree_initial(between, summary.is3d, pose_ids[0], getattr(gtsam, summary.group)())
+        for key in landmark_keys(initial):
+            if int(gtsam.Symbol(key).index()) in set(summary.landmark_vertex_ids.tolist()):
+                poses.insert(key, initial.atPoint3(key) if summary.is3d else initial.atPoint2(key))
+        initial = poses
+    identity = getattr(gtsam, summary.group)()
+    for i in pose_ids:
+        if not initial.exists(i):
+            # Seen only in landmark measurements: GTSAM's reader starts it at the identity too.
+            initial.insert(i, identity)
+    with_vertex = frozenset(gtsam.symbol("l", int(j)) for j in summary.landmark_vertex_ids.tolist())
+    _initialize_landmarks(initial, landmarks, summary.is3d, with_vertex)
     return PoseGraph(
         path=path,
         name=os.path.basename(path),
         is3d=summary.is3d,
-        between=graph,
+        between=between,
         initial=initial,
-        first_key=summary.pose_ids[0],
+        first_key=pose_ids[0],
         initialized_from_edges=from_edges,
+        landmarks=landmarks,
+        landmark_vertex_keys=with_vertex,
         group=summary.group,
     )
+
+
+def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFactorGraph, is3d: bool,
+                          with_vertex: frozenset) -> None:
+    """Landmarks without a vertex line: placed by their first measurement from its pose (in place).
+
+    (``readG2o`` does this for ``BR``/``LANDMARK`` from the pose it had at that
+    line; we redo it from the current initial poses, and for ``LANDMARK2``.)
+    3-D measurements always have landmark vertices (GTSAM requires them).
+    """
+    if is3d:
+        return
+    done = set()
+    for k in range(landmarks.size()):
+        f = landmarks.at(k)
+        pose_key, point_key = f.keys()
+        if point_key in with_vertex or point_key in done:
+            continue
+        br = f.measured()
+        theta, r = br.bearing().theta(), br.range()
+        point = initial.atPose2(pose_key).transformFrom(np.array([r * math.cos(theta), r * math.sin(theta)]))
+        if initial.exists(point_key):
+            # erase + insert: update() from Python would store a dynamic Vector, not a Point2.
+            initial.erase(point_key)
+        initial.insert(point_key, point)
+        done.add(point_key)
+
+
+def _poses_only(values: gtsam.Values, group: str) -> gtsam.Values:
+    out = gtsam.Values()
+    get = getattr(values, f"at{group}")
+    for k in pose_keys(values):
+        out.insert(k, get(k))
+    return out
+
+
+def _with_landmarks(poses: gtsam.Values, pg: "PoseGraph") -> gtsam.Values:
+    """``poses`` + every landmark: the file's vertex, else placed from its first measurement."""
+    if not pg.landmark_count:
+        return poses
+    values = gtsam.Values(poses)
+    for key in landmark_keys(pg.initial):
+        values.insert(key, pg.initial.atPoint3(key) if pg.is3d else pg.initial.atPoint2(key))
+    _initialize_landmarks(values, pg.landmarks, pg.is3d, pg.landmark_vertex_keys)
+    return values
 
 
 # --------------------------------------------------------------------------- #
@@ -165,13 +255,15 @@ def prior_noise(is3d: bool, group: str | None = None) -> gtsam.noiseModel.Base:
 
 def build_graph(pg: PoseGraph, backend: str, robust=None,
                 robust_all: bool = False) -> gtsam.NonlinearFactorGraph:
-    """Graph of ``pg.edges`` between factors + 1 prior, built with ``backend``'s constructors.
+    """Graph of ``pg.edges`` between factors + 1 prior, built with ``backend``'s constructors,
+    followed by the landmark measurements (GTSAM's own factors in every backend).
 
     The prior pins the first pose at its initial value (identity for edge-only
     files), fixing the gauge.  With ``robust`` (a
     :class:`lie_factors.batch.robust.RobustLoss`) the loop closures' noise models —
     every edge's with ``robust_all`` — become ``noiseModel.Robust(loss,
-    Gaussian)``.  Edge k of the file is factor k; the prior is the last factor.
+    Gaussian)``.  Edge k of the file is factor k; the prior follows the edges, then the landmark
+    measurements.
     """
     F = load_factors(backend)
     Between = getattr(F, f"BetweenFactor{pg.group}")
@@ -187,6 +279,7 @@ def build_graph(pg: PoseGraph, backend: str, robust=None,
         graph.add(Between(i, j, f.measured(), noise))
     first = getattr(pg.initial, f"at{pg.group}")(pg.first_key)
     graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d, pg.group)))
+    graph.push_back(pg.landmarks)
     return graph
 # --------------------------------------------------------------------------- #
 # Optimization, one iteration at a time
@@ -217,6 +310,9 @@ def optimize(
     try:
         opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
         initial_error = new_error = float(opt.error())
+        if not math.isfinite(initial_error):
+            raise PoseGraphError(f"the initial error is {initial_error}: some residual overflows "
+                                 f"(coordinates or information values too large?)")
         converged = new_error <= params.getErrorTol()
         history = []
         while not converged and opt.iterations() < max_iterations:
@@ -272,7 +368,8 @@ BACKENDS.update(
 class RunRecord:
     """What ``lie-factors posegraph --json`` prints (``to_dict``).
 
-    ``factors`` counts the optimized graph: the file's edges + 1 prior;
+    ``factors`` counts the optimized graph: the file's edges and landmark
+    measurements + 1 prior; ``landmarks`` the landmark variables;
     ``seconds`` is optimization only (LM construction + iterations, not loading
     and not initialization); ``init`` is the initialization method used
     (:data:`lie_factors.initialize.METHODS`) and ``init_seconds`` its cost;
@@ -288,6 +385,7 @@ class RunRecord:
     dataset: str
     dimension: int
     poses: int
+    landmarks: int
     factors: int
     iterations: int
     initial_error: float
@@ -332,7 +430,8 @@ def run(
 
     ``init``: a method of :func:`lie_factors.initialize.initialize`, run on the
     graph ``backend`` built (so every backend starts from the same values);
-    ``file`` is the file's vertices.  ``on_init`` is called with the
+    ``file`` is the file's vertices.  Landmarks keep their file vertex, or are
+    placed from their first measurement.  ``on_init`` is called with the
     :class:`~lie_factors.initialize.Initialization` before LM starts.
     ``result.start`` holds the values LM started from.
 
@@ -348,7 +447,20 @@ def run(
         raise PoseGraphError(f"{pg.name}: --gnc needs loop closures (edges between non-consecutive "
                              "poses); this graph has none")
     graph = build_graph(pg, backend)
-    start = initialize(graph, init, None if pg.initialized_from_edges else pg.initial)
+    # The initializers handle poses: give them the pose-pose part (build_graph
+    # puts the landmark measurements last), then place the landmarks.
+    pose_part = gtsam.NonlinearFactorGraph()
+    for k in range(pg.edges + 1):
+        pose_part.add(graph.at(k))
+    file_poses = (None if pg.initialized_from_edges
+                  else _poses_only(pg.initial, pg.group) if pg.landmark_count else pg.initial)
+    if pg.edges == 0 and init in ("auto", "file"):
+        # Landmark measurements only (e.g. one pose seeing one landmark): no pose
+        # graph for an initializer to relax; the file's values are the start.
+        start = Initialization(_poses_only(pg.initial, pg.group), "file", 0.0)
+    else:
+        start = initialize(pose_part, init, file_poses)
+    start = dataclasses.replace(start, values=_with_landmarks(start.values, pg))
     if on_init is not None:
         on_init(start)
     if gnc is not None:
@@ -365,6 +477,7 @@ def run(
         dataset=pg.name,
         dimension=3 if pg.is3d else 2,
         poses=pg.poses,
+        landmarks=pg.landmark_count,
         factors=int(graph.size()),
         iterations=result.iterations,
         initial_error=result.initial_error,
@@ -412,6 +525,7 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
         dataset=pg.name,
         dimension=3 if pg.is3d else 2,
         poses=pg.poses,
+        landmarks=pg.landmark_count,
         factors=int(graph.size()),
         iterations=res.iterations,
         initial_error=initial_error,
@@ -431,7 +545,7 @@ def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.
 
     Similarity3 (``group``): the image of the origin, s·t (GTSAM's action p ↦ s(Rp + t)).
     """
-    keys = sorted(values.keys())
+    keys = pose_keys(values)
     if group == "Similarity3":
         origin = np.zeros(3)
         return np.array([values.atSimilarity3(k).transformFrom(origin) for k in keys]).reshape(-1, 3)
@@ -441,4 +555,16 @@ def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.
     for n, k in enumerate(keys):
         p = values.atPose2(k)
         out[n, :2] = (p.x(), p.y())
+    return out
+
+
+def landmark_positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
+    """Landmark points of ``values`` in key order, shape (M, 3) (z = 0 in 2-D)."""
+    keys = landmark_keys(values)
+    out = np.zeros((len(keys), 3))
+    for n, k in enumerate(keys):
+        if is3d:
+            out[n] = values.atPoint3(k)
+        else:
+            out[n, :2] = values.atPoint2(k)
     return out

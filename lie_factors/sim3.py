@@ -72,7 +72,7 @@ import numpy as np
 from lie_factors import _jit, _validate
 from lie_factors import so3 as _so3
 from lie_factors._coeffs import (
-    _C_SERIES, _QA_SERIES, A_TAYLOR, C_TAYLOR, QA_TAYLOR, _horner, a_theta, b_theta, c_theta, dot3,
+    _A_SERIES, _C_SERIES, _QA_SERIES, A_TAYLOR, C_TAYLOR, QA_TAYLOR, _horner, a_theta, b_theta, c_theta, dot3,
     e_omega, norm3, theta_dd,
 )
 from lie_factors._jit import kernel
@@ -86,6 +86,10 @@ QUAD_NODES = 12
 #: Largest (|λ| + θ)·(panel width) per panel: the integrands are entire of
 #: exponential type |λ| + θ, so 12 nodes leave an error ~ (P/4)^24/24! ≈ 2e-20 at P = 6.
 QUAD_PANEL = 6.0
+#: For |λ| + θ ≤ QUAD_SMALL (the usual size of a between-pose increment) one panel
+#: of QUAD_NODES_SMALL nodes: error ~ (2/4)^16/16! ≈ 7e-19.
+QUAD_SMALL = 2.0
+QUAD_NODES_SMALL = 8
 #: e^{sλ} below e^{−QUAD_CUT} of its maximum on [0, 1] is dropped (|λ| > QUAD_CUT only).
 QUAD_CUT = 45.0
 #: D_log lower-left block: product form below this θ, spectral form (L) from it on.
@@ -94,6 +98,9 @@ DLOG_SPECTRAL = 1.0
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(QUAD_NODES)
 _GL_S = 0.5 * (_GL_X + 1.0)
 _GL_H = 0.5 * _GL_W
+_GL_X8, _GL_W8 = np.polynomial.legendre.leggauss(QUAD_NODES_SMALL)
+_GL_S8 = 0.5 * (_GL_X8 + 1.0)
+_GL_H8 = 0.5 * _GL_W8
 _TWO_PI_HI = 6.283185307179586
 _TWO_PI_LO = 2.4492935982947064e-16
 
@@ -102,11 +109,26 @@ _TWO_PI_LO = 2.4492935982947064e-16
 
 
 @kernel
+def _ab(x):
+    """(a, b, cos x) with a = sin x/x, b = (1 − cos x)/x² (seed 000, Eqs. 50–51), from one
+    sine and cosine of x/2; b = ½ (sin(x/2)/(x/2))² has no cancellation."""
+    y = 0.5 * x
+    if x < A_TAYLOR:
+        a = _horner(_A_SERIES, x * x)
+        ah = _horner(_A_SERIES, y * y)
+    else:
+        sh = math.sin(y)
+        ch = math.cos(y)
+        a = sh * ch / y
+        ah = sh / y
+    b = 0.5 * ah * ah
+    return a, b, 1.0 - x * x * b
+
+
+@kernel
 def _kappa(x):
     """(a, b, c − b, qa, cos) of the SO(3) coefficient functions at x ≥ 0 (seed 000, Eqs. 50–52, 64)."""
-    a = a_theta(x)
-    h = a_theta(0.5 * x)
-    b = 0.5 * h * h
+    a, b, co = _ab(x)
     t = x * x
     if x < C_TAYLOR:
         c = _horner(_C_SERIES, t)
@@ -116,12 +138,14 @@ def _kappa(x):
         qa = _horner(_QA_SERIES, t)
     else:
         qa = (a - 2.0 * b) / t
-    return a, b, c - b, qa, 1.0 - t * b
+    return a, b, c - b, qa, co
 
 
 @kernel
 def _span(lam, th):
-    """Quadrature interval [lo, hi] ⊂ [0, 1] and number of panels."""
+    """Quadrature rule: (nodes, weights) on [0, 1], interval [lo, hi] ⊂ [0, 1], number of panels."""
+    if abs(lam) + th <= QUAD_SMALL:
+        return _GL_S8, _GL_H8, 0.0, 1.0, 1
     lo = 0.0
     hi = 1.0
     if lam < -QUAD_CUT:
@@ -130,21 +154,21 @@ def _span(lam, th):
         lo = 1.0 - QUAD_CUT / lam
     m = (abs(lam) + th) * (hi - lo) / QUAD_PANEL
     n = 1 + int(min(m, 1e5))
-    return lo, hi, n
+    return _GL_S, _GL_H, lo, hi, n
 
 
 @kernel
 def _integrals(lam, th):
     """(a1, b1, c1, d1, e1, re1, a2, b2, c2): φ1(B) = a1 I + b1 Ω + c1 Ω², d1 = ∂b1/∂θ/θ,
     e1 = ∂c1/∂θ/θ, re1 = Re φ1(λ + iθ), φ2(B) = a2 I + b2 Ω + c2 Ω² (module docstring)."""
-    lo, hi, n = _span(lam, th)
+    S, H, lo, hi, n = _span(lam, th)
     h = (hi - lo) / n
     a1 = b1 = c1 = d1 = e1 = r1 = a2 = b2 = c2 = 0.0
     for p in range(n):
         s0 = lo + p * h
-        for k in range(QUAD_NODES):
-            s = s0 + h * _GL_S[k]
-            w = h * _GL_H[k] * math.exp(s * lam)
+        for k in range(len(S)):
+            s = s0 + h * S[k]
+            w = h * H[k] * math.exp(s * lam)
             a, b, cb, qa, co = _kappa(s * th)
             s2 = s * s
             fb = w * s * a
@@ -160,6 +184,25 @@ def _integrals(lam, th):
             b2 += v * fb
             c2 += v * fc
     return a1, b1, c1, d1, e1, r1, a2, b2, c2
+
+
+@kernel
+def _w_integrals(lam, th):
+    """(a1, b1, c1, re1) only, for exp and log: the same sums as :func:`_integrals`."""
+    S, H, lo, hi, n = _span(lam, th)
+    h = (hi - lo) / n
+    a1 = b1 = c1 = r1 = 0.0
+    for p in range(n):
+        s0 = lo + p * h
+        for k in range(len(S)):
+            s = s0 + h * S[k]
+            w = h * H[k] * math.exp(s * lam)
+            a, b, co = _ab(s * th)
+            a1 += w
+            b1 += w * s * a
+            c1 += w * s * s * b
+            r1 += w * co
+    return a1, b1, c1, r1
 
 
 @kernel
@@ -286,7 +329,7 @@ def _exp(x, out):
     w0, w1, w2 = x[0], x[1], x[2]
     lam = x[6]
     th = norm3(w0, w1, w2)
-    a1, b1, c1, d1, e1, r1, a2, b2, c2 = _integrals(lam, th)
+    a1, b1, c1, r1 = _w_integrals(lam, th)
     R = _rod9(w0, w1, w2, a_theta(th), b_theta(th))
     # t = ∫₀¹ e^{(1−τ)Ω} u e^{−τλ} dτ = e^{−λ} φ1(Ω + λI) u
     c = math.exp(-lam)
@@ -308,7 +351,7 @@ def _log(X, out):
     c = X[3, 3]
     lam = -math.log(c)
     th = norm3(w0, w1, w2)
-    a1, b1, c1, d1, e1, r1, a2, b2, c2 = _integrals(lam, th)
+    a1, b1, c1, r1 = _w_integrals(lam, th)
     # W⁻¹ = g(B) by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1), m = |φ1(z)|²
     m = r1 * r1 + th * th * b1 * b1
     Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))

@@ -147,9 +147,9 @@ SE2_INFO = "1 0 0 1 0 1"
 @pytest.mark.parametrize(
     "text, fragments",
     [
-        ("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 1 1\n", ["bad.g2o:1:", "EDGE_SE3:QUAT expects 2 ids", "got 12 fields"]),
-        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 5 1 0 0 " + SE2_INFO + "\n",
-         ["bad.g2o:3:", "unknown vertex 5"]),
+        ("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 1 1\n", ["bad.g2o:1:", "EDGE_SE3:QUAT expects 30 fields", "got 12"]),
+        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 5 6 1 0 0 " + SE2_INFO + "\n",
+         ["bad.g2o", "not connected", "pose 1 cannot be reached from pose 0"]),
         ("VERTEX_SE2 0 0 0 0\n", ["empty graph"]),
         ("", ["empty graph"]),
         ("VERTEX_SE2 0 0 0 0\nWHAT 1\n", ["bad.g2o:2:", "unknown tag 'WHAT'"]),
@@ -227,8 +227,9 @@ def test_python_m_bad_input_no_traceback(tmp_path):
     bad.write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n" * 1 + "EDGE_SE3:QUAT 0 1 1 2 3\n")
     p = run_module("posegraph", str(bad), "--backend", "native")
     assert p.returncode == 2
-    assert p.stderr.strip() == ("lie-factors: error: sphere.g2o:2: EDGE_SE3:QUAT expects 2 ids, "
-                                "7 pose values and 21 information values (30 fields), got 5 fields")
+    assert p.stderr.strip() == ("lie-factors: error: sphere.g2o:2: EDGE_SE3:QUAT expects 30 fields "
+                                "(id1 id2 x y z qx qy qz qw + 21 information (6×6 upper triangle)), "
+                                "got 5")
     assert p.stdout == ""
 
 

@@ -185,3 +185,26 @@ def test_bad_input():
         DQ.log(np.r_[1.1, 0, 0, 0, 0, 0, 0, 0])
     with pytest.raises(ValueError, match="unit"):
         DQ.to_matrix(np.r_[1.0, 0, 0, 0, 0.5, 0, 0, 0])  # q_r . q_d != 0
+
+
+@pytest.mark.parametrize("t", [1e-300, 1.0, 1e200, 1e300])
+@pytest.mark.parametrize("th", [0.0, 1e-200, 0.7])
+def test_extreme_translations_round_trip_without_overflow(t, th):
+    """Huge and tiny translations: no overflow in the unit check (‖q_d‖² would be inf at 1e200)."""
+    x = np.array([th, 0.0, 0.0, t, -0.5 * t, 0.25 * t])
+    with np.errstate(over="raise", invalid="raise"):
+        dq = DQ.exp(x)
+        back = DQ.log(dq)
+        M = DQ.to_matrix(dq)
+    ref = se3.exp(x)[:3, 3]
+    assert np.all(np.isfinite(M)) and np.all(np.isfinite(back))
+    assert np.max(np.abs(back - x)) <= 1e-15 * np.max(np.abs(x))
+    assert np.max(np.abs(M[:3, 3] - ref)) <= 1e-15 * np.max(np.abs(ref))
+
+
+def test_non_orthogonal_dual_part_rejected_even_when_huge():
+    dq = DQ.exp(np.array([0.1, 0.2, 0.3, 1e200, 0.0, 0.0]))
+    bad = dq.copy()
+    bad[4:] += 1e-3 * np.abs(bad[4:]).max() * bad[:4]  # q_r·q_d no longer 0
+    with pytest.raises(ValueError, match="unit dual quaternions"):
+        DQ.log(bad)

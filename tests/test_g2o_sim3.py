@@ -99,9 +99,10 @@ def test_read_file_written_by_hand(tmp_path):
     "lines, expected",
     [
         (["VERTEX_SIM3:EXPMAP 0 0 0 0 0 0 0 0"],
-         "s.g2o:1: VERTEX_SIM3:EXPMAP expects 1 id, 7 pose values and 4 camera values (12 fields), got 8"),
+         "s.g2o:1: VERTEX_SIM3:EXPMAP expects 12 fields (id ω1 ω2 ω3 υ1 υ2 υ3 σ fx fy cx cy), got 8"),
         (["EDGE_SIM3:EXPMAP 0 1 0 0 0 1 0 0 0 " + SIM3_INFO + " 1"],
-         "EDGE_SIM3:EXPMAP expects 2 ids, 7 pose values and 28 information values (37 fields), got 38"),
+         "EDGE_SIM3:EXPMAP expects 37 fields (id1 id2 ω1 ω2 ω3 υ1 υ2 υ3 σ + 28 information "
+         "(7×7 upper triangle)), got 38"),
         (["EDGE_SIM3:EXPMAP 0 1 0 0 0 1 0 0 800 " + SIM3_INFO], "s.g2o:1: log-scale λ = 800 is out of range"),
         (["EDGE_SIM3:EXPMAP 0 1 0 0 0 1 0 0 0 " + SIM3_INFO.replace("4", "-4", 1)],
          "information matrix is not positive definite"),

@@ -44,13 +44,15 @@ def test_shipped_dataset_checks_clean():
     "text, expected",
     [
         ("EDGE_SE3:QUAT 0 1 1 2 3 0 0 0 1 1 1 1\n",
-         "g.g2o:1: EDGE_SE3:QUAT expects 2 ids, 7 pose values and 21 information values (30 fields), got 12 fields"),
+         "g.g2o:1: EDGE_SE3:QUAT expects 30 fields (id1 id2 x y z qx qy qz qw + 21 information "
+         "(6×6 upper triangle)), got 12"),
         ("VERTEX_SE2 0 0 0 0\nBOGUS 1 2 3\n", "g.g2o:2: unknown tag 'BOGUS'"),
         ("VERTEX_SE2 0 0 zero 0\n", "g.g2o:1: field 4 ('zero') is not a number"),
         ("VERTEX_SE2 x 0 0 0\n", "g.g2o:1: field 2 ('x') should be an integer id"),
         ("VERTEX_SE2 0 0 0 nan\n", "g.g2o:1: field 5 ('nan') is not finite"),
-        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 7 1 0 0 " + SE2_INFO + "\n",
-         "g.g2o:3: edge 0-7 refers to unknown vertex 7"),
+        ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n"
+         "EDGE_SE3:QUAT 0 7 1 0 0 0 0 0 1 " + SE3_INFO + "\n",
+         "g.g2o:3: edge 0-7 refers to pose 7, which has no vertex"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n", "empty graph (no edges"),
         ("", "empty graph (no vertices and no edges)"),
         ("\n\n", "empty graph"),
@@ -59,7 +61,7 @@ def test_shipped_dataset_checks_clean():
         ("EDGE_SE2 0 0 1 0 0 " + SE2_INFO + "\n", "g.g2o:1: edge connects vertex 0 to itself"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", "g.g2o:2: vertex 0 already defined on line 1"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n", "g.g2o:2: VERTEX_SE3:QUAT is a 3-D record"),
-        ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 2\n", "g.g2o:1: quaternion qx qy qz qw has norm 2"),
+        ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0\n", "g.g2o:1: quaternion qx qy qz qw has norm 0"),
         ("EDGE_SE2 0 1 1 0 0 " + SE2_INFO + "\nEDGE_SE2 2 3 1 0 0 " + SE2_INFO + "\n",
          "graph is not connected: pose 2 cannot be reached from pose 0"),
     ],

@@ -163,3 +163,14 @@ def test_against_gtsam_quaternion():
         gq = gtsam.Rot3.Expmap(w).toQuaternion()
         p = np.array([gq.w(), gq.x(), gq.y(), gq.z()])
         assert min(np.abs(p - q).max(), np.abs(p + q).max()) <= 1e-14
+
+
+@pytest.mark.parametrize("theta", [1e-200, 1e-300])
+def test_log_of_tiny_rotations_is_exact(theta):
+    """The norm of q⃗ (≈ θ/2) must not underflow: log returns θ, not 0 (q⃗ holds θ/2, so
+    below ~1e-307 the halving itself rounds: subnormal numbers have fewer bits)."""
+    for axis in (np.array([1.0, 0.0, 0.0]), np.array([0.6, -0.8, 0.0]), np.array([2.0, 1.0, -2.0]) / 3.0):
+        w = theta * axis
+        np.testing.assert_allclose(Q.log(Q.exp(w)), w, rtol=4e-16, atol=0.0)
+        np.testing.assert_allclose(Q.log(Q.from_rotation(so3.exp(w))), w, rtol=4e-16, atol=0.0)
+        np.testing.assert_allclose(Q.log(-Q.exp(w)), w, rtol=4e-16, atol=0.0)

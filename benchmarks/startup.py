@@ -1,0 +1,174 @@
+"""Start-up costs of the CLI (issue 10): help, first-run compilation, factor construction,
+and the whole ``posegraph --max-iterations 0`` command on city10000 split into its pieces.
+
+    python benchmarks/startup.py [--repeat 3] [--dataset ../shared/data/city10000.g2o]
+
+Every whole-command figure is a fresh process (``python -m lie_factors.cli ...``), best of
+``--repeat``, backends alternated. The first-run figures use an empty NUMBA_CACHE_DIR (as a
+fresh clone has no ``__pycache__``); compile time = first-run wall − second-run wall.
+Prints markdown tables (docs/benchmarks.md, section "Start-up").
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ENV = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def wall(argv, env=ENV) -> float:
+    t = time.perf_counter()
+    p = subprocess.run(argv, env=env, capture_output=True, text=True)
+    dt = time.perf_counter() - t
+    if p.returncode != 0:
+        raise SystemExit(f"{argv} failed: {p.stderr.strip()[-500:]}")
+    return dt
+
+
+def cli(*args) -> list[str]:
+    return [sys.executable, "-m", "lie_factors.cli", *args]
+
+
+def help_table(repeat: int) -> None:
+    rows = {"python -c pass": [sys.executable, "-c", "pass"],
+            "lie-factors --help": cli("--help"),
+            "lie-factors posegraph --help": cli("posegraph", "--help")}
+    best = {k: min(wall(v) for _ in range(repeat)) for k, v in rows.items()}
+    print("| command (fresh process) | wall s (best of %d) |\n|---|---|" % repeat)
+    for k, v in best.items():
+        print(f"| `{k}` | {v:.3f} |")
+
+
+def first_run_table() -> None:
+    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
+        env = dict(ENV, NUMBA_CACHE_DIR=cache)
+        argv = cli("demo", "--output", out)
+        t = time.perf_counter()
+        p = subprocess.run(argv, env=env, capture_output=True, text=True)
+        first = time.perf_counter() - t
+        note = [l for l in p.stderr.splitlines() if "compiled numba kernels" in l]
+        second = wall(argv, env)
+        third = wall(argv, env)
+    print("| `lie-factors demo` | wall s |\n|---|---|")
+    print(f"| first run (empty numba cache) | {first:.2f} |")
+    print(f"| second run | {second:.2f} |")
+    print(f"| third run | {third:.2f} |")
+    print(f"| compile = first − best later | {first - min(second, third):.2f} |")
+    print(f"\nstderr of the first run: `{note[0] if note else '(no compile note)'}`")
+
+
+def construction_table() -> None:
+    code = r"""
+import timeit, numpy as np, gtsam
+from lie_factors import factors
+vals = {"Rot3": gtsam.Rot3.Ypr(0.1, 0.2, 0.3), "Pose3": gtsam.Pose3(gtsam.Rot3.Ypr(0.1, 0.2, 0.3), np.array([1., 2, 3])),
+        "Pose2": gtsam.Pose2(1, 2, 0.3), "Similarity2": gtsam.Similarity2(gtsam.Rot2(0.3), np.array([1., 2]), 1.5),
+        "Similarity3": gtsam.Similarity3(gtsam.Rot3.Ypr(0.1, 0.2, 0.3), np.array([1., 2, 3]), 1.5)}
+class Bare(gtsam.CustomFactor):
+    def __init__(self, k1, k2, m, noise):
+        super().__init__(noise, [k1, k2], self._ev)
+        self._m = m
+    def _ev(self, this, values, H):
+        return None
+N = 20000
+best = lambda f: min(timeit.repeat(f, number=N, repeat=7)) / N * 1e6
+print("| group | ours Between µs | ours Prior µs | GTSAM's Between µs | bare CustomFactor subclass µs |")
+print("|---|---|---|---|---|")
+for name, v in vals.items():
+    n = factors.GROUPS[name].dim
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.ones(n))
+    B = getattr(factors, "BetweenFactor" + name); P = getattr(factors, "PriorFactor" + name)
+    B(1, 2, v, noise); P(1, v, noise)
+    nat = getattr(gtsam, "BetweenFactor" + name, None)
+    row = [best(lambda: B(1, 2, v, noise)), best(lambda: P(1, v, noise)),
+           best(lambda: nat(1, 2, v, noise)) if nat else float("nan"), best(lambda: Bare(1, 2, v, noise))]
+    print(f"| {name} | " + " | ".join("—" if x != x else f"{x:.2f}" for x in row) + " |")
+"""
+    p = subprocess.run([sys.executable, "-c", code], env=ENV, capture_output=True, text=True)
+    if p.returncode:
+        raise SystemExit(p.stderr)
+    print(p.stdout, end="")
+
+
+SPLIT = r"""
+import sys, time, json, tempfile, os
+t0 = time.perf_counter()
+import gtsam
+from lie_factors import g2o, posegraph as pgm
+from lie_factors.initialize import initialize
+t1 = time.perf_counter()
+backend = sys.argv[1]; path = sys.argv[2]
+pgm.load_factors(backend)
+t2 = time.perf_counter()
+summary = g2o.check_g2o(path)
+t3 = time.perf_counter()
+graph, initial = g2o.read_g2o(path, summary)
+t4 = time.perf_counter()
+pg = pgm.load(path)  # (check + read again, not counted: the pieces above are)
+t4b = time.perf_counter()
+built = pgm.build_graph(pg, backend)
+t5 = time.perf_counter()
+start = initialize(built, "auto", None if pg.initialized_from_edges else pg.initial)
+t6 = time.perf_counter()
+res = pgm.get_backend(backend).optimize(built, start.values, max_iterations=0)
+t7 = time.perf_counter()
+with tempfile.TemporaryDirectory() as d:
+    g2o.write_g2o(os.path.join(d, "out.g2o"), pg.between, res.values)
+t8 = time.perf_counter()
+print(json.dumps({"imports": t2 - t0, "check": t3 - t2, "read": t4 - t3, "build": t5 - t4b,
+                  "init": t6 - t5, "optimize": t7 - t6, "write": t8 - t7}))
+"""
+
+
+def city_table(dataset: str, repeat: int) -> None:
+    import json
+
+    backends = ("native", "custom", "batch")
+    whole = {b: [] for b in backends}
+    split = {b: None for b in backends}
+    with tempfile.TemporaryDirectory() as out:
+        for _ in range(repeat):
+            for b in backends:
+                whole[b].append(wall(cli("posegraph", dataset, "--backend", b, "--max-iterations", "0",
+                                         "--quiet", "--output", os.path.join(out, f"{b}.g2o"))))
+                p = subprocess.run([sys.executable, "-c", SPLIT, b, dataset], env=ENV,
+                                   capture_output=True, text=True)
+                if p.returncode:
+                    raise SystemExit(p.stderr)
+                s = json.loads(p.stdout.strip().splitlines()[-1])
+                if split[b] is None or sum(s.values()) < sum(split[b].values()):
+                    split[b] = s
+    keys = list(split["native"])
+    print(f"`lie-factors posegraph {os.path.basename(dataset)} --max-iterations 0 --output X` "
+          f"(fresh process each, best of {repeat}, backends alternated):\n")
+    print("| backend | whole command s | ratio to native | " + " | ".join(keys) + " |")
+    print("|---|---|---|" + "---|" * len(keys))
+    nat = min(whole["native"])
+    for b in backends:
+        w = min(whole[b])
+        print(f"| {b} | {w:.2f} | {w / nat:.2f} | " + " | ".join(f"{split[b][k]:.2f}" for k in keys) + " |")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--dataset", default=os.path.join(ROOT, "..", "shared", "data", "city10000.g2o"))
+    ap.add_argument("--only", choices=("help", "first-run", "construction", "city"), default=None)
+    args = ap.parse_args(argv)
+    sections = [("help", lambda: help_table(args.repeat)), ("first-run", first_run_table),
+                ("construction", construction_table), ("city", lambda: city_table(args.dataset, args.repeat))]
+    for name, run in sections:
+        if args.only in (None, name):
+            print(f"\n### {name}\n")
+            run()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
