@@ -349,7 +349,7 @@ def test_assembled_system_equals_gtsam_hessian_with_weights():
             c += d
         H += w[i] * J.T @ J
         g += w[i] * J.T @ b
-    got = opt.system.to_scipy().toarray()
+    got = opt.system.to_dense()
     scale = np.abs(H).max()
     assert np.abs(got - H).max() < 1e-10 * scale
     np.testing.assert_allclose(opt.system.rhs, g, rtol=1e-9, atol=1e-9 * np.abs(g).max())

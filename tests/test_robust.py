@@ -154,7 +154,7 @@ def test_robust_lm_first_linearization_is_gtsams_reweighted_system():
                                   gtsam.noiseModel.Diagonal.Sigmas(demo.PRIOR_SIGMAS))
     opt = WeightedLevenbergMarquardt(ours, prob.initial, gtsam.LevenbergMarquardtParams())
     opt._linearize()
-    H = opt.system.to_scipy().toarray()
+    H = opt.system.to_dense()
     lin = native.linearize(prob.initial)
     Aref, bref = lin.jacobian()
     Href = Aref.T @ Aref

@@ -288,13 +288,12 @@ class LinearSystem:
             damp(self.data, self.pattern.diagpos, scale, out)
         return out
 
-    def to_scipy(self, values: np.ndarray | None = None):
-        """The full symmetric H (or H with ``values``) as a scipy.sparse matrix, for checks."""
-        import scipy.sparse as sp
-
+    def to_dense(self, values: np.ndarray | None = None) -> np.ndarray:
+        """The full symmetric H (or H with ``values``) as a dense (n, n) array, for checks on small graphs."""
         p = self.pattern
         v = self.data if values is None else values
         cols = np.repeat(np.arange(p.n), np.diff(p.colptr))
         keep = p.rowind >= cols
-        L = sp.coo_matrix((v[keep], (p.rowind[keep], cols[keep])), shape=(p.n, p.n)).tocsc()
-        return L + sp.triu(L.T, k=1)
+        L = np.zeros((p.n, p.n))
+        np.add.at(L, (p.rowind[keep], cols[keep]), v[keep])
+        return L + np.tril(L, -1).T
