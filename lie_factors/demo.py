@@ -104,13 +104,17 @@ def build_graph(problem: Problem, factors) -> gtsam.NonlinearFactorGraph:
     return graph
 
 
-def between_graph(problem: Problem) -> gtsam.NonlinearFactorGraph:
-    """The measurements as native GTSAM factors (no prior), for ``gtsam.writeG2o``."""
-    full = build_graph(problem, gtsam)
+def without_prior(full: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """``full`` less its factor 0 (the prior :func:`build_graph` puts first)."""
     graph = gtsam.NonlinearFactorGraph()
-    for k in range(1, full.size()):  # factor 0 is the prior
+    for k in range(1, full.size()):
         graph.add(full.at(k))
     return graph
+
+
+def between_graph(problem: Problem) -> gtsam.NonlinearFactorGraph:
+    """The measurements as native GTSAM factors (no prior), for ``gtsam.writeG2o``."""
+    return without_prior(build_graph(problem, gtsam))
 
 
 def ate_rmse(values: gtsam.Values, truth: list[gtsam.Pose3]) -> float:

@@ -34,6 +34,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from .demo import without_prior
+
 #: Odometry noise model, Similarity3 tangent order [ω (rad), u (m), λ].
 SIGMAS = np.array([0.003, 0.003, 0.003, 0.03, 0.03, 0.03, 0.01])
 #: Loop-closure noise model (same order).
@@ -122,11 +124,7 @@ def build_graph(problem: Problem, factors) -> gtsam.NonlinearFactorGraph:
 
 def between_graph(problem: Problem) -> gtsam.NonlinearFactorGraph:
     """The measurements as native GTSAM factors (no prior), for writing a g2o file."""
-    full = build_graph(problem, gtsam)
-    graph = gtsam.NonlinearFactorGraph()
-    for k in range(1, full.size()):  # factor 0 is the prior
-        graph.add(full.at(k))
-    return graph
+    return without_prior(build_graph(problem, gtsam))
 
 
 def camera_centres(values: gtsam.Values, n: int) -> np.ndarray:
