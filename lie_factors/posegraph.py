@@ -472,7 +472,14 @@ def run(
         opt = _optimize_batch_robust
     result = opt(graph, start.values, max_iterations=max_iterations, progress=progress)
     result.start = start.values
-    record = RunRecord(
+    record = _record(pg, backend, graph, start, result,
+                     robust=None if robust is None else str(robust) + ("+all" if robust_all else ""))
+    return record, result, pg
+
+
+def _record(pg: PoseGraph, backend: str, graph, start, result: OptimizeResult, **extra) -> RunRecord:
+    """The run's :class:`RunRecord`: the graph, its start and ``result``'s figures, plus ``extra`` fields."""
+    return RunRecord(
         backend=backend,
         dataset=pg.name,
         dimension=3 if pg.is3d else 2,
@@ -486,9 +493,8 @@ def run(
         converged=result.converged,
         init=start.method,
         init_seconds=start.seconds,
-        robust=None if robust is None else str(robust) + ("+all" if robust_all else ""),
+        **extra,
     )
-    return record, result, pg
 
 
 def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, loss: str,
@@ -520,23 +526,7 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
                             res.stop != "maxIterations", [])
     result.start = start.values
     outliers = [int(k) for k in res.outliers if k < pg.between.size()]
-    record = RunRecord(
-        backend=backend,
-        dataset=pg.name,
-        dimension=3 if pg.is3d else 2,
-        poses=pg.poses,
-        landmarks=pg.landmark_count,
-        factors=int(graph.size()),
-        iterations=res.iterations,
-        initial_error=initial_error,
-        final_error=res.cost,
-        seconds=res.seconds,
-        converged=result.converged,
-        gnc=loss,
-        outliers=outliers,
-        init=start.method,
-        init_seconds=start.seconds,
-    )
+    record = _record(pg, backend, graph, start, result, gnc=loss, outliers=outliers)
     return record, result, pg
 
 
