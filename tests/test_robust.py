@@ -175,3 +175,32 @@ def test_plain_batch_lm_leaves_robust_factors_to_gtsam():
     assert not opt.problem.robust
     assert len(opt.problem.native) == int(outliers.loop_closure_mask(between).sum())
     assert opt.errors[0] == pytest.approx(native.error(prob.initial), rel=1e-12)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_initial_error_is_evaluated_once(weighted, monkeypatch):
+    # One cost hook: the base __init__ evaluates the objective once, after the
+    # subclass's setup, never the plain error first and the robust one after it.
+    from lie_factors.batch import BatchLevenbergMarquardt
+    from lie_factors.batch.graph import Problem
+
+    prob, between, _ = _se3_problem(n=30)
+    native, ours = _robust_graphs(between, parse_loss("cauchy"),
+                                  gtsam.noiseModel.Diagonal.Sigmas(demo.PRIOR_SIGMAS))
+    calls = []
+    error = Problem.error
+
+    def counting(self, *args, **kwargs):
+        calls.append(args)
+        return error(self, *args, **kwargs)
+
+    monkeypatch.setattr(Problem, "error", counting)
+    cls = WeightedLevenbergMarquardt if weighted else BatchLevenbergMarquardt
+    opt = cls(ours, prob.initial, gtsam.LevenbergMarquardtParams())
+    assert len(calls) == 1
+    assert opt.errors == [opt.error()]
+    assert opt.error() == pytest.approx(native.error(prob.initial), rel=1e-12)
+    # Each tried step is evaluated once too: one call per λ tried that reached the nonlinear error.
+    calls.clear()
+    opt.iterate()
+    assert 1 <= len(calls) <= opt.inner_iterations

@@ -109,7 +109,10 @@ class BatchLevenbergMarquardt:
     the linearized error at δ = 0 becomes ½·Σ w·sq.  ``cost(sq) -> float``
     replaces the error ½·Σ sq wherever the nonlinear error is evaluated (e.g.
     Σ ρ(√sq) for an M-estimator).  Without ``reweight``, ``self.system.weights``
-    can be set directly (GNC: fixed weights per outer step).
+    can be set directly (GNC: fixed weights per outer step).  Subclasses
+    change the cost by overriding :meth:`objective` (evaluated once for the
+    initial error and once per tried step) and prepare what it needs in
+    :meth:`_setup`, which runs before that first evaluation.
     """
 
     #: Group lie_factors factors with robust noise (only subclasses that apply the loss do).
@@ -137,8 +140,9 @@ class BatchLevenbergMarquardt:
         self.current_factor = self.lambda_factor
         self._iterations = 0
         self.inner_iterations = 0
+        self._setup()
         t1 = time.perf_counter()
-        self._error = self._evaluate()
+        self._error = self.objective()
         self.timings["error"] += time.perf_counter() - t1
         self.errors = [self._error]
         self.lambdas = [self.lambda_]
@@ -189,15 +193,25 @@ class BatchLevenbergMarquardt:
     def values(self) -> gtsam.Values:
         return self.problem.values()
 
-    # ---------------------------------------------------------------- steps
-    def _evaluate(self, Xs=None, other=None) -> float:
-        """The nonlinear error at (Xs, other) (default: the current estimate)."""
+    # ---------------------------------------------------------------- cost hook
+    def _setup(self) -> None:
+        """Called once by ``__init__`` after the problem, system and solver exist and before
+        the initial :meth:`objective` is evaluated: subclasses prepare what their objective needs."""
+
+    def objective(self, Xs=None, other=None) -> float:
+        """The nonlinear error LM minimizes at (Xs, other) (default: the current estimate).
+
+        The one cost hook: ``__init__`` evaluates it once for the initial
+        error, every tried step once.  Here GTSAM's ½·Σ‖R e‖², or ``cost(sq)``
+        if that hook was given; subclasses override it (robust Σ s·ρ).
+        """
         if self.cost is None:
             return self.problem.error(Xs, other)
         sq = np.zeros(self.problem.graph_size)
         self.problem.error(Xs, other, sq_out=sq)
         return float(self.cost(sq))
 
+    # ---------------------------------------------------------------- steps
     def _linearize(self) -> float:
         T = self.timings
         t = time.perf_counter()
@@ -229,7 +243,7 @@ class BatchLevenbergMarquardt:
         t = time.perf_counter()
         Xs, other = self.problem.retract(delta)
         t1 = time.perf_counter()
-        new_error = self._evaluate(Xs, other)
+        new_error = self.objective(Xs, other)
         T["retract"] += t1 - t
         T["error"] += time.perf_counter() - t1
         return Xs, other, new_error
