@@ -341,6 +341,7 @@ class BetweenFactor(gtsam.CustomFactor):
         _constructed.add(group)
         gtsam.CustomFactor.__init__(self, noise_model, [key1, key2], self._evaluate)
         self._measured = measured
+        self._noise = noise_model  # the batch solver reads it without a C++ round trip
         self._key1 = key1
         self._key2 = key2
         self._Minv = Minv
@@ -393,6 +394,7 @@ class PriorFactor(gtsam.CustomFactor):
         _constructed.add(group)
         gtsam.CustomFactor.__init__(self, noise_model, [key], self._evaluate)
         self._prior = prior
+        self._noise = noise_model
         self._key = key
         self._Pinv = Pinv
         self._AdPinv = AdPinv

@@ -270,10 +270,19 @@ def build_graph(pg: PoseGraph, backend: str, robust=None,
     Prior = getattr(F, f"PriorFactor{pg.group}")
     mestimator = robust.to_gtsam() if robust is not None else None
     graph = gtsam.NonlinearFactorGraph()
+    # readG2o gives every edge its own noise model object, even where the file
+    # repeats one information matrix; equal Gaussian models (same type, same
+    # R) become one object, which the factors' and the batch solver's
+    # per-object caches then check and read once.
+    shared: dict = {}
+    gaussian = (gtsam.noiseModel.Gaussian, gtsam.noiseModel.Diagonal,
+                gtsam.noiseModel.Isotropic, gtsam.noiseModel.Unit)
     for k in range(pg.between.size()):
         f = pg.between.at(k)
         i, j = f.keys()
         noise = f.noiseModel()
+        if type(noise) in gaussian:
+            noise = shared.setdefault((type(noise), noise.R().tobytes()), noise)
         if mestimator is not None and (robust_all or abs(int(i) - int(j)) != 1):
             noise = gtsam.noiseModel.Robust.Create(mestimator, noise)
         graph.add(Between(i, j, f.measured(), noise))

@@ -490,3 +490,55 @@ def test_reweight_and_cost_hooks_reproduce_gtsam_robust_huber():
     np.testing.assert_allclose(res.errors, errors, rtol=1e-6)
     assert res.final_error < 0.9 * errors[0]
     assert any(weight(np.array([2 * plain.at(i).error(res.values)]))[0] < 1 for i in range(plain.size()))
+
+
+class _DenseSystem:
+    """A LinearSystem stand-in holding one dense symmetric matrix (one variable of dimension n)."""
+
+    def __init__(self, H, g):
+        from lie_factors.batch.system import Pattern
+
+        self.H = np.asarray(H, dtype=float)
+        n = self.H.shape[0]
+        self.pattern = Pattern(np.array([n]), np.zeros((0, 2), dtype=np.int64))
+        self.rhs = np.asarray(g, dtype=float)
+
+    def damped(self, scale, out):
+        # CSC of the full diagonal block, column by column.
+        out[:] = self.H.T.reshape(-1)
+
+
+@pytest.mark.parametrize("H, definite", [
+    ([[4.0, 1.0], [1.0, 3.0]], True),
+    ([[1.0, 2.0], [2.0, 1.0]], False),   # indefinite: LDLᵀ gives d = (1, −3) without stopping
+    ([[-1.0, 0.0], [0.0, 2.0]], False),
+    ([[2.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, -5.0]], False),
+])
+def test_cholmod_simplicial_factor_detects_indefinite_systems(H, definite):
+    from cvxopt import cholmod
+
+    from lie_factors.batch.solvers import CholmodSolver, NotPositiveDefinite
+
+    g = np.arange(1.0, len(H) + 1.0)
+    solver = CholmodSolver(_DenseSystem(H, g))
+    if definite:
+        np.testing.assert_allclose(solver.solve(None), np.linalg.solve(H, g), rtol=1e-14)
+    else:
+        with pytest.raises(NotPositiveDefinite, match="not positive definite"):
+            solver.solve(None)
+    # The case under test is CHOLMOD's simplicial LDLᵀ (cvxopt's diag() accepts supernodal factors only).
+    with pytest.raises(ValueError, match="supernodal"):
+        cholmod.diag(solver._F)
+
+
+def test_cholmod_symbolic_leaves_cvxopt_options_alone():
+    from cvxopt import cholmod
+
+    from lie_factors.batch.solvers import CholmodSolver
+
+    cholmod.options["supernodal"] = 2
+    try:
+        CholmodSolver(_DenseSystem([[4.0, 1.0], [1.0, 3.0]], [1.0, 2.0]))
+        assert cholmod.options == {"supernodal": 2}
+    finally:
+        cholmod.options.clear()

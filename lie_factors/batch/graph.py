@@ -68,6 +68,19 @@ class VarBlock:
         self.index: dict[int, int] = {}
         self.X: np.ndarray | None = None
         self.offsets: np.ndarray | None = None
+        self._key_arrays: list = []  # key columns of this group's factors, numbered by number_keys
+
+    def number_keys(self) -> None:
+        """``keys`` (sorted) and ``index`` (key → local element index) of every key a factor uses."""
+        ks = (np.unique(np.concatenate(self._key_arrays)) if self._key_arrays
+              else np.zeros(0, dtype=np.uint64))
+        self._sorted = ks
+        self.keys = ks.tolist()
+        self.index = dict(zip(self.keys, range(len(self.keys))))
+
+    def local(self, keys) -> np.ndarray:
+        """Local element indices of ``keys`` (a sequence of keys in :attr:`keys`)."""
+        return np.searchsorted(self._sorted, np.array(keys, dtype=np.uint64)).astype(np.int64)
 
 
 class FactorGroup:
@@ -81,20 +94,22 @@ class FactorGroup:
 
     def __init__(self, kind, spec):
         self.kind, self.spec = kind, spec
-        self.rows: list = []  # (graph index, local idx1, idx2 | None, constant, AdMinv | None, R)
+        self.rows: list = []  # (graph index, key1, key2 | None, constant, AdMinv | None, R)
 
     def finalize(self, block: VarBlock):
         n = self.spec.dim
         E = len(self.rows)
         self.E = E
         self.loops = block.loops
-        self.fidx = np.array([r[0] for r in self.rows], dtype=np.int64)
-        self.i1 = np.array([r[1] for r in self.rows], dtype=np.int64)
-        self.C = np.ascontiguousarray(np.array([r[3] for r in self.rows], dtype=np.float64))
-        self.R = np.ascontiguousarray(np.array([r[5] for r in self.rows], dtype=np.float64).reshape(E, n, n))
+        fidx, k1, k2, C, Ad, R = zip(*self.rows) if E else ((),) * 6
+        self.fidx = np.array(fidx, dtype=np.int64)
+        self.i1 = block.local(k1)
+        m = self.spec.kernels.MAT
+        self.C = np.array(C, dtype=np.float64).reshape(E, m, m)
+        self.R = np.array(R, dtype=np.float64).reshape(E, n, n)
         if self.kind == "between":
-            self.i2 = np.array([r[2] for r in self.rows], dtype=np.int64)
-            self.Ad = np.ascontiguousarray(np.array([r[4] for r in self.rows], dtype=np.float64))
+            self.i2 = block.local(k2)
+            self.Ad = np.array(Ad, dtype=np.float64).reshape(E, n, n)
             self.A2 = np.empty((E, n, n))
         self.A1 = np.empty((E, n, n))
         self.b = np.empty((E, n))
@@ -209,8 +224,10 @@ class Problem:
     def _read_factors(self, graph, initial):
         groups: dict = {}
         kinds: dict = {}
-        gaussian = (gtsam.noiseModel.Gaussian, gtsam.noiseModel.Diagonal,
-                    gtsam.noiseModel.Isotropic, gtsam.noiseModel.Unit)
+        # id(noise model) → (noise model, R or None, robust loss or None). Graphs share
+        # noise model objects among many factors (posegraph.build_graph shares equal
+        # ones); holding the object keeps its id from being reused while we read.
+        whitening: dict = {}
         at = graph.at
         for i in range(graph.size()):
             f = at(i)
@@ -222,30 +239,28 @@ class Problem:
                 kind = ("between" if issubclass(cls, _factors.BetweenFactor)
                         else "prior" if issubclass(cls, _factors.PriorFactor) else None)
                 if kind is None:
-                    entry = kinds[cls] = (None, None, None)
+                    entry = kinds[cls] = (None, None)
                 else:
                     spec = cls.spec
-                    block = self.blocks.setdefault(spec.name, VarBlock(spec))
+                    self.blocks.setdefault(spec.name, VarBlock(spec))
                     g = groups.get((kind, spec.name))
                     if g is None:
                         g = groups[(kind, spec.name)] = FactorGroup(kind, spec)
                         self.groups.append(g)
-                    entry = kinds[cls] = (kind, block.index, g.rows)
-            kind, index, rows = entry
+                    entry = kinds[cls] = (kind, g.rows)
+            kind, rows = entry
             R = None
             if kind is not None:
-                nm = f.noiseModel()
-                R = nm.R() if type(nm) in gaussian else _whitening(nm)
-                if R is None and self._group_robust and isinstance(nm, gtsam.noiseModel.Robust):
-                    # Robust(Block estimator we vectorize, Gaussian): grouped by its Gaussian
-                    # part; the loss goes to self.robust (see batch.robust).
-                    loss = _robust_loss(nm)
-                    if loss is not None:
-                        R = _whitening(nm.noise())
-                        if R is not None:
-                            self.robust[i] = loss
+                nm = f._noise
+                w = whitening.get(id(nm))
+                if w is None:
+                    w = whitening[id(nm)] = (nm, *self._whitening_of(nm))
+                R = w[1]
+                if w[2] is not None:
+                    self.robust[i] = w[2]
                 if kind == "between" and f._key1 == f._key2:
                     R = None  # a factor on one variable twice: GTSAM's linearization handles it
+                    self.robust.pop(i, None)
             if R is None:
                 if not isinstance(f, gtsam.NonlinearFactor):
                     raise BatchError(f"factor {i}: unsupported type {type(f).__name__}")
@@ -257,14 +272,34 @@ class Problem:
                 self.native.append((i, f, keys))
                 continue
             if kind == "between":
-                k1, k2 = f._key1, f._key2
-                rows.append((i, index.setdefault(k1, len(index)), index.setdefault(k2, len(index)),
-                             f._Minv, f._AdMinv, R))
+                rows.append((i, f._key1, f._key2, f._Minv, f._AdMinv, R))
             else:
-                k1 = f._key
-                rows.append((i, index.setdefault(k1, len(index)), None, f._Pinv, None, R))
+                rows.append((i, f._key, None, f._Pinv, None, R))
+        for g in self.groups:
+            keys = self.blocks[g.spec.name]._key_arrays
+            if g.rows:
+                cols = list(zip(*g.rows))
+                keys.append(np.array(cols[1], dtype=np.uint64))
+                if g.kind == "between":
+                    keys.append(np.array(cols[2], dtype=np.uint64))
         for block in self.blocks.values():
-            block.keys = list(block.index)  # dicts keep insertion order = local index order
+            block.number_keys()
+
+    def _whitening_of(self, nm):
+        """(R, robust loss) of a lie_factors factor's noise model; R None if GTSAM must linearize."""
+        if type(nm) in (gtsam.noiseModel.Gaussian, gtsam.noiseModel.Diagonal,
+                        gtsam.noiseModel.Isotropic, gtsam.noiseModel.Unit):
+            return nm.R(), None
+        R = _whitening(nm)
+        if R is None and self._group_robust and isinstance(nm, gtsam.noiseModel.Robust):
+            # Robust(Block estimator we vectorize, Gaussian): grouped by its Gaussian
+            # part; the loss goes to self.robust (see batch.robust).
+            loss = _robust_loss(nm)
+            if loss is not None:
+                R = _whitening(nm.noise())
+                if R is not None:
+                    return R, loss
+        return R, None
 
     def _number_variables(self, initial):
         managed = {}

