@@ -7,7 +7,7 @@ For each graph the script
    closures (seeded; :func:`lie_factors.outliers.plant_false_loop_closures`:
    random pose pairs ≥ 2 ids apart, uniformly random measurement, the noise
    model of a real loop closure);
-3. runs every method on every backend from the same initial guess and prints
+3. runs every method on every backend from the same initial guess (``--start``) and prints
    one row each: iterations, seconds, position RMSE against the reference (and
    as a percentage of the reference trajectory's bounding-box diagonal), and
    for GNC the precision/recall of the rejected edges against the planted ones.
@@ -21,10 +21,18 @@ process and is abandoned after ``--native-timeout`` seconds (reported as such).
 ``custom`` is not run: GTSAM's CustomFactor pays a Values copy per callback
 inside C++ optimizers (README), which makes GNC's ~30 LM solves impractical.
 
+Starts (``--start``): ``auto`` (default) is what ``lie-factors posegraph``'s
+``--init auto`` does under ``--gnc``/``--robust``: the odometry edges and the
+prior composed (:func:`lie_factors.initialize.initialize` with the known
+inliers); ``file`` the file's vertices (the chain: composed odometry);
+``chordal`` the relaxation over every edge, false ones included (what
+``--init auto`` is without ``--gnc``/``--robust``).
+
 Usage::
 
     python benchmarks/outliers.py                                   # all graphs, 20 %
     python benchmarks/outliers.py --graphs intel chain1000 --methods lm gnc-tls
+    python benchmarks/outliers.py --graphs intel --backends batch --start chordal
 
 Timing: best of ``--repeat`` runs, native and batch alternated (wrap in
 ``flock /work/coord/bench.lock`` on a shared machine).
@@ -45,12 +53,14 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import gtsam  # noqa: E402
 
 from lie_factors import demo, outliers, posegraph as pgm  # noqa: E402
+from lie_factors.initialize import initialize  # noqa: E402
 from lie_factors.batch import gnc as gncm  # noqa: E402
 from lie_factors.batch.robust import LOSSES, RobustLoss, WeightedLevenbergMarquardt  # noqa: E402
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data")
 GRAPHS = ("sphere2500", "intel", "city10000", "chain1000")
 METHODS = ("lm", "huber", "cauchy", "tukey", "gm", "dcs", "gnc-tls")
+STARTS = ("auto", "file", "chordal")
 
 
 def load_graph(name: str) -> pgm.PoseGraph:
@@ -111,18 +121,18 @@ def run_gnc(pg, backend):
     return values, res.iterations, seconds, res.outliers, res.cost
 
 
-def _native_gnc_child(name, fraction, seed, conn):
-    pg, planted, _ = prepare(name, fraction, seed, reference=False)
+def _native_gnc_child(name, fraction, seed, start, conn):
+    pg, planted, _, _ = prepare(name, fraction, seed, reference=False, start=start)
     values, its, seconds, rejected, cost = run_gnc(pg, "native")
     conn.send((positions(values, pg), its, seconds, rejected.tolist(), cost))
     conn.close()
 
 
-def run_native_gnc_with_timeout(name, fraction, seed, timeout):
+def run_native_gnc_with_timeout(name, fraction, seed, start, timeout):
     """Native GNC in a child process (GTSAM's C++ loop cannot be interrupted); None if it times out."""
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_native_gnc_child, args=(name, fraction, seed, child))
+    proc = ctx.Process(target=_native_gnc_child, args=(name, fraction, seed, start, child))
     proc.start()
     if parent.poll(timeout):
         out = parent.recv()
@@ -141,7 +151,17 @@ def positions(values, pg) -> np.ndarray:
     return pgm.positions(values, pg.is3d)
 
 
-def prepare(name, fraction, seed, reference=True):
+def start_values(pg, how: str):
+    """The initial values ``--start`` names (see the module docstring), and the method that made them."""
+    if how == "file":
+        return pg.initial, "file"
+    graph = pgm.build_graph(pg, "native")
+    inliers = np.setdiff1d(np.arange(pg.edges + 1), pgm.loop_closures(pg)) if how == "auto" else None
+    s = initialize(graph, "auto" if how == "auto" else how, pg.initial, inliers=inliers)
+    return s.values, s.method + (" of the odometry and the prior" if s.inliers_only else " of every edge")
+
+
+def prepare(name, fraction, seed, reference=True, start="file"):
     pg = load_graph(name)
     ref = None
     if reference:
@@ -151,7 +171,9 @@ def prepare(name, fraction, seed, reference=True):
     count = int(round(fraction * n_lc))
     between, planted = outliers.plant_false_loop_closures(pg.between, sorted(pg.initial.keys()), count,
                                                           seed, pg.is3d)
-    return with_edges(pg, between), planted, ref
+    planted_pg = with_edges(pg, between)
+    planted_pg.initial, label = start_values(planted_pg, start)
+    return planted_pg, planted, ref, label
 
 
 def rmse(P, ref) -> float:
@@ -167,6 +189,9 @@ def main(argv=None) -> int:
     ap.add_argument("--fraction", type=float, default=0.2,
                     help="false loop closures planted, as a fraction of the true ones (default 0.2)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--start", default="auto", choices=STARTS,
+                    help="initial guess: auto = odometry and prior composed (the CLI's --init auto under "
+                         "--gnc/--robust), file = the file's vertices, chordal = relaxation of every edge")
     ap.add_argument("--repeat", type=int, default=1, help="timing: best of this many runs (default 1)")
     ap.add_argument("--native-timeout", type=float, default=600.0,
                     help="seconds after which native GNC is abandoned (default 600)")
@@ -178,7 +203,8 @@ def main(argv=None) -> int:
           "precision | recall | final error |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in args.graphs:
-        pg, planted, ref = prepare(name, args.fraction, args.seed)
+        pg, planted, ref, start = prepare(name, args.fraction, args.seed, start=args.start)
+        print(f"# {pg.name}: start {start}", flush=True)
         diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
         label = f"{pg.name} ({pg.poses} poses, {len(planted)} false / " \
                 f"{len(pgm.loop_closures(pg)) - len(planted)} true LC)"
@@ -187,7 +213,7 @@ def main(argv=None) -> int:
                 best = None
                 for _ in range(args.repeat):
                     if method == "gnc-tls" and backend == "native":
-                        out = run_native_gnc_with_timeout(name, args.fraction, args.seed,
+                        out = run_native_gnc_with_timeout(name, args.fraction, args.seed, args.start,
                                                           args.native_timeout)
                         if out is None:
                             best = "timeout"

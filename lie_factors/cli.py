@@ -142,7 +142,9 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                         "lago = GTSAM's LAGO (2-D, diagonal noise only), spanning-tree = "
                         "measurements composed along a BFS tree, file = the file's vertices; "
                         "auto (default) = chordal in 3-D, lago then chordal in 2-D, then file, "
-                        "then spanning-tree: the first that applies")
+                        "then spanning-tree: the first that applies; with --gnc or --robust, auto "
+                        "uses the odometry edges and the prior only (their measurements composed; "
+                        "the loop closures, possibly false, are left out), then file")
     p.add_argument("--robust", metavar="LOSS[:K]",
                    help="robust loss on the loop closures (edges between non-consecutive poses): "
                         "huber | cauchy | tukey | gm | dcs, optionally with its parameter, e.g. huber:1.345")
@@ -223,7 +225,9 @@ def _run_posegraph(args) -> int:
     def report_start(start):
         for method, reason in start.skipped:
             _say(args, f"init {method} not applicable: {reason}")
-        _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]} ({start.seconds:.3f} s)")
+        only = (" of the odometry edges and the prior only (loop closures left out under "
+                f"{'--gnc' if args.gnc else '--robust'})" if start.inliers_only else "")
+        _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{only} ({start.seconds:.3f} s)")
 
     record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args),
                                  init=args.init, on_init=report_start, robust=robust,

@@ -20,7 +20,9 @@ composed odometry of the file leads GTSAM's LM to a local minimum (error
     the values given (a g2o file's vertices, usually composed odometry).
 ``auto``
     3-D: chordal; 2-D: lago, then chordal; then file, then spanning-tree — the
-    first that runs.  Similarity3 graphs (Sim(3) g2o files): file, then
+    first that runs.  Given the known inliers (``inliers=``: odometry and the
+    prior, for robust and GNC runs), from those factors alone: composed along
+    them (the chordal/LAGO answer on a chain), then file, then spanning-tree.  Similarity3 graphs (Sim(3) g2o files): file, then
     spanning-tree (GTSAM's chordal and LAGO initializers are for Pose3/Pose2).
     Each method that cannot run is reported with a one-line reason in
     :attr:`Initialization.skipped`.  A graph with factors other than
@@ -66,13 +68,16 @@ class Initialization:
 
     ``values``: one Pose2/Pose3/Similarity3 per pose key; ``method``: the method that produced
     them; ``seconds``: its wall time (conversion included); ``skipped``: under
-    ``auto``, ``(method, reason)`` for each method tried before it.
+    ``auto``, ``(method, reason)`` for each method tried before it;
+    ``inliers_only``: the method ran on the known inliers alone (``auto`` with
+    ``inliers``, see :func:`initialize`).
     """
 
     values: gtsam.Values
     method: str
     seconds: float
     skipped: list[tuple[str, str]] = field(default_factory=list)
+    inliers_only: bool = False
 
 
 # --------------------------------------------------------------------------- #
@@ -391,7 +396,7 @@ def auto_order(is3d: bool, have_values: bool, group: str | None = None) -> list[
 
 
 def initialize(graph: gtsam.NonlinearFactorGraph, method: str = "auto",
-               initial: gtsam.Values | None = None) -> Initialization:
+               initial: gtsam.Values | None = None, inliers=None) -> Initialization:
     """Initial values for a pose graph of Between/Prior factors on Pose2, Pose3 or Similarity3.
 
     ``graph``: GTSAM's own factors or lie_factors.factors' (converted to GTSAM's
@@ -400,6 +405,12 @@ def initialize(graph: gtsam.NonlinearFactorGraph, method: str = "auto",
     ``initial``: the values ``file`` returns (e.g. a g2o file's vertices).
     Raises :class:`InitializationError` (one-line reason) if the method cannot
     run; under ``auto`` only if none can.
+
+    ``inliers``: slots of the factors known to be right (the odometry edges
+    and the prior of a graph whose loop closures may be false, as GNC's known
+    inliers).  ``auto`` then starts from them alone (:func:`_auto_from_inliers`),
+    because a relaxation over every edge is bent by the false ones; named
+    methods still use every factor.
     """
     if method not in METHODS:
         raise InitializationError(f"unknown initialization {method!r} (choose from {', '.join(METHODS)})")
@@ -413,8 +424,15 @@ def initialize(graph: gtsam.NonlinearFactorGraph, method: str = "auto",
         if method != "auto" or initial is None:
             raise InitializationError(f"{method}: {exc}") from None
         return Initialization(initial, "file", time.perf_counter() - t0, [("chordal", str(exc))])
-    order = auto_order(pg.is3d, initial is not None, pg.group) if method == "auto" else [method]
     skipped: list[tuple[str, str]] = []
+    if method == "auto" and inliers is not None:
+        values, name, skipped = _auto_from_inliers(graph, pg, inliers)
+        if values is not None:
+            return Initialization(values, name, time.perf_counter() - t0, skipped, inliers_only=True)
+        # The known inliers do not reach every pose: the file, then a tree over every edge.
+        order = (["file"] if initial is not None else []) + ["spanning-tree"]
+    else:
+        order = auto_order(pg.is3d, initial is not None, pg.group) if method == "auto" else [method]
     for name in order:
         try:
             values = _METHOD_FUNCS[name](pg, initial)
@@ -426,6 +444,46 @@ def initialize(graph: gtsam.NonlinearFactorGraph, method: str = "auto",
         return Initialization(values, name, time.perf_counter() - t0, skipped)
     reasons = "; ".join(f"{m}: {r}" for m, r in skipped)
     raise InitializationError(f"no initialization method applies ({reasons})")
+
+
+def _auto_from_inliers(graph: gtsam.NonlinearFactorGraph, pg: _PoseGraph, inliers):
+    """``auto`` on the factors at slots ``inliers`` of ``graph`` alone: (values, method, skipped).
+
+    When they form a tree over every pose (an odometry chain and a prior: the
+    usual case), the measurements composed along it (``spanning-tree``): the
+    chordal relaxation and LAGO have zero residual on a tree and return exactly
+    that, and GTSAM's chordal step fails as an indeterminate system on long
+    planar chains (intel's 1727 odometry edges).  Otherwise (parallel odometry
+    edges, ...) the usual relaxations, then a spanning tree, on the inliers.
+    ``values`` is None, with the reasons in ``skipped``, if the inliers do not
+    connect every pose to the prior.
+    """
+    keep = sorted({int(k) for k in inliers})
+    sub = gtsam.NonlinearFactorGraph()
+    for k in keep:
+        if not 0 <= k < graph.size():
+            raise InitializationError(f"known inlier {k} is not a factor slot (0..{graph.size() - 1})")
+        if graph.at(k) is not None:
+            sub.add(graph.at(k))
+    where = "on the known inliers"
+    try:
+        known = _convert(sub)
+    except InitializationError as exc:
+        return None, "", [(f"auto {where}", str(exc))]
+    known = _anchored(_PoseGraph(pg.is3d, known.between, known.priors, pg.keys, pg.group))
+    try:
+        _check_anchored(known)
+    except InitializationError as exc:
+        return None, "", [(f"auto {where}", str(exc))]
+    tree = len(known.between) == len(known.keys) - 1
+    order = ["spanning-tree"] if tree else auto_order(pg.is3d, False, pg.group)
+    skipped = []
+    for name in order:
+        try:
+            return _METHOD_FUNCS[name](known, None), name, skipped
+        except InitializationError as exc:
+            skipped.append((f"{name} {where}", str(exc)))
+    return None, "", skipped
 
 
 def _file(pg: _PoseGraph, initial) -> gtsam.Values:

@@ -391,7 +391,9 @@ class RunRecord:
     (:data:`lie_factors.initialize.METHODS`) and ``init_seconds`` its cost;
     ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖²
     (Σ ρ(‖whitened residual‖) for robust factors).  ``robust``: the loss
-    (``name:k``, with ``+all`` if on every edge); ``gnc``: the GNC loss.  With
+    (``name:k``, with ``+all`` if on every edge); ``gnc``: the GNC loss;
+    ``init_inliers_only`` (robust and GNC runs): whether the start was built
+    from the odometry edges and the prior alone.  With
     GNC, ``iterations`` counts GNC's outer iterations, ``final_error`` is GNC's
     weighted cost Σ w_k·½‖R_k e_k‖², and ``outliers`` lists the rejected edges
     (0-based, in the file's edge order).
@@ -413,11 +415,12 @@ class RunRecord:
     robust: str | None = None
     gnc: str | None = None
     outliers: list[int] | None = None
+    init_inliers_only: bool | None = None
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        # robust / gnc / outliers appear only in runs that use them.
-        for key in ("robust", "gnc", "outliers"):
+        # robust / gnc / outliers / init_inliers_only appear only in runs that use them.
+        for key in ("robust", "gnc", "outliers", "init_inliers_only"):
             if d[key] is None:
                 del d[key]
         return d
@@ -446,7 +449,10 @@ def run(
 
     ``init``: a method of :func:`lie_factors.initialize.initialize`, run on the
     graph ``backend`` built (so every backend starts from the same values);
-    ``file`` is the file's vertices.  Landmarks keep their file vertex, or are
+    ``file`` is the file's vertices.  With ``robust`` or ``gnc``, ``auto``
+    builds the start from the odometry edges and the prior only (their
+    measurements composed: the loop closures, false ones included, are left
+    out; ``start.inliers_only``).  Landmarks keep their file vertex, or are
     placed from their first measurement.  ``on_init`` is called with the
     :class:`~lie_factors.initialize.Initialization` before LM starts.
     ``result.start`` holds the values LM started from.
@@ -475,7 +481,10 @@ def run(
         # graph for an initializer to relax; the file's values are the start.
         start = Initialization(_poses_only(pg.initial, pg.group), "file", 0.0)
     else:
-        start = initialize(pose_part, init, file_poses)
+        # Robust and GNC runs doubt the loop closures: auto starts from the odometry and the prior.
+        inliers = (np.setdiff1d(np.arange(pg.edges + 1), loop_closures(pg))
+                   if gnc is not None or robust is not None else None)
+        start = initialize(pose_part, init, file_poses, inliers=inliers)
     start = dataclasses.replace(start, values=_with_landmarks(start.values, pg))
     if on_init is not None:
         on_init(start)
@@ -489,7 +498,8 @@ def run(
     result = opt(graph, start.values, max_iterations=max_iterations, progress=progress)
     result.start = start.values
     record = _record(pg, backend, graph, start, result,
-                     robust=None if robust is None else str(robust) + ("+all" if robust_all else ""))
+                     robust=None if robust is None else str(robust) + ("+all" if robust_all else ""),
+                     init_inliers_only=None if robust is None else start.inliers_only)
     return record, result, pg
 
 
@@ -542,7 +552,8 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
                             res.stop != "maxIterations", [])
     result.start = start.values
     outliers = [int(k) for k in res.outliers if k < pg.between.size()]
-    record = _record(pg, backend, graph, start, result, gnc=loss, outliers=outliers)
+    record = _record(pg, backend, graph, start, result, gnc=loss, outliers=outliers,
+                     init_inliers_only=start.inliers_only)
     return record, result, pg
 
 

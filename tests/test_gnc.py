@@ -10,7 +10,10 @@ import pytest
 
 from lie_factors import cli, demo, outliers
 from lie_factors import factors as lf
+from lie_factors import posegraph as P
 from lie_factors.batch import gnc
+from lie_factors.batch.robust import parse_loss
+from lie_factors.initialize import initialize
 
 M = gtsam.noiseModel.mEstimator
 
@@ -278,3 +281,86 @@ def test_cli_bad_gnc_loss(outlier_file, capsys):
     assert cli.main(["posegraph", str(path), "--gnc", "huber"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--gnc" in err[0]
+
+
+# --------------------------------------------------------------------------- #
+# Where GNC starts: --init auto under --gnc / --robust
+# --------------------------------------------------------------------------- #
+
+@pytest.fixture(scope="module")
+def se3_outlier_file(tmp_path_factory):
+    # 150-pose SE(3) trajectory, 34 true loop closures, 13 planted false ones: the chordal
+    # relaxation over every edge is bent so far by them that GNC from it rejects every true one.
+    prob = demo.simulate(150, seed=1)
+    between = demo.between_graph(prob)
+    n_lc = int(outliers.loop_closure_mask(between).sum())
+    between, planted = outliers.plant_false_loop_closures(between, list(range(150)), int(0.4 * n_lc), 1, True)
+    path = tmp_path_factory.mktemp("g2o") / "se3_outliers.g2o"
+    gtsam.writeG2o(between, prob.initial, str(path))
+    return path, planted
+
+
+def _cli_json(capsys, *argv):
+    assert cli.main(["posegraph", *map(str, argv), "--json"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    return json.loads(out[-1]), out
+
+
+def test_gnc_default_init_starts_from_odometry_and_recovers(se3_outlier_file, capsys):
+    path, planted = se3_outlier_file
+    auto, out = _cli_json(capsys, path, "--gnc", "tls")
+    assert auto["init"] == "spanning-tree" and auto["init_inliers_only"] is True
+    assert any("initial guess: measurements composed along a spanning tree of the odometry edges "
+               "and the prior only" in line for line in out)
+    c = outliers.classify(auto["outliers"], planted)
+    assert (c.precision, c.recall) == (1.0, 1.0)
+    # The same classification as from the file's vertices (dead reckoning) ...
+    from_file, _ = _cli_json(capsys, path, "--gnc", "tls", "--init", "file")
+    assert from_file["init"] == "file" and from_file["init_inliers_only"] is False
+    assert from_file["outliers"] == auto["outliers"]
+    assert auto["final_error"] == pytest.approx(from_file["final_error"], rel=1e-6)
+    # ... while the relaxation over every edge (what auto was before) rejects true loop closures.
+    chordal, _ = _cli_json(capsys, path, "--gnc", "tls", "--init", "chordal")
+    assert chordal["init_inliers_only"] is False
+    assert outliers.classify(chordal["outliers"], planted).precision < 0.5
+
+
+def test_robust_default_init_starts_from_odometry(se3_outlier_file, capsys):
+    path, _ = se3_outlier_file
+    rec, _ = _cli_json(capsys, path, "--robust", "cauchy", "--backend", "native", "--quiet")
+    assert rec["init"] == "spanning-tree" and rec["init_inliers_only"] is True
+    start = P.run(str(path), "native", max_iterations=0, robust=parse_loss("cauchy"))[1].start
+    between, values = gtsam.readG2o(str(path), True)
+    pose = values.atPose3(0)
+    for k in range(149):  # odometry edge k joins poses k and k + 1
+        assert between.at(k).keys() == [k, k + 1]
+        pose = pose.compose(between.at(k).measured())
+        np.testing.assert_allclose(start.atPose3(k + 1).matrix(), pose.matrix(), atol=1e-9)
+
+
+def test_plain_default_init_is_unchanged(se3_outlier_file, capsys):
+    # Without --gnc/--robust, auto is the relaxation over every edge, as before.
+    path, _ = se3_outlier_file
+    rec, _ = _cli_json(capsys, path, "--backend", "native", "--max-iterations", "0", "--quiet")
+    assert rec["init"] == "chordal" and "init_inliers_only" not in rec
+    start = P.run(str(path), "native", max_iterations=0)[1].start
+    pg = P.load(str(path))
+    expected = initialize(P.build_graph(pg, "native"), "chordal").values
+    for k in range(150):
+        np.testing.assert_allclose(start.atPose3(k).matrix(), expected.atPose3(k).matrix(), atol=1e-12)
+
+
+def test_inlier_start_falls_back_when_odometry_does_not_connect(tmp_path, capsys):
+    # Poses 0-39 and 40-79 joined only by loop closures: the known inliers cannot place the
+    # second half, so auto says why and takes the file's vertices.
+    between, _, initial = _circle_problem()
+    graph = gtsam.NonlinearFactorGraph()
+    for k in range(between.size()):
+        if list(between.at(k).keys()) != [39, 40]:
+            graph.add(between.at(k))
+    path = tmp_path / "split.g2o"
+    _write_g2o(path, graph, initial)
+    rec, out = _cli_json(capsys, path, "--gnc", "tls", "--backend", "native")
+    assert rec["init"] == "file" and rec["init_inliers_only"] is False
+    assert any("init auto on the known inliers not applicable: graph is not connected" in line
+               for line in out)

@@ -365,3 +365,26 @@ def test_cli_method_that_cannot_run_is_one_line(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:  # argparse's own usage error, status 2
         cli_run(capsys, "posegraph", str(edges_only), "--init", "nope", "--quiet")
     assert exc.value.code == 2 and "invalid choice: 'nope'" in capsys.readouterr().err
+
+
+def test_auto_with_known_inliers_uses_them_alone():
+    graph, truth = pose2_loop(noise=0.03, seed=7)  # 12 odometry edges (a cycle), 4 chords, a prior
+    n = graph.size()
+    chain = list(range(11)) + [n - 1]  # odometry 0-1 ... 10-11 and the prior: a tree
+    start = I.initialize(graph, "auto", truth, inliers=chain)
+    assert (start.method, start.inliers_only, start.skipped) == ("spanning-tree", True, [])
+    pose = graph.at(n - 1).prior()
+    for k in range(11):
+        pose = pose.compose(graph.at(k).measured())
+        assert np.abs(start.values.atPose2(k + 1).localCoordinates(pose)).max() < 1e-12
+    # Inliers with a cycle: the usual relaxation, on them only (the chords are left out).
+    cycle = list(range(12)) + [n - 1]
+    sub = gtsam.NonlinearFactorGraph()
+    for k in cycle:
+        sub.add(graph.at(k))
+    start = I.initialize(graph, "auto", truth, inliers=cycle)
+    assert (start.method, start.inliers_only) == ("lago", True)
+    assert max_pose_diff(start.values, I.initialize(sub, "lago").values, False) < 1e-12
+    assert max_pose_diff(start.values, I.initialize(graph, "lago").values, False) > 1e-6
+    # Named methods use every factor.
+    assert not I.initialize(graph, "chordal", truth, inliers=chain).inliers_only
