@@ -1,7 +1,7 @@
 """Start-up costs of the CLI (issue 10): help, first-run compilation, factor construction,
 and the whole ``posegraph --max-iterations 0`` command on city10000 split into its pieces.
 
-    python benchmarks/startup.py [--repeat 3] [--dataset ../shared/data/city10000.g2o]
+    python benchmarks/startup.py [--repeat 3] [--dataset ../shared/data/city10000.g2o] [--only SECTION]
 
 Every whole-command figure is a fresh process (``python -m lie_factors.cli ...``), best of
 ``--repeat``, backends alternated. The first-run figures use an empty NUMBA_CACHE_DIR (as a
@@ -61,6 +61,54 @@ def first_run_table() -> None:
     print(f"| third run | {third:.2f} |")
     print(f"| compile = first − best later | {first - min(second, third):.2f} |")
     print(f"\nstderr of the first run: `{note[0] if note else '(no compile note)'}`")
+
+
+FLOOR = r"""
+import sys, time
+t0 = time.perf_counter()
+import numpy as np
+t1 = time.perf_counter()
+import numba
+t2 = time.perf_counter()
+sys.path.insert(0, sys.argv[1])
+from floor_kernel import one  # a cached @njit kernel: np.empty and a float add
+one(1.0)
+t3 = time.perf_counter()
+print(f"{t1 - t0} {t2 - t1} {t3 - t2}")
+"""
+
+FLOOR_KERNEL = """
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def one(x):
+    a = np.empty(3)
+    a[0] = x
+    return a[0] + 1.0
+"""
+
+
+def floor_table(repeat: int) -> None:
+    """What any numba-based command pays before its first kernel runs, kernels cached."""
+    with tempfile.TemporaryDirectory() as d:
+        with open(os.path.join(d, "floor_kernel.py"), "w") as fh:
+            fh.write(FLOOR_KERNEL)
+        argv = [sys.executable, "-c", FLOOR, d]
+        subprocess.run(argv, env=ENV, check=True, capture_output=True)  # compile + cache once
+        runs = []
+        for _ in range(repeat):
+            p = subprocess.run(argv, env=ENV, check=True, capture_output=True, text=True)
+            runs.append([float(x) for x in p.stdout.split()])
+        native = [wall([sys.executable, "-c", "import gtsam"]) for _ in range(repeat)]
+    best = [min(r[i] for r in runs) for i in range(3)]
+    print("| fresh process, kernel already cached | s (best of %d) |\n|---|---|" % repeat)
+    print(f"| `import numpy` | {best[0]:.3f} |")
+    print(f"| `import numba` (after numpy) | {best[1]:.3f} |")
+    print(f"| first call of a cached trivial kernel (numba's target initialisation) | {best[2]:.3f} |")
+    print(f"| numba's share: import + first call | {best[1] + best[2]:.3f} |")
+    print(f"| for scale: `python -c 'import gtsam'` whole process | {min(native):.3f} |")
 
 
 def construction_table() -> None:
@@ -159,10 +207,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dataset", default=os.path.join(ROOT, "..", "shared", "data", "city10000.g2o"))
-    ap.add_argument("--only", choices=("help", "first-run", "construction", "city"), default=None)
+    ap.add_argument("--only", choices=("help", "first-run", "construction", "city", "floor"), default=None)
     args = ap.parse_args(argv)
     sections = [("help", lambda: help_table(args.repeat)), ("first-run", first_run_table),
-                ("construction", construction_table), ("city", lambda: city_table(args.dataset, args.repeat))]
+                ("construction", construction_table), ("city", lambda: city_table(args.dataset, args.repeat)),
+                ("floor", lambda: floor_table(args.repeat))]
     for name, run in sections:
         if args.only in (None, name):
             print(f"\n### {name}\n")
