@@ -111,6 +111,47 @@ def floor_table(repeat: int) -> None:
     print(f"| for scale: `python -c 'import gtsam'` whole process | {min(native):.3f} |")
 
 
+COMPILE_SPLIT = r"""
+import numpy as np, gtsam, numba
+from lie_factors import so3, se3, factors, _dispatch
+from lie_factors._jit import compile_seconds
+R, T, x = np.eye(3), np.eye(4), np.zeros(6)
+o3, o6, M6, M4 = np.empty(3), np.empty(6), np.empty((6, 6)), np.empty((4, 4))
+F = np.asfortranarray(T)
+@numba.njit
+def trivial(x):
+    return x + 1.0
+steps = [("numba's first compilation (a trivial function)", lambda: trivial(1.0)),
+         ("so3._log", lambda: so3._log(R, o3)),
+         ("se3._log (+ its coefficient helpers)", lambda: se3._log(T, o6)),
+         ("se3._dlog (+ its coefficient helpers)", lambda: se3._dlog(x, M6)),
+         ("se3._compose, _inverse, _Ad", lambda: (se3._compose(T, T, M4), se3._inverse(T, M4), se3._Ad(T, M6))),
+         ("factors.between_error", lambda: factors.between_error(_dispatch.SE3, T, F, F, o6)),
+         ("factors.between (what a factor evaluation runs)", lambda: factors.between(_dispatch.SE3, T, np.eye(6), F, F, o6, M6, M6.copy())),
+         ("factors.between_setup (construction: check, M⁻¹, Ad)", lambda: factors.BetweenFactorPose3(1, 2, gtsam.Pose3(), gtsam.noiseModel.Unit.Create(6)))]
+for name, run in steps:
+    a = compile_seconds()
+    run()
+    print(f"{name}	{compile_seconds() - a}")
+"""
+
+
+def compile_split_table(repeat: int) -> None:
+    """Compile seconds of the SE(3) factor path, core by core (each line: what it adds), empty cache."""
+    rows: dict = {}
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as cache:
+            p = subprocess.run([sys.executable, "-c", COMPILE_SPLIT], env=dict(ENV, NUMBA_CACHE_DIR=cache),
+                               check=True, capture_output=True, text=True)
+        for line in p.stdout.strip().splitlines():
+            name, sec = line.rsplit("\t", 1)
+            rows.setdefault(name, []).append(float(sec))
+    print("| compiled (in this order, empty numba cache) | s added (best of %d) |\n|---|---|" % repeat)
+    for name, secs in rows.items():
+        print(f"| {name} | {min(secs):.2f} |")
+    print(f"| total | {sum(min(v) for v in rows.values()):.2f} |")
+
+
 def construction_table() -> None:
     code = r"""
 import timeit, numpy as np, gtsam
@@ -207,9 +248,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dataset", default=os.path.join(ROOT, "..", "shared", "data", "city10000.g2o"))
-    ap.add_argument("--only", choices=("help", "first-run", "construction", "city", "floor"), default=None)
+    ap.add_argument("--only", choices=("help", "first-run", "compile-split", "construction", "city", "floor"), default=None)
     args = ap.parse_args(argv)
     sections = [("help", lambda: help_table(args.repeat)), ("first-run", first_run_table),
+                ("compile-split", lambda: compile_split_table(args.repeat)),
                 ("construction", construction_table), ("city", lambda: city_table(args.dataset, args.repeat)),
                 ("floor", lambda: floor_table(args.repeat))]
     for name, run in sections:
