@@ -275,16 +275,23 @@ def build_graph(pg: PoseGraph, backend: str, robust=None,
     # R) become one object, which the factors' and the batch solver's
     # per-object caches then check and read once.
     shared: dict = {}
+    robust_of: dict = {}  # id(shared Gaussian) → its one Robust wrapper
     gaussian = (gtsam.noiseModel.Gaussian, gtsam.noiseModel.Diagonal,
                 gtsam.noiseModel.Isotropic, gtsam.noiseModel.Unit)
     for k in range(pg.between.size()):
         f = pg.between.at(k)
         i, j = f.keys()
         noise = f.noiseModel()
-        if type(noise) in gaussian:
+        is_shared = type(noise) in gaussian
+        if is_shared:
             noise = shared.setdefault((type(noise), noise.R().tobytes()), noise)
         if mestimator is not None and (robust_all or abs(int(i) - int(j)) != 1):
-            noise = gtsam.noiseModel.Robust.Create(mestimator, noise)
+            wrapped = robust_of.get(id(noise)) if is_shared else None
+            if wrapped is None:
+                wrapped = gtsam.noiseModel.Robust.Create(mestimator, noise)
+                if is_shared:  # `shared` holds the Gaussian, so its id stays its own
+                    robust_of[id(noise)] = wrapped
+            noise = wrapped
         graph.add(Between(i, j, f.measured(), noise))
     first = getattr(pg.initial, f"at{pg.group}")(pg.first_key)
     graph.add(Prior(pg.first_key, first, prior_noise(pg.is3d, pg.group)))

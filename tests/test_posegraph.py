@@ -213,3 +213,30 @@ def test_check_writable(tmp_path):
         atomic.check_writable(str(tmp_path / "missing" / "x.g2o"))
     with pytest.raises(P.PoseGraphError, match="is a directory"):
         atomic.check_writable(str(tmp_path))
+
+
+def test_build_graph_shares_equal_noise_models(tmp_path):
+    # Edges 0-1, 1-2, 2-3 share one information matrix, 0-2 and 1-3 another:
+    # readG2o makes five noise model objects, build_graph keeps two (per backend),
+    # each equal to what GTSAM read for its edges.
+    a = "1 0 0 1 0 1"
+    b = "4 0.5 0 3 0 2"
+    text = ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\nVERTEX_SE2 3 3 0 0\n"
+            f"EDGE_SE2 0 1 1 0 0 {a}\nEDGE_SE2 1 2 1 0 0 {a}\nEDGE_SE2 2 3 1 0 0 {a}\n"
+            f"EDGE_SE2 0 2 2 0 0 {b}\nEDGE_SE2 1 3 2 0 0 {b}\n")
+    pg = P.load(write(tmp_path, text))
+    for backend in ("native", "custom", "batch"):
+        graph = P.build_graph(pg, backend)
+        noises = [graph.at(k).noiseModel() for k in range(pg.edges)]
+        assert len({id(n) for n in noises}) == 2
+        for k, n in enumerate(noises):
+            np.testing.assert_array_equal(n.R(), pg.between.at(k).noiseModel().R())
+    # The loop closures' Robust wrappers are shared the same way, the odometry stays Gaussian.
+    from lie_factors.batch.robust import RobustLoss
+
+    graph = P.build_graph(pg, "custom", robust=RobustLoss("huber", 1.345))
+    noises = [graph.at(k).noiseModel() for k in range(pg.edges)]
+    assert all(isinstance(n, gtsam.noiseModel.Robust) for n in noises[3:])
+    assert not any(isinstance(n, gtsam.noiseModel.Robust) for n in noises[:3])
+    assert noises[3] is noises[4]
+    np.testing.assert_array_equal(noises[3].noise().R(), pg.between.at(3).noiseModel().R())
