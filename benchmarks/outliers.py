@@ -209,15 +209,18 @@ def main(argv=None) -> int:
         label = f"{pg.name} ({pg.poses} poses, {len(planted)} false / " \
                 f"{len(pgm.loop_closures(pg)) - len(planted)} true LC)"
         for method in args.methods:
-            for backend in args.backends:
-                best = None
-                for _ in range(args.repeat):
+            # Repetitions alternate the backends, so both see the same machine load.
+            best = {b: None for b in args.backends}
+            for _ in range(args.repeat):
+                for backend in args.backends:
+                    if best[backend] == "timeout":
+                        continue
                     if method == "gnc-tls" and backend == "native":
                         out = run_native_gnc_with_timeout(name, args.fraction, args.seed, args.start,
                                                           args.native_timeout)
                         if out is None:
-                            best = "timeout"
-                            break
+                            best[backend] = "timeout"
+                            continue
                         P, its, sec, rejected, err = out
                     else:
                         if method == "lm":
@@ -228,13 +231,14 @@ def main(argv=None) -> int:
                             values, its, sec, rejected, err = run_lm(pg, backend,
                                                                      RobustLoss(method, LOSSES[method][2]))
                         P = positions(values, pg)
-                    if best is None or sec < best[2]:
-                        best = (P, its, sec, rejected, err)
-                if best == "timeout":
+                    if best[backend] is None or sec < best[backend][2]:
+                        best[backend] = (P, its, sec, rejected, err)
+            for backend in args.backends:
+                if best[backend] == "timeout":
                     print(f"| {label} | {method} | {backend} | – | > {args.native_timeout:.0f} "
                           "(abandoned) | – | – | – | – | – |", flush=True)
                     continue
-                P, its, sec, rejected, err = best
+                P, its, sec, rejected, err = best[backend]
                 e = rmse(P, ref)
                 if rejected is not None:
                     c = outliers.classify(rejected, planted)
