@@ -447,8 +447,9 @@ def run(
 ) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
     """Load (unless given a :class:`PoseGraph`), build with ``backend``, initialize, optimize.
 
-    ``init``: a method of :func:`lie_factors.initialize.initialize`, run on the
-    graph ``backend`` built (so every backend starts from the same values);
+    ``init``: a method of :func:`lie_factors.initialize.initialize`, run on
+    GTSAM's own factors of the file (the measurements and noise models every
+    backend's graph holds, so every backend starts from the same values);
     ``file`` is the file's vertices.  With ``robust`` or ``gnc``, ``auto``
     builds the start from the odometry edges and the prior only (their
     measurements composed: the loop closures, false ones included, are left
@@ -468,12 +469,16 @@ def run(
     if gnc is not None and loop_closures(pg).size == 0:
         raise PoseGraphError(f"{pg.name}: --gnc needs loop closures (edges between non-consecutive "
                              "poses); this graph has none")
-    graph = build_graph(pg, backend)
     # The initializers handle poses: give them the pose-pose part (build_graph
-    # puts the landmark measurements last), then place the landmarks.
+    # puts the landmark measurements last), then place the landmarks.  They run
+    # on GTSAM's own factors (what every backend's graph holds, measurement and
+    # noise model alike, so every backend starts from the same values) before
+    # the backend's graph exists: the chordal relaxation's transient memory then
+    # does not stack on numba's (torus3D, batch: peak RSS 394 → 343 MiB; native 253).
+    native = build_graph(pg, "native")
     pose_part = gtsam.NonlinearFactorGraph()
     for k in range(pg.edges + 1):
-        pose_part.add(graph.at(k))
+        pose_part.add(native.at(k))
     file_poses = (None if pg.initialized_from_edges
                   else _poses_only(pg.initial, pg.group) if pg.landmark_count else pg.initial)
     if pg.edges == 0 and init in ("auto", "file"):
@@ -486,8 +491,10 @@ def run(
                    if gnc is not None or robust is not None else None)
         start = initialize(pose_part, init, file_poses, inliers=inliers)
     start = dataclasses.replace(start, values=_with_landmarks(start.values, pg))
+    del native, pose_part
     if on_init is not None:
         on_init(start)
+    graph = build_graph(pg, backend)
     if gnc is not None:
         return _run_gnc(pg, graph, start, backend, max_iterations, gnc, gnc_progress)
     if robust is not None:
