@@ -179,8 +179,11 @@ def scaling(sizes):
 
 def peak_rss(backend, dataset="torus3D", *extra):
     """Peak RSS (MiB) of ``lie-factors posegraph DATASET --backend BACKEND [extra]`` in a fresh process."""
-    code = ("import resource, sys; from lie_factors import cli; rc = cli.main(sys.argv[1:]); "
-            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)")
+    # VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss across fork + exec, so a
+    # child of this (large) benchmark process would report the parent's peak.
+    code = ("import sys; from lie_factors import cli; rc = cli.main(sys.argv[1:]); "
+            "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]; "
+            "print(hwm.split()[1], file=sys.stderr); sys.exit(rc)")
     env = dict(os.environ, PYTHONPATH=ROOT)
     p = subprocess.run([sys.executable, "-c", code, "posegraph", os.path.join(DATA, dataset + ".g2o"),
                         "--backend", backend, "--json", *extra], capture_output=True, text=True, env=env)
