@@ -491,14 +491,15 @@ def run(
                    if gnc is not None or robust is not None else None)
         start = initialize(pose_part, init, file_poses, inliers=inliers)
     start = dataclasses.replace(start, values=_with_landmarks(start.values, pg))
-    del native, pose_part
+    del pose_part
     if on_init is not None:
         on_init(start)
-    graph = build_graph(pg, backend)
+    # GNC weighs the plain graph itself; a robust run wraps the loop closures' noise models.
+    loss = robust if gnc is None else None
+    graph = native if backend == "native" and loss is None else build_graph(pg, backend, loss, robust_all)
+    del native
     if gnc is not None:
         return _run_gnc(pg, graph, start, backend, max_iterations, gnc, gnc_progress)
-    if robust is not None:
-        graph = build_graph(pg, backend, robust, robust_all)
     opt = get_backend(backend).optimize or optimize
     if robust is not None and backend == "batch":
         opt = _optimize_batch_robust
