@@ -70,6 +70,10 @@ class VarBlock:
         self.offsets: np.ndarray | None = None
         self._key_arrays: list = []  # key columns of this group's factors, numbered by number_keys
 
+    def use_keys(self, keys: np.ndarray) -> None:
+        """Add factor keys (uint64) to those :meth:`number_keys` numbers."""
+        self._key_arrays.append(keys)
+
     def number_keys(self) -> None:
         """``keys`` (sorted) and ``index`` (key → local element index) of every key a factor uses."""
         ks = (np.unique(np.concatenate(self._key_arrays)) if self._key_arrays
@@ -78,9 +82,9 @@ class VarBlock:
         self.keys = ks.tolist()
         self.index = dict(zip(self.keys, range(len(self.keys))))
 
-    def local(self, keys) -> np.ndarray:
-        """Local element indices of ``keys`` (a sequence of keys in :attr:`keys`)."""
-        return np.searchsorted(self._sorted, np.array(keys, dtype=np.uint64)).astype(np.int64)
+    def local(self, keys: np.ndarray) -> np.ndarray:
+        """Local element indices of ``keys`` (uint64, all in :attr:`keys`)."""
+        return np.searchsorted(self._sorted, keys).astype(np.int64)
 
 
 class FactorGroup:
@@ -95,13 +99,25 @@ class FactorGroup:
     def __init__(self, kind, spec):
         self.kind, self.spec = kind, spec
         self.rows: list = []  # (graph index, key1, key2 | None, constant, AdMinv | None, R)
+        self.columns: tuple = ()  # the rows transposed, by close_rows
+
+    def close_rows(self, block: VarBlock) -> None:
+        """Transpose the rows read into columns and hand their keys to ``block`` for numbering."""
+        fidx, k1, k2, C, Ad, R = tuple(zip(*self.rows)) if self.rows else ((),) * 6
+        self.rows = None
+        k1 = np.array(k1, dtype=np.uint64)
+        block.use_keys(k1)
+        if self.kind == "between":
+            k2 = np.array(k2, dtype=np.uint64)
+            block.use_keys(k2)
+        self.columns = (fidx, k1, k2, C, Ad, R)
 
     def finalize(self, block: VarBlock):
         n = self.spec.dim
-        E = len(self.rows)
+        fidx, k1, k2, C, Ad, R = self.columns
+        E = len(fidx)
         self.E = E
         self.loops = block.loops
-        fidx, k1, k2, C, Ad, R = zip(*self.rows) if E else ((),) * 6
         self.fidx = np.array(fidx, dtype=np.int64)
         self.i1 = block.local(k1)
         m = self.spec.kernels.MAT
@@ -114,7 +130,7 @@ class FactorGroup:
         self.A1 = np.empty((E, n, n))
         self.b = np.empty((E, n))
         self.sq = np.empty(E)
-        self.rows = None
+        self.columns = ()
 
     def linearize(self, X):
         if self.kind == "between":
@@ -276,12 +292,7 @@ class Problem:
             else:
                 rows.append((i, f._key, None, f._Pinv, None, R))
         for g in self.groups:
-            keys = self.blocks[g.spec.name]._key_arrays
-            if g.rows:
-                cols = list(zip(*g.rows))
-                keys.append(np.array(cols[1], dtype=np.uint64))
-                if g.kind == "between":
-                    keys.append(np.array(cols[2], dtype=np.uint64))
+            g.close_rows(self.blocks[g.spec.name])
         for block in self.blocks.values():
             block.number_keys()
 
