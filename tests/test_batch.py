@@ -81,6 +81,22 @@ def _gtsam_lm(graph, initial, params=None):
     return values, opt.iterations(), graph.error(values)
 
 
+def _stepwise_errors(opt, params, lambdas=None):
+    """GTSAM's error after each iteration of ``opt`` (the initial one first), stepped as
+    ``NonlinearOptimizer::defaultOptimize`` does; LM's λ after each appended to ``lambdas``."""
+    errors = [opt.error()]
+    if lambdas is not None:
+        lambdas.append(opt.lambda_())
+    while True:
+        cur = opt.error()
+        opt.iterate()
+        errors.append(opt.error())
+        if lambdas is not None:
+            lambdas.append(opt.lambda_())
+        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
+            return errors
+
+
 def _max_diff(group, a: gtsam.Values, b: gtsam.Values):
     at = {"Pose3": "atPose3", "Rot3": "atRot3", "Pose2": "atPose2", "Similarity2": "atSimilarity2",
           "Similarity3": "atSimilarity3"}[group]
@@ -120,14 +136,8 @@ def test_lambda_sequence_matches_gtsam(diagonal, linear_solver):
     params.setDiagonalDamping(diagonal)
     params.setlambdaInitial(1e3)  # start far from Gauss-Newton: exercises λ updates
     opt = gtsam.LevenbergMarquardtOptimizer(lie, initial, params)
-    errors, lambdas = [opt.error()], [opt.lambda_()]
-    while True:
-        cur = opt.error()
-        opt.iterate()
-        errors.append(opt.error())
-        lambdas.append(opt.lambda_())
-        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
-            break
+    lambdas = []
+    errors = _stepwise_errors(opt, params, lambdas)
     res = batch.optimize(lie, initial, params, linear_solver=linear_solver)
     assert res.iterations == opt.iterations()
     np.testing.assert_allclose(res.errors, errors, rtol=1e-8)
@@ -306,13 +316,7 @@ def test_landmarks_point2_point3(is3d, linear_solver):
     lie, native, initial = _landmark_graph(is3d)
     params = gtsam.LevenbergMarquardtParams()
     opt = gtsam.LevenbergMarquardtOptimizer(lie, initial, params)
-    errors = [opt.error()]
-    while True:
-        cur = opt.error()
-        opt.iterate()
-        errors.append(opt.error())
-        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
-            break
+    errors = _stepwise_errors(opt, params)
     res = batch.optimize(lie, initial, params, linear_solver=linear_solver)
     assert res.iterations == opt.iterations()
     np.testing.assert_allclose(res.errors, errors, rtol=1e-6)
@@ -365,13 +369,7 @@ def test_gauss_newton_matches_gtsam(linear_solver):
     lie, _, initial = _landmark_graph(False, seed=9)
     params = gtsam.GaussNewtonParams()
     opt = gtsam.GaussNewtonOptimizer(lie, initial, params)
-    errors = [opt.error()]
-    while True:
-        cur = opt.error()
-        opt.iterate()
-        errors.append(opt.error())
-        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
-            break
+    errors = _stepwise_errors(opt, params)
     res = batch.optimize(lie, initial, params, linear_solver=linear_solver)
     assert res.iterations == opt.iterations()
     np.testing.assert_allclose(res.errors, errors, rtol=1e-6)
@@ -478,13 +476,7 @@ def test_reweight_and_cost_hooks_reproduce_gtsam_robust_huber():
 
     params = gtsam.LevenbergMarquardtParams()
     opt = gtsam.LevenbergMarquardtOptimizer(robust, initial, params)
-    errors = [opt.error()]
-    while True:
-        cur = opt.error()
-        opt.iterate()
-        errors.append(opt.error())
-        if opt.iterations() >= params.getMaxIterations() or gtsam.checkConvergence(params, cur, opt.error()):
-            break
+    errors = _stepwise_errors(opt, params)
     res = batch.optimize(plain, initial, params, reweight=weight, cost=cost)
     assert res.iterations == opt.iterations()
     np.testing.assert_allclose(res.errors, errors, rtol=1e-6)
