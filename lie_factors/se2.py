@@ -215,7 +215,117 @@ def _inverse(X, out):
     out[2, 2] = 1.0
 
 
+# ---------------------------------------------------------------- one element, one numba call
+# The public functions below try these first: a float64 array of exactly the
+# element's shape is validated and computed in ONE numba call instead of the
+# general path's numpy checks and batching (see docs/benchmarks.md for the cost).
+# Each returns True when ``out`` holds the result and False when the input must
+# take the general path, which raises the ValueError naming the problem
+# (_validate.finite / element_ok make the same checks as the general path).
+# ``np.ascontiguousarray`` is a no-op for C-ordered input and a small copy
+# otherwise (GTSAM's ``.matrix()`` is Fortran-ordered), so the cores are only
+# ever compiled for C-ordered arrays.
+
+
+@_jit.kernel
+def _hat1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _hat(x, out)
+    return True
+
+
+@_jit.kernel
+def _vee1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.finite(X):
+        return False
+    _vee(X, out)
+    return True
+
+
+@_jit.kernel
+def _exp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _exp(x, out)
+    return True
+
+
+@_jit.kernel
+def _log1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 2, _validate.ONE):
+        return False
+    _log(X, out)
+    return True
+
+
+@_jit.kernel
+def _ad1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _ad(x, out)
+    return True
+
+
+@_jit.kernel
+def _Ad1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 2, _validate.ONE):
+        return False
+    _Ad(X, out)
+    return True
+
+
+@_jit.kernel
+def _dexp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _dexp(x, out)
+    return True
+
+
+@_jit.kernel
+def _dlog1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _dlog(x, out)
+    return True
+
+
+@_jit.kernel
+def _compose1(X, Y, out):
+    X = np.ascontiguousarray(X)
+    Y = np.ascontiguousarray(Y)
+    if not (_validate.element_ok(X, 2, _validate.ONE) and _validate.element_ok(Y, 2, _validate.ONE)):
+        return False
+    _compose(X, Y, out)
+    return True
+
+
+@_jit.kernel
+def _inverse1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 2, _validate.ONE):
+        return False
+    _inverse(X, out)
+    return True
+
+
 # --- public, broadcasting ----------------------------------------------------------------------
+# Each public function first tries its one-element fast path (``_exp1`` …): taken when
+# the input is an ndarray of exactly the element's shape and dtype float64 (any memory
+# order); batches, lists, other dtypes and refused inputs take the general path.
+# Both run the same cores.
+
+_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
 
 _ROW = "[0, 0, 1]"
 
@@ -229,16 +339,28 @@ def _element(X, name):
 
 def hat(x):
     """(..., 3) → (..., 3, 3): [[0, -θ, x], [θ, 0, y], [0, 0, 0]]."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_M)
+        if _hat1(x, out):
+            return out
     return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
 
 def vee(X):
     """(..., 3, 3) → (..., 3): [X[0, 2], X[1, 2], X[1, 0]]."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_V)
+        if _vee1(X, out):
+            return out
     return _jit.apply(_vee, _validate.square(X, MAT, "X"), 2, (DIM,))
 
 
 def exp(x):
     """(..., 3) → (..., 3, 3): [[R(θ), V u], [0, 1]], V = a_θ I + θ b_θ J (seed 000, Eqs. 50–51)."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_M)
+        if _exp1(x, out):
+            return out
     return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
 
@@ -247,16 +369,28 @@ def log(X):
 
     Raises ValueError unless the rotation block is orthonormal and the last row is [0, 0, 1].
     """
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_V)
+        if _log1(X, out):
+            return out
     return _jit.apply(_log, _element(X, "X"), 2, (DIM,))
 
 
 def ad(x):
     """(..., 3) → (..., 3, 3): ad_x y = vee([hat x, hat y]) (seed 000, Eq. 78)."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _ad1(x, out):
+            return out
     return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
 def Ad(X):
     """(..., 3, 3) → (..., 3, 3): [[R, (t_y, -t_x)ᵀ], [0, 1]], X hat(y) X⁻¹ = hat(Ad(X) y)."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_J)
+        if _Ad1(X, out):
+            return out
     return _jit.apply(_Ad, _element(X, "X"), 2, (DIM, DIM))
 
 
@@ -265,6 +399,10 @@ def dexp(x):
 
     GTSAM's Pose2.ExpmapDerivative(x) equals dexp(-x).
     """
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _dexp1(x, out):
+            return out
     return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
@@ -273,14 +411,27 @@ def dlog(x):
 
     GTSAM's Pose2.LogmapDerivative(x) equals dlog(-x).
     """
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _dlog1(x, out):
+            return out
     return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
 def compose(X, Y):
     """(..., 3, 3) × (..., 3, 3) → (..., 3, 3): X·Y, batch axes broadcast."""
+    if (type(X) is _ND and type(Y) is _ND and X.shape == _M and Y.shape == _M
+            and X.dtype is _F64 and Y.dtype is _F64):
+        out = _empty(_M)
+        if _compose1(X, Y, out):
+            return out
     return _jit.apply2(_compose, _element(X, "X"), _element(Y, "Y"), (2, 2), (MAT, MAT))
 
 
 def inverse(X):
     """(..., 3, 3) → (..., 3, 3): [[Rᵀ, -Rᵀ t], [0, 1]]."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_M)
+        if _inverse1(X, out):
+            return out
     return _jit.apply(_inverse, _element(X, "X"), 2, (MAT, MAT))

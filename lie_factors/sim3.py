@@ -548,7 +548,117 @@ def _inverse(X, out):
     out[3, 3] = ci
 
 
+# ---------------------------------------------------------------- one element, one numba call
+# The public functions below try these first: a float64 array of exactly the
+# element's shape is validated and computed in ONE numba call instead of the
+# general path's numpy checks and batching (see docs/benchmarks.md for the cost).
+# Each returns True when ``out`` holds the result and False when the input must
+# take the general path, which raises the ValueError naming the problem
+# (_validate.finite / element_ok make the same checks as the general path).
+# ``np.ascontiguousarray`` is a no-op for C-ordered input and a small copy
+# otherwise (GTSAM's ``.matrix()`` is Fortran-ordered), so the cores are only
+# ever compiled for C-ordered arrays.
+
+
+@kernel
+def _hat1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _hat(x, out)
+    return True
+
+
+@kernel
+def _vee1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.finite(X):
+        return False
+    _vee(X, out)
+    return True
+
+
+@kernel
+def _exp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _exp(x, out)
+    return True
+
+
+@kernel
+def _log1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 3, _validate.POSITIVE):
+        return False
+    _log(X, out)
+    return True
+
+
+@kernel
+def _ad1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _ad(x, out)
+    return True
+
+
+@kernel
+def _Ad1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 3, _validate.POSITIVE):
+        return False
+    _Ad(X, out)
+    return True
+
+
+@kernel
+def _dexp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _dexp(x, out)
+    return True
+
+
+@kernel
+def _dlog1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _dlog(x, out)
+    return True
+
+
+@kernel
+def _compose1(X, Y, out):
+    X = np.ascontiguousarray(X)
+    Y = np.ascontiguousarray(Y)
+    if not (_validate.element_ok(X, 3, _validate.POSITIVE) and _validate.element_ok(Y, 3, _validate.POSITIVE)):
+        return False
+    _compose(X, Y, out)
+    return True
+
+
+@kernel
+def _inverse1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 3, _validate.POSITIVE):
+        return False
+    _inverse(X, out)
+    return True
+
+
 # ---------------------------------------------------------------- public API
+# Each public function first tries its one-element fast path (``_exp1`` …): taken when
+# the input is an ndarray of exactly the element's shape and dtype float64 (any memory
+# order); batches, lists, other dtypes and refused inputs take the general path.
+# Both run the same cores.
+
+_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
 
 _ROW = "[0, 0, 0, 1/s]"
 
@@ -562,16 +672,28 @@ def _element(X, name="X"):
 
 def hat(x):
     """(..., 7) → (..., 4, 4): [[ω×, u], [0, −λ]] for x = [ω, u, λ]."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_M)
+        if _hat1(x, out):
+            return out
     return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
 
 def vee(X):
     """(..., 4, 4) → (..., 7): [X21, X02, X10, X03, X13, X23, −X33], the inverse of :func:`hat`."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_V)
+        if _vee1(X, out):
+            return out
     return _jit.apply(_vee, _validate.square(X, MAT), 2, (DIM,))
 
 
 def exp(x):
     """(..., 7) → (..., 4, 4): [[R, e^{−λ} φ1(Ω + λI) u], [0, e^{−λ}]] = expm(hat x)."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_M)
+        if _exp1(x, out):
+            return out
     return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
 
@@ -581,11 +703,19 @@ def log(X):
     Raises ValueError unless the rotation block is a rotation and the last row is
     [0, 0, 0, 1/s] with 1/s > 0.
     """
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_V)
+        if _log1(X, out):
+            return out
     return _jit.apply(_log, _element(X), 2, (DIM,))
 
 
 def ad(x):
     """(..., 7) → (..., 7, 7): [[Ω, 0, 0], [U, Ω + λI, −u], [0, 0, 0]]."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _ad1(x, out):
+            return out
     return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
@@ -594,11 +724,19 @@ def Ad(X):
 
     X hat(y) X⁻¹ = hat(Ad(X) y); validates like :func:`log`.
     """
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_J)
+        if _Ad1(X, out):
+            return out
     return _jit.apply(_Ad, _element(X), 2, (DIM, DIM))
 
 
 def dexp(x):
     """(..., 7) → (..., 7, 7): left Jacobian φ1(ad_x) = [[J, 0, 0], [Q, W, −φ2(B) u], [0, 0, 1]]."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _dexp1(x, out):
+            return out
     return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
@@ -607,14 +745,27 @@ def dlog(x):
 
     Singular where φ1(λ + iθ) = 0 or J is, i.e. θ = 2πk (k ≥ 1).
     """
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _dlog1(x, out):
+            return out
     return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
 def compose(X, Y):
     """(..., 4, 4) × (..., 4, 4) → (..., 4, 4): X·Y, batch axes broadcast."""
+    if (type(X) is _ND and type(Y) is _ND and X.shape == _M and Y.shape == _M
+            and X.dtype is _F64 and Y.dtype is _F64):
+        out = _empty(_M)
+        if _compose1(X, Y, out):
+            return out
     return _jit.apply2(_compose, _element(X, "X"), _element(Y, "Y"), (2, 2), (MAT, MAT))
 
 
 def inverse(X):
     """(..., 4, 4) → (..., 4, 4): [[Rᵀ, −Rᵀ t/X33], [0, 1/X33]]."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_M)
+        if _inverse1(X, out):
+            return out
     return _jit.apply(_inverse, _element(X), 2, (MAT, MAT))

@@ -166,7 +166,117 @@ def _inverse(X, out):
             out[i, j] = X[j, i]
 
 
+# ---------------------------------------------------------------- one element, one numba call
+# The public functions below try these first: a float64 array of exactly the
+# element's shape is validated and computed in ONE numba call instead of the
+# general path's numpy checks and batching (see docs/benchmarks.md for the cost).
+# Each returns True when ``out`` holds the result and False when the input must
+# take the general path, which raises the ValueError naming the problem
+# (_validate.finite / element_ok make the same checks as the general path).
+# ``np.ascontiguousarray`` is a no-op for C-ordered input and a small copy
+# otherwise (GTSAM's ``.matrix()`` is Fortran-ordered), so the cores are only
+# ever compiled for C-ordered arrays.
+
+
+@kernel
+def _hat1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _hat(x, out)
+    return True
+
+
+@kernel
+def _vee1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.finite(X):
+        return False
+    _vee(X, out)
+    return True
+
+
+@kernel
+def _exp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _exp(x, out)
+    return True
+
+
+@kernel
+def _log1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 3, _validate.NO_CORNER):
+        return False
+    _log(X, out)
+    return True
+
+
+@kernel
+def _ad1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _ad(x, out)
+    return True
+
+
+@kernel
+def _Ad1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 3, _validate.NO_CORNER):
+        return False
+    _Ad(X, out)
+    return True
+
+
+@kernel
+def _dexp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _dexp(x, out)
+    return True
+
+
+@kernel
+def _dlog1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _dlog(x, out)
+    return True
+
+
+@kernel
+def _compose1(X, Y, out):
+    X = np.ascontiguousarray(X)
+    Y = np.ascontiguousarray(Y)
+    if not (_validate.finite(X) and _validate.finite(Y)):
+        return False
+    _compose(X, Y, out)
+    return True
+
+
+@kernel
+def _inverse1(X, out):
+    X = np.ascontiguousarray(X)
+    if not _validate.element_ok(X, 3, _validate.NO_CORNER):
+        return False
+    _inverse(X, out)
+    return True
+
+
 # ---------------------------------------------------------------- public API
+# Each public function first tries its one-element fast path (``_exp1`` …): taken when
+# the input is an ndarray of exactly the element's shape and dtype float64 (any memory
+# order); batches, lists, other dtypes and refused inputs take the general path.
+# Both run the same cores.
+
+_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
 
 
 def _rotations(X, name="X"):
@@ -177,16 +287,28 @@ def _rotations(X, name="X"):
 
 def hat(x):
     """(..., 3) → (..., 3, 3): ω×."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_M)
+        if _hat1(x, out):
+            return out
     return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
 
 def vee(X):
     """(..., 3, 3) → (..., 3): [X21, X02, X10], the inverse of :func:`hat`."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_V)
+        if _vee1(X, out):
+            return out
     return _jit.apply(_vee, _validate.square(X, MAT), 2, (DIM,))
 
 
 def exp(x):
     """(..., 3) → (..., 3, 3): exp(ω×), Rodrigues' formula (seed 004)."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_M)
+        if _exp1(x, out):
+            return out
     return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
 
@@ -195,31 +317,56 @@ def log(X):
 
     Raises ValueError unless every X is a rotation (max|XᵀX − I| ≤ 1e-9, det > 0).
     """
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_V)
+        if _log1(X, out):
+            return out
     return _jit.apply(_log, _rotations(X), 2, (DIM,))
 
 
 def ad(x):
     """(..., 3) → (..., 3, 3): ad_ω = ω× (seed 000, Eq. 43)."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _ad1(x, out):
+            return out
     return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
 def Ad(X):
     """(..., 3, 3) → (..., 3, 3): Ad_R = R. Raises ValueError for non-rotations."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_J)
+        if _Ad1(X, out):
+            return out
     return _jit.apply(_Ad, _rotations(X), 2, (DIM, DIM))
 
 
 def dexp(x):
     """(..., 3) → (..., 3, 3): left Jacobian D_exp(ω) (seed 000, Eqs. 35, 46, 53)."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _dexp1(x, out):
+            return out
     return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
 def dlog(x):
     """(..., 3) → (..., 3, 3): D_exp(ω)⁻¹ (seed 000, Eqs. 55–57), |ω| < 2π."""
+    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
+        out = _empty(_J)
+        if _dlog1(x, out):
+            return out
     return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
 
 def compose(X, Y):
     """(..., 3, 3) × (..., 3, 3) → (..., 3, 3): X·Y, batch axes broadcast."""
+    if (type(X) is _ND and type(Y) is _ND and X.shape == _M and Y.shape == _M
+            and X.dtype is _F64 and Y.dtype is _F64):
+        out = _empty(_M)
+        if _compose1(X, Y, out):
+            return out
     X = _validate.square(X, MAT, "X")
     Y = _validate.square(Y, MAT, "Y")
     return _jit.apply2(_compose, X, Y, (2, 2), (MAT, MAT))
@@ -227,4 +374,8 @@ def compose(X, Y):
 
 def inverse(X):
     """(..., 3, 3) → (..., 3, 3): Rᵀ. Raises ValueError for non-rotations."""
+    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
+        out = _empty(_M)
+        if _inverse1(X, out):
+            return out
     return _jit.apply(_inverse, _rotations(X), 2, (MAT, MAT))
