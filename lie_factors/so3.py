@@ -168,8 +168,9 @@ def _inverse(X, out):
 
 # ---------------------------------------------------------------- one element, one numba call
 # The public functions below try these first: a float64 array of exactly the
-# element's shape is validated and computed in ONE numba call instead of the
-# general path's numpy checks and batching (see docs/benchmarks.md for the cost).
+# element's shape is validated and computed in ONE numba call (through its entry
+# point, _jit.one_element) instead of the general path's numpy checks and
+# batching (see docs/benchmarks.md, "One element per call", for the cost).
 # Each returns True when ``out`` holds the result and False when the input must
 # take the general path, which raises the ValueError naming the problem
 # (_validate.finite / element_ok make the same checks as the general path).
@@ -269,8 +270,21 @@ def _inverse1(X, out):
     return True
 
 
+# Python's handles on the wrappers above: their compiled entry points, bound on first use.
+_hat_one = _jit.one_element(_hat1, (1,), 2, globals(), "_hat_one")
+_vee_one = _jit.one_element(_vee1, (2,), 1, globals(), "_vee_one")
+_exp_one = _jit.one_element(_exp1, (1,), 2, globals(), "_exp_one")
+_log_one = _jit.one_element(_log1, (2,), 1, globals(), "_log_one")
+_ad_one = _jit.one_element(_ad1, (1,), 2, globals(), "_ad_one")
+_Ad_one = _jit.one_element(_Ad1, (2,), 2, globals(), "_Ad_one")
+_dexp_one = _jit.one_element(_dexp1, (1,), 2, globals(), "_dexp_one")
+_dlog_one = _jit.one_element(_dlog1, (1,), 2, globals(), "_dlog_one")
+_compose_one = _jit.one_element(_compose1, (2, 2), 2, globals(), "_compose_one")
+_inverse_one = _jit.one_element(_inverse1, (2,), 2, globals(), "_inverse_one")
+
+
 # ---------------------------------------------------------------- public API
-# Each public function first tries its one-element fast path (``_exp1`` …): taken when
+# Each public function first tries its one-element fast path (``_exp_one`` …): taken when
 # the input is an ndarray of exactly the element's shape and dtype float64 (any memory
 # order); batches, lists, other dtypes and refused inputs take the general path.
 # Both run the same cores.
@@ -289,7 +303,7 @@ def hat(x):
     """(..., 3) → (..., 3, 3): ω×."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_M)
-        if _hat1(x, out):
+        if _hat_one(x, out):
             return out
     return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
@@ -298,7 +312,7 @@ def vee(X):
     """(..., 3, 3) → (..., 3): [X21, X02, X10], the inverse of :func:`hat`."""
     if type(X) is _ND and X.shape == _M and X.dtype is _F64:
         out = _empty(_V)
-        if _vee1(X, out):
+        if _vee_one(X, out):
             return out
     return _jit.apply(_vee, _validate.square(X, MAT), 2, (DIM,))
 
@@ -307,7 +321,7 @@ def exp(x):
     """(..., 3) → (..., 3, 3): exp(ω×), Rodrigues' formula (seed 004)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_M)
-        if _exp1(x, out):
+        if _exp_one(x, out):
             return out
     return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
 
@@ -319,7 +333,7 @@ def log(X):
     """
     if type(X) is _ND and X.shape == _M and X.dtype is _F64:
         out = _empty(_V)
-        if _log1(X, out):
+        if _log_one(X, out):
             return out
     return _jit.apply(_log, _rotations(X), 2, (DIM,))
 
@@ -328,7 +342,7 @@ def ad(x):
     """(..., 3) → (..., 3, 3): ad_ω = ω× (seed 000, Eq. 43)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
-        if _ad1(x, out):
+        if _ad_one(x, out):
             return out
     return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
@@ -337,7 +351,7 @@ def Ad(X):
     """(..., 3, 3) → (..., 3, 3): Ad_R = R. Raises ValueError for non-rotations."""
     if type(X) is _ND and X.shape == _M and X.dtype is _F64:
         out = _empty(_J)
-        if _Ad1(X, out):
+        if _Ad_one(X, out):
             return out
     return _jit.apply(_Ad, _rotations(X), 2, (DIM, DIM))
 
@@ -346,7 +360,7 @@ def dexp(x):
     """(..., 3) → (..., 3, 3): left Jacobian D_exp(ω) (seed 000, Eqs. 35, 46, 53)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
-        if _dexp1(x, out):
+        if _dexp_one(x, out):
             return out
     return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
@@ -355,7 +369,7 @@ def dlog(x):
     """(..., 3) → (..., 3, 3): D_exp(ω)⁻¹ (seed 000, Eqs. 55–57), |ω| < 2π."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
-        if _dlog1(x, out):
+        if _dlog_one(x, out):
             return out
     return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
 
@@ -365,7 +379,7 @@ def compose(X, Y):
     if (type(X) is _ND and type(Y) is _ND and X.shape == _M and Y.shape == _M
             and X.dtype is _F64 and Y.dtype is _F64):
         out = _empty(_M)
-        if _compose1(X, Y, out):
+        if _compose_one(X, Y, out):
             return out
     X = _validate.square(X, MAT, "X")
     Y = _validate.square(Y, MAT, "Y")
@@ -376,6 +390,6 @@ def inverse(X):
     """(..., 3, 3) → (..., 3, 3): Rᵀ. Raises ValueError for non-rotations."""
     if type(X) is _ND and X.shape == _M and X.dtype is _F64:
         out = _empty(_M)
-        if _inverse1(X, out):
+        if _inverse_one(X, out):
             return out
     return _jit.apply(_inverse, _rotations(X), 2, (MAT, MAT))
