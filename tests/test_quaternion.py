@@ -2,6 +2,7 @@
 
 import math
 
+import gtsam
 import mpmath as mp
 import numpy as np
 import pytest
@@ -150,9 +151,6 @@ def test_bad_input():
     with pytest.raises(ValueError, match="unit"):
         Q.to_rotation(np.array([2.0, 0, 0, 0]))
     Q.log(np.array([1.0 + 5e-10, 0, 0, 0]))  # inside the tolerance
-
-
-gtsam = pytest.importorskip("gtsam")
 
 
 def test_against_gtsam_quaternion():

@@ -8,6 +8,7 @@ translations 1e-3…1e2 in random directions, nearly parallel and perpendicular 
 import functools
 import math
 
+import gtsam
 import mpmath as mp
 import numpy as np
 import pytest
@@ -242,8 +243,6 @@ def test_bad_pose_raises(f):
 
 
 # ------------------------------------------------------------ GTSAM (tangent [ω, v], right Jacobians)
-
-gtsam = pytest.importorskip("gtsam")
 
 
 def test_against_gtsam_pose3():

@@ -6,6 +6,7 @@ Accuracy is measured as in CONVENTIONS.md against lie_factors.reference
 
 import math
 
+import gtsam
 import mpmath as mp
 import numpy as np
 import pytest
@@ -252,8 +253,6 @@ def test_bad_rotation_raises(f):
 
 
 # ------------------------------------------------------------ GTSAM (right Jacobians)
-
-gtsam = pytest.importorskip("gtsam")
 
 
 def test_against_gtsam_moderate_angles():

@@ -1,0 +1,268 @@
+"""The single-element fast path of every public kernel (so3, se3, se2, sim2, sim3).
+
+One float64 ndarray of exactly the element's shape is validated and computed in
+one numba call; everything else takes the general (batched) path. Both run the
+same cores, so a single element must equal the batch path's result bit for bit,
+and every bad input must still raise the general path's ValueError.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lie_factors import _jit, _validate, se2, se3, sim2, sim3, so3
+
+GROUPS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2, "sim3": sim3}
+TANGENT_FUNCTIONS = ("hat", "exp", "ad", "dexp", "dlog")
+ELEMENT_FUNCTIONS = ("log", "Ad", "inverse")  # validate group membership
+#: compose checks membership for these groups only (so3/se3 check shape and finiteness, as before)
+COMPOSE_CHECKS_ELEMENTS = ("se2", "sim2", "sim3")
+ROT = {"so3": slice(0, 3), "se3": slice(0, 3), "se2": slice(2, 3), "sim2": slice(2, 3), "sim3": slice(0, 3)}
+ROT_DIM = {"so3": 3, "se3": 3, "se2": 2, "sim2": 2, "sim3": 3}
+
+
+def _tangents(name, n, seed=0):
+    K = GROUPS[name]
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, K.DIM))
+    r = ROT[name]
+    w = rng.normal(size=(n, r.stop - r.start))
+    x[:, r] = w * (rng.uniform(0.0, 3.0, size=n) / np.linalg.norm(w, axis=1))[:, None]
+    return x
+
+
+def _elements(name, n, seed=0):
+    return GROUPS[name].exp(_tangents(name, n, seed))
+
+
+def _calls(name, seed=0):
+    """(function name, args) for one element of each public kernel."""
+    K = GROUPS[name]
+    x = _tangents(name, 2, seed)
+    X = K.exp(x)
+    calls = [(f, (x[0],)) for f in TANGENT_FUNCTIONS]
+    calls += [(f, (X[0],)) for f in ELEMENT_FUNCTIONS]
+    calls += [("vee", (K.hat(x[0]),)), ("compose", (X[0], X[1]))]
+    return calls
+
+
+def _batch(K, fname, args):
+    """The general path on a batch of one: the reference the fast path must match bit for bit."""
+    return getattr(K, fname)(*(a[None] for a in args))[0]
+
+
+def _forbid_general_path(monkeypatch):
+    """Make the general (batched) path fail, so a call that returns took the fast path."""
+
+    def fail(*args, **kwargs):
+        raise AssertionError("took the general path")
+
+    monkeypatch.setattr(_jit, "apply", fail)
+    monkeypatch.setattr(_jit, "apply2", fail)
+
+
+@pytest.mark.parametrize("name", GROUPS)
+def test_single_equals_batch_bit_for_bit(name):
+    K = GROUPS[name]
+    for seed in range(5):
+        for fname, args in _calls(name, seed):
+            ours = getattr(K, fname)(*args)
+            ref = _batch(K, fname, args)
+            assert ours.shape == ref.shape and ours.dtype == np.float64
+            assert np.array_equal(ours, ref), (fname, args)
+            assert ours.flags.c_contiguous and ours.flags.writeable and ours.flags.owndata
+
+
+@pytest.mark.parametrize("name", GROUPS)
+def test_fast_path_taken_for_any_memory_order(name, monkeypatch):
+    # C order, Fortran order (GTSAM's .matrix()), a strided view and a read-only view all
+    # take the fast path (one compiled signature serves every memory order).
+    K = GROUPS[name]
+    calls = _calls(name, seed=3)
+    _forbid_general_path(monkeypatch)
+    for fname, args in calls:
+        f = getattr(K, fname)
+        expected = f(*args)
+        variants = {
+            "fortran": [np.asfortranarray(a) for a in args],
+            "strided": [np.repeat(a, 2, axis=-1)[..., ::2] for a in args],
+            "readonly": [a.copy() for a in args],
+        }
+        for a in variants["readonly"]:
+            a.flags.writeable = False
+        for label, vs in variants.items():
+            assert all(v.dtype == np.float64 and v.shape == a.shape for v, a in zip(vs, args))
+            assert np.array_equal(f(*vs), expected), (fname, label)
+
+
+def _outcome(f, args):
+    try:
+        return f(*args).tobytes()
+    except ValueError as exc:
+        return str(exc)
+
+
+@pytest.mark.parametrize("name", GROUPS)
+def test_general_path_inputs_agree(name):
+    # Lists, integer and float32 arrays, 0-d batches and subclasses take the general path
+    # and give the same numbers as the fast path on the float64 conversion.
+    K = GROUPS[name]
+    for fname, args in _calls(name, seed=4):
+        f = getattr(K, fname)
+        expected = f(*args)
+        assert np.array_equal(f(*(a.tolist() for a in args)), expected), fname
+        as32 = [a.astype(np.float32) for a in args]  # rotations in float32 are not orthonormal to 1e-9
+        assert _outcome(f, as32) == _outcome(f, [a.astype(np.float64) for a in as32]), fname
+        big_endian = [a.astype(">f8") for a in args]
+        assert np.array_equal(f(*big_endian), expected), fname
+    ints = np.zeros(K.DIM, dtype=np.int64)
+    ints[0] = 1
+    assert np.array_equal(K.exp(ints), K.exp(ints.astype(np.float64)))
+    assert np.array_equal(K.dexp(ints), K.dexp(ints.astype(np.float64)))
+    identity = np.eye(K.MAT, dtype=np.int64)
+    assert np.array_equal(K.log(identity), np.zeros(K.DIM))
+
+
+@pytest.mark.parametrize("name", GROUPS)
+def test_bad_tangents_raise_on_the_fast_path(name):
+    K = GROUPS[name]
+    x = _tangents(name, 1)[0]
+    for fname in TANGENT_FUNCTIONS:
+        f = getattr(K, fname)
+        for bad_value, what in ((np.nan, "NaN or inf"), (np.inf, "NaN or inf"), (-np.inf, "NaN or inf")):
+            for i in range(K.DIM):
+                bad = x.copy()
+                bad[i] = bad_value
+                with pytest.raises(ValueError, match=what):
+                    f(bad)
+                with pytest.raises(ValueError, match=what):
+                    f(np.asfortranarray(bad))
+        for shape in ((K.DIM - 1,), (K.DIM + 1,), (1,), ()):
+            with pytest.raises(ValueError, match=rf"expected shape \(\.\.\., {K.DIM}\)"):
+                f(np.zeros(shape))
+
+
+def _element_defects(name):
+    """(label, bad element, expected message) for every defect the group checks."""
+    K = GROUPS[name]
+    X = _elements(name, 1, seed=7)[0]
+    d, m = ROT_DIM[name], K.MAT
+    out = []
+    for i in range(m):
+        for j in range(m):
+            for v in (np.nan, np.inf):
+                B = X.copy()
+                B[i, j] = v
+                out.append((f"{v} at {i},{j}", B, "NaN or inf"))
+    B = X.copy()
+    B[:d, :d] *= 1.0 + 1e-6
+    out.append(("scaled rotation", B, "orthonormal"))
+    B = X.copy()
+    B[0, :d] = -B[0, :d]  # a reflection: still orthonormal, det = -1
+    out.append(("reflection", B, "reflection"))
+    if name != "so3":
+        for j in range(m - 1):
+            B = X.copy()
+            B[m - 1, j] = 1e-300
+            out.append((f"last row entry {j}", B, "last row"))
+        if name in ("sim2", "sim3"):
+            for s in (0.0, -0.0, -1.0):
+                B = X.copy()
+                B[m - 1, m - 1] = s
+                out.append((f"scale corner {s}", B, "s > 0"))
+        else:
+            for s in (2.0, 1.0 + 2.0**-52, 0.0, -1.0):
+                B = X.copy()
+                B[m - 1, m - 1] = s
+                out.append((f"corner {s}", B, "last row"))
+    return out
+
+
+@pytest.mark.parametrize("name", GROUPS)
+def test_bad_elements_raise_on_the_fast_path(name):
+    K = GROUPS[name]
+    fs = [getattr(K, f) for f in ELEMENT_FUNCTIONS]
+    if name in COMPOSE_CHECKS_ELEMENTS:
+        good = _elements(name, 1, seed=8)[0]
+        fs += [lambda B: K.compose(B, good), lambda B: K.compose(good, B)]
+    for label, B, what in _element_defects(name):
+        for f in fs:
+            for arg in (B, np.asfortranarray(B)):
+                with pytest.raises(ValueError, match=what) as fast:
+                    f(arg)
+                with pytest.raises(ValueError) as general:
+                    f(arg[None])
+                assert str(fast.value) == str(general.value), label
+    for f in fs + [K.vee]:
+        for shape in ((K.MAT - 1, K.MAT - 1), (K.MAT + 1, K.MAT + 1), (K.MAT, K.MAT + 1), (K.MAT * K.MAT,)):
+            with pytest.raises(ValueError, match="expected shape"):
+                f(np.eye(*shape[:2]) if len(shape) == 2 else np.zeros(shape))
+
+
+@pytest.mark.parametrize("name", GROUPS)
+def test_vee_and_compose_reject_non_finite(name):
+    K = GROUPS[name]
+    X = _elements(name, 2, seed=9)
+    H = K.hat(_tangents(name, 1)[0])
+    for i in range(K.MAT):
+        bad = H.copy()
+        bad[i, -1] = np.nan
+        with pytest.raises(ValueError, match="NaN or inf"):
+            K.vee(bad)
+        bad = X[0].copy()
+        bad[i, 0] = np.inf
+        with pytest.raises(ValueError, match="NaN or inf"):
+            K.compose(bad, X[1])
+        with pytest.raises(ValueError, match="NaN or inf"):
+            K.compose(X[1], bad)
+
+
+@pytest.mark.parametrize("name", GROUPS)
+def test_orthonormality_threshold_straddled(name):
+    # The fast check may refuse a block the general check accepts (within 1e-15 of the
+    # tolerance): that element then takes the general path. It must never accept one the
+    # general check rejects. Sweep max|RᵀR − I| across ORTHONORMAL_TOL in ~1e-16 steps.
+    K = GROUPS[name]
+    d = ROT_DIM[name]
+    X0 = _elements(name, 1, seed=10)[0]
+    tol = _validate.ORTHONORMAL_TOL
+    corner = {"so3": _validate.NO_CORNER, "se3": _validate.ONE, "se2": _validate.ONE}.get(name, _validate.POSITIVE)
+    seen = {"fast": 0, "general only": 0, "rejected": 0}
+    for k in range(-40, 41):
+        delta = 0.5 * tol * (1.0 + k * 2e-7)
+        X = X0.copy()
+        X[:d, 0] *= 1.0 + delta  # column 0 of the block: |c0|² − 1 ≈ 2δ
+        try:
+            _validate.rotation_block(X[None], "X", d)  # the general path's own check
+            general_ok = True
+        except ValueError:
+            general_ok = False
+        fast_ok = bool(_validate.element_ok(np.ascontiguousarray(X), d, corner))
+        assert not (fast_ok and not general_ok), k
+        seen["fast" if fast_ok else "general only" if general_ok else "rejected"] += 1
+        if general_ok:
+            assert np.array_equal(K.log(X), K.log(X[None])[0])
+        else:
+            with pytest.raises(ValueError, match="orthonormal"):
+                K.log(X)
+    assert seen["fast"] and seen["general only"] and seen["rejected"], seen
+
+
+def test_compose_mixed_inputs_take_the_general_path():
+    X = se3.exp(np.array([0.1, 0.2, 0.3, 1.0, 2.0, 3.0]))
+    Y = se3.exp(np.array([-0.3, 0.1, 0.2, 0.0, 1.0, -1.0]))
+    ref = se3.compose(X, Y)
+    assert np.array_equal(se3.compose(X.tolist(), Y), ref)
+    assert np.array_equal(se3.compose(X, Y.tolist()), ref)
+    assert se3.compose(X, np.stack([Y, Y])).shape == (2, 4, 4)
+
+
+class _Sub(np.ndarray):
+    pass
+
+
+def test_subclass_takes_the_general_path():
+    R = so3.exp(np.array([0.1, -0.2, 0.3]))
+    out = so3.log(R.view(_Sub))
+    assert type(out) is np.ndarray and np.array_equal(out, so3.log(R[None])[0])
