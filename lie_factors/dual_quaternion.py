@@ -111,6 +111,42 @@ def _inverse(q, out):
         out[i] = -q[i]
 
 
+# One element in one numba call, as in so3 (see the comment above so3._hat1): True when
+# ``out`` holds the result, False to hand the input to the general path (which raises).
+
+
+@kernel
+def _exp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _exp(x, out)
+    return True
+
+
+@kernel
+def _log1(q, out):
+    q = np.ascontiguousarray(q)
+    if not _validate.finite(q):
+        return False
+    # _unit's two checks, each stricter by 1e-15 so that rounding never accepts what it rejects
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    scale = max(1.0, abs(q[4]), abs(q[5]), abs(q[6]), abs(q[7]))
+    u0, u1, u2, u3 = q[4] / scale, q[5] / scale, q[6] / scale, q[7] / scale
+    nu = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3)
+    orth = abs(q[0] * u0 + q[1] * u1 + q[2] * u2 + q[3] * u3) / max(1.0, nu)
+    if not (abs(n - 1.0) <= UNIT_TOL - 1e-15 and orth <= UNIT_TOL - 1e-15):
+        return False
+    _log(q, out)
+    return True
+
+
+_exp_one = _jit.one_element(_exp1, (1,), 1, globals(), "_exp_one")
+_log_one = _jit.one_element(_log1, (1,), 1, globals(), "_log_one")
+_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_6, _8 = (6,), (8,)
+
+
 def _unit(dq, name="dq"):
     dq = _validate.tangent(dq, 8, name)
     if dq.size:
@@ -130,11 +166,19 @@ def _unit(dq, name="dq"):
 
 def exp(xi):
     """(..., 6) → (..., 8): [q_r, q_d] of se3.exp(xi), xi = [ω, v] (seed 004)."""
+    if type(xi) is _ND and xi.shape == _6 and xi.dtype is _F64:
+        out = _empty(_8)
+        if _exp_one(xi, out):
+            return out
     return _jit.apply(_exp, _validate.tangent(xi, 6, "xi"), 1, (8,))
 
 
 def log(dq):
     """(..., 8) → (..., 6): xi = [ω, v] with |ω| ≤ π, the inverse of :func:`exp` (seed 004, corrected)."""
+    if type(dq) is _ND and dq.shape == _8 and dq.dtype is _F64:
+        out = _empty(_6)
+        if _log_one(dq, out):
+            return out
     return _jit.apply(_log, _unit(dq), 1, (6,))
 
 

@@ -121,6 +121,38 @@ def _from_rotation(R, out):
             out[i] = -out[i]
 
 
+# One element in one numba call, as in so3 (see the comment above so3._hat1): True when
+# ``out`` holds the result, False to hand the input to the general path (which raises).
+
+
+@kernel
+def _exp1(x, out):
+    x = np.ascontiguousarray(x)
+    if not _validate.finite(x):
+        return False
+    _exp(x, out)
+    return True
+
+
+@kernel
+def _log1(q, out):
+    q = np.ascontiguousarray(q)
+    if not _validate.finite(q):
+        return False
+    # _unit's check; stricter by 1e-15 so that rounding never accepts what it rejects
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if not abs(n - 1.0) <= UNIT_TOL - 1e-15:
+        return False
+    _log(q, out)
+    return True
+
+
+_exp_one = _jit.one_element(_exp1, (1,), 1, globals(), "_exp_one")
+_log_one = _jit.one_element(_log1, (1,), 1, globals(), "_log_one")
+_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_3, _4 = (3,), (4,)
+
+
 def _unit(q, name="q"):
     q = _validate.tangent(q, 4, name)
     if q.size:
@@ -132,11 +164,19 @@ def _unit(q, name="q"):
 
 def exp(x):
     """(..., 3) → (..., 4): [cos(θ/2), sin(θ/2) ω/θ] (seed 004)."""
+    if type(x) is _ND and x.shape == _3 and x.dtype is _F64:
+        out = _empty(_4)
+        if _exp_one(x, out):
+            return out
     return _jit.apply(_exp, _validate.tangent(x, 3), 1, (4,))
 
 
 def log(q):
     """(..., 4) → (..., 3): shortest ω (|ω| ≤ π) with exp(ω) = ±q. Unit norm checked (1e-9)."""
+    if type(q) is _ND and q.shape == _4 and q.dtype is _F64:
+        out = _empty(_3)
+        if _log_one(q, out):
+            return out
     return _jit.apply(_log, _unit(q), 1, (3,))
 
 

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 
 from lie_factors import _jit, _validate, se2, se3, sim2, sim3, so3
+from lie_factors import dual_quaternion as DQ
+from lie_factors import quaternion as Q
 
 GROUPS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2, "sim3": sim3}
 TANGENT_FUNCTIONS = ("hat", "exp", "ad", "dexp", "dlog")
@@ -266,3 +268,61 @@ def test_subclass_takes_the_general_path():
     R = so3.exp(np.array([0.1, -0.2, 0.3]))
     out = so3.log(R.view(_Sub))
     assert type(out) is np.ndarray and np.array_equal(out, so3.log(R[None])[0])
+
+
+# ------------------------------------------------------------ quaternion / dual quaternion exp, log
+
+
+@pytest.mark.parametrize("M, n", [(Q, 3), (DQ, 6)], ids=["quaternion", "dual_quaternion"])
+def test_quaternion_exp_log_single_equals_batch(M, n, monkeypatch):
+    rng = np.random.default_rng(11)
+    xs = rng.normal(size=(6, n))
+    xs[:, :3] *= (rng.uniform(0.0, 3.0, size=6) / np.linalg.norm(xs[:, :3], axis=1))[:, None]
+    qs = M.exp(xs)
+    refs = [(M.exp(x[None])[0], M.log(q[None])[0]) for x, q in zip(xs, qs)]
+    _forbid_general_path(monkeypatch)
+    for (x, q), (e_ref, l_ref) in zip(zip(xs, qs), refs):
+        assert np.array_equal(M.exp(x), e_ref) and np.array_equal(M.log(q), l_ref)
+        assert np.array_equal(M.log(np.repeat(q, 2)[::2]), l_ref)
+
+
+@pytest.mark.parametrize("M", [Q, DQ], ids=["quaternion", "dual_quaternion"])
+def test_quaternion_bad_input_raises_on_the_fast_path(M):
+    q = M.exp(np.array([0.3, -0.2, 0.1, 1.0, 2.0, 3.0][: 3 if M is Q else 6]))
+    for i in range(q.size):
+        bad = q.copy()
+        bad[i] = np.nan
+        with pytest.raises(ValueError, match="NaN or inf"):
+            M.log(bad)
+    with pytest.raises(ValueError, match="unit"):
+        M.log(q * (1.0 + 2e-9))
+    with pytest.raises(ValueError, match="shape"):
+        M.log(q[:-1])
+    with pytest.raises(ValueError, match="NaN or inf"):
+        M.exp(np.full(3 if M is Q else 6, np.inf))
+    if M is DQ:
+        bad = q.copy()
+        bad[4:] += 1e-6 * q[:4]  # q_r · q_d ≠ 0: not a unit dual quaternion
+        with pytest.raises(ValueError, match="unit"):
+            M.log(bad)
+
+
+@pytest.mark.parametrize("M", [Q, DQ], ids=["quaternion", "dual_quaternion"])
+def test_quaternion_unit_threshold_straddled(M):
+    # |‖q‖ − 1| swept across UNIT_TOL in ~1e-16 steps: the fast path never accepts what the
+    # general check rejects, and every accepted q gives the batch path's bits.
+    q0 = M.exp(np.array([0.3, -0.2, 0.1, 1.0, 2.0, 3.0][: 3 if M is Q else 6]))
+    outcomes = set()
+    for k in range(-40, 41):
+        q = q0.copy()
+        q[:4] *= 1.0 + M.UNIT_TOL * (1.0 + k * 1e-7)
+        try:
+            ref = M.log(q[None])[0]
+        except ValueError:
+            with pytest.raises(ValueError, match="unit"):
+                M.log(q)
+            outcomes.add("rejected")
+            continue
+        assert np.array_equal(M.log(q), ref)
+        outcomes.add("accepted")
+    assert outcomes == {"accepted", "rejected"}
