@@ -107,39 +107,57 @@ def finite(a):
     return True
 
 
+#: Codes of :func:`element_code` (the factors turn them into messages).
+OK, NOT_FINITE, NOT_ORTHONORMAL, REFLECTION, BAD_LAST_ROW, BAD_SCALE = range(6)
+
+
 @kernel
-def element_ok(X, d, corner):
-    """True when the C-contiguous (m, m) ``X`` passes :func:`square`, :func:`rotation_block`
-    (on ``X[:d, :d]``) and, unless ``corner`` is NO_CORNER, :func:`bottom_row` (ONE: last
-    row [0 … 0 1]; POSITIVE: [0 … 0 s], s > 0). False also for borderline blocks within
-    1e-15 of ORTHONORMAL_TOL (see the module docstring)."""
+def element_code(X, d, corner, tol):
+    """Validate one (m, m) element; returns OK or the code of the first failure.
+
+    Finite entries; rotation block R = X[:d, :d] with max|RᵀR − I| ≤ ``tol`` and
+    det R > 0; then, unless ``corner`` is NO_CORNER, the last row [0 … 0 1]
+    (ONE) or [0 … 0 s], s > 0 (POSITIVE). The tests :func:`square`,
+    :func:`rotation_block` and :func:`bottom_row` run on batches, done on the
+    raw matrix (any memory order) in one call. The factors use it with
+    ``tol = ORTHONORMAL_TOL``, the public functions' fast path through
+    :func:`element_ok`.
+    """
     if not finite(X):
-        return False
-    m = X.shape[0]
-    if corner != NO_CORNER:
-        for j in range(m - 1):
-            if X[m - 1, j] != 0.0:
-                return False
-        s = X[m - 1, m - 1]
-        if corner == ONE and s != 1.0:
-            return False
-        if corner == POSITIVE and not s > 0.0:
-            return False
-    dev = 0.0
+        return NOT_FINITE
     for i in range(d):
-        for j in range(i, d):
-            g = 0.0
+        for j in range(i, d):  # RᵀR is symmetric
+            acc = 0.0
             for k in range(d):
-                g += X[k, i] * X[k, j]
+                acc += X[k, i] * X[k, j]
             if i == j:
-                g -= 1.0
-            dev = max(dev, abs(g))
-    if not dev <= _FAST_ORTHONORMAL_TOL:
-        return False
+                acc -= 1.0
+            if not abs(acc) <= tol:
+                return NOT_ORTHONORMAL
     if d == 2:
         det = X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]
     else:
         det = (X[0, 0] * (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1])
                - X[0, 1] * (X[1, 0] * X[2, 2] - X[1, 2] * X[2, 0])
                + X[0, 2] * (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]))
-    return det > 0.0
+    if det < 0.0:
+        return REFLECTION
+    if corner == NO_CORNER:
+        return OK
+    m = X.shape[0]
+    for j in range(m - 1):
+        if X[m - 1, j] != 0.0:
+            return BAD_LAST_ROW
+    if corner == ONE:
+        if X[m - 1, m - 1] != 1.0:
+            return BAD_LAST_ROW
+    elif not X[m - 1, m - 1] > 0.0:
+        return BAD_SCALE
+    return OK
+
+
+@kernel
+def element_ok(X, d, corner):
+    """True when :func:`element_code` finds nothing wrong with the orthonormality bound
+    1e-15 below ORTHONORMAL_TOL (see the module docstring): the fast path's check."""
+    return element_code(X, d, corner, _FAST_ORTHONORMAL_TOL) == OK

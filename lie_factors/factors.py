@@ -37,7 +37,10 @@ import gtsam
 import numpy as np
 
 from . import _dispatch
+from . import _validate
 from ._validate import ORTHONORMAL_TOL
+# Codes of check_element (defined with the check in _validate); _ELEMENT_ERRORS turns them into messages.
+from ._validate import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION
 from ._jit import kernel
 
 __all__ = [
@@ -117,54 +120,16 @@ def prior(g, Pinv, X, e, H):
     _dispatch.dlog(g, neg, H)
 
 
-# Codes of check_element; _ELEMENT_ERRORS turns them into messages.
-OK, NOT_FINITE, NOT_ORTHONORMAL, REFLECTION, BAD_LAST_ROW, BAD_SCALE = range(6)
-
-
 @kernel
 def check_element(g, X):
     """Validate one (m, m) element of group ``g``; returns OK or the first failure's code.
 
     Finite entries; rotation block R (d×d) with max|RᵀR − I| ≤ ORTHONORMAL_TOL
     and det R > 0; then the last row [0 … 0 1] (or [0 … 0 s], s > 0, for
-    similarity groups). The same tests as :mod:`lie_factors._validate` runs
-    on batches, done on the raw matrix in one call.
+    similarity groups): :func:`lie_factors._validate.element_code`, the check
+    the public functions' single-element path runs too.
     """
-    m = X.shape[0]
-    for i in range(m):
-        for j in range(m):
-            if not np.isfinite(X[i, j]):
-                return NOT_FINITE
-    d = _dispatch.rot_dim(g)
-    for i in range(d):
-        for j in range(d):
-            acc = 0.0
-            for k in range(d):
-                acc += X[k, i] * X[k, j]
-            if i == j:
-                acc -= 1.0
-            if abs(acc) > ORTHONORMAL_TOL:
-                return NOT_ORTHONORMAL
-    if d == 2:
-        det = X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]
-    else:
-        det = (X[0, 0] * (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1])
-               - X[0, 1] * (X[1, 0] * X[2, 2] - X[1, 2] * X[2, 0])
-               + X[0, 2] * (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]))
-    if det < 0.0:
-        return REFLECTION
-    corner = _dispatch.corner(g)
-    if corner == _dispatch.NO_CORNER:
-        return OK
-    for j in range(m - 1):
-        if X[m - 1, j] != 0.0:
-            return BAD_LAST_ROW
-    if corner == _dispatch.ONE:
-        if X[m - 1, m - 1] != 1.0:
-            return BAD_LAST_ROW
-    elif not X[m - 1, m - 1] > 0.0:
-        return BAD_SCALE
-    return OK
+    return _validate.element_code(X, _dispatch.rot_dim(g), _dispatch.corner(g), ORTHONORMAL_TOL)
 
 
 @kernel
