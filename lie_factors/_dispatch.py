@@ -46,9 +46,9 @@ from numba.core.typing import signature
 from numba.extending import NativeValue, intrinsic, models, register_model, typeof_impl, unbox
 
 from . import se2, se3, sim2, sim3, so3
-# ``corner`` of register(), what the bottom-right entry of an element must be: the same codes
-# as _validate.element_ok (the single-element checks), defined there once.
-from ._validate import NO_CORNER, ONE, POSITIVE
+# ``corner`` of register(), what the bottom-right entry of an element must be: the codes of
+# _check.element_code (the single-element checks), defined there once.
+from ._check import NO_CORNER, ONE, POSITIVE
 
 
 class GroupType(types.Type):

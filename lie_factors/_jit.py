@@ -123,6 +123,8 @@ def one_element(wrapper, in_ndims: tuple, out_ndim: int, namespace: dict, name: 
     functions check ``type``, ``shape`` and ``dtype`` first) and an ``out``
     they allocated with ``np.empty``.
     """
+    if not hasattr(wrapper, "compile"):  # NUMBA_DISABLE_JIT=1: the wrapper is the Python function
+        return wrapper
     sig = tuple(_ANY[n] for n in in_ndims) + (_C[out_ndim],)
 
     def first_call(*args):

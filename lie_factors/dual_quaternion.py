@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from lie_factors import _jit, _validate
+from lie_factors import _check, _jit, _validate
 from lie_factors import quaternion as _quat
 from lie_factors._coeffs import a_theta, b_theta, c_theta, dot3, norm3
 from lie_factors._jit import kernel
@@ -118,7 +118,7 @@ def _inverse(q, out):
 @kernel
 def _exp1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _exp(x, out)
     return True
@@ -127,7 +127,7 @@ def _exp1(x, out):
 @kernel
 def _log1(q, out):
     q = np.ascontiguousarray(q)
-    if not _validate.finite(q):
+    if not _check.finite(q):
         return False
     # _unit's two checks, each stricter by 1e-15 so that rounding never accepts what it rejects
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
@@ -143,7 +143,7 @@ def _log1(q, out):
 
 _exp_one = _jit.one_element(_exp1, (1,), 1, globals(), "_exp_one")
 _log_one = _jit.one_element(_log1, (1,), 1, globals(), "_log_one")
-_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
 _6, _8 = (6,), (8,)
 
 

@@ -37,10 +37,10 @@ import gtsam
 import numpy as np
 
 from . import _dispatch
-from . import _validate
+from . import _check
 from ._validate import ORTHONORMAL_TOL
-# Codes of check_element (defined with the check in _validate); _ELEMENT_ERRORS turns them into messages.
-from ._validate import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION
+# Codes of check_element (defined with the check in _check); _ELEMENT_ERRORS turns them into messages.
+from ._check import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION
 from ._jit import kernel
 
 __all__ = [
@@ -126,10 +126,10 @@ def check_element(g, X):
 
     Finite entries; rotation block R (d×d) with max|RᵀR − I| ≤ ORTHONORMAL_TOL
     and det R > 0; then the last row [0 … 0 1] (or [0 … 0 s], s > 0, for
-    similarity groups): :func:`lie_factors._validate.element_code`, the check
+    similarity groups): :func:`lie_factors._check.element_code`, the check
     the public functions' single-element path runs too.
     """
-    return _validate.element_code(X, _dispatch.rot_dim(g), _dispatch.corner(g), ORTHONORMAL_TOL)
+    return _check.element_code(X, _dispatch.rot_dim(g), _dispatch.corner(g), ORTHONORMAL_TOL)
 
 
 @kernel

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from . import _jit, _validate
+from . import _check, _jit, _validate
 
 DIM = 3
 MAT = 3
@@ -222,7 +222,7 @@ def _inverse(X, out):
 # batching (see docs/benchmarks.md, "One element per call", for the cost).
 # Each returns True when ``out`` holds the result and False when the input must
 # take the general path, which raises the ValueError naming the problem
-# (_validate.finite / element_ok make the same checks as the general path).
+# (_check.finite / element_ok make the same checks as the general path).
 # ``np.ascontiguousarray`` is a no-op for C-ordered input and a small copy
 # otherwise (GTSAM's ``.matrix()`` is Fortran-ordered), so the cores are only
 # ever compiled for C-ordered arrays.
@@ -231,7 +231,7 @@ def _inverse(X, out):
 @_jit.kernel
 def _hat1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _hat(x, out)
     return True
@@ -240,7 +240,7 @@ def _hat1(x, out):
 @_jit.kernel
 def _vee1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.finite(X):
+    if not _check.finite(X):
         return False
     _vee(X, out)
     return True
@@ -249,7 +249,7 @@ def _vee1(X, out):
 @_jit.kernel
 def _exp1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _exp(x, out)
     return True
@@ -258,7 +258,7 @@ def _exp1(x, out):
 @_jit.kernel
 def _log1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 2, _validate.ONE):
+    if not _check.element_ok(X, 2, _check.ONE):
         return False
     _log(X, out)
     return True
@@ -267,7 +267,7 @@ def _log1(X, out):
 @_jit.kernel
 def _ad1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _ad(x, out)
     return True
@@ -276,7 +276,7 @@ def _ad1(x, out):
 @_jit.kernel
 def _Ad1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 2, _validate.ONE):
+    if not _check.element_ok(X, 2, _check.ONE):
         return False
     _Ad(X, out)
     return True
@@ -285,7 +285,7 @@ def _Ad1(X, out):
 @_jit.kernel
 def _dexp1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _dexp(x, out)
     return True
@@ -294,7 +294,7 @@ def _dexp1(x, out):
 @_jit.kernel
 def _dlog1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _dlog(x, out)
     return True
@@ -304,7 +304,7 @@ def _dlog1(x, out):
 def _compose1(X, Y, out):
     X = np.ascontiguousarray(X)
     Y = np.ascontiguousarray(Y)
-    if not (_validate.element_ok(X, 2, _validate.ONE) and _validate.element_ok(Y, 2, _validate.ONE)):
+    if not (_check.element_ok(X, 2, _check.ONE) and _check.element_ok(Y, 2, _check.ONE)):
         return False
     _compose(X, Y, out)
     return True
@@ -313,7 +313,7 @@ def _compose1(X, Y, out):
 @_jit.kernel
 def _inverse1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 2, _validate.ONE):
+    if not _check.element_ok(X, 2, _check.ONE):
         return False
     _inverse(X, out)
     return True
@@ -338,7 +338,7 @@ _inverse_one = _jit.one_element(_inverse1, (2,), 2, globals(), "_inverse_one")
 # order); batches, lists, other dtypes and refused inputs take the general path.
 # Both run the same cores.
 
-_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
 _V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
 
 _ROW = "[0, 0, 1]"

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lie_factors import _jit, _validate
+from lie_factors import _check, _jit, _validate
 from lie_factors import so3 as _so3
 from lie_factors._coeffs import (
     a_theta, b_theta, c_theta, dot3, e_omega, ef_omega, norm3, qa_theta, qb_theta,
@@ -263,7 +263,7 @@ def _inverse(X, out):
 # batching (see docs/benchmarks.md, "One element per call", for the cost).
 # Each returns True when ``out`` holds the result and False when the input must
 # take the general path, which raises the ValueError naming the problem
-# (_validate.finite / element_ok make the same checks as the general path).
+# (_check.finite / element_ok make the same checks as the general path).
 # ``np.ascontiguousarray`` is a no-op for C-ordered input and a small copy
 # otherwise (GTSAM's ``.matrix()`` is Fortran-ordered), so the cores are only
 # ever compiled for C-ordered arrays.
@@ -272,7 +272,7 @@ def _inverse(X, out):
 @kernel
 def _hat1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _hat(x, out)
     return True
@@ -281,7 +281,7 @@ def _hat1(x, out):
 @kernel
 def _vee1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.finite(X):
+    if not _check.finite(X):
         return False
     _vee(X, out)
     return True
@@ -290,7 +290,7 @@ def _vee1(X, out):
 @kernel
 def _exp1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _exp(x, out)
     return True
@@ -299,7 +299,7 @@ def _exp1(x, out):
 @kernel
 def _log1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 3, _validate.ONE):
+    if not _check.element_ok(X, 3, _check.ONE):
         return False
     _log(X, out)
     return True
@@ -308,7 +308,7 @@ def _log1(X, out):
 @kernel
 def _ad1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _ad(x, out)
     return True
@@ -317,7 +317,7 @@ def _ad1(x, out):
 @kernel
 def _Ad1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 3, _validate.ONE):
+    if not _check.element_ok(X, 3, _check.ONE):
         return False
     _Ad(X, out)
     return True
@@ -326,7 +326,7 @@ def _Ad1(X, out):
 @kernel
 def _dexp1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _dexp(x, out)
     return True
@@ -335,7 +335,7 @@ def _dexp1(x, out):
 @kernel
 def _dlog1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _dlog(x, out)
     return True
@@ -345,7 +345,7 @@ def _dlog1(x, out):
 def _compose1(X, Y, out):
     X = np.ascontiguousarray(X)
     Y = np.ascontiguousarray(Y)
-    if not (_validate.finite(X) and _validate.finite(Y)):
+    if not (_check.finite(X) and _check.finite(Y)):
         return False
     _compose(X, Y, out)
     return True
@@ -354,7 +354,7 @@ def _compose1(X, Y, out):
 @kernel
 def _inverse1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 3, _validate.ONE):
+    if not _check.element_ok(X, 3, _check.ONE):
         return False
     _inverse(X, out)
     return True
@@ -379,7 +379,7 @@ _inverse_one = _jit.one_element(_inverse1, (2,), 2, globals(), "_inverse_one")
 # order); batches, lists, other dtypes and refused inputs take the general path.
 # Both run the same cores.
 
-_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
 _V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
 
 

@@ -69,7 +69,7 @@ import math
 
 import numpy as np
 
-from lie_factors import _jit, _validate
+from lie_factors import _check, _jit, _validate
 from lie_factors import so3 as _so3
 from lie_factors._coeffs import (
     _A_SERIES, _C_SERIES, _QA_SERIES, A_TAYLOR, C_TAYLOR, QA_TAYLOR, _horner, a_theta, b_theta, c_theta, dot3,
@@ -555,7 +555,7 @@ def _inverse(X, out):
 # batching (see docs/benchmarks.md, "One element per call", for the cost).
 # Each returns True when ``out`` holds the result and False when the input must
 # take the general path, which raises the ValueError naming the problem
-# (_validate.finite / element_ok make the same checks as the general path).
+# (_check.finite / element_ok make the same checks as the general path).
 # ``np.ascontiguousarray`` is a no-op for C-ordered input and a small copy
 # otherwise (GTSAM's ``.matrix()`` is Fortran-ordered), so the cores are only
 # ever compiled for C-ordered arrays.
@@ -564,7 +564,7 @@ def _inverse(X, out):
 @kernel
 def _hat1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _hat(x, out)
     return True
@@ -573,7 +573,7 @@ def _hat1(x, out):
 @kernel
 def _vee1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.finite(X):
+    if not _check.finite(X):
         return False
     _vee(X, out)
     return True
@@ -582,7 +582,7 @@ def _vee1(X, out):
 @kernel
 def _exp1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _exp(x, out)
     return True
@@ -591,7 +591,7 @@ def _exp1(x, out):
 @kernel
 def _log1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 3, _validate.POSITIVE):
+    if not _check.element_ok(X, 3, _check.POSITIVE):
         return False
     _log(X, out)
     return True
@@ -600,7 +600,7 @@ def _log1(X, out):
 @kernel
 def _ad1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _ad(x, out)
     return True
@@ -609,7 +609,7 @@ def _ad1(x, out):
 @kernel
 def _Ad1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 3, _validate.POSITIVE):
+    if not _check.element_ok(X, 3, _check.POSITIVE):
         return False
     _Ad(X, out)
     return True
@@ -618,7 +618,7 @@ def _Ad1(X, out):
 @kernel
 def _dexp1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _dexp(x, out)
     return True
@@ -627,7 +627,7 @@ def _dexp1(x, out):
 @kernel
 def _dlog1(x, out):
     x = np.ascontiguousarray(x)
-    if not _validate.finite(x):
+    if not _check.finite(x):
         return False
     _dlog(x, out)
     return True
@@ -637,7 +637,7 @@ def _dlog1(x, out):
 def _compose1(X, Y, out):
     X = np.ascontiguousarray(X)
     Y = np.ascontiguousarray(Y)
-    if not (_validate.element_ok(X, 3, _validate.POSITIVE) and _validate.element_ok(Y, 3, _validate.POSITIVE)):
+    if not (_check.element_ok(X, 3, _check.POSITIVE) and _check.element_ok(Y, 3, _check.POSITIVE)):
         return False
     _compose(X, Y, out)
     return True
@@ -646,7 +646,7 @@ def _compose1(X, Y, out):
 @kernel
 def _inverse1(X, out):
     X = np.ascontiguousarray(X)
-    if not _validate.element_ok(X, 3, _validate.POSITIVE):
+    if not _check.element_ok(X, 3, _check.POSITIVE):
         return False
     _inverse(X, out)
     return True
@@ -671,7 +671,7 @@ _inverse_one = _jit.one_element(_inverse1, (2,), 2, globals(), "_inverse_one")
 # order); batches, lists, other dtypes and refused inputs take the general path.
 # Both run the same cores.
 
-_ND, _F64, _empty = _validate.NDARRAY, _validate.F64, np.empty
+_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
 _V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
 
 _ROW = "[0, 0, 0, 1/s]"

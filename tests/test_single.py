@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lie_factors import _jit, _validate, se2, se3, sim2, sim3, so3
+from lie_factors import _check, _jit, _validate, se2, se3, sim2, sim3, so3
 from lie_factors import dual_quaternion as DQ
 from lie_factors import quaternion as Q
 
@@ -229,7 +229,7 @@ def test_orthonormality_threshold_straddled(name):
     d = ROT_DIM[name]
     X0 = _elements(name, 1, seed=10)[0]
     tol = _validate.ORTHONORMAL_TOL
-    corner = {"so3": _validate.NO_CORNER, "se3": _validate.ONE, "se2": _validate.ONE}.get(name, _validate.POSITIVE)
+    corner = {"so3": _check.NO_CORNER, "se3": _check.ONE, "se2": _check.ONE}.get(name, _check.POSITIVE)
     seen = {"fast": 0, "general only": 0, "rejected": 0}
     for k in range(-40, 41):
         delta = 0.5 * tol * (1.0 + k * 2e-7)
@@ -240,7 +240,7 @@ def test_orthonormality_threshold_straddled(name):
             general_ok = True
         except ValueError:
             general_ok = False
-        fast_ok = bool(_validate.element_ok(np.ascontiguousarray(X), d, corner))
+        fast_ok = bool(_check.element_ok(np.ascontiguousarray(X), d, corner))
         assert not (fast_ok and not general_ok), k
         seen["fast" if fast_ok else "general only" if general_ok else "rejected"] += 1
         if general_ok:
