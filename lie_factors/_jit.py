@@ -4,7 +4,9 @@ Each closed form is written once, as a numba-compiled *core* that works on one
 element (``core(x, out)`` with ``x`` of shape ``(n,)`` and ``out`` preallocated).
 The factors call the cores directly (a sub-microsecond call); the public,
 broadcasting functions run the same cores over a flattened batch with
-:func:`apply`. There is therefore exactly one implementation of each formula.
+:func:`apply`, or, given exactly one element, through a small kernel that
+checks it and calls the core (:func:`one_element`). There is therefore
+exactly one implementation of each formula.
 """
 
 from __future__ import annotations
