@@ -30,6 +30,8 @@ import time
 import gtsam
 import numpy as np
 
+from .. import factors
+
 __all__ = ["LevenbergMarquardtOptimizer", "GaussNewtonOptimizer", "DoglegOptimizer"]
 
 #: LevenbergMarquardtParams fields without a Python setter (GTSAM's defaults).
@@ -109,7 +111,10 @@ class _NonlinearOptimizer:
         # The optimizer's own copy (GTSAM copies too): the user may change theirs.
         # It is held as a Python object, so callbacks evaluated on it receive it.
         self._values = gtsam.Values(initialValues)
-        self._error = float(graph.error(self._values))
+        # lie_factors' factors in the graph answer their callbacks from one kernel call
+        # per group for each Values the optimizer hands GTSAM (factors.EvaluationPlan).
+        self._plan = factors.EvaluationPlan(graph)
+        self._error = self._graph_error(self._values)
         self._iterations = 0
         self._ordering = self._ordering_for(graph, params, ordering)
         self._eliminate_fn = self._elimination_function(params)
@@ -165,6 +170,21 @@ class _NonlinearOptimizer:
     def params(self):
         """The params object given to the constructor (or the default one)."""
         return self._params
+
+    # ------------------------------------------------------------ GTSAM's evaluations
+    def _linearize(self, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+        """``graph.linearize(values)``; ``values`` is an object this optimizer holds."""
+        if not self._plan:
+            return self._graph.linearize(values)
+        with self._plan.prepared(values):
+            return self._graph.linearize(values)
+
+    def _graph_error(self, values: gtsam.Values) -> float:
+        """``graph.error(values)``; ``values`` is an object this optimizer holds."""
+        if not self._plan:
+            return float(self._graph.error(values))
+        with self._plan.prepared(values):
+            return float(self._graph.error(values))
 
     # ------------------------------------------------------------ linear algebra
     def _eliminate(self, linear: gtsam.GaussianFactorGraph):
@@ -256,12 +276,12 @@ class GaussNewtonOptimizer(_NonlinearOptimizer):
         super().__init__(graph, initialValues, params, ordering)
 
     def iterate(self) -> gtsam.GaussianFactorGraph:
-        linear = self._graph.linearize(self._values)
+        linear = self._linearize(self._values)
         delta = self._solve(linear)
         if self._verbosity() >= _VERBOSITY["DELTA"]:
             delta.print("delta")
         values = self._values.retract(delta)
-        self._error = float(self._graph.error(values))
+        self._error = self._graph_error(values)
         self._values = values
         self._iterations += 1
         return linear
@@ -394,7 +414,7 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
 
     def iterate(self) -> gtsam.GaussianFactorGraph:
         """One iteration: linearize once, then try λ until a step is accepted or LM gives up."""
-        linear = self._graph.linearize(self._values)
+        linear = self._linearize(self._values)
         if self._inner == 0:
             self._write_log(self._error)
             if self._verbosity_lm == _VERBOSITY_LM["SUMMARY"]:
@@ -432,7 +452,7 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
                 print(f"newlinearizedError = {new_linear}  linearizedCostChange = {linear_change}")
             if linear_change >= 0:
                 new_values = self._values.retract(delta)
-                new_error = float(self._graph.error(new_values))
+                new_error = self._graph_error(new_values)
                 cost_change = self._error - new_error
                 if linear_change > _EPS * old_linear:
                     fidelity = cost_change / linear_change
@@ -535,7 +555,7 @@ class DoglegOptimizer(_NonlinearOptimizer):
         return dx_n
 
     def iterate(self) -> gtsam.GaussianFactorGraph:
-        linear = self._graph.linearize(self._values)
+        linear = self._linearize(self._values)
         verbose = self._verbose_dl
         rd = self._eliminate(linear)  # Bayes tree or Bayes net: R and d
         dx_u = rd.optimizeGradientSearch()
@@ -548,7 +568,7 @@ class DoglegOptimizer(_NonlinearOptimizer):
             if verbose:
                 print(f"delta = {delta}, dx_d_norm = {dx_d.norm()}")
             x_d = self._values.retract(dx_d)
-            new_f = float(self._graph.error(x_d))
+            new_f = self._graph_error(x_d)
             new_m = rd.error(dx_d)
             if verbose:
                 print(f"f error: {f_error} -> {new_f}")
