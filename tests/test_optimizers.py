@@ -395,3 +395,24 @@ def test_bad_arguments():
     p = lm_params()
     p.setLinearSolverType("CHOLMOD")
     both_raise(lambda mod: mod.LevenbergMarquardtOptimizer(graph, initial, p).optimize())
+
+
+def test_cli_custom_backend_runs_the_drop_in(monkeypatch):
+    """`lie-factors posegraph --backend custom` optimizes with the drop-in LM (same result as GTSAM's LM)."""
+    from lie_factors import posegraph
+
+    made = []
+
+    class Spy(optimizers.LevenbergMarquardtOptimizer):
+        def __init__(self, *args, **kwargs):
+            made.append(self)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(optimizers, "LevenbergMarquardtOptimizer", Spy)
+    graph, initial = load(True, True)
+    res = posegraph.get_backend("custom").optimize(graph, initial)
+    assert len(made) == 1
+    ref = gtsam.LevenbergMarquardtOptimizer(graph, initial)
+    ref.optimize()
+    assert res.iterations == ref.iterations()
+    assert res.final_error == pytest.approx(ref.error(), rel=1e-9)
