@@ -591,7 +591,9 @@ class EvaluationPlan:
     :func:`between`, on the same matrices) instead of fetching its variables
     and calling the kernel itself; for any other object it evaluates as usual.
     The ``values`` must not change inside the ``with`` (GTSAM's calls take it
-    as ``const``).  If reading the variables fails (a missing key, a wrong
+    as ``const``), nor afterwards while the plan may see it again: results are
+    reused when the same object is prepared twice in a row (an optimizer
+    linearizes at the trial point it has just evaluated).  If reading the variables fails (a missing key, a wrong
     type), nothing is prepared and the callbacks raise their usual errors.
     """
 
@@ -605,6 +607,7 @@ class EvaluationPlan:
         self.slots = {f: (res, k) for res, fs in zip(self.groups, members.values())
                       for k, f in enumerate(fs)}
         self.values = None
+        self.last = None  # the Values the results were computed for
         for res in self.groups:  # compile (or load) before any clock an optimizer keeps
             warm_up(res.spec.group)
             none = np.empty(0, dtype=np.int64)
@@ -624,14 +627,17 @@ class _Prepared:
 
     def __enter__(self):
         global _prepared
-        plan = self.plan
-        try:
-            for res in plan.groups:
-                res.evaluate(self.values)
-        except Exception:  # the callbacks will report it, as without a plan
-            return self
-        # Rows are looked up per factor: slot → (group results, row).
-        plan.values = self.values
+        plan, values = self.plan, self.values
+        if plan.last is not values:
+            plan.last = None
+            try:
+                for res in plan.groups:
+                    res.evaluate(values)
+            except Exception:  # the callbacks will report it, as without a plan
+                return self
+            # Held, so that its id cannot be reused by another object while it is `last`.
+            plan.last = values
+        plan.values = values
         _prepared = plan
         return self
 

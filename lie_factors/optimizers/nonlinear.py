@@ -376,26 +376,26 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
         if sqrt_diag is None:
             if self._damping is None:
                 self._damping = [
-                    gtsam.JacobianFactor(key, np.eye(d), np.zeros(d), gtsam.noiseModel.Unit.Create(d))
+                    (gtsam.JacobianFactor(key, np.eye(d), np.zeros(d), gtsam.noiseModel.Unit.Create(d)), d)
                     for key, d in self._dims.items()]
                 self._damping_graph = gtsam.GaussianFactorGraph()
-                for f in self._damping:
+                for f, _ in self._damping:
                     self._damping_graph.push_back(f)
             return self._damping, self._damping_graph
-        factors = [gtsam.JacobianFactor(key, np.diag(a), np.zeros(a.shape[0]), gtsam.noiseModel.Unit.Create(a.shape[0]))
-                   for key, a in sqrt_diag.items()]
+        damping_factors = [(gtsam.JacobianFactor(key, np.diag(a), np.zeros(a.shape[0]),
+                                                 gtsam.noiseModel.Unit.Create(a.shape[0])), a.shape[0])
+                           for key, a in sqrt_diag.items()]
         graph = gtsam.GaussianFactorGraph()
-        for f in factors:
+        for f, _ in damping_factors:
             graph.push_back(f)
-        return factors, graph
+        return damping_factors, graph
 
     def _damped_system(self, linear, damping) -> gtsam.GaussianFactorGraph:
         """GTSAM's ``buildDampedSystem``: ``linear`` + a prior of σ = 1/√λ on every damped variable."""
-        factors, graph = damping
+        damping_factors, graph = damping
         sigma = 1.0 / math.sqrt(self._lambda)
         sigmas = {}
-        for f in factors:
-            d = f.rows()
+        for f, d in damping_factors:
             s = sigmas.get(d)
             if s is None:
                 s = sigmas[d] = np.full(d, sigma)
