@@ -419,14 +419,35 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
             self._write_log(self._error)
             if self._verbosity_lm == _VERBOSITY_LM["SUMMARY"]:
                 print(f"Initial error: {self._error}, values: {self._values.size()}")
-        cost = _LinearizedCost(linear, self._dims)
+        # [A b] read back (for diagonal damping, or for a small linearized change) at most once.
+        cost = _LinearizedCost(linear, self._dims) if self._diagonal else None
+        self._cost = cost
+        self._old_linear = None
         sqrt_diag = self._sqrt_hessian_diagonal(cost) if self._diagonal else None
         damping = self._damping_factors(sqrt_diag)
-        while not self._try_lambda(linear, cost, damping):
+        while not self._try_lambda(linear, damping):
             self._write_log(self._error)
         return linear
 
-    def _try_lambda(self, linear, cost: _LinearizedCost, damping) -> bool:
+    def _linear_change(self, linear, delta) -> tuple[float, float]:
+        """(linearized error at 0, its decrease at ``delta``).
+
+        GTSAM 4.3 sums each factor's decrease; the difference of the two totals that
+        ``GaussianFactorGraph.error`` gives carries rounding of the size of the total.
+        Where the decrease is ≥ 1e-4 of the total, that rounding is ≤ 1e-11 of it
+        (below what any of LM's decisions can see); below, it is summed row by row.
+        """
+        if self._old_linear is None:
+            self._old_linear = float(linear.error(gtsam.VectorValues.Zero(delta)))
+        old = self._old_linear
+        change = old - float(linear.error(delta))
+        if abs(change) < 1e-4 * old:
+            if self._cost is None:
+                self._cost = _LinearizedCost(linear, self._dims)
+            change = self._cost.change(delta)
+        return old, change
+
+    def _try_lambda(self, linear, damping) -> bool:
         verbose = self._verbosity_lm >= _VERBOSITY_LM["TRYLAMBDA"]
         if verbose:
             print(f"trying lambda = {self._lambda}")
@@ -444,8 +465,7 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
                 raise
             delta = None
         if delta is not None:
-            old_linear = cost.old
-            linear_change = cost.change(delta)
+            old_linear, linear_change = self._linear_change(linear, delta)
             new_linear = old_linear - linear_change
             if verbose:
                 print(f"linear delta norm = {delta.norm()}")
