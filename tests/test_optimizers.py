@@ -470,3 +470,14 @@ def test_rss_flat_over_create_drop_cycles():
     grown = _rss_bytes() - before
     # A leaked optimizer would keep ≥ 2 Values of 100 Pose2 (≈ 20 kB): ≥ 20 MB over 1 000 cycles.
     assert grown < 8 * 2**20, f"RSS grew by {grown / 2**20:.1f} MiB"
+
+
+def test_graph_changed_after_construction_is_not_seen_like_gtsam():
+    graph, initial = load(False, True)
+    ref = gtsam.LevenbergMarquardtOptimizer(graph, initial)
+    ours = optimizers.LevenbergMarquardtOptimizer(graph, initial)
+    graph.add(factors.PriorFactorPose2(5, gtsam.Pose2(100, 100, 1), PRIOR_2D))
+    ref.iterate()
+    ours.iterate()
+    assert ours.graph().size() == ref.graph().size() == graph.size() - 1
+    assert abs(ours.error() - ref.error()) <= 1e-9 * ref.error()

@@ -106,7 +106,11 @@ class _NonlinearOptimizer:
             raise TypeError(f"params must be a gtsam.{self._params_type.__name__}, got {type(params).__name__}")
         if ordering is not None and not isinstance(ordering, gtsam.Ordering):
             raise TypeError(f"ordering must be a gtsam.Ordering, got {type(ordering).__name__}")
-        self._graph = graph
+        # GTSAM's optimizer keeps its own copy of the graph (the same factors): factors
+        # the user adds later are not optimized, here either.
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._graph.push_back(graph)
+        graph = self._graph
         self._params = params
         # The optimizer's own copy (GTSAM copies too): the user may change theirs.
         # It is held as a Python object, so callbacks evaluated on it receive it.
