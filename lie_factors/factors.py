@@ -30,6 +30,7 @@ broadcasting functions run); the batch solver loops over the same two kernels.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from types import ModuleType
 
@@ -525,17 +526,14 @@ class _GroupEvaluation:
         self.at = getattr(gtsam.Values, spec.at)
         n, m = spec.group.dim, spec.group.mat
         count = len(members)
-        self.Minv = np.empty((count, m, m))
-        self.AdMinv = np.empty((count, n, n))
-        self.i1 = np.empty(count, dtype=np.int64)
-        self.i2 = np.empty(count, dtype=np.int64)
-        for k, f in enumerate(members):
-            if isinstance(f, BetweenFactor):
-                self.Minv[k], self.AdMinv[k] = f._Minv, f._AdMinv
-                self.i1[k], self.i2[k] = index[f._key1], index[f._key2]
-            else:
-                self.Minv[k], self.AdMinv[k] = f._Pinv, f._AdPinv
-                self.i1[k], self.i2[k] = identity, index[f._key]
+        between = [isinstance(f, BetweenFactor) for f in members]
+        self.Minv = np.array([f._Minv if b else f._Pinv for f, b in zip(members, between)]).reshape(count, m, m)
+        self.AdMinv = np.array([f._AdMinv if b else f._AdPinv for f, b in zip(members, between)]
+                               ).reshape(count, n, n)
+        self.i1 = np.array([index[f._key1] if b else identity for f, b in zip(members, between)],
+                           dtype=np.int64)
+        self.i2 = np.array([index[f._key2] if b else index[f._key] for f, b in zip(members, between)],
+                           dtype=np.int64)
         self.X = np.empty((len(keys) + 1, m, m))
         self.X[identity] = np.eye(m)
         self.rows = None  # Pose3: rows of extractPose3's output for self.keys
@@ -604,8 +602,9 @@ class EvaluationPlan:
             if isinstance(f, (BetweenFactor, PriorFactor)):
                 members.setdefault(f.spec.name, []).append(f)
         self.groups = [_GroupEvaluation(GROUPS[name], fs) for name, fs in members.items()]
-        self.slots = {f: (res, k) for res, fs in zip(self.groups, members.values())
-                      for k, f in enumerate(fs)}
+        self.slots = {}
+        for res, fs in zip(self.groups, members.values()):
+            self.slots.update(zip(fs, zip(itertools.repeat(res), range(len(fs)))))
         self.values = None
         self.last = None  # the Values the results were computed for
         for res in self.groups:  # compile (or load) before any clock an optimizer keeps
