@@ -26,6 +26,11 @@ The numerical work of one evaluation (inverse, compose, log, dlog and the
 product with ``Ad(M⁻¹)``) is a single call of :func:`between` / :func:`prior`,
 numba kernels over the group modules' cores (the same cores the public
 broadcasting functions run); the batch solver loops over the same two kernels.
+
+:class:`EvaluationPlan` evaluates every factor of this module in a graph with
+one call of :func:`between_many` (a loop over :func:`between`) per group, for
+a ``Values`` object an optimizer holds; the factors' callbacks, handed that
+object, return their rows (used by :mod:`lie_factors.optimizers`).
 """
 
 from __future__ import annotations
