@@ -35,7 +35,6 @@ object, return their rows (used by :mod:`lie_factors.optimizers`).
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 from types import ModuleType
 
@@ -369,12 +368,11 @@ class BetweenFactor(gtsam.CustomFactor):
         plan = _prepared
         if plan is not None and plan.values is values:  # computed for this very Values
             slot = plan.slots.get(self)
-            if slot is not None:
-                res, k = slot
+            if slot is not None:  # (e, H1, H2): views of this factor's rows
                 if H is not None:
-                    H[0] = res.H1[k]
-                    H[1] = res.H2[k]
-                return res.e[k]
+                    H[0] = slot[1]
+                    H[1] = slot[2]
+                return slot[0]
         spec = self.spec
         X1 = _fetch(values, self._key1, spec, type(self).__name__)
         X2 = _fetch(values, self._key2, spec, type(self).__name__)
@@ -430,11 +428,10 @@ class PriorFactor(gtsam.CustomFactor):
         plan = _prepared
         if plan is not None and plan.values is values:  # computed for this very Values
             slot = plan.slots.get(self)
-            if slot is not None:
-                res, k = slot
+            if slot is not None:  # (e, H1, H2): views of this factor's rows
                 if H is not None:
-                    H[0] = res.H2[k]
-                return res.e[k]
+                    H[0] = slot[2]
+                return slot[0]
         spec = self.spec
         X = _fetch(values, self._key, spec, type(self).__name__)
         group = spec.group
@@ -570,12 +567,8 @@ class _GroupEvaluation:
         if not (self.spec.name == "Pose3" and self._read_pose3(values)):
             for j, key in enumerate(self.keys):
                 X[j] = at(values, key).matrix()
-        # New result arrays each time: GTSAM copies what a callback returns, but a
-        # caller may still hold a previous evaluation's rows.
-        count, n = self.e.shape
-        self.e = np.empty((count, n))
-        self.H1 = np.empty((count, n, n))
-        self.H2 = np.empty((count, n, n))
+        # Written in place: the callbacks hand out views of these rows, which GTSAM
+        # copies as it receives them.
         between_many(self.spec.group, self.Minv, self.AdMinv, X, self.i1, self.i2,
                      self.e, self.H1, self.H2)
 
@@ -607,9 +600,9 @@ class EvaluationPlan:
             if isinstance(f, (BetweenFactor, PriorFactor)):
                 members.setdefault(f.spec.name, []).append(f)
         self.groups = [_GroupEvaluation(GROUPS[name], fs) for name, fs in members.items()]
-        self.slots = {}
+        self.slots = {}  # factor → views (e, H1, H2) of its rows
         for res, fs in zip(self.groups, members.values()):
-            self.slots.update(zip(fs, zip(itertools.repeat(res), range(len(fs)))))
+            self.slots.update(zip(fs, zip(res.e, res.H1, res.H2)))
         self.values = None
         self.last = None  # the Values the results were computed for
         for res in self.groups:  # compile (or load) before any clock an optimizer keeps
