@@ -136,6 +136,17 @@ def _landmark_initial(pg: PoseGraph, graph, k: int, key: int, poses: gtsam.Value
     return poses.atPose2(pose_key).transformFrom(np.array([r * math.cos(theta), r * math.sin(theta)]))
 
 
+def _first_sentence(exc: Exception) -> str:
+    """GTSAM's message up to its first full stop (the indeterminate-system message names the
+    variable on its second line)."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    text = " ".join(lines[:2]) if len(lines) > 1 and not lines[0].endswith(".") else lines[0]
+    if "Indeterminate" in text:
+        text += (" (ISAM2 solves without damping: a variable is under-constrained when it appears, "
+                 "or the system is too poorly conditioned)")
+    return text
+
+
 def replay(pg: PoseGraph, backend: str = "custom",
            params: gtsam.ISAM2Params | None = None,
            progress: Callable[[int, int, float], None] | None = None,
@@ -190,8 +201,8 @@ def replay(pg: PoseGraph, backend: str = "custom",
             isam.update(new_factors, new_theta)
             previous = estimate(isam, step.key)
         except RuntimeError as exc:
-            raise PoseGraphError(f"ISAM2 update {n + 1} (pose {step.key}) failed: "
-                                 f"{str(exc).strip().splitlines()[0]}") from None
+            raise PoseGraphError(f"ISAM2 update {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}"
+                                 ) from None
         times[n] = time.perf_counter() - t0
         if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
             progress(n + 1, len(steps), clock.seconds())
