@@ -145,6 +145,46 @@ def test_estimates_identical_and_callbacks_get_the_linearization_point(group):
     assert len({id(v) for s in drop_seen for v in s}) == 1
 
 
+@pytest.mark.parametrize("form", ["positional", "update_params"])
+def test_evaluate_nonlinear_error_without_copies(form):
+    """GTSAM evaluates errorBefore/errorAfter on a temporary (a copy per callback); the drop-in
+    on Values Python owns: per update at most θ and the two estimates, and GTSAM's numbers."""
+    steps = online_pose2(40)
+    Between = _recording(F.BetweenFactorPose2)
+    runs = []
+    for cls in (gtsam.ISAM2, ISAM2):
+        isam = cls(params(evaluateNonlinearError=True))
+        errors, distinct = [], []
+        for i, (items, guess) in enumerate(steps):
+            g = gtsam.NonlinearFactorGraph()
+            for item in items:
+                g.add(F.PriorFactorPose2(item[1], item[2], NOISE2) if item[0] == "prior"
+                      else Between(item[1], item[2], item[3], NOISE2))
+            v = gtsam.Values()
+            v.insert(i, guess)
+            Between.seen = []
+            remove = [isam.getFactorsUnsafe().size() - 1] if i == 30 else []  # drop a loop closure
+            if form == "positional":
+                r = isam.update(g, v, remove)
+            else:
+                up = gtsam.ISAM2UpdateParams()
+                up.removeFactorIndices = remove
+                r = isam.update(g, v, up)
+            errors.append((r.getErrorBefore(), r.getErrorAfter(), r.getVariablesRelinearized(),
+                           list(r.getNewFactorsIndices())))
+            distinct.append(len({id(x) for x in Between.seen}))
+        runs.append((errors, distinct, isam.calculateEstimate(), r))
+    (e_plain, d_plain, est_plain, _), (e_drop, d_drop, est_drop, r) = runs
+    assert isinstance(r, gtsam.ISAM2Result)
+    assert max_diff(est_plain, est_drop, "atPose2") <= 1e-9
+    for a, b in zip(e_plain, e_drop):
+        assert a[2:] == b[2:]
+        assert b[0] == pytest.approx(a[0], rel=1e-12, abs=1e-12)
+        assert b[1] == pytest.approx(a[1], rel=1e-12, abs=1e-12)
+    assert max(d_drop) <= 3 < max(d_plain)
+    assert sum(d_plain) > 10 * sum(d_drop)
+
+
 def test_other_methods_and_update_forms_match_gtsam():
     steps = online_pose2(40)
     plain, dropin = gtsam.ISAM2(params()), ISAM2(params())

@@ -28,12 +28,16 @@ What a callback receives, then (``tests/test_optimizers_isam2.py`` counts it):
 
 - ``ISAM2.update``, ``marginalizeLeaves``: ISAM2's linearization point, the
   same object in every callback (with the default Gauss–Newton params).
-- Two GTSAM code paths evaluate factors on a C++ temporary that Python cannot
-  reach, so they still copy: ``ISAM2Params.evaluateNonlinearError = True``
-  (``errorBefore``/``errorAfter`` are computed on ``calculateEstimate()``, a
-  temporary) and ``ISAM2DoglegParams`` (the trust-region test evaluates the
-  error at the trial point ``θ ⊕ δ``, a temporary; the error at θ itself is
-  on the held object). Both are off by default.
+- ``ISAM2Params.evaluateNonlinearError = True``: GTSAM would evaluate
+  ``errorBefore``/``errorAfter`` on ``calculateEstimate()``, a C++ temporary
+  (a copy per callback). The drop-in switches that flag off for the call and
+  evaluates both errors itself on Values Python owns (the same factors, the
+  same points; summed in another order, so they agree to rounding), and returns
+  GTSAM's result with those two errors (a ``gtsam.ISAM2Result`` subclass).
+- ``ISAM2DoglegParams`` still copies: the trust-region test evaluates the
+  error at the trial point ``θ ⊕ δ``, a C++ temporary no Python object can
+  wrap (the error at θ itself is on the held object). Gauss–Newton params
+  (the default) have no such evaluation.
 - A user's own ``gtsam.CustomFactor`` in the same graph gets the same object:
   it needs nothing, but it must treat ``values`` as read-only (it is ISAM2's
   own state, not a private copy; C++ declares it ``const``) and must not keep
@@ -44,7 +48,8 @@ What a callback receives, then (``tests/test_optimizers_isam2.py`` counts it):
 ``IncrementalFixedLagSmoother`` runs one ISAM2 (``update`` then
 ``marginalizeLeaves``): the same trick applies, to its ``getLinearizationPoint()``.
 The internal ISAM2 that ``getISAM2()`` returns is GTSAM's own class: calling
-its ``update`` directly bypasses the smoother's drop-in.
+its ``update`` directly bypasses the smoother's drop-in, and with
+``evaluateNonlinearError`` that ISAM2 evaluates its two errors on copies.
 
 ``BatchFixedLagSmoother`` has no drop-in here: its Levenberg–Marquardt loop
 linearizes at its member θ (holdable), but evaluates the error of the start
@@ -95,6 +100,56 @@ def _estimate_methods(base) -> list[str]:
     return [n for n in dir(base) if n.startswith("calculate") and callable(getattr(base, n))]
 
 
+#: ISAM2Result's getters other than the two errors (a :class:`_Result` forwards them).
+_RESULT_GETTERS = [n for n in dir(gtsam.ISAM2Result)
+                   if n.startswith("get") and n not in ("getErrorBefore", "getErrorAfter")]
+
+_UPDATE_ARGS = ("newFactors", "newTheta", "removeFactorIndices", "constrainedKeys", "noRelinKeys",
+                "extraReelimKeys", "force_relinearize")
+
+
+class _Result(gtsam.ISAM2Result):
+    """GTSAM's ISAM2Result of an update, with errorBefore/errorAfter evaluated from Python
+    (``evaluateNonlinearError``): every getter answers as the wrapped result does."""
+
+    def __init__(self, result: gtsam.ISAM2Result, before: float, after: float):
+        super().__init__()
+        self._result, self._before, self._after = result, before, after
+
+    def getErrorBefore(self) -> float:
+        return self._before
+
+    def getErrorAfter(self) -> float:
+        return self._after
+
+    def print(self, str: str = "") -> None:  # noqa: A002 (GTSAM's argument name)
+        self._result.print(str)
+        print(f"errorBefore: {self._before}\nerrorAfter: {self._after}")
+
+
+def _forward(name):
+    def get(self, *args, **kwargs):
+        return getattr(self._result, name)(*args, **kwargs)
+
+    get.__name__ = name
+    return get
+
+
+for _name in _RESULT_GETTERS:
+    setattr(_Result, _name, _forward(_name))
+
+
+def _update_arguments(args, kwargs):
+    """(newFactors, newTheta, removeFactorIndices, forceFullSolve) of either update overload."""
+    if len(args) == 3 and isinstance(args[2], gtsam.ISAM2UpdateParams) or "updateParams" in kwargs:
+        bound = dict(zip(("newFactors", "newTheta", "updateParams"), args), **kwargs)
+        up = bound["updateParams"]
+        return bound["newFactors"], bound["newTheta"], list(up.removeFactorIndices), bool(up.forceFullSolve)
+    bound = dict(zip(_UPDATE_ARGS, args), **kwargs)
+    return (bound.get("newFactors", gtsam.NonlinearFactorGraph()), bound.get("newTheta", gtsam.Values()),
+            list(bound.get("removeFactorIndices", [])), False)
+
+
 class ISAM2(gtsam.ISAM2):
     """``gtsam.ISAM2`` whose factor callbacks receive ISAM2's own linearization point.
 
@@ -107,8 +162,37 @@ class ISAM2(gtsam.ISAM2):
     """
 
 
+def _update(self, *args, **kwargs):
+    """GTSAM's update; with ``evaluateNonlinearError`` the two errors are evaluated here on
+    Values Python owns (GTSAM would evaluate them on a C++ temporary: a copy per callback)."""
+    params = self.params()  # a reference to ISAM2's own params
+    if not params.evaluateNonlinearError:
+        return gtsam.ISAM2.update(self, *args, **kwargs)
+    new_factors, new_theta, removed, full = _update_arguments(args, kwargs)
+    # GTSAM's errorBefore: the factors after this update's additions and removals, at the
+    # current estimate with the new variables at their initial values.
+    estimate = self.calculateBestEstimate() if full else self.calculateEstimate()
+    estimate.insert(new_theta)
+    factors = self.getFactorsUnsafe()
+    before = factors.error(estimate) + new_factors.error(estimate)
+    for i in set(removed):
+        if 0 <= i < factors.size() and factors.at(i) is not None:
+            before -= factors.at(i).error(estimate)
+    del estimate
+    params.evaluateNonlinearError = False
+    try:
+        result = gtsam.ISAM2.update(self, *args, **kwargs)
+    finally:
+        params.evaluateNonlinearError = True
+    estimate = self.calculateEstimate()
+    after = self.getFactorsUnsafe().error(estimate)
+    return _Result(result, float(before), float(after))
+
+
+ISAM2.update = _update
+_wrap(ISAM2, ISAM2, ["update"])
 _wrap(ISAM2, gtsam.ISAM2,
-      ["update", "getDelta", "marginalizeLeaves", "marginalizeLeavesWithIndices",
+      ["getDelta", "marginalizeLeaves", "marginalizeLeavesWithIndices",
        *_estimate_methods(gtsam.ISAM2)])
 
 
