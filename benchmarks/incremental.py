@@ -146,7 +146,6 @@ def main(argv=None) -> int:
             cli_rows(args.datasets, args.data_dir, tmp, args.helix_poses, args.repeat)
         return 0
 
-    rows = []
     with tempfile.TemporaryDirectory() as tmp:
         loaded = {}
         for name in args.datasets:
@@ -182,7 +181,6 @@ def main(argv=None) -> int:
                 err = "" if math.isnan(res.final_error) else f"{res.final_error:.10g}"
                 print(f"| {pg.name} | {pg.poses} | {res.factors} | {leg} | {done} | {res.update_seconds:.3f} "
                       f"| {res.update_p50 * 1e3:.3f} | {res.update_p99 * 1e3:.3f} | {err} | {a} | {ratio} |")
-                rows.append((name, leg, res))
     return 0
 
 

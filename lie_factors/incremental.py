@@ -82,7 +82,7 @@ def schedule(pg: PoseGraph, graph: gtsam.NonlinearFactorGraph) -> list[Step]:
             step = steps[max(a, b)]
             if step.odometry is None:
                 step.odometry = (k, a < b)
-    for n, step in enumerate(steps):
+    for step in steps:
         if not step.factors:
             raise PoseGraphError(
                 f"pose {step.key} has no edge to an earlier pose (in id order) and no prior: "
