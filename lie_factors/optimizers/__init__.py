@@ -17,7 +17,10 @@ only the loop is in Python.  Changing the import is the whole change::
     from lie_factors.optimizers import LevenbergMarquardtOptimizer
     result = LevenbergMarquardtOptimizer(graph, initial, params).optimize()
 
-Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg).
+Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg),
+:mod:`.isam2` (ISAM2 and IncrementalFixedLagSmoother: GTSAM's own classes,
+holding ISAM2's linearization point while GTSAM runs).
 """
 
 from .nonlinear import LevenbergMarquardtOptimizer, GaussNewtonOptimizer, DoglegOptimizer
+from .isam2 import ISAM2, IncrementalFixedLagSmoother
