@@ -72,8 +72,8 @@ import numpy as np
 from lie_factors import _jit, _validate
 from lie_factors import so3 as _so3
 from lie_factors._coeffs import (
-    _A_SERIES, _C_SERIES, _QA_SERIES, A_TAYLOR, C_TAYLOR, QA_TAYLOR, _horner, a_theta, b_theta, c_theta, dot3,
-    e_omega, norm3, theta_dd,
+    _A_SERIES, _C_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, QA_TAYLOR, QB_TAYLOR, _horner, a_theta,
+    b_theta, c_theta, dot3, e_omega, norm3, theta_dd,
 )
 from lie_factors._jit import kernel
 from lie_factors.se3 import _lin9, _rod9
@@ -81,148 +81,263 @@ from lie_factors.se3 import _lin9, _rod9
 DIM = 7
 MAT = 4
 
-#: Gauss–Legendre nodes per panel.
-QUAD_NODES = 12
-#: Largest (|λ| + θ)·(panel width) per panel: the integrands are entire of
-#: exponential type |λ| + θ, so 12 nodes leave an error ~ (P/4)^24/24! ≈ 2e-20 at P = 6.
-QUAD_PANEL = 6.0
-#: For |λ| + θ ≤ QUAD_SMALL (the usual size of a between-pose increment) one panel
-#: of QUAD_NODES_SMALL nodes: error ~ (2/4)^16/16! ≈ 7e-19.
-QUAD_SMALL = 2.0
-QUAD_NODES_SMALL = 8
-#: e^{sλ} below e^{−QUAD_CUT} of its maximum on [0, 1] is dropped (|λ| > QUAD_CUT only).
-QUAD_CUT = 45.0
-#: D_log lower-left block: product form below this θ, spectral form (L) from it on.
-DLOG_SPECTRAL = 1.0
+#: |z|² = λ² + θ² < Z_BAND²: every coefficient from the power series of φ1, φ2 in z
+#: (real recurrences in λ and θ², see :func:`_zseries`); the closed forms in z divide by
+#: |z|² = λ² + θ² and cancel there.
+Z_BAND = 0.25
+#: terms of the z series: the first omitted one is ≤ n² Z_BAND^n/(n+1)! < 1e-18 relative.
+Z_TERMS = 14
+#: |λ| < L_TAYLOR: φ1′(λ) and φ2(λ) from their Taylor series ((e^λ − φ1(λ))/λ and
+#: (φ1(λ) − 1)/λ lose ~ε/|λ|).
+L_TAYLOR = 0.5
+L_TERMS = 16
+#: D_exp and D_log: coefficient closed forms (C) and the product forms below this θ, complex
+#: closed forms in z and the spectral form (L) of the lower-left block from it on.
+SPECTRAL = 1.0
+#: θ < SPECTRAL: the lower-left blocks of D_exp and D_log from (L) too when |λ| ≥ LAM_SPECTRAL,
+#: where Q's terms cancel to ~1/|λ| of their size (a1 − b1 ~ e^λ/λ²).
+LAM_SPECTRAL = 5.0
 
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(QUAD_NODES)
-_GL_S = 0.5 * (_GL_X + 1.0)
-_GL_H = 0.5 * _GL_W
-_GL_X8, _GL_W8 = np.polynomial.legendre.leggauss(QUAD_NODES_SMALL)
-_GL_S8 = 0.5 * (_GL_X8 + 1.0)
-_GL_H8 = 0.5 * _GL_W8
 _TWO_PI_HI = 6.283185307179586
 _TWO_PI_LO = 2.4492935982947064e-16
+
+# φ1′(λ) = Σ λ^k/(k!(k+2)),  φ2(λ) = Σ λ^k/(k+2)!
+_DPHI1_SERIES = (
+    0.5,  # 1/2
+    0.3333333333333333,  # 1/3
+    0.125,  # 1/8
+    0.03333333333333333,  # 1/30
+    0.006944444444444444,  # 1/144
+    0.0011904761904761906,  # 1/840
+    0.00017361111111111112,  # 1/5760
+    2.2045855379188714e-05,  # 1/45360
+    2.48015873015873e-06,  # 1/403200
+    2.505210838544172e-07,  # 1/3991680
+    2.296443268665491e-08,  # 1/43545600
+    1.9270852604185937e-09,  # 1/518918400
+    1.4911969277048643e-10,  # 1/6706022400
+    1.0706029224547743e-11,  # 1/93405312000
+    7.169215998581078e-13,  # 1/1394852659200
+    4.498331606952833e-14,  # 1/22230464256000
+    2.6552651846596585e-15,  # 1/376610217984000
+    1.4797143443923793e-16,  # 1/6758061133824000
+)[:L_TERMS]
+_PHI2_SERIES = (
+    0.5,  # 1/2
+    0.16666666666666666,  # 1/6
+    0.041666666666666664,  # 1/24
+    0.008333333333333333,  # 1/120
+    0.001388888888888889,  # 1/720
+    0.0001984126984126984,  # 1/5040
+    2.48015873015873e-05,  # 1/40320
+    2.7557319223985893e-06,  # 1/362880
+    2.755731922398589e-07,  # 1/3628800
+    2.505210838544172e-08,  # 1/39916800
+    2.08767569878681e-09,  # 1/479001600
+    1.6059043836821613e-10,  # 1/6227020800
+    1.1470745597729725e-11,  # 1/87178291200
+    7.647163731819816e-13,  # 1/1307674368000
+    4.779477332387385e-14,  # 1/20922789888000
+    2.8114572543455206e-15,  # 1/355687428096000
+    1.5619206968586225e-16,  # 1/6402373705728000
+    8.22063524662433e-18,  # 1/121645100408832000
+)[:L_TERMS]
+# 1/(n+1)! for n = 0, 1, ...
+_INV_FACT = (
+    1.0,  # 1
+    0.5,  # 1/2
+    0.16666666666666666,  # 1/6
+    0.041666666666666664,  # 1/24
+    0.008333333333333333,  # 1/120
+    0.001388888888888889,  # 1/720
+    0.0001984126984126984,  # 1/5040
+    2.48015873015873e-05,  # 1/40320
+    2.7557319223985893e-06,  # 1/362880
+    2.755731922398589e-07,  # 1/3628800
+    2.505210838544172e-08,  # 1/39916800
+    2.08767569878681e-09,  # 1/479001600
+    1.6059043836821613e-10,  # 1/6227020800
+    1.1470745597729725e-11,  # 1/87178291200
+    7.647163731819816e-13,  # 1/1307674368000
+    4.779477332387385e-14,  # 1/20922789888000
+    2.8114572543455206e-15,  # 1/355687428096000
+    1.5619206968586225e-16,  # 1/6402373705728000
+    8.22063524662433e-18,  # 1/121645100408832000
+    4.110317623312165e-19,  # 1/2432902008176640000
+    1.9572941063391263e-20,  # 1/51090942171709440000
+    8.896791392450574e-22,  # 1/1124000727777607680000
+    3.868170170630684e-23,  # 1/25852016738884976640000
+)
 
 
 # ---------------------------------------------------------------- scalar coefficients
 
 
 @kernel
-def _ab(x):
-    """(a, b, cos x) with a = sin x/x, b = (1 − cos x)/x² (seed 000, Eqs. 50–51), from one
-    sine and cosine of x/2; b = ½ (sin(x/2)/(x/2))² has no cancellation."""
-    y = 0.5 * x
-    if x < A_TAYLOR:
-        a = _horner(_A_SERIES, x * x)
-        ah = _horner(_A_SERIES, y * y)
+def _theta5(th):
+    """(a, b, c, qa, qb) of the SO(3) coefficient functions at θ ≥ 0 (seed 000, Eqs. 50–52, 64),
+    from one sine and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation),
+    c = (1 − a)/θ², qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² = c′(θ)/θ; Taylor bands of
+    :mod:`lie_factors._coeffs`."""
+    h = 0.5 * th
+    t = th * th
+    if th < A_TAYLOR:
+        a = _horner(_A_SERIES, t)
+        ah = _horner(_A_SERIES, h * h)
     else:
-        sh = math.sin(y)
-        ch = math.cos(y)
-        a = sh * ch / y
-        ah = sh / y
+        sh = math.sin(h)
+        ch = math.cos(h)
+        a = sh * ch / h
+        ah = sh / h
     b = 0.5 * ah * ah
-    return a, b, 1.0 - x * x * b
-
-
-@kernel
-def _kappa(x):
-    """(a, b, c − b, qa, cos) of the SO(3) coefficient functions at x ≥ 0 (seed 000, Eqs. 50–52, 64)."""
-    a, b, co = _ab(x)
-    t = x * x
-    if x < C_TAYLOR:
+    if th < C_TAYLOR:
         c = _horner(_C_SERIES, t)
     else:
         c = (1.0 - a) / t
-    if x < QA_TAYLOR:
+    if th < QA_TAYLOR:
         qa = _horner(_QA_SERIES, t)
     else:
         qa = (a - 2.0 * b) / t
-    return a, b, c - b, qa, co
+    if th < QB_TAYLOR:
+        qb = _horner(_QB_SERIES, t)
+    else:
+        qb = (b - 3.0 * c) / t
+    return a, b, c, qa, qb
 
 
 @kernel
-def _span(lam, th):
-    """Quadrature rule: (nodes, weights) on [0, 1], interval [lo, hi] ⊂ [0, 1], number of panels."""
-    if abs(lam) + th <= QUAD_SMALL:
-        return _GL_S8, _GL_H8, 0.0, 1.0, 1
-    lo = 0.0
-    hi = 1.0
-    if lam < -QUAD_CUT:
-        hi = QUAD_CUT / -lam
-    elif lam > QUAD_CUT:
-        lo = 1.0 - QUAD_CUT / lam
-    m = (abs(lam) + th) * (hi - lo) / QUAD_PANEL
-    n = 1 + int(min(m, 1e5))
-    return _GL_S, _GL_H, lo, hi, n
+def _theta_bc(th):
+    """(b, c) of :func:`_theta5` only (exp and log)."""
+    h = 0.5 * th
+    t = th * th
+    if th < A_TAYLOR:
+        ah = _horner(_A_SERIES, h * h)
+    else:
+        ah = math.sin(h) / h
+    b = 0.5 * ah * ah
+    if th < C_TAYLOR:
+        c = _horner(_C_SERIES, t)
+    else:
+        # 1 − a = 1 − sin θ/θ = θ² c; sin θ = 2 sin(θ/2) cos(θ/2)
+        c = (1.0 - ah * math.cos(h)) / t
+    return b, c
 
 
 @kernel
-def _integrals(lam, th):
+def _lam4(lam):
+    """(e^λ, φ1(λ), φ1′(λ), φ2(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds and
+    φ2(λ) = (φ1(λ) − 1)/λ = φ1(λ) − φ1′(λ)."""
+    E = math.exp(lam)
+    if abs(lam) < L_TAYLOR:
+        A = math.expm1(lam) / lam if lam != 0.0 else 1.0
+        return E, A, _horner(_DPHI1_SERIES, lam), _horner(_PHI2_SERIES, lam)
+    A = (E - 1.0) / lam  # |λ| ≥ L_TAYLOR: e^λ − 1 loses < 2 ulps
+    return E, A, (E - A) / lam, (A - 1.0) / lam
+
+
+@kernel
+def _zseries(lam, T):
+    """(a1, b1, c1, d1, e1, a2, b2, c2) for small |z| (module docstring, "z band").
+
+    With zⁿ = pₙ + iθ qₙ, rₙ = (λⁿ − pₙ)/θ², sₙ = (n pₙ₋₁ − qₙ)/θ², tₙ = (n qₙ₋₁ − 2 rₙ)/θ²
+    (all polynomials in λ and T = θ², no division):
+        φ1(λ) = Σ λⁿ/(n+1)!,  b1 = Σ qₙ/(n+1)!,  c1 = Σ rₙ/(n+1)!,
+        d1 = Σ sₙ/(n+1)!,     e1 = Σ tₙ/(n+1)!,  and a2, b2, c2 the same with 1/(n+2)!,
+    from p₊ = λp − Tq, q₊ = p + λq, r₊ = λr + q, s₊ = λs − n qₙ₋₁, t₊ = λt + s.
+    """
+    p = 1.0
+    q = 0.0
+    r = 0.0
+    s = 0.0
+    t = 0.0
+    qm = 0.0
+    lp = 1.0
+    a1 = b1 = c1 = d1 = e1 = a2 = b2 = c2 = 0.0
+    for n in range(Z_TERMS):
+        f1 = _INV_FACT[n]
+        f2 = _INV_FACT[n + 1]
+        a1 += lp * f1
+        b1 += q * f1
+        c1 += r * f1
+        d1 += s * f1
+        e1 += t * f1
+        a2 += lp * f2
+        b2 += q * f2
+        c2 += r * f2
+        pn = lam * p - T * q
+        qn = p + lam * q
+        tn = lam * t + s
+        s = lam * s - n * qm
+        r = lam * r + q
+        qm = q
+        p = pn
+        q = qn
+        t = tn
+        lp *= lam
+    return a1, b1, c1, d1, e1, a2, b2, c2
+
+
+@kernel
+def _zseries_w(lam, T):
+    """(a1, b1, c1) of :func:`_zseries` only."""
+    p = 1.0
+    q = 0.0
+    r = 0.0
+    lp = 1.0
+    a1 = b1 = c1 = 0.0
+    for n in range(Z_TERMS):
+        f1 = _INV_FACT[n]
+        a1 += lp * f1
+        b1 += q * f1
+        c1 += r * f1
+        pn = lam * p - T * q
+        r = lam * r + q
+        q = p + lam * q
+        p = pn
+        lp *= lam
+    return a1, b1, c1
+
+
+@kernel
+def _coefs(lam, th):
     """(a1, b1, c1, d1, e1, re1, a2, b2, c2): φ1(B) = a1 I + b1 Ω + c1 Ω², d1 = ∂b1/∂θ/θ,
-    e1 = ∂c1/∂θ/θ, re1 = Re φ1(λ + iθ), φ2(B) = a2 I + b2 Ω + c2 Ω² (module docstring)."""
-    S, H, lo, hi, n = _span(lam, th)
-    h = (hi - lo) / n
-    a1 = b1 = c1 = d1 = e1 = r1 = a2 = b2 = c2 = 0.0
-    for p in range(n):
-        s0 = lo + p * h
-        for k in range(len(S)):
-            s = s0 + h * S[k]
-            w = h * H[k] * math.exp(s * lam)
-            a, b, cb, qa, co = _kappa(s * th)
-            s2 = s * s
-            fb = w * s * a
-            fc = w * s2 * b
-            a1 += w
-            b1 += fb
-            c1 += fc
-            d1 += w * s2 * s * cb
-            e1 += w * s2 * s2 * qa
-            r1 += w * co
-            v = 1.0 - s
-            a2 += v * w
-            b2 += v * fb
-            c2 += v * fc
-    return a1, b1, c1, d1, e1, r1, a2, b2, c2
+    e1 = ∂c1/∂θ/θ, re1 = Re φ1(λ + iθ), φ2(B) = a2 I + b2 Ω + c2 Ω² (closed forms (C) of the
+    module docstring; z series for |z| < Z_BAND)."""
+    T = th * th
+    D = lam * lam + T
+    if D < Z_BAND * Z_BAND:
+        a1, b1, c1, d1, e1, a2, b2, c2 = _zseries(lam, T)
+        return a1, b1, c1, d1, e1, a1 - T * c1, a2, b2, c2
+    E, A, I1, a2 = _lam4(lam)
+    a, b, c, qa, qb = _theta5(th)
+    bl = b - lam * c
+    b1 = (lam * lam * I1 + T * E * bl) / D
+    c1 = (lam * (E * b - I1) + T * E * c) / D
+    d1 = (E * (2.0 * bl + T * (qa - lam * qb)) - 2.0 * b1) / D
+    e1 = (E * (lam * qa + 2.0 * c + T * qb) - 2.0 * c1) / D
+    # φ2(z) − φ2(λ) = θ (P + iQ)/z², P = θ (φ2(λ) − e^λ b), Q = λ (φ1′(λ) − φ2(λ)) − e^λ θ² c
+    p = a2 - E * b
+    q = lam * (I1 - a2) - E * T * c
+    L2 = lam * lam - T
+    D2 = D * D
+    b2 = (q * L2 - 2.0 * lam * T * p) / D2
+    c2 = (-p * L2 - 2.0 * lam * q) / D2
+    return A, b1, c1, d1, e1, A - T * c1, a2, b2, c2
 
 
 @kernel
-def _w_integrals(lam, th):
-    """(a1, b1, c1, re1) only, for exp and log: the same sums as :func:`_integrals`."""
-    S, H, lo, hi, n = _span(lam, th)
-    h = (hi - lo) / n
-    a1 = b1 = c1 = r1 = 0.0
-    for p in range(n):
-        s0 = lo + p * h
-        for k in range(len(S)):
-            s = s0 + h * S[k]
-            w = h * H[k] * math.exp(s * lam)
-            a, b, co = _ab(s * th)
-            a1 += w
-            b1 += w * s * a
-            c1 += w * s * s * b
-            r1 += w * co
-    return a1, b1, c1, r1
-
-
-@kernel
-def _phi1_div_z_it(lam, th):
-    """φ1[λ + iθ, iθ] = ∫₀¹ s e^{isθ} φ1(sλ) ds (Hermite–Genocchi; no 1/λ)."""
-    # φ1(sλ) decays only like 1/(s|λ|): the whole of [0, 1] counts
-    n = 1 + int(min((abs(lam) + th) / QUAD_PANEL, 1e5))
-    h = 1.0 / n
-    re = 0.0
-    im = 0.0
-    for p in range(n):
-        s0 = p * h
-        for k in range(QUAD_NODES):
-            s = s0 + h * _GL_S[k]
-            y = s * lam
-            f = math.expm1(y) / y if y != 0.0 else 1.0
-            f *= h * _GL_H[k] * s
-            re += f * math.cos(s * th)
-            im += f * math.sin(s * th)
-    return complex(re, im)
+def _wcoefs(lam, th):
+    """(e^λ, a1, b1, c1) of :func:`_coefs`, for exp and log."""
+    T = th * th
+    D = lam * lam + T
+    if D < Z_BAND * Z_BAND:
+        a1, b1, c1 = _zseries_w(lam, T)
+        return math.exp(lam), a1, b1, c1
+    E, A, I1, a2 = _lam4(lam)
+    b, c = _theta_bc(th)
+    b1 = (lam * lam * I1 + T * E * (b - lam * c)) / D
+    c1 = (lam * (E * b - I1) + T * E * c) / D
+    return E, A, b1, c1
 
 
 # ---------------------------------------------------------------- 3×3 helpers on 9-tuples
@@ -329,10 +444,10 @@ def _exp(x, out):
     w0, w1, w2 = x[0], x[1], x[2]
     lam = x[6]
     th = norm3(w0, w1, w2)
-    a1, b1, c1, r1 = _w_integrals(lam, th)
+    E, a1, b1, c1 = _wcoefs(lam, th)
     R = _rod9(w0, w1, w2, a_theta(th), b_theta(th))
     # t = ∫₀¹ e^{(1−τ)Ω} u e^{−τλ} dτ = e^{−λ} φ1(Ω + λI) u
-    c = math.exp(-lam)
+    c = 1.0 / E
     W = _lin9(w0, w1, w2, c * a1, c * b1, c * c1)
     t = _mv(W, x[3], x[4], x[5])
     for i in range(3):
@@ -351,7 +466,8 @@ def _log(X, out):
     c = X[3, 3]
     lam = -math.log(c)
     th = norm3(w0, w1, w2)
-    a1, b1, c1, r1 = _w_integrals(lam, th)
+    E, a1, b1, c1 = _wcoefs(lam, th)
+    r1 = a1 - th * th * c1
     # W⁻¹ = g(B) by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1), m = |φ1(z)|²
     m = r1 * r1 + th * th * b1 * b1
     Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
@@ -439,74 +555,44 @@ def _write_blocks(A, L, D, p, out):
 
 
 @kernel
-def _dexp(x, out):
-    w0, w1, w2 = x[0], x[1], x[2]
-    u0, u1, u2 = x[3], x[4], x[5]
-    lam = x[6]
-    th = norm3(w0, w1, w2)
-    a1, b1, c1, d1, e1, r1, a2, b2, c2 = _integrals(lam, th)
-    J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
-    W = _lin9(w0, w1, w2, a1, b1, c1)
-    Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
-    q = _mv(_lin9(w0, w1, w2, -a2, -b2, -c2), u0, u1, u2)
-    _write_blocks(J, Q, W, q, out)
-
-
-@kernel
-def _dlog(x, out):
-    w0, w1, w2 = x[0], x[1], x[2]
-    u0, u1, u2 = x[3], x[4], x[5]
-    lam = x[6]
-    th = norm3(w0, w1, w2)
-    a1, b1, c1, d1, e1, r1, a2, b2, c2 = _integrals(lam, th)
-    Ji = _rod9(w0, w1, w2, -0.5, e_omega(w0, w1, w2))
-    if th < DLOG_SPECTRAL:
-        m = r1 * r1 + th * th * b1 * b1
-        Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
-        W = _lin9(w0, w1, w2, a1, b1, c1)
-        Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
-        M = _mm(_mm(Wi, Q), Ji)
-        L = (-M[0], -M[1], -M[2], -M[3], -M[4], -M[5], -M[6], -M[7], -M[8])
-        q = _mv(_lin9(w0, w1, w2, a2, b2, c2), u0, u1, u2)
-        p = _mv(Wi, q[0], q[1], q[2])
-        _write_blocks(Ji, L, Wi, p, out)
-        return
-    # θ from its components in double-double: sin θ, sin(θ/2) near 2π through δ = 2π − θ
+def _trig(w0, w1, w2):
+    """(θ, cos θ, sin θ, 1 − cos θ = 2 sin²(θ/2)) for θ = |ω| ≥ SPECTRAL; above π from
+    δ = 2π − θ with θ in double-double (sin θ and sin(θ/2) → 0 as θ → 2π)."""
     hi, lo = theta_dd(w0, w1, w2)
-    th = hi
-    if th > math.pi:
+    if hi > math.pi:
         d = (_TWO_PI_HI - hi) + (_TWO_PI_LO - lo)
         sn = -math.sin(d)
         co = math.cos(d)
         sh = math.sin(0.5 * d)
     else:
-        sn = math.sin(th)
-        co = math.cos(th)
-        sh = math.sin(0.5 * th)
-    z = complex(lam, th)
-    # φ1(iθ) = (e^{iθ} − 1)/(iθ); φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation
-    f_it = complex(sn, 2.0 * sh * sh) / th
-    f_z = complex(math.expm1(lam) * co - 2.0 * sh * sh, math.exp(lam) * sn) / z
-    g_l = 1.0 / a1
-    g_it = 1.0 / f_it
-    g_z = 1.0 / f_z
-    phi2_z = complex(a2 - c2 * th * th, th * b2)
-    # g[a, b] = −g(a) g(b) φ1[a, b]
-    AB = -g_z * g_it * _phi1_div_z_it(lam, th)
-    CD = -g_z * phi2_z
-    GH = -g_l * g_it * (a1 - f_it) / complex(lam, -th)
+        sn = math.sin(hi)
+        co = math.cos(hi)
+        sh = math.sin(0.5 * hi)
+    return hi, co, sn, 2.0 * sh * sh
+
+
+@kernel
+def _L_spectral(w0, w1, w2, u0, u1, u2, th, gu, AB, CD, GH):
+    """Lower-left block (L) of f(ad_x) from A + iB = f[z, iθ], C + iD = f[z, 0], G + iH = f[λ, iθ]
+    (module docstring; gu = ω·u)."""
     A, B = AB.real, AB.imag
     C, D = CD.real, CD.imag
     G, H = GH.real, GH.imag
-    t2 = th * th
-    k1 = (A - G) / t2
-    k2 = (B - D - H) / (t2 * th)
-    k3 = -(D + H) / th
-    k4 = D / th
-    k5 = H / th
-    k6 = (G - C) / t2
-    # ω·u multiplies k2 ~ 1/(2π − θ)²: compensated
-    gu = dot3(w0, w1, w2, u0, u1, u2)
+    # in n = ω/θ: k1 (ω·u) Ω = (A − G)(n·u) n×, ... (every k's power of θ cancels); at θ = 0
+    # the k-terms vanish (A = G, B = D = H = 0, G = C) and n = 0 is used
+    if th > 0.0:
+        w0 = w0 / th
+        w1 = w1 / th
+        w2 = w2 / th
+        gu = gu / th
+    else:
+        w0 = w1 = w2 = gu = 0.0
+    k1 = A - G
+    k2 = B - D - H
+    k3 = -(D + H)
+    k4 = D
+    k5 = H
+    k6 = G - C
     o = _cross(w0, w1, w2, u0, u1, u2)
     S = _lin9(w0, w1, w2, k3 * gu, k1 * gu, k2 * gu)
     w = (w0, w1, w2)
@@ -518,12 +604,115 @@ def _dlog(x, out):
             L9[3 * i + j] = (
                 G * Ux[3 * i + j] + S[3 * i + j] + k4 * u[i] * w[j] + k5 * w[i] * u[j] + k6 * o[i] * w[j]
             )
-    L = (L9[0], L9[1], L9[2], L9[3], L9[4], L9[5], L9[6], L9[7], L9[8])
+    return (L9[0], L9[1], L9[2], L9[3], L9[4], L9[5], L9[6], L9[7], L9[8])
+
+
+@kernel
+def _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2):
+    """φ1[z, iθ], φ1[z, 0] = φ2(z), φ1[λ, iθ] for θ < SPECTRAL from the real coefficients; no
+    cancellation for |λ| ≥ LAM_SPECTRAL (φ1(λ) is then far from φ1(iθ) ≈ 1)."""
+    a = a_theta(th)
+    b = b_theta(th)
+    f_it = complex(a, th * b)  # φ1(iθ) = a(θ) + iθ b(θ)
+    e_it = complex(1.0 - th * th * b, th * a)  # e^{iθ}
+    z = complex(lam, th)
+    AB = (e_it * a1 - f_it) / z
+    CD = complex(a2 - th * th * c2, th * b2)
+    GH = (a1 - f_it) / complex(lam, -th)
+    return AB, CD, GH
+
+
+@kernel
+def _fB(w0, w1, w2, th, fl, fz):
+    """f(B) = f(λ) I + (Im f(z)/θ) Ω + ((f(λ) − Re f(z))/θ²) Ω², formula (F), as a 9-tuple."""
+    return _lin9(w0, w1, w2, fl, fz.imag / th, (fl - fz.real) / (th * th))
+
+
+@kernel
+def _dexp(x, out):
+    w0, w1, w2 = x[0], x[1], x[2]
+    u0, u1, u2 = x[3], x[4], x[5]
+    lam = x[6]
+    th = norm3(w0, w1, w2)
+    if th < SPECTRAL:
+        a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
+        J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
+        W = _lin9(w0, w1, w2, a1, b1, c1)
+        if abs(lam) < LAM_SPECTRAL:
+            Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
+        else:
+            AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
+            Q = _L_spectral(w0, w1, w2, u0, u1, u2, th, w0 * u0 + w1 * u1 + w2 * u2, AB, CD, GH)
+        q = _mv(_lin9(w0, w1, w2, -a2, -b2, -c2), u0, u1, u2)
+        _write_blocks(J, Q, W, q, out)
+        return
+    # θ ≥ SPECTRAL: |z| ≥ 1, the complex closed forms have no cancellation
+    th, co, sn, omc = _trig(w0, w1, w2)
+    E, A, I1, a2 = _lam4(lam)
+    z = complex(lam, th)
+    f_it = complex(sn, omc) / th  # φ1(iθ) = (e^{iθ} − 1)/(iθ)
+    f_z = complex(math.expm1(lam) * co - omc, E * sn) / z  # φ1(z), e^z − 1 free of cancellation
+    p2_z = (f_z - 1.0) / z  # φ2(z)
+    t2 = th * th
+    J = _rod9(w0, w1, w2, omc / t2, (th - sn) / (t2 * th))
+    W = _fB(w0, w1, w2, th, A, f_z)
+    p2 = _mv(_fB(w0, w1, w2, th, a2, p2_z), u0, u1, u2)
+    q = (-p2[0], -p2[1], -p2[2])
+    # φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z, φ1[z, 0] = φ2(z), φ1[λ, iθ] = (φ1(λ) − φ1(iθ))/(λ − iθ)
+    AB = (complex(co * A, sn * A) - f_it) / z
+    GH = (A - f_it) / complex(lam, -th)
+    L = _L_spectral(w0, w1, w2, u0, u1, u2, th, w0 * u0 + w1 * u1 + w2 * u2, AB, p2_z, GH)
+    _write_blocks(J, L, W, q, out)
+
+
+@kernel
+def _dlog(x, out):
+    w0, w1, w2 = x[0], x[1], x[2]
+    u0, u1, u2 = x[3], x[4], x[5]
+    lam = x[6]
+    th = norm3(w0, w1, w2)
+    Ji = _rod9(w0, w1, w2, -0.5, e_omega(w0, w1, w2))
+    if th < SPECTRAL:
+        a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
+        m = r1 * r1 + th * th * b1 * b1
+        Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
+        if abs(lam) < LAM_SPECTRAL:
+            W = _lin9(w0, w1, w2, a1, b1, c1)
+            Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
+            M = _mm(_mm(Wi, Q), Ji)
+            L = (-M[0], -M[1], -M[2], -M[3], -M[4], -M[5], -M[6], -M[7], -M[8])
+        else:
+            AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
+            # g[a, b] = −g(a) g(b) φ1[a, b]
+            g_it = 1.0 / complex(a_theta(th), th * b_theta(th))
+            g_z = 1.0 / complex(r1, th * b1)
+            AB = -g_z * g_it * AB
+            CD = -g_z * CD
+            GH = -g_it * GH / a1
+            L = _L_spectral(w0, w1, w2, u0, u1, u2, th, dot3(w0, w1, w2, u0, u1, u2), AB, CD, GH)
+        q = _mv(_lin9(w0, w1, w2, a2, b2, c2), u0, u1, u2)
+        p = _mv(Wi, q[0], q[1], q[2])
+        _write_blocks(Ji, L, Wi, p, out)
+        return
+    th, co, sn, omc = _trig(w0, w1, w2)
+    E, A, I1, a2 = _lam4(lam)
+    z = complex(lam, th)
+    # φ1(iθ) = (e^{iθ} − 1)/(iθ); φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation
+    f_it = complex(sn, omc) / th
+    f_z = complex(math.expm1(lam) * co - omc, E * sn) / z
+    g_l = 1.0 / A
+    g_it = 1.0 / f_it
+    g_z = 1.0 / f_z
+    p2_z = (f_z - 1.0) / z
+    # g[a, b] = −g(a) g(b) φ1[a, b]; φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z: no 1/λ
+    AB = -g_z * g_it * (complex(co * A, sn * A) - f_it) / z
+    CD = -g_z * p2_z
+    GH = -g_l * g_it * (A - f_it) / complex(lam, -th)
+    # ω·u multiplies k2 ~ 1/(2π − θ)²: compensated
+    L = _L_spectral(w0, w1, w2, u0, u1, u2, th, dot3(w0, w1, w2, u0, u1, u2), AB, CD, GH)
     # W⁻¹ = g(B), ψ(B) = −g[B, 0] by (F)
-    Wi = _lin9(w0, w1, w2, g_l, g_z.imag / th, (g_l - g_z.real) / t2)
-    psi_z = -CD
-    psi_l = g_l * a2
-    p = _mv(_lin9(w0, w1, w2, psi_l, psi_z.imag / th, (psi_l - psi_z.real) / t2), u0, u1, u2)
+    Wi = _fB(w0, w1, w2, th, g_l, g_z)
+    p = _mv(_fB(w0, w1, w2, th, g_l * a2, -CD), u0, u1, u2)
     _write_blocks(Ji, L, Wi, p, out)
 
 

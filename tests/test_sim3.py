@@ -39,12 +39,9 @@ def _straddle(thr):
     return [thr * (1 - 1e-9), thr * (1 + 1e-9)]
 
 
-# largest quadrature node of each rule: the first where sθ crosses a threshold
-_S_MAX = (float(sim3._GL_S[-1]), float(sim3._GL_S8[-1]))
 THRESHOLD_THETAS = [
     t
-    for thr in (C.A_TAYLOR, C.C_TAYLOR, C.QA_TAYLOR, C.E_TAYLOR, sim3.DLOG_SPECTRAL)
-    + tuple(k / s for s in _S_MAX for k in (C.A_TAYLOR, 2 * C.A_TAYLOR, C.C_TAYLOR, C.QA_TAYLOR))
+    for thr in (C.A_TAYLOR, C.C_TAYLOR, C.QA_TAYLOR, C.QB_TAYLOR, C.E_TAYLOR, sim3.SPECTRAL, sim3.Z_BAND)
     for t in _straddle(thr)
 ]
 
@@ -58,16 +55,15 @@ def _grid(thetas, lam_subset=None):
 
 
 def _special():
-    """(θ, λ) straddling the quadrature rules' switches (|λ| + θ = QUAD_SMALL, (|λ| + θ)·width =
-    QUAD_PANEL, |λ| = QUAD_CUT) and λ² + θ² → 0 off the diagonals."""
+    """(θ, λ) straddling the z band |z| = Z_BAND in several directions, the λ band |λ| = L_TAYLOR
+    at several θ, and λ² + θ² → 0 off the diagonals."""
     out = []
-    for f in _straddle(sim3.QUAD_SMALL):
-        out += [(0.5, f - 0.5), (0.5, 0.5 - f), (f, 0.0)]
-    for f in _straddle(sim3.QUAD_PANEL):
-        out += [(1.0, f - 1.0), (1.0, 1.0 - f), (f - 0.5, 0.5)]
-    for f in _straddle(sim3.QUAD_CUT):
-        out += [(1.0, f), (0.7, -f)]
-    # λ² + θ² → 0 along other directions than λ = ±θ
+    for f in _straddle(sim3.Z_BAND):
+        for ang in (0.0, 0.3, 0.5 * PI, 0.8 * PI, PI, 1.3 * PI):
+            out.append((f * abs(math.sin(ang)), f * math.cos(ang)))
+    for f in _straddle(sim3.L_TAYLOR):
+        for th in (0.0, 0.1, 0.3, 1.0, 2.5, 5.0):
+            out += [(th, f), (th, -f)]
     for r in (1e-200, 1e-12, 1e-6, 1e-3):
         out += [(r, 3 * r), (3 * r, -r)]
     return out
@@ -247,9 +243,9 @@ def test_dexp_is_left_jacobian():
 
 
 def test_dlog_spectral_and_product_forms_agree_at_switch():
-    """Both forms of D_log's lower-left block are accurate on both sides of DLOG_SPECTRAL."""
+    """Both forms of D_log's lower-left block are accurate on both sides of SPECTRAL."""
     for f in (1 - 1e-9, 1 + 1e-9):
-        for x in _points([(sim3.DLOG_SPECTRAL * f, lam) for lam in (0.0, 1e-5, -0.5, 5.0)], seed=10):
+        for x in _points([(sim3.SPECTRAL * f, lam) for lam in (0.0, 1e-5, -0.5, 5.0)], seed=10):
             assert ref.rel_err(sim3.dlog(x), ref.dlog(G, _mp(x))) <= TOL
 
 
@@ -388,7 +384,7 @@ def test_gtsam_similarity3_accuracy_recorded():
 
 def test_note_coefficient_limits_at_zero():
     """a1 = 1, b1 = 1/2, c1 = 1/6, d1 = −1/12, e1 = −1/60, φ2 → 1/2 at θ = λ = 0."""
-    a1, b1, c1, d1, e1, r1, a2, b2, c2 = sim3._integrals(0.0, 0.0)
+    a1, b1, c1, d1, e1, r1, a2, b2, c2 = sim3._coefs(0.0, 0.0)
     for got, want in ((a1, 1), (b1, 1 / 2), (c1, 1 / 6), (d1, -1 / 12), (e1, -1 / 60), (a2, 1 / 2), (r1, 1)):
         # a quadrature sum: the project's measure, |error|/max(1, |ref|), at ≤ 2 ulps of 1
         assert abs(got - want) <= 2 * np.finfo(float).eps
@@ -399,7 +395,7 @@ def test_note_W_inverse_and_psi_column():
     x = np.array([0.7, -0.4, 1.1, 2.0, -1.0, 0.5, -0.8])
     w, u, lam = x[:3], x[3:6], x[6]
     th = np.linalg.norm(w)
-    a1, b1, c1, *_ = sim3._integrals(lam, th)
+    a1, b1, c1, *_ = sim3._coefs(lam, th)
     m = (a1 - c1 * th**2) ** 2 + b1**2 * th**2
     b3, c3 = -b1 / m, (b1**2 - a1 * c1 + c1**2 * th**2) / (a1 * m)
     Om = sim3.hat(np.r_[w, 0, 0, 0, 0])[:3, :3]
