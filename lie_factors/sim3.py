@@ -101,7 +101,7 @@ LAM_SPECTRAL = 5.0
 _TWO_PI_HI = 6.283185307179586
 _TWO_PI_LO = 2.4492935982947064e-16
 
-# φ1′(λ) = Σ λ^k/(k!(k+2)),  φ2(λ) = Σ λ^k/(k+2)!
+# φ1′(λ) = Σ λ^k/(k!(k+2))
 _DPHI1_SERIES = (
     0.5,  # 1/2
     0.3333333333333333,  # 1/3
@@ -121,26 +121,6 @@ _DPHI1_SERIES = (
     4.498331606952833e-14,  # 1/22230464256000
     2.6552651846596585e-15,  # 1/376610217984000
     1.4797143443923793e-16,  # 1/6758061133824000
-)[:L_TERMS]
-_PHI2_SERIES = (
-    0.5,  # 1/2
-    0.16666666666666666,  # 1/6
-    0.041666666666666664,  # 1/24
-    0.008333333333333333,  # 1/120
-    0.001388888888888889,  # 1/720
-    0.0001984126984126984,  # 1/5040
-    2.48015873015873e-05,  # 1/40320
-    2.7557319223985893e-06,  # 1/362880
-    2.755731922398589e-07,  # 1/3628800
-    2.505210838544172e-08,  # 1/39916800
-    2.08767569878681e-09,  # 1/479001600
-    1.6059043836821613e-10,  # 1/6227020800
-    1.1470745597729725e-11,  # 1/87178291200
-    7.647163731819816e-13,  # 1/1307674368000
-    4.779477332387385e-14,  # 1/20922789888000
-    2.8114572543455206e-15,  # 1/355687428096000
-    1.5619206968586225e-16,  # 1/6402373705728000
-    8.22063524662433e-18,  # 1/121645100408832000
 )[:L_TERMS]
 # 1/(n+1)! for n = 0, 1, ...
 _INV_FACT = (
@@ -206,33 +186,36 @@ def _theta5(th):
 
 
 @kernel
-def _theta_bc(th):
-    """(b, c) of :func:`_theta5` only (exp and log)."""
+def _theta_abc(th):
+    """(a, b, c) of :func:`_theta5` only (exp and log)."""
     h = 0.5 * th
     t = th * th
     if th < A_TAYLOR:
+        a = _horner(_A_SERIES, t)
         ah = _horner(_A_SERIES, h * h)
     else:
-        ah = math.sin(h) / h
+        sh = math.sin(h)
+        ch = math.cos(h)
+        a = sh * ch / h
+        ah = sh / h
     b = 0.5 * ah * ah
     if th < C_TAYLOR:
         c = _horner(_C_SERIES, t)
     else:
-        # 1 − a = 1 − sin θ/θ = θ² c; sin θ = 2 sin(θ/2) cos(θ/2)
-        c = (1.0 - ah * math.cos(h)) / t
-    return b, c
+        c = (1.0 - a) / t
+    return a, b, c
 
 
 @kernel
-def _lam4(lam):
-    """(e^λ, φ1(λ), φ1′(λ), φ2(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds and
-    φ2(λ) = (φ1(λ) − 1)/λ = φ1(λ) − φ1′(λ)."""
+def _lam3(lam):
+    """(e^λ, φ1(λ), φ1′(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds (Taylor series for
+    |λ| < L_TAYLOR, where that difference loses ~ε/|λ|)."""
     E = math.exp(lam)
     if abs(lam) < L_TAYLOR:
         A = math.expm1(lam) / lam if lam != 0.0 else 1.0
-        return E, A, _horner(_DPHI1_SERIES, lam), _horner(_PHI2_SERIES, lam)
+        return E, A, _horner(_DPHI1_SERIES, lam)
     A = (E - 1.0) / lam  # |λ| ≥ L_TAYLOR: e^λ − 1 loses < 2 ulps
-    return E, A, (E - A) / lam, (A - 1.0) / lam
+    return E, A, (E - A) / lam
 
 
 @kernel
@@ -308,7 +291,9 @@ def _coefs(lam, th):
     if D < Z_BAND * Z_BAND:
         a1, b1, c1, d1, e1, a2, b2, c2 = _zseries(lam, T)
         return a1, b1, c1, d1, e1, a1 - T * c1, a2, b2, c2
-    E, A, I1, a2 = _lam4(lam)
+    E, A, I1 = _lam3(lam)
+    # φ2(λ) = ∫(1 − s) e^{sλ} = φ1 − φ1′: no cancellation for small λ; (φ1 − 1)/λ for large
+    a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     a, b, c, qa, qb = _theta5(th)
     bl = b - lam * c
     b1 = (lam * lam * I1 + T * E * bl) / D
@@ -327,17 +312,18 @@ def _coefs(lam, th):
 
 @kernel
 def _wcoefs(lam, th):
-    """(e^λ, a1, b1, c1) of :func:`_coefs`, for exp and log."""
+    """(e^λ, a1, b1, c1, a, b): W = φ1(B) = a1 I + b1 Ω + c1 Ω² as in :func:`_coefs`, and
+    R = I + a Ω + b Ω² (exp and log)."""
+    a, b, c = _theta_abc(th)
     T = th * th
     D = lam * lam + T
     if D < Z_BAND * Z_BAND:
         a1, b1, c1 = _zseries_w(lam, T)
-        return math.exp(lam), a1, b1, c1
-    E, A, I1, a2 = _lam4(lam)
-    b, c = _theta_bc(th)
+        return math.exp(lam), a1, b1, c1, a, b
+    E, A, I1 = _lam3(lam)
     b1 = (lam * lam * I1 + T * E * (b - lam * c)) / D
     c1 = (lam * (E * b - I1) + T * E * c) / D
-    return E, A, b1, c1
+    return E, A, b1, c1, a, b
 
 
 # ---------------------------------------------------------------- 3×3 helpers on 9-tuples
@@ -444,8 +430,8 @@ def _exp(x, out):
     w0, w1, w2 = x[0], x[1], x[2]
     lam = x[6]
     th = norm3(w0, w1, w2)
-    E, a1, b1, c1 = _wcoefs(lam, th)
-    R = _rod9(w0, w1, w2, a_theta(th), b_theta(th))
+    E, a1, b1, c1, a, b = _wcoefs(lam, th)
+    R = _rod9(w0, w1, w2, a, b)
     # t = ∫₀¹ e^{(1−τ)Ω} u e^{−τλ} dτ = e^{−λ} φ1(Ω + λI) u
     c = 1.0 / E
     W = _lin9(w0, w1, w2, c * a1, c * b1, c * c1)
@@ -466,7 +452,7 @@ def _log(X, out):
     c = X[3, 3]
     lam = -math.log(c)
     th = norm3(w0, w1, w2)
-    E, a1, b1, c1 = _wcoefs(lam, th)
+    E, a1, b1, c1, a, b = _wcoefs(lam, th)
     r1 = a1 - th * th * c1
     # W⁻¹ = g(B) by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1), m = |φ1(z)|²
     m = r1 * r1 + th * th * b1 * b1
@@ -648,7 +634,8 @@ def _dexp(x, out):
         return
     # θ ≥ SPECTRAL: |z| ≥ 1, the complex closed forms have no cancellation
     th, co, sn, omc = _trig(w0, w1, w2)
-    E, A, I1, a2 = _lam4(lam)
+    E, A, I1 = _lam3(lam)
+    a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     z = complex(lam, th)
     f_it = complex(sn, omc) / th  # φ1(iθ) = (e^{iθ} − 1)/(iθ)
     f_z = complex(math.expm1(lam) * co - omc, E * sn) / z  # φ1(z), e^z − 1 free of cancellation
@@ -695,7 +682,8 @@ def _dlog(x, out):
         _write_blocks(Ji, L, Wi, p, out)
         return
     th, co, sn, omc = _trig(w0, w1, w2)
-    E, A, I1, a2 = _lam4(lam)
+    E, A, I1 = _lam3(lam)
+    a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     z = complex(lam, th)
     # φ1(iθ) = (e^{iθ} − 1)/(iθ); φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation
     f_it = complex(sn, omc) / th
