@@ -369,26 +369,29 @@ def _skew_times(v0, v1, v2, M):
 
 
 @kernel
-def _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W):
-    """D_exp's lower-left block Q = ∂(W u)/∂ω + (W u)× J (module docstring)."""
-    J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
+def _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J):
+    """D_exp's lower-left block Q = ∂(W u)/∂ω + (W u)× J (module docstring), J = SO(3)'s D_exp."""
     Wu = _mv(W, u0, u1, u2)
     P = _skew_times(Wu[0], Wu[1], Wu[2], J)
     g = w0 * u0 + w1 * u1 + w2 * u2
     o = _cross(w0, w1, w2, u0, u1, u2)
     oo = _cross(w0, w1, w2, o[0], o[1], o[2])
-    w = (w0, w1, w2)
-    u = (u0, u1, u2)
-    r = (d1 * o[0] + e1 * oo[0], d1 * o[1] + e1 * oo[1], d1 * o[2] + e1 * oo[2])
-    Ux = (0.0, -u2, u1, u2, 0.0, -u0, -u1, u0, 0.0)
-    out = [0.0] * 9
-    for i in range(3):
-        for j in range(3):
-            v = -b1 * Ux[3 * i + j] + c1 * (w[i] * u[j] - 2.0 * u[i] * w[j]) + r[i] * w[j]
-            if i == j:
-                v += c1 * g
-            out[3 * i + j] = v + P[3 * i + j]
-    return (out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8])
+    r0 = d1 * o[0] + e1 * oo[0]
+    r1 = d1 * o[1] + e1 * oo[1]
+    r2 = d1 * o[2] + e1 * oo[2]
+    cg = c1 * g
+    # Q_ij = −b1 U_ij + c1 (ω_i u_j − 2 u_i ω_j + δ_ij ω·u) + r_i ω_j + P_ij  (no list: no allocation)
+    return (
+        c1 * (w0 * u0 - 2.0 * u0 * w0) + r0 * w0 + P[0] + cg,
+        b1 * u2 + c1 * (w0 * u1 - 2.0 * u0 * w1) + r0 * w1 + P[1],
+        -b1 * u1 + c1 * (w0 * u2 - 2.0 * u0 * w2) + r0 * w2 + P[2],
+        -b1 * u2 + c1 * (w1 * u0 - 2.0 * u1 * w0) + r1 * w0 + P[3],
+        c1 * (w1 * u1 - 2.0 * u1 * w1) + r1 * w1 + P[4] + cg,
+        b1 * u0 + c1 * (w1 * u2 - 2.0 * u1 * w2) + r1 * w2 + P[5],
+        b1 * u1 + c1 * (w2 * u0 - 2.0 * u2 * w0) + r2 * w0 + P[6],
+        -b1 * u0 + c1 * (w2 * u1 - 2.0 * u2 * w1) + r2 * w1 + P[7],
+        c1 * (w2 * u2 - 2.0 * u2 * w2) + r2 * w2 + P[8] + cg,
+    )
 
 
 # ---------------------------------------------------------------- cores
@@ -581,16 +584,17 @@ def _L_spectral(w0, w1, w2, u0, u1, u2, th, gu, AB, CD, GH):
     k6 = G - C
     o = _cross(w0, w1, w2, u0, u1, u2)
     S = _lin9(w0, w1, w2, k3 * gu, k1 * gu, k2 * gu)
-    w = (w0, w1, w2)
-    u = (u0, u1, u2)
-    Ux = (0.0, -u2, u1, u2, 0.0, -u0, -u1, u0, 0.0)
-    L9 = [0.0] * 9
-    for i in range(3):
-        for j in range(3):
-            L9[3 * i + j] = (
-                G * Ux[3 * i + j] + S[3 * i + j] + k4 * u[i] * w[j] + k5 * w[i] * u[j] + k6 * o[i] * w[j]
-            )
-    return (L9[0], L9[1], L9[2], L9[3], L9[4], L9[5], L9[6], L9[7], L9[8])
+    return (
+        S[0] + k4 * u0 * w0 + k5 * w0 * u0 + k6 * o[0] * w0,
+        -G * u2 + S[1] + k4 * u0 * w1 + k5 * w0 * u1 + k6 * o[0] * w1,
+        G * u1 + S[2] + k4 * u0 * w2 + k5 * w0 * u2 + k6 * o[0] * w2,
+        G * u2 + S[3] + k4 * u1 * w0 + k5 * w1 * u0 + k6 * o[1] * w0,
+        S[4] + k4 * u1 * w1 + k5 * w1 * u1 + k6 * o[1] * w1,
+        -G * u0 + S[5] + k4 * u1 * w2 + k5 * w1 * u2 + k6 * o[1] * w2,
+        -G * u1 + S[6] + k4 * u2 * w0 + k5 * w2 * u0 + k6 * o[2] * w0,
+        G * u0 + S[7] + k4 * u2 * w1 + k5 * w2 * u1 + k6 * o[2] * w1,
+        S[8] + k4 * u2 * w2 + k5 * w2 * u2 + k6 * o[2] * w2,
+    )
 
 
 @kernel
@@ -625,7 +629,7 @@ def _dexp(x, out):
         J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
         W = _lin9(w0, w1, w2, a1, b1, c1)
         if abs(lam) < LAM_SPECTRAL:
-            Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
+            Q = _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J)
         else:
             AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
             Q = _L_spectral(w0, w1, w2, u0, u1, u2, th, w0 * u0 + w1 * u1 + w2 * u2, AB, CD, GH)
@@ -665,7 +669,8 @@ def _dlog(x, out):
         Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
         if abs(lam) < LAM_SPECTRAL:
             W = _lin9(w0, w1, w2, a1, b1, c1)
-            Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
+            J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
+            Q = _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J)
             M = _mm(_mm(Wi, Q), Ji)
             L = (-M[0], -M[1], -M[2], -M[3], -M[4], -M[5], -M[6], -M[7], -M[8])
         else:
