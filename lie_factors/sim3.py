@@ -43,21 +43,24 @@ spectral projectors of Ω (docs/sim3.md),
 and for f = g = 1/φ1 the divided differences need no subtraction:
 g[a, b] = −g(a) g(b) φ1[a, b].
 
-Evaluation. The φ1-family coefficients are integrals of e^{sλ} times the SO(3)
-coefficient functions of sθ (a = sin x/x, b = (1 − cos x)/x², c − b, qa; their
-Taylor bands are those of :mod:`lie_factors._coeffs`)::
+Evaluation (docs/sim3.md §6; seed 000 Eqs. 91–100 do the same for Sim(2): functions of
+the eigenvalues λ ± iθ over λ² + θ², Eq. 99). With E = e^λ, A = φ1(λ), I1 = φ1′(λ),
+a2 = φ2(λ), the SO(3) functions a, b, c, qa = b′/θ, qb = c′/θ of θ (seed 000, Eqs. 50–52,
+64) and D = λ² + θ², the θ → 0 limits are taken analytically::
 
-    a1 = ∫ e^{sλ},  b1 = ∫ e^{sλ} s a(sθ),  c1 = ∫ e^{sλ} s² b(sθ),
-    d1 = ∫ e^{sλ} s³ (c − b)(sθ),  e1 = ∫ e^{sλ} s⁴ qa(sθ),  Re φ1(z) = ∫ e^{sλ} cos sθ,
-    φ2(B) likewise with weight (1 − s),
+    b1 = (λ² I1 + θ² E (b − λc))/D           c1 = (λ (E b − I1) + θ² E c)/D          (C)
+    d1 = (E [2(b − λc) + θ² (qa − λ qb)] − 2 b1)/D
+    e1 = (E (λ qa + 2c + θ² qb) − 2 c1)/D
+    b2 = (Q (λ² − θ²) − 2λθ² (a2 − E b))/D²   c2 = ((E b − a2)(λ² − θ²) − 2λ Q)/D²
+    Q = λ (I1 − a2) − E θ² c
 
-summed by Gauss–Legendre quadrature (``QUAD_NODES`` nodes per panel, panels of
-(|λ| + θ)·width ≤ ``QUAD_PANEL``). The integrands are entire, so this has no
-removable singularity at θ → 0, λ → 0 or both, and no cancellation: the
-closed forms in z lose ~ε/θ² (c1) and ~ε/θ⁴ (d1, e1) and would need a
-two-parameter series band. D_log's lower-left block uses −W⁻¹ Q J⁻¹ for θ <
-``DLOG_SPECTRAL`` and formula (L) with f = g above, where J⁻¹ and W⁻¹ grow like
-1/(2π − θ) and the product would amplify rounding by their product.
+so only |z| → 0 is left: for |z| < ``Z_BAND`` all coefficients are the power series of
+φ1, φ2 in z in real arithmetic (:func:`_zseries`); for |λ| < ``L_TAYLOR`` I1 is its
+Taylor series and a2 = A − I1. For θ ≥ ``SPECTRAL`` (dexp, dlog) the complex closed
+forms φ1(z) = (e^z − 1)/z, φ2(z) = (φ1(z) − 1)/z, g = 1/φ1 are used directly and the
+lower-left blocks come from (L), with φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z; (L) is also
+used for |λ| ≥ ``LAM_SPECTRAL``, where Q's terms cancel ~|λ|-fold. Below, D_log's block
+is −W⁻¹ Q J⁻¹ (J⁻¹ and W⁻¹ well conditioned there).
 
 ``dexp`` is the LEFT Jacobian Σ ad^i/(i+1)! (seed 000, Eq. 35):
 exp(x + ε) ≈ exp(dexp(x) ε)·exp(x); a GTSAM-style right Jacobian is dexp(−x).
