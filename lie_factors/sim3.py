@@ -90,6 +90,11 @@ MAT = 4
 Z_BAND = 0.25
 #: terms of the z series: the first omitted one is ≤ n² Z_BAND^n/(n+1)! < 1e-18 relative.
 Z_TERMS = 14
+#: exp and log need only W = φ1(B), whose (C) forms lose ~ε/|z| on c1 near z → 0 but only ~ε|z|
+#: on c1 Ω² (what W and W⁻¹ contain): their z series is needed only where λ² + θ² would
+#: underflow or vanish, |z| < Z_BAND_W, with Z_TERMS_W terms (first omitted < 1e-20).
+Z_BAND_W = 1e-3
+Z_TERMS_W = 6
 #: |λ| < L_TAYLOR: φ1′(λ) and φ2(λ) from their Taylor series ((e^λ − φ1(λ))/λ and
 #: (φ1(λ) − 1)/λ lose ~ε/|λ|).
 L_TAYLOR = 0.5
@@ -275,13 +280,13 @@ def _zseries(lam, T):
 
 @kernel
 def _zseries_w(lam, T):
-    """(a1, b1, c1) of :func:`_zseries` only."""
+    """(a1, b1, c1) of :func:`_zseries` only, Z_TERMS_W terms (|z| < Z_BAND_W)."""
     p = 1.0
     q = 0.0
     r = 0.0
     lp = 1.0
     a1 = b1 = c1 = 0.0
-    for n in range(Z_TERMS):
+    for n in range(Z_TERMS_W):
         f1 = _INV_FACT[n]
         a1 += lp * f1
         b1 += q * f1
@@ -330,7 +335,7 @@ def _wcoefs(lam, th):
     a, b, c = _theta_abc(th)
     T = th * th
     D = lam * lam + T
-    if D < Z_BAND * Z_BAND:
+    if D < Z_BAND_W * Z_BAND_W:
         a1, b1, c1 = _zseries_w(lam, T)
         return math.exp(lam), a1, b1, c1, a, b
     E, A, I1 = _lam3(lam)

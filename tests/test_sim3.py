@@ -6,7 +6,7 @@ where |λ| ≤ 5 (issue 18), on the 2-D grid θ ∈ {0, 1e-200, 1e-15, 1e-8, 1e-
 ±1e-4, ±0.1, ±1, ±5, ±45, ±θ}: θ and λ → 0 apart (one of them 0 or 1e-200) and
 together (λ = ±θ, and λ² + θ² → 0 along other directions), translations 1e-3, 1, 1e2 in
 random directions, nearly parallel and perpendicular to ω. Every branch threshold of the
-module (Z_BAND in several directions of z, L_TAYLOR, SPECTRAL, LAM_SPECTRAL) and of the SO(3)
+module (Z_BAND and Z_BAND_W in several directions of z, L_TAYLOR, SPECTRAL, LAM_SPECTRAL) and of the SO(3)
 coefficient functions it evaluates is straddled by ×(1 ± 1e-9). Each point's 50-digit D_exp
 is computed once and serves both dexp and dlog. The whole file takes ~70 s on the shared
 2-core machine (the two mpmath sweeps ~25 s each).
@@ -68,7 +68,7 @@ def _special():
     """(θ, λ) straddling the z band |z| = Z_BAND in several directions, the λ band |λ| = L_TAYLOR
     and |λ| = LAM_SPECTRAL at several θ, and λ² + θ² → 0 off the diagonals."""
     out = []
-    for f in _straddle(sim3.Z_BAND):
+    for f in _straddle(sim3.Z_BAND) + _straddle(sim3.Z_BAND_W):
         for ang in (0.0, 0.3, 0.5 * PI, 0.8 * PI, PI, 1.3 * PI):
             out.append((f * abs(math.sin(ang)), f * math.cos(ang)))
     for f in _straddle(sim3.L_TAYLOR):
@@ -461,11 +461,29 @@ def _coef_refs(lam, th):
         return [A, b1, c1, d1, e1, mp.re(p1), a2, b2, c2], (abs(p1), abs(dp1), abs(p2))
 
 
+def test_W_coefficients_exp_log_band():
+    """exp and log take a1, b1, c1 from _wcoefs, whose z band is Z_BAND_W (not Z_BAND): the same
+    weighted measure as below across both bands, |z| = Z_BAND_W straddled in several directions."""
+    worst = 0.0
+    pts = [(f * math.cos(a), f * abs(math.sin(a))) for f in _straddle(sim3.Z_BAND_W) + _straddle(sim3.Z_BAND)
+           for a in (0.0, 0.4, 0.5 * PI, 2.0, PI)]
+    pts += [(lam, th) for th in (0.0, 1e-200, 1e-8, 5e-4, 2e-3, 0.1, 1.0, 3.0)
+            for lam in (0.0, 1e-200, 1e-8, -5e-4, 2e-3, -0.3, 0.51, 5.0, -45.0)]
+    for lam, th in pts:
+        r, (m1, _, _) = _coef_refs(lam, th)
+        _, a1, b1, c1, a, b = sim3._wcoefs(lam, th)
+        s1 = max(r[0], m1)
+        e = max(abs(mp.mpf(a1) - r[0]) / s1, abs(mp.mpf(b1) - r[1]) * th / s1, abs(mp.mpf(c1) - r[2]) * th * th / s1)
+        worst = max(worst, float(e))
+    print("W coefficients (exp/log) worst", worst)
+    assert worst <= TOL_SMALL_LAMBDA
+
+
 def test_coefficients_2d_sweep():
     """Each coefficient of _coefs times the power of θ it meets in the matrices (b1 Ω, c1 Ω², c1 θ in
     Q, d1 θ², e1 θ³, b2 Ω, c2 Ω²), relative to the size of its function (|φ1|, |φ1′|, |φ2|), on a
     30 × 49 grid through every band; ≤ 2e-15 for |λ| ≤ 5, ≤ 1e-14 up to |λ| = 45."""
-    ths = [0.0, 1e-200, 1e-30, 1e-15, 1e-8, 1e-5, 1e-3, 0.01, 0.05, 0.1, 0.2, 0.24, 0.26, 0.3, 0.4, 0.5,
+    ths = [0.0, 1e-200, 1e-30, 1e-15, 1e-8, 1e-5, 1e-3, 0.01, sim3.Z_BAND_W * (1 - 1e-9), sim3.Z_BAND_W * (1 + 1e-9), 0.05, 0.1, 0.2, 0.24, 0.26, 0.3, 0.4, 0.5,
            0.7, 0.8, 1.0, 1.5, 2.0, 2.5, 3.0, PI, 3.5, 4.0, 5.0, 6.0, 2 * PI - 1e-3, sim3.Z_BAND * (1 + 1e-9)]
     lams = [0.0] + [s * v for v in (1e-200, 1e-30, 1e-15, 1e-8, 1e-5, 1e-3, 0.01, 0.05, 0.1, 0.2, 0.25, 0.3,
                                        0.49, 0.51, 0.7, 1.0, 1.5, 2.0, 3.0, 4.99, 5.01, 7.0, 10.0, 45.0)
