@@ -412,6 +412,73 @@ def _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J):
     )
 
 
+@kernel
+def _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2):
+    """D_log's lower-left block L = −W⁻¹ Q J⁻¹ without a 3×3 product (docs/sim3.md §5).
+
+    J⁻¹ = I − ½Ω + e Ω² (ek = e_θ), W⁻¹ = al0 I + al1 Ω + al2 Ω². With Q = K + (W u)× J,
+    K = ∂(W u)/∂ω (§4): Q J⁻¹ = K J⁻¹ + (W u)×, and since ωᵀ J⁻¹ = ωᵀ, U Ω = ω uᵀ − g I,
+    U Ω² = −ω oᵀ − g Ω (g = ω·u, o = ω × u, oo = ω × o):
+
+        Q J⁻¹ = s× + ω pᵀ + r ωᵀ + d0 I + d1′ Ω + d2 Ω²,
+        s = W u − b1 u,  p = ½ b1 u + b1 e o + c1 J⁻ᵀu,  r = −2 c1 u + d1 o + e1 oo,
+        d0 = g (c1 − ½ b1),  d1′ = g (b1 e − ½ c1),  d2 = g c1 e;
+
+    and W⁻¹ s× = al0 s× + (al1 s + al2 ω × s) ωᵀ − (ω·s)(al1 I + al2 Ω) (Ω s× = s ωᵀ − (ω·s) I),
+    W⁻¹ ω = al0 ω, W⁻¹ (d0 I + d1′ Ω + d2 Ω²) by Ω³ = −θ² Ω.
+    """
+    g = w0 * u0 + w1 * u1 + w2 * u2
+    o0, o1, o2 = _cross(w0, w1, w2, u0, u1, u2)
+    q0, q1, q2 = _cross(w0, w1, w2, o0, o1, o2)
+    ab = a1 - b1
+    s0 = ab * u0 + b1 * o0 + c1 * q0
+    s1 = ab * u1 + b1 * o1 + c1 * q1
+    s2 = ab * u2 + b1 * o2 + c1 * q2
+    # p = ½ b1 u + b1 e o + c1 (u + ½ o + e oo)
+    pu = 0.5 * b1 + c1
+    po = b1 * ek + 0.5 * c1
+    pq = c1 * ek
+    p0 = pu * u0 + po * o0 + pq * q0
+    p1 = pu * u1 + po * o1 + pq * q1
+    p2 = pu * u2 + po * o2 + pq * q2
+    r0 = -2.0 * c1 * u0 + d1 * o0 + e1 * q0
+    r1 = -2.0 * c1 * u1 + d1 * o1 + e1 * q1
+    r2 = -2.0 * c1 * u2 + d1 * o2 + e1 * q2
+    # W⁻¹ r
+    x0, x1, x2 = _cross(w0, w1, w2, r0, r1, r2)
+    y0, y1, y2 = _cross(w0, w1, w2, x0, x1, x2)
+    ws0, ws1, ws2 = _cross(w0, w1, w2, s0, s1, s2)
+    Y0 = al1 * s0 + al2 * ws0 + al0 * r0 + al1 * x0 + al2 * y0
+    Y1 = al1 * s1 + al2 * ws1 + al0 * r1 + al1 * x1 + al2 * y1
+    Y2 = al1 * s2 + al2 * ws2 + al0 * r2 + al1 * x2 + al2 * y2
+    d0 = g * (c1 - 0.5 * b1)
+    dd1 = g * (b1 * ek - 0.5 * c1)
+    d2 = g * c1 * ek
+    t2 = th * th
+    os = w0 * s0 + w1 * s1 + w2 * s2
+    f0 = al0 * d0 - al1 * os
+    f1 = al0 * dd1 + al1 * d0 - t2 * (al1 * d2 + al2 * dd1) - al2 * os
+    f2 = al0 * d2 + al1 * dd1 + al2 * d0 - t2 * al2 * d2
+    P = _lin9(w0, w1, w2, f0, f1, f2)
+    a0p0 = al0 * p0
+    a0p1 = al0 * p1
+    a0p2 = al0 * p2
+    S0 = al0 * s0
+    S1 = al0 * s1
+    S2 = al0 * s2
+    return (
+        -(P[0] + Y0 * w0 + w0 * a0p0),
+        -(P[1] - S2 + Y0 * w1 + w0 * a0p1),
+        -(P[2] + S1 + Y0 * w2 + w0 * a0p2),
+        -(P[3] + S2 + Y1 * w0 + w1 * a0p0),
+        -(P[4] + Y1 * w1 + w1 * a0p1),
+        -(P[5] - S0 + Y1 * w2 + w1 * a0p2),
+        -(P[6] - S1 + Y2 * w0 + w2 * a0p0),
+        -(P[7] + S0 + Y2 * w1 + w2 * a0p1),
+        -(P[8] + Y2 * w2 + w2 * a0p2),
+    )
+
+
 # ---------------------------------------------------------------- cores
 
 
@@ -562,20 +629,16 @@ def _write_blocks(A, L, D, p, out):
 
 
 @kernel
-def _trig(w0, w1, w2):
-    """(θ, cos θ, sin θ, 1 − cos θ = 2 sin²(θ/2)) for θ = |ω| ≥ SPECTRAL; above π from
-    δ = 2π − θ with θ in double-double (sin θ and sin(θ/2) → 0 as θ → 2π)."""
-    hi, lo = theta_dd(w0, w1, w2)
-    if hi > math.pi:
+def _trig(w0, w1, w2, th):
+    """(θ, cos θ, sin θ, 1 − cos θ = 2 sin²(θ/2)) for θ = |ω|; above π from δ = 2π − θ with θ
+    in double-double (D_log: sin θ and sin(θ/2) → 0 as θ → 2π, and J⁻¹, W⁻¹ ~ 1/(2π − θ))."""
+    if th > math.pi:
+        hi, lo = theta_dd(w0, w1, w2)
         d = (_TWO_PI_HI - hi) + (_TWO_PI_LO - lo)
-        sn = -math.sin(d)
-        co = math.cos(d)
         sh = math.sin(0.5 * d)
-    else:
-        sn = math.sin(hi)
-        co = math.cos(hi)
-        sh = math.sin(0.5 * hi)
-    return hi, co, sn, 2.0 * sh * sh
+        return hi, math.cos(d), -math.sin(d), 2.0 * sh * sh
+    sh = math.sin(0.5 * th)
+    return th, math.cos(th), math.sin(th), 2.0 * sh * sh
 
 
 @kernel
@@ -655,7 +718,7 @@ def _dexp(x, out):
         _write_blocks(J, Q, W, q, out)
         return
     # θ ≥ SPECTRAL: |z| ≥ 1, the complex closed forms have no cancellation
-    th, co, sn, omc = _trig(w0, w1, w2)
+    th, co, sn, omc = _trig(w0, w1, w2, th)
     E, A, I1 = _lam3(lam)
     a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     z = complex(lam, th)
@@ -680,17 +743,15 @@ def _dlog(x, out):
     u0, u1, u2 = x[3], x[4], x[5]
     lam = x[6]
     th = norm3(w0, w1, w2)
-    Ji = _rod9(w0, w1, w2, -0.5, _e_fast(w0, w1, w2))
     if th < SPECTRAL:
+        ek = _e_fast(w0, w1, w2)
+        Ji = _rod9(w0, w1, w2, -0.5, ek)
         a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
         m = r1 * r1 + th * th * b1 * b1
         Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
         if abs(lam) < LAM_SPECTRAL:
-            W = _lin9(w0, w1, w2, a1, b1, c1)
-            J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
-            Q = _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J)
-            M = _mm(_mm(Wi, Q), Ji)
-            L = (-M[0], -M[1], -M[2], -M[3], -M[4], -M[5], -M[6], -M[7], -M[8])
+            L = _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, 1.0 / a1, -b1 / m,
+                           (b1 * b1 - r1 * c1) / (a1 * m))
         else:
             AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
             # g[a, b] = −g(a) g(b) φ1[a, b]
@@ -704,7 +765,12 @@ def _dlog(x, out):
         p = _mv(Wi, q[0], q[1], q[2])
         _write_blocks(Ji, L, Wi, p, out)
         return
-    th, co, sn, omc = _trig(w0, w1, w2)
+    th, co, sn, omc = _trig(w0, w1, w2, th)
+    t2 = th * th
+    # e_θ = 1/θ² − cot(θ/2)/(2θ) (seed 000, Eq. 57), cot(θ/2) = sin θ/(1 − cos θ) from the
+    # (reflected) values above; its Taylor band below E_TAYLOR
+    ek = _horner4(_E_SERIES, t2) if th < E_TAYLOR else 1.0 / t2 - sn / (2.0 * th * omc)
+    Ji = _rod9(w0, w1, w2, -0.5, ek)
     E, A, I1 = _lam3(lam)
     a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     z = complex(lam, th)
