@@ -769,22 +769,27 @@ def _dlog(x, out):
     t2 = th * th
     # e_θ = 1/θ² − cot(θ/2)/(2θ) (seed 000, Eq. 57), cot(θ/2) = sin θ/(1 − cos θ) from the
     # (reflected) values above; its Taylor band below E_TAYLOR
-    ek = _horner4(_E_SERIES, t2) if th < E_TAYLOR else 1.0 / t2 - sn / (2.0 * th * omc)
+    cot2 = sn / omc  # cot(θ/2)
+    ek = _horner4(_E_SERIES, t2) if th < E_TAYLOR else 1.0 / t2 - cot2 / (2.0 * th)
     Ji = _rod9(w0, w1, w2, -0.5, ek)
     E, A, I1 = _lam3(lam)
     a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     z = complex(lam, th)
-    # φ1(iθ) = (e^{iθ} − 1)/(iθ); φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation
-    f_it = complex(sn, omc) / th
-    f_z = complex(math.expm1(lam) * co - omc, E * sn) / z
+    D = lam * lam + t2
+    zi = complex(lam / D, -th / D)  # 1/z; 1/(λ − iθ) = z/D
+    # φ1(iθ) = (e^{iθ} − 1)/(iθ), g(iθ) = iθ/(e^{iθ} − 1) = (θ/2) cot(θ/2) − iθ/2;
+    # φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation, g(z) = z/(e^z − 1)
+    f_it = complex(sn / th, omc / th)
+    g_it = complex(0.5 * th * cot2, -0.5 * th)
+    N = complex(math.expm1(lam) * co - omc, E * sn)
+    f_z = N * zi
+    g_z = z * N.conjugate() / (N.real * N.real + N.imag * N.imag)
     g_l = 1.0 / A
-    g_it = 1.0 / f_it
-    g_z = 1.0 / f_z
-    p2_z = (f_z - 1.0) / z
+    p2_z = (f_z - 1.0) * zi
     # g[a, b] = −g(a) g(b) φ1[a, b]; φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z: no 1/λ
-    AB = -g_z * g_it * (complex(co * A, sn * A) - f_it) / z
+    AB = -g_z * g_it * (complex(co * A, sn * A) - f_it) * zi
     CD = -g_z * p2_z
-    GH = -g_l * g_it * (A - f_it) / complex(lam, -th)
+    GH = -g_l * g_it * (A - f_it) * z / D
     # ω·u multiplies k2 ~ 1/(2π − θ)²: compensated
     L = _L_spectral(w0, w1, w2, u0, u1, u2, th, dot3(w0, w1, w2, u0, u1, u2), AB, CD, GH)
     # W⁻¹ = g(B), ψ(B) = −g[B, 0] by (F)
