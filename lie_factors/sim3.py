@@ -55,12 +55,14 @@ a2 = φ2(λ), the SO(3) functions a, b, c, qa = b′/θ, qb = c′/θ of θ (see
     Q = λ (I1 − a2) − E θ² c
 
 so only |z| → 0 is left: for |z| < ``Z_BAND`` all coefficients are the power series of
-φ1, φ2 in z in real arithmetic (:func:`_zseries`); for |λ| < ``L_TAYLOR`` I1 is its
+φ1, φ2 in z in real arithmetic (:func:`_zseries`; exp and log, which need only W's
+coefficients, only below ``Z_BAND_W``); for |λ| < ``L_TAYLOR`` I1 is its
 Taylor series and a2 = A − I1. For θ ≥ ``SPECTRAL`` (dexp, dlog) the complex closed
 forms φ1(z) = (e^z − 1)/z, φ2(z) = (φ1(z) − 1)/z, g = 1/φ1 are used directly and the
 lower-left blocks come from (L), with φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z; (L) is also
 used for |λ| ≥ ``LAM_SPECTRAL``, where Q's terms cancel ~|λ|-fold. Below, D_log's block
-is −W⁻¹ Q J⁻¹ (J⁻¹ and W⁻¹ well conditioned there).
+is −W⁻¹ Q J⁻¹ (J⁻¹ and W⁻¹ well conditioned there), collapsed to rank-one terms
+(:func:`_L_product`).
 
 ``dexp`` is the LEFT Jacobian Σ ad^i/(i+1)! (seed 000, Eq. 35):
 exp(x + ε) ≈ exp(dexp(x) ε)·exp(x); a GTSAM-style right Jacobian is dexp(−x).
@@ -353,21 +355,6 @@ def _mv(M, v0, v1, v2):
         M[0] * v0 + M[1] * v1 + M[2] * v2,
         M[3] * v0 + M[4] * v1 + M[5] * v2,
         M[6] * v0 + M[7] * v1 + M[8] * v2,
-    )
-
-
-@kernel
-def _mm(A, B):
-    return (
-        A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
-        A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
-        A[0] * B[2] + A[1] * B[5] + A[2] * B[8],
-        A[3] * B[0] + A[4] * B[3] + A[5] * B[6],
-        A[3] * B[1] + A[4] * B[4] + A[5] * B[7],
-        A[3] * B[2] + A[4] * B[5] + A[5] * B[8],
-        A[6] * B[0] + A[7] * B[3] + A[8] * B[6],
-        A[6] * B[1] + A[7] * B[4] + A[8] * B[7],
-        A[6] * B[2] + A[7] * B[5] + A[8] * B[8],
     )
 
 
