@@ -230,10 +230,12 @@ def _e_fast(w0, w1, w2):
 def _lam3(lam):
     """(e^λ, φ1(λ), φ1′(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds (Taylor series for
     |λ| < L_TAYLOR, where that difference loses ~ε/|λ|)."""
-    E = math.exp(lam)
     if abs(lam) < L_TAYLOR:
-        A = math.expm1(lam) / lam if lam != 0.0 else 1.0
-        return E, A, _horner4(_DPHI1_SERIES, lam)
+        # one transcendental: e^λ = 1 + expm1(λ) keeps its relative accuracy for |λ| < 1/2
+        em = math.expm1(lam)
+        A = em / lam if lam != 0.0 else 1.0
+        return 1.0 + em, A, _horner4(_DPHI1_SERIES, lam)
+    E = math.exp(lam)
     A = (E - 1.0) / lam  # |λ| ≥ L_TAYLOR: e^λ − 1 loses < 2 ulps
     return E, A, (E - A) / lam
 
@@ -316,17 +318,18 @@ def _coefs(lam, th):
     a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     a, b, c, qa, qb = _theta5(th)
     bl = b - lam * c
-    b1 = (lam * lam * I1 + T * E * bl) / D
-    c1 = (lam * (E * b - I1) + T * E * c) / D
-    d1 = (E * (2.0 * bl + T * (qa - lam * qb)) - 2.0 * b1) / D
-    e1 = (E * (lam * qa + 2.0 * c + T * qb) - 2.0 * c1) / D
+    Di = 1.0 / D
+    b1 = (lam * lam * I1 + T * E * bl) * Di
+    c1 = (lam * (E * b - I1) + T * E * c) * Di
+    d1 = (E * (2.0 * bl + T * (qa - lam * qb)) - 2.0 * b1) * Di
+    e1 = (E * (lam * qa + 2.0 * c + T * qb) - 2.0 * c1) * Di
     # φ2(z) − φ2(λ) = θ (P + iQ)/z², P = θ (φ2(λ) − e^λ b), Q = λ (φ1′(λ) − φ2(λ)) − e^λ θ² c
     p = a2 - E * b
     q = lam * (I1 - a2) - E * T * c
     L2 = lam * lam - T
-    D2 = D * D
-    b2 = (q * L2 - 2.0 * lam * T * p) / D2
-    c2 = (-p * L2 - 2.0 * lam * q) / D2
+    D2i = Di * Di
+    b2 = (q * L2 - 2.0 * lam * T * p) * D2i
+    c2 = (-p * L2 - 2.0 * lam * q) * D2i
     return A, b1, c1, d1, e1, A - T * c1, a2, b2, c2
 
 
@@ -341,8 +344,9 @@ def _wcoefs(lam, th):
         a1, b1, c1 = _zseries_w(lam, T)
         return math.exp(lam), a1, b1, c1, a, b
     E, A, I1 = _lam3(lam)
-    b1 = (lam * lam * I1 + T * E * (b - lam * c)) / D
-    c1 = (lam * (E * b - I1) + T * E * c) / D
+    Di = 1.0 / D
+    b1 = (lam * lam * I1 + T * E * (b - lam * c)) * Di
+    c1 = (lam * (E * b - I1) + T * E * c) * Di
     return E, A, b1, c1, a, b
 
 
