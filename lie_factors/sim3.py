@@ -715,7 +715,8 @@ def _dexp(x, out):
     a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     z = complex(lam, th)
     f_it = complex(sn, omc) / th  # φ1(iθ) = (e^{iθ} − 1)/(iθ)
-    f_z = complex(math.expm1(lam) * co - omc, E * sn) / z  # φ1(z), e^z − 1 free of cancellation
+    # φ1(z), e^z − 1 free of cancellation; expm1(λ) = λ φ1(λ) to 2 ulps
+    f_z = complex(A * lam * co - omc, E * sn) / z
     p2_z = (f_z - 1.0) / z  # φ2(z)
     t2 = th * th
     J = _rod9(w0, w1, w2, omc / t2, (th - sn) / (t2 * th))
@@ -773,7 +774,7 @@ def _dlog(x, out):
     # φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation, g(z) = z/(e^z − 1)
     f_it = complex(sn / th, omc / th)
     g_it = complex(0.5 * th * cot2, -0.5 * th)
-    N = complex(math.expm1(lam) * co - omc, E * sn)
+    N = complex(A * lam * co - omc, E * sn)  # expm1(λ) = λ φ1(λ) to 2 ulps
     f_z = N * zi
     g_z = z * N.conjugate() / (N.real * N.real + N.imag * N.imag)
     g_l = 1.0 / A
