@@ -320,17 +320,18 @@ def _coefs(lam, th):
     a, b, c, qa, qb = _theta5(th)
     bl = b - lam * c
     Di = 1.0 / D
-    b1 = (lam * lam * I1 + T * E * bl) * Di
-    c1 = (lam * (E * b - I1) + T * E * c) * Di
+    ld = lam * Di
+    td = T * Di
+    b1 = lam * ld * I1 + td * E * bl
+    c1 = ld * (E * b - I1) + td * E * c
     d1 = (E * (2.0 * bl + T * (qa - lam * qb)) - 2.0 * b1) * Di
     e1 = (E * (lam * qa + 2.0 * c + T * qb) - 2.0 * c1) * Di
     # φ2(z) − φ2(λ) = θ (P + iQ)/z², P = θ (φ2(λ) − e^λ b), Q = λ (φ1′(λ) − φ2(λ)) − e^λ θ² c
     p = a2 - E * b
     q = lam * (I1 - a2) - E * T * c
-    L2 = lam * lam - T
-    D2i = Di * Di
-    b2 = (q * L2 - 2.0 * lam * T * p) * D2i
-    c2 = (-p * L2 - 2.0 * lam * q) * D2i
+    l2 = (lam * lam - T) * Di * Di  # (λ² − θ²)/D² before the e^λ-sized factors: no overflow
+    b2 = q * l2 - 2.0 * ld * td * p
+    c2 = -p * l2 - 2.0 * ld * Di * q
     return A, b1, c1, d1, e1, A - T * c1, a2, b2, c2
 
 
@@ -346,8 +347,11 @@ def _wcoefs(lam, th):
         return math.exp(lam), a1, b1, c1, a, b
     E, A, I1 = _lam3(lam)
     Di = 1.0 / D
-    b1 = (lam * lam * I1 + T * E * (b - lam * c)) * Di
-    c1 = (lam * (E * b - I1) + T * E * c) * Di
+    # λ²/D, θ²/D ≤ 1 first: no overflow before e^λ itself does (λ ≈ 709.8)
+    ld = lam * Di
+    td = T * Di
+    b1 = lam * ld * I1 + td * E * (b - lam * c)
+    c1 = ld * (E * b - I1) + td * E * c
     return E, A, b1, c1, a, b
 
 
@@ -402,6 +406,25 @@ def _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J):
         -b1 * u0 + c1 * (w2 * u1 - 2.0 * u2 * w1) + r2 * w1 + P[7],
         c1 * (w2 * u2 - 2.0 * u2 * w2) + r2 * w2 + P[8] + cg,
     )
+
+
+@kernel
+def _winv_coefs(th, a1, b1, c1, r1):
+    """W⁻¹ = g(B) = al0 I + al1 Ω + al2 Ω² by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1),
+    al1 = −b1/m, al2 = (b1² − r1 c1)/(a1 m), m = |φ1(z)|² = r1² + θ² b1²; formed from the
+    coefficients scaled by 1/a1 so that m cannot overflow (a1 ~ e^λ/λ)."""
+    s = 1.0 / a1
+    b = b1 * s
+    c = c1 * s
+    r = r1 * s
+    m = r * r + th * th * b * b
+    return s, -b * s / m, (b * b - r * c) * s / m
+
+
+@kernel
+def _Winv(w0, w1, w2, th, a1, b1, c1, r1):
+    al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
+    return _lin9(w0, w1, w2, al0, al1, al2)
 
 
 @kernel
@@ -533,10 +556,7 @@ def _log(X, out):
     lam = -math.log(c)
     th = norm3(w0, w1, w2)
     E, a1, b1, c1, a, b = _wcoefs(lam, th)
-    r1 = a1 - th * th * c1
-    # W⁻¹ = g(B) by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1), m = |φ1(z)|²
-    m = r1 * r1 + th * th * b1 * b1
-    Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
+    Wi = _Winv(w0, w1, w2, th, a1, b1, c1, a1 - th * th * c1)
     u = _mv(Wi, X[0, 3] / c, X[1, 3] / c, X[2, 3] / c)
     out[3] = u[0]
     out[4] = u[1]
@@ -740,11 +760,10 @@ def _dlog(x, out):
         ek = _e_fast(w0, w1, w2)
         Ji = _rod9(w0, w1, w2, -0.5, ek)
         a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
-        m = r1 * r1 + th * th * b1 * b1
-        Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
+        al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
+        Wi = _lin9(w0, w1, w2, al0, al1, al2)
         if abs(lam) < LAM_SPECTRAL:
-            L = _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, 1.0 / a1, -b1 / m,
-                           (b1 * b1 - r1 * c1) / (a1 * m))
+            L = _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2)
         else:
             AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
             # g[a, b] = −g(a) g(b) φ1[a, b]

@@ -194,6 +194,18 @@ def test_log_precision_hole_closed():
             assert ref.rel_err(sim3.log(X), _log_ref(X, x)) <= TOL_SMALL_LAMBDA
 
 
+def test_extreme_scales():
+    """|λ| up to 700 (s = e^±700): nothing overflows before e^λ itself (the W, W⁻¹ and φ2
+    coefficients are formed from ratios ≤ 1 first)."""
+    for lam in (-700.0, -300.0, 45.0, 300.0, 700.0):
+        for th in (0.0, 1e-8, 0.3, 2.0):
+            x = np.r_[th * np.array([0.6, 0.0, -0.8]), 1.0, -2.0, 0.5, lam]
+            X = sim3.exp(x)
+            assert ref.rel_err(X, ref.exp(G, _mp(x))) <= TOL_SMALL_LAMBDA
+            assert np.max(np.abs(sim3.log(X) - x)) <= 1e-14 * max(1.0, abs(lam)), x
+            assert np.isfinite(sim3.dexp(x)).all() and np.isfinite(sim3.dlog(x)).all(), x
+
+
 def test_log_at_pi():
     for x in _points([(PI, lam) for lam in (0.0, 1e-9, -0.5, 5.0)], seed=3):
         X = sim3.exp(x)
