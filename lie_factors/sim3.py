@@ -644,13 +644,16 @@ def _write_blocks(A, L, D, p, out):
 def _trig(w0, w1, w2, th):
     """(θ, cos θ, sin θ, 1 − cos θ = 2 sin²(θ/2)) for θ = |ω|; above π from δ = 2π − θ with θ
     in double-double (D_log: sin θ and sin(θ/2) → 0 as θ → 2π, and J⁻¹, W⁻¹ ~ 1/(2π − θ))."""
+    # one sine/cosine pair of the half angle: sin θ = 2 sin(θ/2) cos(θ/2), cos θ = 1 − 2 sin²(θ/2)
     if th > math.pi:
         hi, lo = theta_dd(w0, w1, w2)
-        d = (_TWO_PI_HI - hi) + (_TWO_PI_LO - lo)
-        sh = math.sin(0.5 * d)
-        return hi, math.cos(d), -math.sin(d), 2.0 * sh * sh
+        h = 0.5 * ((_TWO_PI_HI - hi) + (_TWO_PI_LO - lo))
+        sh = math.sin(h)
+        omc = 2.0 * sh * sh
+        return hi, 1.0 - omc, -2.0 * sh * math.cos(h), omc
     sh = math.sin(0.5 * th)
-    return th, math.cos(th), math.sin(th), 2.0 * sh * sh
+    omc = 2.0 * sh * sh
+    return th, 1.0 - omc, 2.0 * sh * math.cos(0.5 * th), omc
 
 
 @kernel
