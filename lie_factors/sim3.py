@@ -43,21 +43,26 @@ spectral projectors of Ω (docs/sim3.md),
 and for f = g = 1/φ1 the divided differences need no subtraction:
 g[a, b] = −g(a) g(b) φ1[a, b].
 
-Evaluation. The φ1-family coefficients are integrals of e^{sλ} times the SO(3)
-coefficient functions of sθ (a = sin x/x, b = (1 − cos x)/x², c − b, qa; their
-Taylor bands are those of :mod:`lie_factors._coeffs`)::
+Evaluation (docs/sim3.md §6; seed 000 Eqs. 91–100 do the same for Sim(2): functions of
+the eigenvalues λ ± iθ over λ² + θ², Eq. 99). With E = e^λ, A = φ1(λ), I1 = φ1′(λ),
+a2 = φ2(λ), the SO(3) functions a, b, c, qa = b′/θ, qb = c′/θ of θ (seed 000, Eqs. 50–52,
+64) and D = λ² + θ², the θ → 0 limits are taken analytically::
 
-    a1 = ∫ e^{sλ},  b1 = ∫ e^{sλ} s a(sθ),  c1 = ∫ e^{sλ} s² b(sθ),
-    d1 = ∫ e^{sλ} s³ (c − b)(sθ),  e1 = ∫ e^{sλ} s⁴ qa(sθ),  Re φ1(z) = ∫ e^{sλ} cos sθ,
-    φ2(B) likewise with weight (1 − s),
+    b1 = (λ² I1 + θ² E (b − λc))/D           c1 = (λ (E b − I1) + θ² E c)/D          (C)
+    d1 = (E [2(b − λc) + θ² (qa − λ qb)] − 2 b1)/D
+    e1 = (E (λ qa + 2c + θ² qb) − 2 c1)/D
+    b2 = (Q (λ² − θ²) − 2λθ² (a2 − E b))/D²   c2 = ((E b − a2)(λ² − θ²) − 2λ Q)/D²
+    Q = λ (I1 − a2) − E θ² c
 
-summed by Gauss–Legendre quadrature (``QUAD_NODES`` nodes per panel, panels of
-(|λ| + θ)·width ≤ ``QUAD_PANEL``). The integrands are entire, so this has no
-removable singularity at θ → 0, λ → 0 or both, and no cancellation: the
-closed forms in z lose ~ε/θ² (c1) and ~ε/θ⁴ (d1, e1) and would need a
-two-parameter series band. D_log's lower-left block uses −W⁻¹ Q J⁻¹ for θ <
-``DLOG_SPECTRAL`` and formula (L) with f = g above, where J⁻¹ and W⁻¹ grow like
-1/(2π − θ) and the product would amplify rounding by their product.
+so only |z| → 0 is left: for |z| < ``Z_BAND`` all coefficients are the power series of
+φ1, φ2 in z in real arithmetic (:func:`_zseries`; exp and log, which need only W's
+coefficients, only below ``Z_BAND_W``); for |λ| < ``L_TAYLOR`` I1 is its
+Taylor series and a2 = A − I1. For θ ≥ ``SPECTRAL`` (dexp, dlog) the complex closed
+forms φ1(z) = (e^z − 1)/z, φ2(z) = (φ1(z) − 1)/z, g = 1/φ1 are used directly and the
+lower-left blocks come from (L), with φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z; (L) is also
+used for |λ| ≥ ``LAM_SPECTRAL``, where Q's terms cancel ~|λ|-fold. Below, D_log's block
+is −W⁻¹ Q J⁻¹ (J⁻¹ and W⁻¹ well conditioned there), collapsed to rank-one terms
+(:func:`_L_product`).
 
 ``dexp`` is the LEFT Jacobian Σ ad^i/(i+1)! (seed 000, Eq. 35):
 exp(x + ε) ≈ exp(dexp(x) ε)·exp(x); a GTSAM-style right Jacobian is dexp(−x).
@@ -72,8 +77,8 @@ import numpy as np
 from lie_factors import _check, _jit, _validate
 from lie_factors import so3 as _so3
 from lie_factors._coeffs import (
-    _A_SERIES, _C_SERIES, _QA_SERIES, A_TAYLOR, C_TAYLOR, QA_TAYLOR, _horner, a_theta, b_theta, c_theta, dot3,
-    e_omega, norm3, theta_dd,
+    _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR, QA_TAYLOR, QB_TAYLOR,
+    _horner, _horner4, a_theta, b_theta, c_theta, dot3, e_omega, norm3, theta_dd,
 )
 from lie_factors._jit import kernel
 from lie_factors.se3 import _lin9, _rod9
@@ -81,148 +86,273 @@ from lie_factors.se3 import _lin9, _rod9
 DIM = 7
 MAT = 4
 
-#: Gauss–Legendre nodes per panel.
-QUAD_NODES = 12
-#: Largest (|λ| + θ)·(panel width) per panel: the integrands are entire of
-#: exponential type |λ| + θ, so 12 nodes leave an error ~ (P/4)^24/24! ≈ 2e-20 at P = 6.
-QUAD_PANEL = 6.0
-#: For |λ| + θ ≤ QUAD_SMALL (the usual size of a between-pose increment) one panel
-#: of QUAD_NODES_SMALL nodes: error ~ (2/4)^16/16! ≈ 7e-19.
-QUAD_SMALL = 2.0
-QUAD_NODES_SMALL = 8
-#: e^{sλ} below e^{−QUAD_CUT} of its maximum on [0, 1] is dropped (|λ| > QUAD_CUT only).
-QUAD_CUT = 45.0
-#: D_log lower-left block: product form below this θ, spectral form (L) from it on.
-DLOG_SPECTRAL = 1.0
+#: |z|² = λ² + θ² < Z_BAND²: every coefficient from the power series of φ1, φ2 in z
+#: (real recurrences in λ and θ², see :func:`_zseries`); the closed forms in z divide by
+#: |z|² = λ² + θ² and cancel there.
+Z_BAND = 0.25
+#: terms of the z series: the first omitted one is ≤ n² Z_BAND^n/(n+1)! < 1e-18 relative.
+Z_TERMS = 14
+#: exp and log need only W = φ1(B), whose (C) forms lose ~ε/|z| on c1 near z → 0 but only ~ε|z|
+#: on c1 Ω² (what W and W⁻¹ contain): their z series is needed only where λ² + θ² would
+#: underflow or vanish, |z| < Z_BAND_W, with Z_TERMS_W terms (first omitted < 1e-20).
+Z_BAND_W = 1e-3
+Z_TERMS_W = 6
+#: |λ| < L_TAYLOR: φ1′(λ) and φ2(λ) from their Taylor series ((e^λ − φ1(λ))/λ and
+#: (φ1(λ) − 1)/λ lose ~ε/|λ|).
+L_TAYLOR = 0.5
+L_TERMS = 16
+#: D_exp and D_log: coefficient closed forms (C) and the product forms below this θ, complex
+#: closed forms in z and the spectral form (L) of the lower-left block from it on.
+SPECTRAL = 1.0
+#: θ < SPECTRAL: the lower-left blocks of D_exp and D_log from (L) too when |λ| ≥ LAM_SPECTRAL,
+#: where Q's terms cancel to ~1/|λ| of their size (a1 − b1 ~ e^λ/λ²): measured 2.4e-15 at
+#: λ = 4.99, |u| = 100 with the switch at 5, ≤ 8.7e-16 below 2.
+LAM_SPECTRAL = 2.0
 
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(QUAD_NODES)
-_GL_S = 0.5 * (_GL_X + 1.0)
-_GL_H = 0.5 * _GL_W
-_GL_X8, _GL_W8 = np.polynomial.legendre.leggauss(QUAD_NODES_SMALL)
-_GL_S8 = 0.5 * (_GL_X8 + 1.0)
-_GL_H8 = 0.5 * _GL_W8
 _TWO_PI_HI = 6.283185307179586
 _TWO_PI_LO = 2.4492935982947064e-16
+
+# φ1′(λ) = Σ λ^k/(k!(k+2))
+_DPHI1_SERIES = (
+    0.5,  # 1/2
+    0.3333333333333333,  # 1/3
+    0.125,  # 1/8
+    0.03333333333333333,  # 1/30
+    0.006944444444444444,  # 1/144
+    0.0011904761904761906,  # 1/840
+    0.00017361111111111112,  # 1/5760
+    2.2045855379188714e-05,  # 1/45360
+    2.48015873015873e-06,  # 1/403200
+    2.505210838544172e-07,  # 1/3991680
+    2.296443268665491e-08,  # 1/43545600
+    1.9270852604185937e-09,  # 1/518918400
+    1.4911969277048643e-10,  # 1/6706022400
+    1.0706029224547743e-11,  # 1/93405312000
+    7.169215998581078e-13,  # 1/1394852659200
+    4.498331606952833e-14,  # 1/22230464256000
+    2.6552651846596585e-15,  # 1/376610217984000
+    1.4797143443923793e-16,  # 1/6758061133824000
+)[:L_TERMS]
+# 1/(n+1)! for n = 0, 1, ...
+_INV_FACT = (
+    1.0,  # 1
+    0.5,  # 1/2
+    0.16666666666666666,  # 1/6
+    0.041666666666666664,  # 1/24
+    0.008333333333333333,  # 1/120
+    0.001388888888888889,  # 1/720
+    0.0001984126984126984,  # 1/5040
+    2.48015873015873e-05,  # 1/40320
+    2.7557319223985893e-06,  # 1/362880
+    2.755731922398589e-07,  # 1/3628800
+    2.505210838544172e-08,  # 1/39916800
+    2.08767569878681e-09,  # 1/479001600
+    1.6059043836821613e-10,  # 1/6227020800
+    1.1470745597729725e-11,  # 1/87178291200
+    7.647163731819816e-13,  # 1/1307674368000
+    4.779477332387385e-14,  # 1/20922789888000
+    2.8114572543455206e-15,  # 1/355687428096000
+    1.5619206968586225e-16,  # 1/6402373705728000
+    8.22063524662433e-18,  # 1/121645100408832000
+    4.110317623312165e-19,  # 1/2432902008176640000
+    1.9572941063391263e-20,  # 1/51090942171709440000
+    8.896791392450574e-22,  # 1/1124000727777607680000
+    3.868170170630684e-23,  # 1/25852016738884976640000
+)
 
 
 # ---------------------------------------------------------------- scalar coefficients
 
 
 @kernel
-def _ab(x):
-    """(a, b, cos x) with a = sin x/x, b = (1 − cos x)/x² (seed 000, Eqs. 50–51), from one
-    sine and cosine of x/2; b = ½ (sin(x/2)/(x/2))² has no cancellation."""
-    y = 0.5 * x
-    if x < A_TAYLOR:
-        a = _horner(_A_SERIES, x * x)
-        ah = _horner(_A_SERIES, y * y)
+def _theta5(th):
+    """(a, b, c, qa, qb) of the SO(3) coefficient functions at θ ≥ 0 (seed 000, Eqs. 50–52, 64),
+    from one sine and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation),
+    c = (1 − a)/θ², qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² = c′(θ)/θ; Taylor bands of
+    :mod:`lie_factors._coeffs`."""
+    h = 0.5 * th
+    t = th * th
+    if th < A_TAYLOR:
+        a = _horner(_A_SERIES, t)
+        ah = _horner(_A_SERIES, h * h)
     else:
-        sh = math.sin(y)
-        ch = math.cos(y)
-        a = sh * ch / y
-        ah = sh / y
+        sh = math.sin(h)
+        ch = math.cos(h)
+        a = sh * ch / h
+        ah = sh / h
     b = 0.5 * ah * ah
-    return a, b, 1.0 - x * x * b
-
-
-@kernel
-def _kappa(x):
-    """(a, b, c − b, qa, cos) of the SO(3) coefficient functions at x ≥ 0 (seed 000, Eqs. 50–52, 64)."""
-    a, b, co = _ab(x)
-    t = x * x
-    if x < C_TAYLOR:
+    if th < C_TAYLOR:
         c = _horner(_C_SERIES, t)
     else:
         c = (1.0 - a) / t
-    if x < QA_TAYLOR:
+    if th < QA_TAYLOR:
         qa = _horner(_QA_SERIES, t)
     else:
         qa = (a - 2.0 * b) / t
-    return a, b, c - b, qa, co
+    if th < QB_TAYLOR:
+        qb = _horner(_QB_SERIES, t)
+    else:
+        qb = (b - 3.0 * c) / t
+    return a, b, c, qa, qb
 
 
 @kernel
-def _span(lam, th):
-    """Quadrature rule: (nodes, weights) on [0, 1], interval [lo, hi] ⊂ [0, 1], number of panels."""
-    if abs(lam) + th <= QUAD_SMALL:
-        return _GL_S8, _GL_H8, 0.0, 1.0, 1
-    lo = 0.0
-    hi = 1.0
-    if lam < -QUAD_CUT:
-        hi = QUAD_CUT / -lam
-    elif lam > QUAD_CUT:
-        lo = 1.0 - QUAD_CUT / lam
-    m = (abs(lam) + th) * (hi - lo) / QUAD_PANEL
-    n = 1 + int(min(m, 1e5))
-    return _GL_S, _GL_H, lo, hi, n
+def _theta_abc(th):
+    """(a, b, c) of :func:`_theta5` only (exp and log)."""
+    h = 0.5 * th
+    t = th * th
+    if th < A_TAYLOR:
+        a = _horner(_A_SERIES, t)
+        ah = _horner(_A_SERIES, h * h)
+    else:
+        sh = math.sin(h)
+        ch = math.cos(h)
+        a = sh * ch / h
+        ah = sh / h
+    b = 0.5 * ah * ah
+    if th < C_TAYLOR:
+        c = _horner(_C_SERIES, t)
+    else:
+        c = (1.0 - a) / t
+    return a, b, c
 
 
 @kernel
-def _integrals(lam, th):
+def _e_fast(w0, w1, w2):
+    """e_θ of :func:`lie_factors._coeffs.e_omega` (seed 000, Eq. 57); its Taylor band summed as
+    four interleaved Horner chains (same terms, a quarter of the latency)."""
+    th = norm3(w0, w1, w2)
+    if th < E_TAYLOR:
+        return _horner4(_E_SERIES, th * th)
+    return e_omega(w0, w1, w2)
+
+
+@kernel
+def _lam3(lam):
+    """(e^λ, φ1(λ), φ1′(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds (Taylor series for
+    |λ| < L_TAYLOR, where that difference loses ~ε/|λ|)."""
+    if abs(lam) < L_TAYLOR:
+        # one transcendental: e^λ = 1 + expm1(λ) keeps its relative accuracy for |λ| < 1/2
+        em = math.expm1(lam)
+        A = em / lam if lam != 0.0 else 1.0
+        return 1.0 + em, A, _horner4(_DPHI1_SERIES, lam)
+    E = math.exp(lam)
+    A = (E - 1.0) / lam  # |λ| ≥ L_TAYLOR: e^λ − 1 loses < 2 ulps
+    return E, A, (E - A) / lam
+
+
+@kernel
+def _zseries(lam, T):
+    """(a1, b1, c1, d1, e1, a2, b2, c2) for small |z| (module docstring, "z band").
+
+    With zⁿ = pₙ + iθ qₙ, rₙ = (λⁿ − pₙ)/θ², sₙ = (n pₙ₋₁ − qₙ)/θ², tₙ = (n qₙ₋₁ − 2 rₙ)/θ²
+    (all polynomials in λ and T = θ², no division):
+        φ1(λ) = Σ λⁿ/(n+1)!,  b1 = Σ qₙ/(n+1)!,  c1 = Σ rₙ/(n+1)!,
+        d1 = Σ sₙ/(n+1)!,     e1 = Σ tₙ/(n+1)!,  and a2, b2, c2 the same with 1/(n+2)!,
+    from p₊ = λp − Tq, q₊ = p + λq, r₊ = λr + q, s₊ = λs − n qₙ₋₁, t₊ = λt + s.
+    """
+    p = 1.0
+    q = 0.0
+    r = 0.0
+    s = 0.0
+    t = 0.0
+    qm = 0.0
+    lp = 1.0
+    a1 = b1 = c1 = d1 = e1 = a2 = b2 = c2 = 0.0
+    for n in range(Z_TERMS):
+        f1 = _INV_FACT[n]
+        f2 = _INV_FACT[n + 1]
+        a1 += lp * f1
+        b1 += q * f1
+        c1 += r * f1
+        d1 += s * f1
+        e1 += t * f1
+        a2 += lp * f2
+        b2 += q * f2
+        c2 += r * f2
+        pn = lam * p - T * q
+        qn = p + lam * q
+        tn = lam * t + s
+        s = lam * s - n * qm
+        r = lam * r + q
+        qm = q
+        p = pn
+        q = qn
+        t = tn
+        lp *= lam
+    return a1, b1, c1, d1, e1, a2, b2, c2
+
+
+@kernel
+def _zseries_w(lam, T):
+    """(a1, b1, c1) of :func:`_zseries` only, Z_TERMS_W terms (|z| < Z_BAND_W)."""
+    p = 1.0
+    q = 0.0
+    r = 0.0
+    lp = 1.0
+    a1 = b1 = c1 = 0.0
+    for n in range(Z_TERMS_W):
+        f1 = _INV_FACT[n]
+        a1 += lp * f1
+        b1 += q * f1
+        c1 += r * f1
+        pn = lam * p - T * q
+        r = lam * r + q
+        q = p + lam * q
+        p = pn
+        lp *= lam
+    return a1, b1, c1
+
+
+@kernel
+def _coefs(lam, th):
     """(a1, b1, c1, d1, e1, re1, a2, b2, c2): φ1(B) = a1 I + b1 Ω + c1 Ω², d1 = ∂b1/∂θ/θ,
-    e1 = ∂c1/∂θ/θ, re1 = Re φ1(λ + iθ), φ2(B) = a2 I + b2 Ω + c2 Ω² (module docstring)."""
-    S, H, lo, hi, n = _span(lam, th)
-    h = (hi - lo) / n
-    a1 = b1 = c1 = d1 = e1 = r1 = a2 = b2 = c2 = 0.0
-    for p in range(n):
-        s0 = lo + p * h
-        for k in range(len(S)):
-            s = s0 + h * S[k]
-            w = h * H[k] * math.exp(s * lam)
-            a, b, cb, qa, co = _kappa(s * th)
-            s2 = s * s
-            fb = w * s * a
-            fc = w * s2 * b
-            a1 += w
-            b1 += fb
-            c1 += fc
-            d1 += w * s2 * s * cb
-            e1 += w * s2 * s2 * qa
-            r1 += w * co
-            v = 1.0 - s
-            a2 += v * w
-            b2 += v * fb
-            c2 += v * fc
-    return a1, b1, c1, d1, e1, r1, a2, b2, c2
+    e1 = ∂c1/∂θ/θ, re1 = Re φ1(λ + iθ), φ2(B) = a2 I + b2 Ω + c2 Ω² (closed forms (C) of the
+    module docstring; z series for |z| < Z_BAND)."""
+    T = th * th
+    D = lam * lam + T
+    if D < Z_BAND * Z_BAND:
+        a1, b1, c1, d1, e1, a2, b2, c2 = _zseries(lam, T)
+        return a1, b1, c1, d1, e1, a1 - T * c1, a2, b2, c2
+    E, A, I1 = _lam3(lam)
+    # φ2(λ) = ∫(1 − s) e^{sλ} = φ1 − φ1′: no cancellation for small λ; (φ1 − 1)/λ for large
+    a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
+    a, b, c, qa, qb = _theta5(th)
+    bl = b - lam * c
+    Di = 1.0 / D
+    ld = lam * Di
+    td = T * Di
+    b1 = lam * ld * I1 + td * E * bl
+    c1 = ld * (E * b - I1) + td * E * c
+    d1 = (E * (2.0 * bl + T * (qa - lam * qb)) - 2.0 * b1) * Di
+    e1 = (E * (lam * qa + 2.0 * c + T * qb) - 2.0 * c1) * Di
+    # φ2(z) − φ2(λ) = θ (P + iQ)/z², P = θ (φ2(λ) − e^λ b), Q = λ (φ1′(λ) − φ2(λ)) − e^λ θ² c
+    p = a2 - E * b
+    q = lam * (I1 - a2) - E * T * c
+    l2 = (lam * lam - T) * Di * Di  # (λ² − θ²)/D² before the e^λ-sized factors: no overflow
+    b2 = q * l2 - 2.0 * ld * td * p
+    c2 = -p * l2 - 2.0 * ld * Di * q
+    return A, b1, c1, d1, e1, A - T * c1, a2, b2, c2
 
 
 @kernel
-def _w_integrals(lam, th):
-    """(a1, b1, c1, re1) only, for exp and log: the same sums as :func:`_integrals`."""
-    S, H, lo, hi, n = _span(lam, th)
-    h = (hi - lo) / n
-    a1 = b1 = c1 = r1 = 0.0
-    for p in range(n):
-        s0 = lo + p * h
-        for k in range(len(S)):
-            s = s0 + h * S[k]
-            w = h * H[k] * math.exp(s * lam)
-            a, b, co = _ab(s * th)
-            a1 += w
-            b1 += w * s * a
-            c1 += w * s * s * b
-            r1 += w * co
-    return a1, b1, c1, r1
-
-
-@kernel
-def _phi1_div_z_it(lam, th):
-    """φ1[λ + iθ, iθ] = ∫₀¹ s e^{isθ} φ1(sλ) ds (Hermite–Genocchi; no 1/λ)."""
-    # φ1(sλ) decays only like 1/(s|λ|): the whole of [0, 1] counts
-    n = 1 + int(min((abs(lam) + th) / QUAD_PANEL, 1e5))
-    h = 1.0 / n
-    re = 0.0
-    im = 0.0
-    for p in range(n):
-        s0 = p * h
-        for k in range(QUAD_NODES):
-            s = s0 + h * _GL_S[k]
-            y = s * lam
-            f = math.expm1(y) / y if y != 0.0 else 1.0
-            f *= h * _GL_H[k] * s
-            re += f * math.cos(s * th)
-            im += f * math.sin(s * th)
-    return complex(re, im)
+def _wcoefs(lam, th):
+    """(e^λ, a1, b1, c1, a, b): W = φ1(B) = a1 I + b1 Ω + c1 Ω² as in :func:`_coefs`, and
+    R = I + a Ω + b Ω² (exp and log)."""
+    a, b, c = _theta_abc(th)
+    T = th * th
+    D = lam * lam + T
+    if D < Z_BAND_W * Z_BAND_W:
+        a1, b1, c1 = _zseries_w(lam, T)
+        return math.exp(lam), a1, b1, c1, a, b
+    E, A, I1 = _lam3(lam)
+    Di = 1.0 / D
+    # λ²/D, θ²/D ≤ 1 first: no overflow before e^λ itself does (λ ≈ 709.8)
+    ld = lam * Di
+    td = T * Di
+    b1 = lam * ld * I1 + td * E * (b - lam * c)
+    c1 = ld * (E * b - I1) + td * E * c
+    return E, A, b1, c1, a, b
 
 
 # ---------------------------------------------------------------- 3×3 helpers on 9-tuples
@@ -234,21 +364,6 @@ def _mv(M, v0, v1, v2):
         M[0] * v0 + M[1] * v1 + M[2] * v2,
         M[3] * v0 + M[4] * v1 + M[5] * v2,
         M[6] * v0 + M[7] * v1 + M[8] * v2,
-    )
-
-
-@kernel
-def _mm(A, B):
-    return (
-        A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
-        A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
-        A[0] * B[2] + A[1] * B[5] + A[2] * B[8],
-        A[3] * B[0] + A[4] * B[3] + A[5] * B[6],
-        A[3] * B[1] + A[4] * B[4] + A[5] * B[7],
-        A[3] * B[2] + A[4] * B[5] + A[5] * B[8],
-        A[6] * B[0] + A[7] * B[3] + A[8] * B[6],
-        A[6] * B[1] + A[7] * B[4] + A[8] * B[7],
-        A[6] * B[2] + A[7] * B[5] + A[8] * B[8],
     )
 
 
@@ -268,26 +383,115 @@ def _skew_times(v0, v1, v2, M):
 
 
 @kernel
-def _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W):
-    """D_exp's lower-left block Q = ∂(W u)/∂ω + (W u)× J (module docstring)."""
-    J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
+def _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J):
+    """D_exp's lower-left block Q = ∂(W u)/∂ω + (W u)× J (module docstring), J = SO(3)'s D_exp."""
     Wu = _mv(W, u0, u1, u2)
     P = _skew_times(Wu[0], Wu[1], Wu[2], J)
     g = w0 * u0 + w1 * u1 + w2 * u2
     o = _cross(w0, w1, w2, u0, u1, u2)
     oo = _cross(w0, w1, w2, o[0], o[1], o[2])
-    w = (w0, w1, w2)
-    u = (u0, u1, u2)
-    r = (d1 * o[0] + e1 * oo[0], d1 * o[1] + e1 * oo[1], d1 * o[2] + e1 * oo[2])
-    Ux = (0.0, -u2, u1, u2, 0.0, -u0, -u1, u0, 0.0)
-    out = [0.0] * 9
-    for i in range(3):
-        for j in range(3):
-            v = -b1 * Ux[3 * i + j] + c1 * (w[i] * u[j] - 2.0 * u[i] * w[j]) + r[i] * w[j]
-            if i == j:
-                v += c1 * g
-            out[3 * i + j] = v + P[3 * i + j]
-    return (out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8])
+    r0 = d1 * o[0] + e1 * oo[0]
+    r1 = d1 * o[1] + e1 * oo[1]
+    r2 = d1 * o[2] + e1 * oo[2]
+    cg = c1 * g
+    # Q_ij = −b1 U_ij + c1 (ω_i u_j − 2 u_i ω_j + δ_ij ω·u) + r_i ω_j + P_ij  (no list: no allocation)
+    return (
+        c1 * (w0 * u0 - 2.0 * u0 * w0) + r0 * w0 + P[0] + cg,
+        b1 * u2 + c1 * (w0 * u1 - 2.0 * u0 * w1) + r0 * w1 + P[1],
+        -b1 * u1 + c1 * (w0 * u2 - 2.0 * u0 * w2) + r0 * w2 + P[2],
+        -b1 * u2 + c1 * (w1 * u0 - 2.0 * u1 * w0) + r1 * w0 + P[3],
+        c1 * (w1 * u1 - 2.0 * u1 * w1) + r1 * w1 + P[4] + cg,
+        b1 * u0 + c1 * (w1 * u2 - 2.0 * u1 * w2) + r1 * w2 + P[5],
+        b1 * u1 + c1 * (w2 * u0 - 2.0 * u2 * w0) + r2 * w0 + P[6],
+        -b1 * u0 + c1 * (w2 * u1 - 2.0 * u2 * w1) + r2 * w1 + P[7],
+        c1 * (w2 * u2 - 2.0 * u2 * w2) + r2 * w2 + P[8] + cg,
+    )
+
+
+@kernel
+def _winv_coefs(th, a1, b1, c1, r1):
+    """W⁻¹ = g(B) = al0 I + al1 Ω + al2 Ω² by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1),
+    al1 = −b1/m, al2 = (b1² − r1 c1)/(a1 m), m = |φ1(z)|² = r1² + θ² b1²; formed from the
+    coefficients scaled by 1/a1 so that m cannot overflow (a1 ~ e^λ/λ)."""
+    s = 1.0 / a1
+    b = b1 * s
+    c = c1 * s
+    r = r1 * s
+    m = r * r + th * th * b * b
+    return s, -b * s / m, (b * b - r * c) * s / m
+
+
+@kernel
+def _Winv(w0, w1, w2, th, a1, b1, c1, r1):
+    al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
+    return _lin9(w0, w1, w2, al0, al1, al2)
+
+
+@kernel
+def _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2):
+    """D_log's lower-left block L = −W⁻¹ Q J⁻¹ without a 3×3 product (docs/sim3.md §5).
+
+    J⁻¹ = I − ½Ω + e Ω² (ek = e_θ), W⁻¹ = al0 I + al1 Ω + al2 Ω². With Q = K + (W u)× J,
+    K = ∂(W u)/∂ω (§4): Q J⁻¹ = K J⁻¹ + (W u)×, and since ωᵀ J⁻¹ = ωᵀ, U Ω = ω uᵀ − g I,
+    U Ω² = −ω oᵀ − g Ω (g = ω·u, o = ω × u, oo = ω × o):
+
+        Q J⁻¹ = s× + ω pᵀ + r ωᵀ + d0 I + d1′ Ω + d2 Ω²,
+        s = W u − b1 u,  p = ½ b1 u + b1 e o + c1 J⁻ᵀu,  r = −2 c1 u + d1 o + e1 oo,
+        d0 = g (c1 − ½ b1),  d1′ = g (b1 e − ½ c1),  d2 = g c1 e;
+
+    and W⁻¹ s× = al0 s× + (al1 s + al2 ω × s) ωᵀ − (ω·s)(al1 I + al2 Ω) (Ω s× = s ωᵀ − (ω·s) I),
+    W⁻¹ ω = al0 ω, W⁻¹ (d0 I + d1′ Ω + d2 Ω²) by Ω³ = −θ² Ω.
+    """
+    g = w0 * u0 + w1 * u1 + w2 * u2
+    o0, o1, o2 = _cross(w0, w1, w2, u0, u1, u2)
+    q0, q1, q2 = _cross(w0, w1, w2, o0, o1, o2)
+    ab = a1 - b1
+    s0 = ab * u0 + b1 * o0 + c1 * q0
+    s1 = ab * u1 + b1 * o1 + c1 * q1
+    s2 = ab * u2 + b1 * o2 + c1 * q2
+    # p = ½ b1 u + b1 e o + c1 (u + ½ o + e oo)
+    pu = 0.5 * b1 + c1
+    po = b1 * ek + 0.5 * c1
+    pq = c1 * ek
+    p0 = pu * u0 + po * o0 + pq * q0
+    p1 = pu * u1 + po * o1 + pq * q1
+    p2 = pu * u2 + po * o2 + pq * q2
+    r0 = -2.0 * c1 * u0 + d1 * o0 + e1 * q0
+    r1 = -2.0 * c1 * u1 + d1 * o1 + e1 * q1
+    r2 = -2.0 * c1 * u2 + d1 * o2 + e1 * q2
+    # W⁻¹ r
+    x0, x1, x2 = _cross(w0, w1, w2, r0, r1, r2)
+    y0, y1, y2 = _cross(w0, w1, w2, x0, x1, x2)
+    ws0, ws1, ws2 = _cross(w0, w1, w2, s0, s1, s2)
+    Y0 = al1 * s0 + al2 * ws0 + al0 * r0 + al1 * x0 + al2 * y0
+    Y1 = al1 * s1 + al2 * ws1 + al0 * r1 + al1 * x1 + al2 * y1
+    Y2 = al1 * s2 + al2 * ws2 + al0 * r2 + al1 * x2 + al2 * y2
+    d0 = g * (c1 - 0.5 * b1)
+    dd1 = g * (b1 * ek - 0.5 * c1)
+    d2 = g * c1 * ek
+    t2 = th * th
+    os = w0 * s0 + w1 * s1 + w2 * s2
+    f0 = al0 * d0 - al1 * os
+    f1 = al0 * dd1 + al1 * d0 - t2 * (al1 * d2 + al2 * dd1) - al2 * os
+    f2 = al0 * d2 + al1 * dd1 + al2 * d0 - t2 * al2 * d2
+    P = _lin9(w0, w1, w2, f0, f1, f2)
+    a0p0 = al0 * p0
+    a0p1 = al0 * p1
+    a0p2 = al0 * p2
+    S0 = al0 * s0
+    S1 = al0 * s1
+    S2 = al0 * s2
+    return (
+        -(P[0] + Y0 * w0 + w0 * a0p0),
+        -(P[1] - S2 + Y0 * w1 + w0 * a0p1),
+        -(P[2] + S1 + Y0 * w2 + w0 * a0p2),
+        -(P[3] + S2 + Y1 * w0 + w1 * a0p0),
+        -(P[4] + Y1 * w1 + w1 * a0p1),
+        -(P[5] - S0 + Y1 * w2 + w1 * a0p2),
+        -(P[6] - S1 + Y2 * w0 + w2 * a0p0),
+        -(P[7] + S0 + Y2 * w1 + w2 * a0p1),
+        -(P[8] + Y2 * w2 + w2 * a0p2),
+    )
 
 
 # ---------------------------------------------------------------- cores
@@ -329,10 +533,10 @@ def _exp(x, out):
     w0, w1, w2 = x[0], x[1], x[2]
     lam = x[6]
     th = norm3(w0, w1, w2)
-    a1, b1, c1, r1 = _w_integrals(lam, th)
-    R = _rod9(w0, w1, w2, a_theta(th), b_theta(th))
+    E, a1, b1, c1, a, b = _wcoefs(lam, th)
+    R = _rod9(w0, w1, w2, a, b)
     # t = ∫₀¹ e^{(1−τ)Ω} u e^{−τλ} dτ = e^{−λ} φ1(Ω + λI) u
-    c = math.exp(-lam)
+    c = 1.0 / E
     W = _lin9(w0, w1, w2, c * a1, c * b1, c * c1)
     t = _mv(W, x[3], x[4], x[5])
     for i in range(3):
@@ -351,10 +555,8 @@ def _log(X, out):
     c = X[3, 3]
     lam = -math.log(c)
     th = norm3(w0, w1, w2)
-    a1, b1, c1, r1 = _w_integrals(lam, th)
-    # W⁻¹ = g(B) by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1), m = |φ1(z)|²
-    m = r1 * r1 + th * th * b1 * b1
-    Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
+    E, a1, b1, c1, a, b = _wcoefs(lam, th)
+    Wi = _Winv(w0, w1, w2, th, a1, b1, c1, a1 - th * th * c1)
     u = _mv(Wi, X[0, 3] / c, X[1, 3] / c, X[2, 3] / c)
     out[3] = u[0]
     out[4] = u[1]
@@ -439,17 +641,116 @@ def _write_blocks(A, L, D, p, out):
 
 
 @kernel
+def _trig(w0, w1, w2, th):
+    """(θ, cos θ, sin θ, 1 − cos θ = 2 sin²(θ/2)) for θ = |ω|; above π from δ = 2π − θ with θ
+    in double-double (D_log: sin θ and sin(θ/2) → 0 as θ → 2π, and J⁻¹, W⁻¹ ~ 1/(2π − θ))."""
+    # one sine/cosine pair of the half angle: sin θ = 2 sin(θ/2) cos(θ/2), cos θ = 1 − 2 sin²(θ/2)
+    if th > math.pi:
+        hi, lo = theta_dd(w0, w1, w2)
+        h = 0.5 * ((_TWO_PI_HI - hi) + (_TWO_PI_LO - lo))
+        sh = math.sin(h)
+        omc = 2.0 * sh * sh
+        return hi, 1.0 - omc, -2.0 * sh * math.cos(h), omc
+    sh = math.sin(0.5 * th)
+    omc = 2.0 * sh * sh
+    return th, 1.0 - omc, 2.0 * sh * math.cos(0.5 * th), omc
+
+
+@kernel
+def _L_spectral(w0, w1, w2, u0, u1, u2, th, gu, AB, CD, GH):
+    """Lower-left block (L) of f(ad_x) from A + iB = f[z, iθ], C + iD = f[z, 0], G + iH = f[λ, iθ]
+    (module docstring; gu = ω·u)."""
+    A, B = AB.real, AB.imag
+    C, D = CD.real, CD.imag
+    G, H = GH.real, GH.imag
+    # in n = ω/θ: k1 (ω·u) Ω = (A − G)(n·u) n×, ... (every k's power of θ cancels); at θ = 0
+    # the k-terms vanish (A = G, B = D = H = 0, G = C) and n = 0 is used
+    if th > 0.0:
+        w0 = w0 / th
+        w1 = w1 / th
+        w2 = w2 / th
+        gu = gu / th
+    else:
+        w0 = w1 = w2 = gu = 0.0
+    k1 = A - G
+    k2 = B - D - H
+    k3 = -(D + H)
+    k4 = D
+    k5 = H
+    k6 = G - C
+    o = _cross(w0, w1, w2, u0, u1, u2)
+    S = _lin9(w0, w1, w2, k3 * gu, k1 * gu, k2 * gu)
+    return (
+        S[0] + k4 * u0 * w0 + k5 * w0 * u0 + k6 * o[0] * w0,
+        -G * u2 + S[1] + k4 * u0 * w1 + k5 * w0 * u1 + k6 * o[0] * w1,
+        G * u1 + S[2] + k4 * u0 * w2 + k5 * w0 * u2 + k6 * o[0] * w2,
+        G * u2 + S[3] + k4 * u1 * w0 + k5 * w1 * u0 + k6 * o[1] * w0,
+        S[4] + k4 * u1 * w1 + k5 * w1 * u1 + k6 * o[1] * w1,
+        -G * u0 + S[5] + k4 * u1 * w2 + k5 * w1 * u2 + k6 * o[1] * w2,
+        -G * u1 + S[6] + k4 * u2 * w0 + k5 * w2 * u0 + k6 * o[2] * w0,
+        G * u0 + S[7] + k4 * u2 * w1 + k5 * w2 * u1 + k6 * o[2] * w1,
+        S[8] + k4 * u2 * w2 + k5 * w2 * u2 + k6 * o[2] * w2,
+    )
+
+
+@kernel
+def _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2):
+    """φ1[z, iθ], φ1[z, 0] = φ2(z), φ1[λ, iθ] for θ < SPECTRAL from the real coefficients; no
+    cancellation for |λ| ≥ LAM_SPECTRAL (φ1(λ) is then far from φ1(iθ) ≈ 1)."""
+    a = a_theta(th)
+    b = b_theta(th)
+    f_it = complex(a, th * b)  # φ1(iθ) = a(θ) + iθ b(θ)
+    e_it = complex(1.0 - th * th * b, th * a)  # e^{iθ}
+    z = complex(lam, th)
+    AB = (e_it * a1 - f_it) / z
+    CD = complex(a2 - th * th * c2, th * b2)
+    GH = (a1 - f_it) / complex(lam, -th)
+    return AB, CD, GH
+
+
+@kernel
+def _fB(w0, w1, w2, th, fl, fz):
+    """f(B) = f(λ) I + (Im f(z)/θ) Ω + ((f(λ) − Re f(z))/θ²) Ω², formula (F), as a 9-tuple."""
+    return _lin9(w0, w1, w2, fl, fz.imag / th, (fl - fz.real) / (th * th))
+
+
+@kernel
 def _dexp(x, out):
     w0, w1, w2 = x[0], x[1], x[2]
     u0, u1, u2 = x[3], x[4], x[5]
     lam = x[6]
     th = norm3(w0, w1, w2)
-    a1, b1, c1, d1, e1, r1, a2, b2, c2 = _integrals(lam, th)
-    J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
-    W = _lin9(w0, w1, w2, a1, b1, c1)
-    Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
-    q = _mv(_lin9(w0, w1, w2, -a2, -b2, -c2), u0, u1, u2)
-    _write_blocks(J, Q, W, q, out)
+    if th < SPECTRAL:
+        a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
+        J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
+        W = _lin9(w0, w1, w2, a1, b1, c1)
+        if abs(lam) < LAM_SPECTRAL:
+            Q = _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J)
+        else:
+            AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
+            Q = _L_spectral(w0, w1, w2, u0, u1, u2, th, w0 * u0 + w1 * u1 + w2 * u2, AB, CD, GH)
+        q = _mv(_lin9(w0, w1, w2, -a2, -b2, -c2), u0, u1, u2)
+        _write_blocks(J, Q, W, q, out)
+        return
+    # θ ≥ SPECTRAL: |z| ≥ 1, the complex closed forms have no cancellation
+    th, co, sn, omc = _trig(w0, w1, w2, th)
+    E, A, I1 = _lam3(lam)
+    a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
+    z = complex(lam, th)
+    f_it = complex(sn, omc) / th  # φ1(iθ) = (e^{iθ} − 1)/(iθ)
+    # φ1(z), e^z − 1 free of cancellation; expm1(λ) = λ φ1(λ) to 2 ulps
+    f_z = complex(A * lam * co - omc, E * sn) / z
+    p2_z = (f_z - 1.0) / z  # φ2(z)
+    t2 = th * th
+    J = _rod9(w0, w1, w2, omc / t2, (th - sn) / (t2 * th))
+    W = _fB(w0, w1, w2, th, A, f_z)
+    p2 = _mv(_fB(w0, w1, w2, th, a2, p2_z), u0, u1, u2)
+    q = (-p2[0], -p2[1], -p2[2])
+    # φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z, φ1[z, 0] = φ2(z), φ1[λ, iθ] = (φ1(λ) − φ1(iθ))/(λ − iθ)
+    AB = (complex(co * A, sn * A) - f_it) / z
+    GH = (A - f_it) / complex(lam, -th)
+    L = _L_spectral(w0, w1, w2, u0, u1, u2, th, w0 * u0 + w1 * u1 + w2 * u2, AB, p2_z, GH)
+    _write_blocks(J, L, W, q, out)
 
 
 @kernel
@@ -458,72 +759,57 @@ def _dlog(x, out):
     u0, u1, u2 = x[3], x[4], x[5]
     lam = x[6]
     th = norm3(w0, w1, w2)
-    a1, b1, c1, d1, e1, r1, a2, b2, c2 = _integrals(lam, th)
-    Ji = _rod9(w0, w1, w2, -0.5, e_omega(w0, w1, w2))
-    if th < DLOG_SPECTRAL:
-        m = r1 * r1 + th * th * b1 * b1
-        Wi = _lin9(w0, w1, w2, 1.0 / a1, -b1 / m, (b1 * b1 - r1 * c1) / (a1 * m))
-        W = _lin9(w0, w1, w2, a1, b1, c1)
-        Q = _Q9(w0, w1, w2, u0, u1, u2, th, b1, c1, d1, e1, W)
-        M = _mm(_mm(Wi, Q), Ji)
-        L = (-M[0], -M[1], -M[2], -M[3], -M[4], -M[5], -M[6], -M[7], -M[8])
+    if th < SPECTRAL:
+        ek = _e_fast(w0, w1, w2)
+        Ji = _rod9(w0, w1, w2, -0.5, ek)
+        a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
+        al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
+        Wi = _lin9(w0, w1, w2, al0, al1, al2)
+        if abs(lam) < LAM_SPECTRAL:
+            L = _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2)
+        else:
+            AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
+            # g[a, b] = −g(a) g(b) φ1[a, b]
+            g_it = 1.0 / complex(a_theta(th), th * b_theta(th))
+            g_z = 1.0 / complex(r1, th * b1)
+            AB = -g_z * g_it * AB
+            CD = -g_z * CD
+            GH = -g_it * GH / a1
+            L = _L_spectral(w0, w1, w2, u0, u1, u2, th, dot3(w0, w1, w2, u0, u1, u2), AB, CD, GH)
         q = _mv(_lin9(w0, w1, w2, a2, b2, c2), u0, u1, u2)
         p = _mv(Wi, q[0], q[1], q[2])
         _write_blocks(Ji, L, Wi, p, out)
         return
-    # θ from its components in double-double: sin θ, sin(θ/2) near 2π through δ = 2π − θ
-    hi, lo = theta_dd(w0, w1, w2)
-    th = hi
-    if th > math.pi:
-        d = (_TWO_PI_HI - hi) + (_TWO_PI_LO - lo)
-        sn = -math.sin(d)
-        co = math.cos(d)
-        sh = math.sin(0.5 * d)
-    else:
-        sn = math.sin(th)
-        co = math.cos(th)
-        sh = math.sin(0.5 * th)
-    z = complex(lam, th)
-    # φ1(iθ) = (e^{iθ} − 1)/(iθ); φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation
-    f_it = complex(sn, 2.0 * sh * sh) / th
-    f_z = complex(math.expm1(lam) * co - 2.0 * sh * sh, math.exp(lam) * sn) / z
-    g_l = 1.0 / a1
-    g_it = 1.0 / f_it
-    g_z = 1.0 / f_z
-    phi2_z = complex(a2 - c2 * th * th, th * b2)
-    # g[a, b] = −g(a) g(b) φ1[a, b]
-    AB = -g_z * g_it * _phi1_div_z_it(lam, th)
-    CD = -g_z * phi2_z
-    GH = -g_l * g_it * (a1 - f_it) / complex(lam, -th)
-    A, B = AB.real, AB.imag
-    C, D = CD.real, CD.imag
-    G, H = GH.real, GH.imag
+    th, co, sn, omc = _trig(w0, w1, w2, th)
     t2 = th * th
-    k1 = (A - G) / t2
-    k2 = (B - D - H) / (t2 * th)
-    k3 = -(D + H) / th
-    k4 = D / th
-    k5 = H / th
-    k6 = (G - C) / t2
+    # e_θ = 1/θ² − cot(θ/2)/(2θ) (seed 000, Eq. 57), cot(θ/2) = sin θ/(1 − cos θ) from the
+    # (reflected) values above; its Taylor band below E_TAYLOR
+    cot2 = sn / omc  # cot(θ/2)
+    ek = _horner4(_E_SERIES, t2) if th < E_TAYLOR else 1.0 / t2 - cot2 / (2.0 * th)
+    Ji = _rod9(w0, w1, w2, -0.5, ek)
+    E, A, I1 = _lam3(lam)
+    a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
+    z = complex(lam, th)
+    D = lam * lam + t2
+    zi = complex(lam / D, -th / D)  # 1/z; 1/(λ − iθ) = z/D
+    # φ1(iθ) = (e^{iθ} − 1)/(iθ), g(iθ) = iθ/(e^{iθ} − 1) = (θ/2) cot(θ/2) − iθ/2;
+    # φ1(z) = (e^z − 1)/z with e^z − 1 free of cancellation, g(z) = z/(e^z − 1)
+    f_it = complex(sn / th, omc / th)
+    g_it = complex(0.5 * th * cot2, -0.5 * th)
+    N = complex(A * lam * co - omc, E * sn)  # expm1(λ) = λ φ1(λ) to 2 ulps
+    f_z = N * zi
+    g_z = z * N.conjugate() / (N.real * N.real + N.imag * N.imag)
+    g_l = 1.0 / A
+    p2_z = (f_z - 1.0) * zi
+    # g[a, b] = −g(a) g(b) φ1[a, b]; φ1[z, iθ] = (e^{iθ} φ1(λ) − φ1(iθ))/z: no 1/λ
+    AB = -g_z * g_it * (complex(co * A, sn * A) - f_it) * zi
+    CD = -g_z * p2_z
+    GH = -g_l * g_it * (A - f_it) * z / D
     # ω·u multiplies k2 ~ 1/(2π − θ)²: compensated
-    gu = dot3(w0, w1, w2, u0, u1, u2)
-    o = _cross(w0, w1, w2, u0, u1, u2)
-    S = _lin9(w0, w1, w2, k3 * gu, k1 * gu, k2 * gu)
-    w = (w0, w1, w2)
-    u = (u0, u1, u2)
-    Ux = (0.0, -u2, u1, u2, 0.0, -u0, -u1, u0, 0.0)
-    L9 = [0.0] * 9
-    for i in range(3):
-        for j in range(3):
-            L9[3 * i + j] = (
-                G * Ux[3 * i + j] + S[3 * i + j] + k4 * u[i] * w[j] + k5 * w[i] * u[j] + k6 * o[i] * w[j]
-            )
-    L = (L9[0], L9[1], L9[2], L9[3], L9[4], L9[5], L9[6], L9[7], L9[8])
+    L = _L_spectral(w0, w1, w2, u0, u1, u2, th, dot3(w0, w1, w2, u0, u1, u2), AB, CD, GH)
     # W⁻¹ = g(B), ψ(B) = −g[B, 0] by (F)
-    Wi = _lin9(w0, w1, w2, g_l, g_z.imag / th, (g_l - g_z.real) / t2)
-    psi_z = -CD
-    psi_l = g_l * a2
-    p = _mv(_lin9(w0, w1, w2, psi_l, psi_z.imag / th, (psi_l - psi_z.real) / t2), u0, u1, u2)
+    Wi = _fB(w0, w1, w2, th, g_l, g_z)
+    p = _mv(_fB(w0, w1, w2, th, g_l * a2, -CD), u0, u1, u2)
     _write_blocks(Ji, L, Wi, p, out)
 
 
