@@ -594,7 +594,7 @@ class PoseGraphRun:
         if not self.uses_arrays:  # the array path needs no factor namespace
             load_factors(self.backend)
         else:
-            from lie_factors import batch  # noqa: F401  (numba and the batch loops)
+            from lie_factors.batch import optimizer  # noqa: F401  (numba, the batch loops, CHOLMOD)
         self.timings["imports"] = self.timings.get("imports", 0.0) + time.perf_counter() - t
         self.events.loaded(self)
         return self.pg

@@ -27,6 +27,7 @@ import numpy as np
 
 from .. import factors as _factors
 from .loops import GroupLoops
+from .losses import from_gtsam
 
 
 class BatchError(ValueError):
@@ -63,8 +64,6 @@ def whitening(information: np.ndarray) -> np.ndarray:
 
 
 def _robust_loss(noise_model):
-    from .robust import from_gtsam  # robust imports the optimizer, which imports this module
-
     return from_gtsam(noise_model.robust())
 
 
