@@ -163,12 +163,15 @@ def load(dataset: str) -> PoseGraph:
 def _read_gtsam(path: str, summary) -> tuple:
     """(between graph, initial Values, landmark graph, landmark keys with a vertex) as GTSAM reads ``path``."""
     graph, initial = read_g2o(path, summary)
-    between = gtsam.NonlinearFactorGraph()
     landmarks = gtsam.NonlinearFactorGraph()
-    for k in range(graph.size()):
-        f = graph.at(k)
-        keys = f.keys()
-        (landmarks if any(is_landmark_key(key) for key in keys) else between).add(f)
+    if summary.observation_count == 0:
+        between = graph  # a pose graph: no factor to sort out (no Python loop over them)
+    else:
+        between = gtsam.NonlinearFactorGraph()
+        for k in range(graph.size()):
+            f = graph.at(k)
+            keys = f.keys()
+            (landmarks if any(is_landmark_key(key) for key in keys) else between).add(f)
     pose_ids = summary.pose_ids
     from_edges = len(summary.pose_vertex_ids) == 0
     if from_edges:

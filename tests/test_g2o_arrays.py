@@ -205,6 +205,10 @@ def test_from_arrays_refuses_bad_input():
         Problem.from_arrays("Pose2", np.array([0]), M, np.array([[0, 0]]), M, np.eye(3)[None])
     with pytest.raises(ValueError, match="no initial element"):
         Problem.from_arrays("Pose2", np.array([0]), M, np.array([[0, 1]]), M, np.eye(3)[None])
+    bad = np.eye(3)[None] * 1.01
+    with pytest.raises(ValueError, match="measured 0: rotation block is not orthonormal"):
+        Problem.from_arrays("Pose2", np.array([0, 1]), np.stack([np.eye(3)] * 2), np.array([[0, 1]]),
+                            bad, np.eye(3)[None])
 
 
 def test_default_run_builds_no_factor_object(monkeypatch, tmp_path):

@@ -264,12 +264,11 @@ class Problem:
         with error Log(M⁻¹·X1⁻¹·X2) and whitening R = chol(Λ)ᵀ (RᵀR = Λ,
         upper triangular, as ``noiseModel.Gaussian.Information``); ``priors``:
         (key, prior element P (m, m), whitening R (n, n)), factors E, E+1, ...
-        The constants M⁻¹ and Ad(M⁻¹) come from the group's kernels
-        (``inverse``, ``Ad``), the ones a factor's construction runs.
+        The constants M⁻¹ and Ad(M⁻¹) come from ``factors.between_setup``, the
+        kernel a factor's construction runs (which also checks each M).
         Every key of a factor must be in ``keys``; a self-loop edge is refused.
         """
         spec = _factors.GROUPS[group]
-        kern = spec.kernels
         self = cls.__new__(cls)
         self.graph = None
         E = len(edge_keys)
@@ -282,21 +281,30 @@ class Problem:
         edge_keys = np.asarray(edge_keys, dtype=np.int64).reshape(E, 2)
         if E and (edge_keys[:, 0] == edge_keys[:, 1]).any():
             raise BatchError("from_arrays: an edge connects a key to itself")
+        def constants(M, what):
+            Minv, Ad, codes = block.loops.setup(M)
+            bad = np.flatnonzero(codes != _factors.OK)
+            if bad.size:
+                k = int(bad[0])
+                raise BatchError(str(_factors._element_error(spec, np.asarray(M[k]), int(codes[k]),
+                                                             f"{what} {k}", "from_arrays")))
+            return Minv, Ad
+
         if E:
-            Minv = kern.inverse(np.asarray(measured, dtype=np.float64))
             g = FactorGroup("between", spec)
             g.rows = None
             k1, k2 = edge_keys[:, 0].astype(np.uint64), edge_keys[:, 1].astype(np.uint64)
             block.use_keys(k1)
             block.use_keys(k2)
-            g.columns = (np.arange(E), k1, k2, Minv, kern.Ad(Minv), whitening(information))
+            Minv, Ad = constants(measured, "measured")
+            g.columns = (np.arange(E), k1, k2, Minv, Ad, whitening(information))
             self.groups.append(g)
         if len(priors):
             g = FactorGroup("prior", spec)
             g.rows = None
             pk = np.array([k for k, _, _ in priors], dtype=np.uint64)
             block.use_keys(pk)
-            Pinv = kern.inverse(np.array([P for _, P, _ in priors], dtype=np.float64))
+            Pinv, _ = constants(np.array([P for _, P, _ in priors], dtype=np.float64), "prior")
             g.columns = (E + np.arange(len(priors)), pk, None, Pinv, None,
                          np.array([R for _, _, R in priors], dtype=np.float64))
             self.groups.append(g)
