@@ -37,6 +37,7 @@ from .g2o import check_g2o, read_g2o, resolve_dataset
 from .initialize import METHODS as INIT_METHODS
 from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
 from .results import IterationInfo, OptimizeResult
+from .stack import large_stack
 from .timing import Stopwatch, warm_up_factors
 
 
@@ -301,6 +302,7 @@ def build_graph(pg: PoseGraph, backend: str, robust=None,
 # Optimization, one iteration at a time
 # --------------------------------------------------------------------------- #
 
+@large_stack  # GTSAM's elimination recurses once per level: a long chain needs more than 8 MiB
 def optimize(
     graph: gtsam.NonlinearFactorGraph,
     initial: gtsam.Values,
