@@ -49,6 +49,7 @@ import numpy as np
 
 import gtsam
 
+from . import stack
 from .errors import PoseGraphError
 
 #: ``--init`` choices, in the CLI's order.
@@ -225,7 +226,8 @@ def _run_gtsam(pg: _PoseGraph, call) -> gtsam.Values:
     if ANCHOR_KEY in pg.keys:
         rename = {k: n for n, k in enumerate(pg.keys)}
     try:
-        values = call(_native_graph(pg, rename))
+        # GTSAM's elimination recurses once per level: a long chain needs more than 8 MiB of stack.
+        values = stack.call(call, _native_graph(pg, rename))
     except (RuntimeError, ValueError, IndexError) as exc:  # e.g. IndeterminantLinearSystemException
         text = str(exc).strip().splitlines()
         raise InitializationError(f"GTSAM failed: {text[0] if text else type(exc).__name__}") from None

@@ -38,6 +38,7 @@ from .g2o import arrays_supported, check_g2o, read_arrays, read_g2o, resolve_dat
 from .initialize import METHODS as INIT_METHODS
 from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
 from .results import IterationInfo, OptimizeResult
+from .stack import large_stack
 from .timing import Stopwatch, warm_up_factors
 
 
@@ -342,6 +343,7 @@ def build_graph(pg: PoseGraph, backend: str, robust=None,
 # Optimization, one iteration at a time
 # --------------------------------------------------------------------------- #
 
+@large_stack  # GTSAM's elimination recurses once per level: a long chain needs more than 8 MiB
 def optimize(
     graph: gtsam.NonlinearFactorGraph,
     initial: gtsam.Values,

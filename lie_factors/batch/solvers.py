@@ -19,6 +19,7 @@ import warnings
 import gtsam
 import numpy as np
 
+from .. import stack
 from .graph import BatchError
 
 LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")
@@ -260,7 +261,7 @@ class GtsamSolver:
                 o, d = int(P.var_offsets[v]), int(P.var_dims[v])
                 gfg.add(k, np.diag(np.sqrt(scale[o:o + d])), np.zeros(d), self._units[d])
         try:
-            vv = gfg.optimize(self._ordering_for(gfg))
+            vv = stack.call(gfg.optimize, self._ordering_for(gfg))  # recursive elimination
         except RuntimeError as exc:
             raise NotPositiveDefinite(f"the linear system is not positive definite "
                                       f"(GTSAM: {str(exc).strip().splitlines()[0][:120]})") from None
