@@ -569,6 +569,7 @@ class PoseGraphRun:
         self.result: OptimizeResult | None = None
         self.start: Initialization | None = None
         self._opt = None  # the batch optimizer of an array run (values() on demand)
+        self._start_X = None  # the array initializer's poses (P, m, m), in pg.arrays.keys order
 
     # ------------------------------------------------------------------ steps
     def check(self) -> None:
@@ -613,6 +614,24 @@ class PoseGraphRun:
         # backend's graph exists: the chordal relaxation's transient memory then
         # does not stack on numba's (torus3D, batch: peak RSS 394 → 343 MiB; native 253).
         t = time.perf_counter()
+        self._start_X = None
+        skipped: list = []
+        if self.uses_arrays:
+            # On the file's arrays (no GTSAM graph); None hands over to GTSAM's path below.
+            from . import initialize_arrays
+
+            start, self._start_X = initialize_arrays.initialize(
+                pg.arrays, init, pg.first_key, _first_element(pg),
+                np.diag(1.0 / prior_noise(pg.is3d, pg.group).sigmas() ** 2))
+            if start is not None:
+                self.start = start
+                if not self.lazy_values:  # a Python caller gets gtsam.Values, as from GTSAM's path
+                    self.start_values()
+                self.timings["init"] = time.perf_counter() - t
+                self.events.started(self.start)
+                return self.start
+            skipped = self._start_X
+            self._start_X = None
         pose_part = gtsam.NonlinearFactorGraph(pg.between)
         pose_part.add(_prior_factor(pg, gtsam))
         file_poses = (None if pg.initialized_from_edges
@@ -625,7 +644,8 @@ class PoseGraphRun:
             # Robust and GNC runs doubt the loop closures: auto starts from the odometry and the prior.
             inliers = (np.setdiff1d(np.arange(pg.edges + 1), loop_closures(pg))
                        if self.gnc is not None or self.robust is not None else None)
-            start = initialize(pose_part, init, file_poses, inliers=inliers)
+            start = initialize(pose_part, "spanning-tree" if skipped else init, file_poses, inliers=inliers)
+            start.skipped[:0] = skipped
         del pose_part
         self.start = dataclasses.replace(start, values=_with_landmarks(start.values, pg))
         self.timings["init"] = time.perf_counter() - t
@@ -668,7 +688,7 @@ class PoseGraphRun:
         pg, a, start = self.pg, self.pg.arrays, self.start
         # Compilation of the kernels (first run on a machine) is not optimization time.
         clock = Stopwatch()
-        X = matrices_of(start.values, pg.group, a.keys)
+        X = self._start_X if self._start_X is not None else matrices_of(start.values, pg.group, a.keys)
         prior = (pg.first_key, _first_element(pg), prior_noise(pg.is3d, pg.group).R())
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(int(self.max_iterations))
@@ -697,7 +717,7 @@ class PoseGraphRun:
         self.timings["iterations"] = seconds - self.timings["setup"]
         result = OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
                                 seconds, res.converged, history)
-        result.start = start.values
+        result.start = start.values if start.values is not None or self.lazy_values else self.start_values()
         self.result = result
         self._graph_size = problem.graph_size
         self.record = _record(pg, self.backend, None, start, result, factors=problem.graph_size)
@@ -708,6 +728,14 @@ class PoseGraphRun:
         if self.result.values is None:
             self.result.values = self._opt.values()
         return self.result.values
+
+    def start_values(self) -> gtsam.Values:
+        """The values LM started from (built now if the array initializer gave matrices)."""
+        if self.start.values is None:
+            self.start.values = _values_of(self.pg.group, self.pg.arrays.keys, self._start_X)
+        if self.result is not None and self.result.start is None:
+            self.result.start = self.start.values
+        return self.start.values
 
     def write(self) -> None:
         """Write ``output`` (the optimized graph, g2o) and ``plot`` (png), each atomically."""
@@ -722,7 +750,7 @@ class PoseGraphRun:
         if self.plot:
             from lie_factors.plotting import plot_trajectories
 
-            values, begin = self.values(), self.result.start
+            values, begin = self.values(), self.start_values()
             trajectories = {f"initial ({record.init})": positions(begin, pg.is3d, pg.group),
                             "optimized": positions(values, pg.is3d, pg.group)}
             points = ({"initial landmarks": landmark_positions(begin, pg.is3d),
@@ -748,6 +776,19 @@ class PoseGraphRun:
 
 #: Keys of ``RunRecord.timings`` (``--json``): the steps of a :class:`PoseGraphRun`, in order.
 TIMING_KEYS = ("imports", "read", "init", "setup", "iterations", "write")
+
+
+def _values_of(group: str, keys: np.ndarray, X: np.ndarray) -> gtsam.Values:
+    """gtsam.Values of ``group`` elements from their matrices ``X`` (N, m, m), one per key."""
+    values = gtsam.Values()
+    if group == "Pose2":
+        for k, M in zip(keys.tolist(), X):
+            values.insert(k, gtsam.Pose2(M[0, 2], M[1, 2], math.atan2(M[1, 0], M[0, 0])))
+    else:
+        make = getattr(gtsam, group)
+        for k, M in zip(keys.tolist(), X):
+            values.insert(k, make(M))
+    return values
 
 
 def _first_element(pg: PoseGraph) -> np.ndarray:

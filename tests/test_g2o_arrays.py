@@ -43,19 +43,28 @@ def _quat(rng):
     return q * rng.choice([0.3, 1.0, 7.0])  # not unit: readG2o normalizes
 
 
-def _file_2d(rng, n=12):
-    """Every 2-D vertex and edge tag, interleaved; angles beyond ±π; a chain plus loop closures."""
+def _file_2d(rng, n=12, diagonal=False, consistent=False):
+    """Every 2-D vertex and edge tag, interleaved; angles beyond ±π; a chain plus loop closures.
+
+    ``consistent``: measurements are the vertices' relative poses with small noise (a graph
+    like a robot's, where the relaxations are well conditioned), else random."""
     lines = []
     vtags = ("VERTEX_SE2", "VERTEX2", "VERTEX")
     etags = ("EDGE_SE2", "EDGE2", "EDGE", "ODOMETRY")
     order = rng.permutation(n)
+    truth = rng.normal(size=(n, 3)) * [5, 5, 2]
     for k, i in enumerate(order):
-        lines.append(f"{vtags[k % 3]} {i} {_nums(rng.normal(size=2) * 5)} {rng.uniform(-7, 7)!r}")
+        lines.append(f"{vtags[k % 3]} {i} {_nums(truth[i, :2])} {float(truth[i, 2] + 2 * np.pi * (k % 2))!r}")
     pairs = [(i, i + 1) for i in range(n - 1)] + [(0, n - 1), (2, 7), (9, 3)]
     for k, (i, j) in enumerate(pairs):
+        if consistent:
+            z = gtsam.Pose2(*truth[i]).between(gtsam.Pose2(*truth[j]))
+            z = np.array([z.x(), z.y(), z.theta()]) + rng.normal(scale=0.05, size=3)
+        else:
+            z = np.concatenate([rng.normal(size=2), [rng.uniform(-7, 7)]])
         lines.insert(int(rng.integers(0, len(lines) + 1)),
-                     f"{etags[k % 4]} {i} {j} {_nums(rng.normal(size=2))} {rng.uniform(-7, 7)!r} "
-                     f"{_upper(_spd(rng, 3))}")
+                     f"{etags[k % 4]} {i} {j} {_nums(z)} "
+                     f"{_upper(np.diag(rng.uniform(1, 50, 3)) if diagonal else _spd(rng, 3))}")
     return "\n".join(lines) + "\n"
 
 
@@ -219,12 +228,19 @@ def test_default_run_builds_no_factor_object(monkeypatch, tmp_path):
     def refuse(*args, **kwargs):
         raise AssertionError("a factor object was constructed")
 
-    native, _, _ = P.run(str(path), "native")
+    native, native_result, _ = P.run(str(path), "native")
     monkeypatch.setattr(factors.BetweenFactor, "__init__", refuse)
     monkeypatch.setattr(factors.PriorFactor, "__init__", refuse)
+    job = P.PoseGraphRun(str(path), "batch", lazy_values=True)
+    record = job.execute()
+    # Neither the GTSAM graph nor its Values were read: the arrays are the only copy.
+    assert job.pg.arrays is not None and not {"between", "initial", "landmarks"} & set(vars(job.pg))
+    assert record.init == native.init == "chordal"
+    for k in job.pg.arrays.keys.tolist():  # the array initializer starts where GTSAM's does
+        np.testing.assert_allclose(job.start_values().atPose3(k).matrix(),
+                                   native_result.start.atPose3(k).matrix(), rtol=0, atol=1e-9)
     job = P.PoseGraphRun(str(path), "batch", output=str(tmp_path / "out.g2o"), lazy_values=True)
     record = job.execute()
-    assert job.pg.arrays is not None
     assert record.factors == native.factors and record.iterations == native.iterations
     assert record.final_error == pytest.approx(native.final_error, rel=1e-9)
     assert set(record.timings) == set(P.TIMING_KEYS)
@@ -232,6 +248,28 @@ def test_default_run_builds_no_factor_object(monkeypatch, tmp_path):
     assert P.build_graph(job.pg, "native").error(job.values()) == pytest.approx(record.final_error,
                                                                               rel=1e-12)
     assert P.load(str(tmp_path / "out.g2o")).poses == job.pg.poses
+
+
+@pytest.mark.parametrize("diagonal", [True, False])
+def test_2d_array_initialization_matches_gtsams(tmp_path, diagonal):
+    """auto in 2-D: LAGO (diagonal information) or, with the same reason as GTSAM's path, chordal."""
+    path = tmp_path / "g.g2o"
+    path.write_text(_file_2d(np.random.default_rng(11), n=30, diagonal=diagonal, consistent=True))
+    gtsam_job = P.PoseGraphRun(str(path), "native", max_iterations=0)
+    native, native_result = gtsam_job.execute(), gtsam_job.result
+    job = P.PoseGraphRun(str(path), "batch", max_iterations=0)
+    job.execute()
+    assert "between" not in vars(job.pg)
+    assert job.start.method == native.init == ("lago" if diagonal else "chordal")
+    assert job.start.skipped == gtsam_job.start.skipped
+    assert len(job.start.skipped) == (0 if diagonal else 1)
+    # 1e-9 relative (issue 17): to the size of the graph, ~10 here
+    scale = max(1.0, max(np.abs(native_result.start.atPose2(k).translation()).max()
+                         for k in job.pg.arrays.keys.tolist()))
+    for k in job.pg.arrays.keys.tolist():
+        d = job.start_values().atPose2(k).localCoordinates(native_result.start.atPose2(k))
+        assert np.abs(d).max() < 1e-9 * scale
+    assert job.record.initial_error == pytest.approx(native.initial_error, rel=1e-9)
 
 
 def _modules_after(code: str) -> str:

@@ -293,7 +293,10 @@ def test_every_backend_starts_from_the_same_values():
     start = records["native"][1].start
     for backend, (record, result, _) in records.items():
         assert record.init == "chordal" and record.init_seconds > 0
-        assert max_pose_diff(result.start, start, True) < 1e-12
+        # batch initializes on the file's arrays (lie_factors.relaxation: GTSAM's algorithm,
+        # its own arithmetic, agreeing to 1e-9 as issue 17 asks); the others run GTSAM's.
+        tol = 1e-9 if backend == "batch" else 1e-12
+        assert max_pose_diff(result.start, start, True) < tol
         assert record.initial_error == pytest.approx(records["native"][0].initial_error, rel=1e-9)
 
 
