@@ -616,8 +616,9 @@ class PoseGraphRun:
         t = time.perf_counter()
         self._start_X = None
         skipped: list = []
-        if self.uses_arrays:
-            # On the file's arrays (no GTSAM graph); None hands over to GTSAM's path below.
+        if self.uses_arrays and pg.initialized_from_edges == (pg.arrays.vertices is None):
+            # On the file's arrays (no GTSAM graph); None hands over to GTSAM's path below
+            # (as does a PoseGraph whose file values are load()'s spanning tree, not vertices).
             from . import initialize_arrays
 
             start, self._start_X = initialize_arrays.initialize(
