@@ -11,7 +11,8 @@ process's peak across fork + exec) just before it exits.  Native and batch
 alternate (native first in odd repetitions, batch first in even ones); the
 best wall time of ``--repeats`` counts, with that run's ``--json`` record:
 ``seconds`` (optimization, set-up included) and ``timings`` (imports, read and
-check, initialization, set-up, iterations).
+check, initialization, set-up, iterations), and that process's CPU seconds
+(user + system, all threads: less disturbed by the machine's other users).
 
 Graphs: the datasets in ``$LIE_FACTORS_DATA`` (default ../shared/data),
 ``w20000`` (GTSAM's ``w20000.txt``), and seeded SE(3) helix graphs with loop
@@ -29,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -61,16 +63,25 @@ def dataset_path(name: str) -> str:
 
 
 def run_once(path: str, backend: str, init: str) -> tuple[float, float, dict]:
-    """(wall seconds, peak RSS MiB, --json record) of one fresh ``lie-factors posegraph`` process."""
+    """(wall seconds, peak RSS MiB, --json record) of one fresh ``lie-factors posegraph`` process.
+
+    The record gains ``cpu``: the process's user + system CPU seconds (all its
+    threads), a figure the machine's other users disturb less than wall time.
+    """
     env = dict(os.environ, PYTHONPATH=ROOT)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     p = subprocess.run([sys.executable, "-c", CODE, "posegraph", path, "--backend", backend, "--init", init,
                         "--json", "--quiet"], capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if p.returncode != 0:
         raise RuntimeError(f"{backend} on {path}: {p.stderr.strip()[-500:]}")
     hwm = [line for line in p.stderr.splitlines() if line.startswith("VmHWM")][-1]
-    return wall, int(hwm.split()[1]) / 1024.0, json.loads(p.stdout.strip().splitlines()[-1])
+    record = json.loads(p.stdout.strip().splitlines()[-1])
+    record["cpu"] = cpu
+    return wall, int(hwm.split()[1]) / 1024.0, record
 
 
 def load_average() -> str:
@@ -104,10 +115,11 @@ def verdict(row: dict) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    out = ["| graph | factors | init | whole command, native → default (s) | optimization, native → default (s) "
+    out = ["| graph | factors | init | whole command, native → default (s) | CPU, native → default (s) "
+           "| optimization, native → default (s) "
            "| peak RSS, native → default (MiB) | default split: imports / read / init / setup / iterations (s) "
            "| native split (s) | iterations n / d | final error n / d | meets: whole, opt, optimum, RSS | load |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         (wn, rn, n), (wb, rb, b) = row["best"]["native"], row["best"]["batch"]
         v = verdict(row)
@@ -115,7 +127,7 @@ def table(rows: list[dict]) -> str:
         nsplit = " / ".join(f"{n['timings'][k]:.2f}" for k in SPLIT)
         ratio = b["seconds"] / n["seconds"] if n["seconds"] else float("nan")
         out.append(
-            f"| {row['name']} | {n['factors']} | {b['init']} | {wn:.2f} → {wb:.2f} | "
+            f"| {row['name']} | {n['factors']} | {b['init']} | {wn:.2f} → {wb:.2f} | {n['cpu']:.2f} → {b['cpu']:.2f} | "
             f"{n['seconds']:.3f} → {b['seconds']:.3f} ({ratio:.2f}×) | {rn:.0f} → {rb:.0f} | {split} | {nsplit} | "
             f"{n['iterations']} / {b['iterations']} | {n['final_error']:.6g} / {b['final_error']:.6g} | "
             + ", ".join("yes" if v[k] else "**no**" for k in ("whole", "opt", "optimum", "rss"))
