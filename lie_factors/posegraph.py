@@ -1,20 +1,26 @@
 """Pose-graph optimization of g2o files with GTSAM, native or lie_factors factors.
 
-Pipeline (each step a function, the CLI and the benchmark just chain them):
+:class:`PoseGraphRun` owns a run (``lie-factors posegraph`` is one; :func:`run`
+is one without outputs), step by step:
 
 1. :func:`lie_factors.g2o.resolve_dataset` — a path, or the name of a file shipped with GTSAM
    (``sphere2500.txt``) found with ``gtsam.findExampleDataFile``.
-2. :func:`lie_factors.g2o.check_g2o` — our own line-by-line check, so a bad file gives
-   ``file:line: what was expected`` instead of GTSAM silently skipping lines
+2. :func:`lie_factors.g2o.check_g2o` — our own vectorized check of every line, so a bad
+   file gives ``file:line: what was expected`` instead of GTSAM silently skipping lines
    (``readG2o`` drops every edge after a ``#`` comment, for instance).
-3. :func:`load` — ``gtsam.readG2o(path, is3D)``; poses without a vertex line
-   are initialized by composing measurements along a BFS spanning tree.
-4. :func:`build_graph` — the between factors re-created with the chosen
-   backend's constructors, plus a prior on the first pose.
-5. :func:`lie_factors.initialize.initialize` — where LM starts: GTSAM's chordal
-   relaxation (3-D) or LAGO (2-D) by default, the file's vertices on request.
-6. :func:`optimize` — Levenberg–Marquardt driven one ``iterate()`` at a time
-   from Python, with GTSAM's own stopping rule, reporting each iteration.
+3. :func:`load` — a pose graph as arrays (:func:`lie_factors.g2o.read_arrays`); its
+   GTSAM form (``gtsam.readG2o``; poses without a vertex line initialized by
+   composing measurements along a BFS spanning tree) on first use.
+4. Initialization — on the arrays (:mod:`lie_factors.initialize_arrays`) on the
+   default path, else :func:`lie_factors.initialize.initialize` on GTSAM's factors:
+   the chordal relaxation (3-D) or LAGO (2-D) by default, the file's vertices on request.
+5. The backend: ``batch`` on a plain pose graph builds
+   :meth:`lie_factors.batch.Problem.from_arrays` (no factor object); otherwise
+   :func:`build_graph` re-creates the between factors with the backend's
+   constructors, plus a prior on the first pose, and :func:`optimize` (or the
+   batch solver) runs Levenberg–Marquardt one ``iterate()`` at a time from
+   Python, with GTSAM's own stopping rule, reporting each iteration.
+6. Output files (g2o, png), each written atomically.
 
 g2o formats (checking, reading, writing) live in :mod:`lie_factors.g2o`; result
 types in :mod:`lie_factors.results`.
