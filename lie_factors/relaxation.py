@@ -190,6 +190,15 @@ def _check_connected(n: int, i: np.ndarray, j: np.ndarray, roots: np.ndarray) ->
 # Sparse symmetric positive definite solve (CHOLMOD through cvxopt)
 # --------------------------------------------------------------------------- #
 
+def cholmod_available() -> bool:
+    """Whether cvxopt (CHOLMOD) imports: the solver every function here needs."""
+    try:
+        import cvxopt.cholmod  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def solve_spd(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """x with A x = rhs, A (n × n) symmetric positive definite given by its lower triangle.
 
