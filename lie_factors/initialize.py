@@ -262,10 +262,6 @@ def _check_values(values: gtsam.Values, pg: _PoseGraph, what: str) -> gtsam.Valu
     return values
 
 
-def _upper_triangular(R: np.ndarray) -> bool:
-    return not np.any(np.tril(R, -1))
-
-
 def _arrays(pg: _PoseGraph):
     """The graph as :mod:`lie_factors.relaxation`'s arrays (n, i, j, Z, information, prior index, Z, information),
     or None where GTSAM's own initializers must run: CHOLMOD (cvxopt) absent, or a noise model whose
@@ -277,15 +273,17 @@ def _arrays(pg: _PoseGraph):
     as_array = (lambda p: p.matrix()) if pg.is3d else (lambda p: (p.x(), p.y(), p.theta()))
 
     def collect(factors, nkeys):
-        idx, Z, info = [], [], []
-        for f in factors:
-            R = f.noiseModel().R()
-            if not _upper_triangular(R) or not np.all(np.isfinite(R)) or np.any(np.diag(R) <= 0):
-                return None
-            idx.append([index[k] for k in f.keys()])
-            Z.append(as_array(f.measured() if nkeys == 2 else f.prior()))
-            info.append(R.T @ R)
-        return np.array(idx, dtype=np.int64).reshape(-1, nkeys), np.array(Z), np.array(info)
+        if not factors:
+            d = 6 if pg.is3d else 3
+            return np.zeros((0, nkeys), dtype=np.int64), np.zeros((0, 4, 4) if pg.is3d else (0, 3)), np.zeros((0, d, d))
+        R = np.array([f.noiseModel().R() for f in factors])
+        lower = np.tril(np.ones(R.shape[1:], dtype=bool), -1)
+        if (np.any(R[:, lower]) or not np.all(np.isfinite(R))
+                or np.any(np.diagonal(R, axis1=1, axis2=2) <= 0)):
+            return None
+        idx = np.array([[index[k] for k in f.keys()] for f in factors], dtype=np.int64)
+        Z = np.array([as_array(f.measured() if nkeys == 2 else f.prior()) for f in factors])
+        return idx, Z, np.swapaxes(R, 1, 2) @ R
 
     between, priors = collect(pg.between, 2), collect(pg.priors, 1)
     if between is None or priors is None:
