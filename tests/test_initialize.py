@@ -79,7 +79,9 @@ def test_chordal_3d_is_gtsams_initializer_for_native_and_custom_factors():
     for graph in (native, as_custom(native)):
         got = I.initialize(graph, "chordal")
         assert got.method == "chordal" and got.skipped == [] and got.seconds > 0
-        assert max_pose_diff(got.values, ref, True) < 1e-12
+        # Computed on arrays (lie_factors.relaxation): GTSAM's results up to rounding (7e-12 here);
+        # issue 17's contract is 1e-9.
+        assert max_pose_diff(got.values, ref, True) < 1e-9
     # …and it is a much better start than the file's composed odometry.
     assert native.error(ref) < 0.1 * native.error(pg.initial)
 
@@ -113,7 +115,8 @@ def test_lago_is_gtsams_initializer_for_native_and_custom_factors():
     for g in (graph, as_custom(graph)):
         got = I.initialize(g, "lago")
         assert got.method == "lago"
-        assert max_pose_diff(got.values, ref, False) < 1e-12
+        # On arrays (lie_factors.relaxation): GTSAM's up to rounding (2e-12 here); issue 17's contract is 1e-9.
+        assert max_pose_diff(got.values, ref, False) < 1e-9
     noise_free, truth = pose2_loop(noise=0.0)
     assert max_pose_diff(I.initialize(noise_free, "lago").values, truth, False) < 1e-9
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from lie_factors import relaxation as rx
-from lie_factors.initialize import initialize
+from lie_factors import initialize as LI
 from lie_factors.posegraph import load
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
@@ -68,6 +68,14 @@ def _pose3s(values, keys):
 def _pose2s(values, keys):
     return np.array([[values.atPose2(int(k)).x(), values.atPose2(int(k)).y(), values.atPose2(int(k)).theta()]
                      for k in keys])
+
+
+def _gtsam_planar_chordal(graph, keys):
+    """GTSAM's InitializePose3 on the planar Pose3 graph lie_factors.initialize builds: (n, 3) [x, y, yaw]."""
+    planar = LI._native_graph(LI._planar_pose3_graph(LI._convert(graph)))
+    values = gtsam.InitializePose3.initialize(planar)
+    return np.array([[values.atPose3(int(k)).x(), values.atPose3(int(k)).y(),
+                      values.atPose3(int(k)).rotation().yaw()] for k in keys])
 
 
 def _rel(ours, ref, angles=False):
@@ -176,9 +184,9 @@ def test_lago_orientations_exact_where_gtsam_rounds():
 def test_chordal_pose2_is_initialize_chordal(name):
     """The README's rule: a 2-D graph goes through the chordal initializer as a planar Pose3 graph."""
     is3d, keys, I, J, Z, INFO = _arrays(name)
-    ref = initialize(_gtsam_graph(is3d, keys, I, J, Z, INFO), "chordal").values
+    ref = _gtsam_planar_chordal(_gtsam_graph(is3d, keys, I, J, Z, INFO), keys)
     ours = rx.chordal_pose2(len(keys), I, J, Z, INFO)
-    assert _rel(ours, _pose2s(ref, keys), angles=True) < 1e-9
+    assert _rel(ours, ref, angles=True) < 1e-9
 
 
 def test_full_covariance_2d_is_rejected_by_lago_and_taken_by_chordal():
@@ -187,8 +195,8 @@ def test_full_covariance_2d_is_rejected_by_lago_and_taken_by_chordal():
     INFO[:, 0, 2] = INFO[:, 2, 0] = 0.1
     with pytest.raises(rx.RelaxationError, match="diagonal"):
         rx.lago_pose2(len(keys), I, J, Z, INFO)
-    ref = initialize(_gtsam_graph(is3d, keys, I, J, Z, INFO), "chordal").values
-    assert _rel(rx.chordal_pose2(len(keys), I, J, Z, INFO), _pose2s(ref, keys), angles=True) < 1e-9
+    ref = _gtsam_planar_chordal(_gtsam_graph(is3d, keys, I, J, Z, INFO), keys)
+    assert _rel(rx.chordal_pose2(len(keys), I, J, Z, INFO), ref, angles=True) < 1e-9
 
 
 @pytest.mark.skipif(not os.path.exists(os.path.join(SHARED, "torus3D.g2o")), reason="shared benchmark data absent")
@@ -203,7 +211,7 @@ def test_benchmark_graphs(name, method):
         ours = rx.lago_pose2(len(keys), I, J, Z, INFO, keys=keys)
         ref = _pose2s(gtsam.lago.initialize(g, True), keys)
     else:
-        ours, ref = rx.chordal_pose2(len(keys), I, J, Z, INFO), _pose2s(initialize(g, "chordal").values, keys)
+        ours, ref = rx.chordal_pose2(len(keys), I, J, Z, INFO), _gtsam_planar_chordal(g, keys)
     assert _rel(ours, ref, angles=not is3d) < 1e-9
 
 
@@ -279,3 +287,43 @@ def test_relaxation_does_not_import_numba():
             "rx.lago_pose2(2, [0], [1], [[1, 0, 0]], np.eye(3)[None]);"
             "assert 'numba' not in sys.modules, 'numba imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# --------------------------------------------------------------------------- #
+# lie_factors.initialize: arrays where they give GTSAM's answer, GTSAM's own initializer elsewhere
+# --------------------------------------------------------------------------- #
+
+def _small_graph_with(noise_of):
+    is3d, keys, I, J, Z, INFO = _arrays("smallGrid3D.g2o")
+    g = gtsam.NonlinearFactorGraph()
+    for a, b, z, info in zip(I, J, Z, INFO):
+        g.add(gtsam.BetweenFactorPose3(int(keys[a]), int(keys[b]), gtsam.Pose3(z), noise_of(info)))
+    g.add(gtsam.PriorFactorPose3(int(keys[0]), gtsam.Pose3(),
+                                 gtsam.noiseModel.Diagonal.Variances(rx.DEFAULT_PRIOR_VARIANCES_3D)))
+    return g, keys
+
+
+def test_initialize_falls_back_to_gtsam_for_a_lower_triangular_square_root(monkeypatch):
+    """GTSAM weighs a chordal row by R[0, 0] of the model's square-root information: √information[0, 0]
+    only for an upper-triangular R, so any other R goes to GTSAM's own initializer."""
+    rng = np.random.default_rng(4)
+    L = np.tril(rng.normal(size=(6, 6))) + 4 * np.eye(6)
+    g, keys = _small_graph_with(lambda info: gtsam.noiseModel.Gaussian.SqrtInformation(L, False))
+
+    def not_called(*args, **kwargs):
+        raise AssertionError("the arrays' initializer would weigh this graph differently from GTSAM")
+
+    monkeypatch.setattr(rx, "initialize_pose3", not_called)
+    got = LI.initialize(g, "chordal").values
+    ref = gtsam.InitializePose3.initialize(g)
+    assert np.max(np.abs(_pose3s(got, keys) - _pose3s(ref, keys))) == 0.0
+
+
+def test_initialize_without_cholmod_runs_gtsams(monkeypatch):
+    g, keys = _small_graph_with(gtsam.noiseModel.Gaussian.Information)
+    arrays = _pose3s(LI.initialize(g, "chordal").values, keys)
+    monkeypatch.setattr(rx, "cholmod_available", lambda: False)
+    ref = gtsam.InitializePose3.initialize(g)
+    fallback = _pose3s(LI.initialize(g, "chordal").values, keys)
+    assert np.max(np.abs(fallback - _pose3s(ref, keys))) == 0.0
+    assert 0.0 < np.max(np.abs(arrays - fallback)) < 1e-9  # the arrays' answer differs by rounding only

@@ -20,6 +20,7 @@ import gtsam
 import numpy as np
 
 from .. import stack
+from ..relaxation import cholmod_available
 from .graph import BatchError
 
 LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")
@@ -27,14 +28,6 @@ LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")
 
 class NotPositiveDefinite(BatchError):
     """The (damped) normal equations are not positive definite (GTSAM: IndeterminantLinearSystem)."""
-
-
-def cholmod_available() -> bool:
-    try:
-        import cvxopt.cholmod  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 _fallback_warned = False
