@@ -9,7 +9,7 @@ object (numpy and CHOLMOD, no numba).  They agree with GTSAM's to 1e-9
 (tests/test_relaxation.py, tests/test_g2o_arrays.py).
 
 :func:`initialize` returns None where it does not apply — ``spanning-tree``,
-Similarity3 graphs, or ``auto`` when none of its array methods runs — and the
+Similarity3 graphs, no cvxopt, or ``auto`` when none of its array methods runs — and the
 caller then uses GTSAM's path (:func:`lie_factors.initialize.initialize`),
 which has every method; the reasons gathered here go with it.
 """
@@ -106,8 +106,10 @@ def initialize(a, method: str, prior_key: int, prior_element: np.ndarray, prior_
     cannot run.  (None, skipped) hands over to GTSAM's path with the reasons
     ``auto`` gathered so far.
     """
-    if a.group not in ("Pose2", "Pose3") or method == "spanning-tree":
-        return None, []
+    from . import relaxation
+
+    if a.group not in ("Pose2", "Pose3") or method == "spanning-tree" or not relaxation.cholmod_available():
+        return None, []  # GTSAM's path (its own initializers without cvxopt's CHOLMOD)
     t0 = time.perf_counter()
     order = auto_order(a.is3d, a.vertices is not None, a.group) if method == "auto" else [method]
     skipped: list[tuple[str, str]] = []
