@@ -565,6 +565,8 @@ class PoseGraphRun:
                  lazy_values: bool = False):
         self.dataset, self.backend, self.max_iterations, self.init = dataset, backend, max_iterations, init
         self.robust_text = robust
+        self.robust = None  # the parsed loss (check)
+        self._checked = False
         self.robust_all, self.gnc = robust_all, gnc
         self.output, self.plot = output, plot
         self.events = events if events is not None else RunEvents()
@@ -582,6 +584,7 @@ class PoseGraphRun:
         """Everything that can be wrong with the invocation, before the (possibly long) work."""
         get_backend(self.backend)
         self.robust = parse_robust(self.robust_text, self.robust_all, self.gnc)
+        self._checked = True
         for path in (self.output, self.plot):
             if path:
                 from .atomic import check_writable
@@ -595,6 +598,8 @@ class PoseGraphRun:
                 and self.pg is not None and self.pg.arrays is not None)
 
     def load(self) -> PoseGraph:
+        if not self._checked:
+            self.check()
         t = time.perf_counter()
         if self.pg is None:
             self.pg = load(self.dataset)
