@@ -454,21 +454,25 @@ def _pose_step(n, ii, jj, Z, info, R) -> np.ndarray:
     RzT = np.swapaxes(Rz, 1, 2)
     e = _pose3_log(RzT @ Rij, -np.einsum("kij,kj->ki", RzT, tz))
     M = _pose3_logmap_derivative(e)
-    MT = np.swapaxes(M, 1, 2)
-    K = MT @ info @ M  # H_j = M: H_jᵀ Λ H_j
-    Me = np.einsum("kab,kb->ka", MT @ info, e)  # H_jᵀ Λ e
+    MTI = np.swapaxes(M, 1, 2) @ info
+    K = MTI @ M  # H_j = M: H_jᵀ Λ H_j
+    Me = np.einsum("kab,kb->ka", MTI, e)  # H_jᵀ Λ e
+    del M, MTI  # (E, 6, 6) temporaries: 50 MB per 10⁵ edges each
     P = np.zeros((E, 6, 6))
     P[:, :3, :3] = Rij
     P[:, 3:, 3:] = Rij
     PI = P @ K  # −H_iᵀ Λ H_j, since H_i = −M Pᵀ
-    Hii = PI @ np.swapaxes(P, 1, 2)
-    D = _scatter_add(ii, Hii, N) + _scatter_add(jj, K, N)
+    D = _scatter_add(ii, PI @ np.swapaxes(P, 1, 2), N) + _scatter_add(jj, K, N)
+    del K
     D[n] += np.eye(6)  # the anchor's unit prior
     g = _scatter_add(ii, np.einsum("kab,kb->ka", P, Me), N) - _scatter_add(jj, Me, N)  # −Hᵀ Λ e
+    del P
     r0, c0, v0 = _diag_lower_triplets(D, 6)
     r1, c1, v1 = _lower_block_triplets(ii, jj, -PI, 6)
-    delta = solve_spd(6 * N, np.concatenate([r0, r1]), np.concatenate([c0, c1]), np.concatenate([v0, v1]),
-                      g.ravel()).reshape(N, 6)
+    del PI, D
+    rows, cols, vals = np.concatenate([r0, r1]), np.concatenate([c0, c1]), np.concatenate([v0, v1])
+    del r0, r1, c0, c1, v0, v1
+    delta = solve_spd(6 * N, rows, cols, vals, g.ravel()).reshape(N, 6)
     dR, V = _rot_exp_V(delta[:, :3])
     T = np.zeros((N, 4, 4))
     T[:, :3, :3] = R @ dR
