@@ -634,8 +634,11 @@ def _lago_orientations(n, keys, ii, jj, dth, w, use_odometric_path) -> np.ndarra
     theta_tree = _sum_to_root(parent, step, n)
     if np.isnan(theta_tree).any():
         lost = int(np.nonzero(np.isnan(theta_tree))[0][0])
-        raise RelaxationError(f"LAGO's {'odometric path' if use_odometric_path else 'spanning tree'} does not "
-                              f"reach pose {int(keys[lost]) if lost < n else 'anchor'} through the factors")
+        where = f"pose {int(keys[lost])}" if lost < n else "the anchor"
+        if use_odometric_path:  # GTSAM's lago throws (map::at) here
+            raise RelaxationError(f"LAGO's odometric path (consecutive keys, its first key hung from the prior) "
+                                  f"does not reach {where}; use_odometric_path=False takes Kruskal's tree")
+        raise RelaxationError(f"LAGO's spanning tree does not reach {where}")
 
     # --- loop edges regularized by the multiple of 2π closing their cycle; angles by linear LS
     chord = ~in_tree
@@ -674,8 +677,8 @@ def lago_pose2(n, i, j, measured, information, prior_index=None, prior_measured=
     for name, a in (("information", info), ("prior_information", pinfo)):
         off = a - np.einsum("kii->ki", a)[:, :, None] * np.eye(3)
         if np.any(off != 0.0):
-            raise RelaxationError(f"LAGO needs diagonal noise models; {name}[{int(np.argmax(np.any(off != 0, axis=(1, 2))))}] "
-                                  "is a full matrix")
+            first = int(np.argmax(np.any(off != 0, axis=(1, 2))))
+            raise RelaxationError(f"LAGO needs diagonal noise models; {name}[{first}] is a full matrix")
     keys = np.arange(n, dtype=np.int64) if keys is None else np.asarray(keys, dtype=np.int64)
     if keys.shape != (n,) or np.any(np.diff(keys) <= 0):
         raise ValueError(f"keys: expected ({n},) increasing integers")
