@@ -52,7 +52,10 @@ def call(func: Callable[..., T], *args, **kwargs) -> T:
             box["error"] = exc
 
     with _size_lock:
-        old = threading.stack_size(STACK_BYTES)
+        try:
+            old = threading.stack_size(STACK_BYTES)
+        except (ValueError, RuntimeError):  # a platform that cannot set it: the caller's stack, as before
+            return func(*args, **kwargs)
         try:
             worker = threading.Thread(target=run, name="lie_factors-large-stack", daemon=True)
             worker.start()
