@@ -87,3 +87,11 @@ def test_100k_pose_chain_completes(chain100k, backend):
     rec = json.loads(out.stdout.strip().splitlines()[-1])
     assert rec["poses"] == 100000 and rec["factors"] == 100000
     assert rec["converged"] and rec["final_error"] < 1e-6
+
+
+def test_platform_without_settable_stack_runs_inline(monkeypatch):
+    def refuse(size=None):
+        raise ValueError("size not valid")
+
+    monkeypatch.setattr(threading, "stack_size", refuse)
+    assert stack.call(threading.current_thread) is threading.current_thread()
