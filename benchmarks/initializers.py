@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import gtsam  # noqa: E402
 
@@ -126,11 +127,34 @@ def run(name, repeat):
                 method=method, gtsam=tg, arrays=ta, init_gtsam=tig, init_arrays=tia, rel=rel)
 
 
+def generated(n: int) -> None:
+    """relaxation.initialize_pose3 alone on generate_posegraph's n-pose helix (arrays straight from the
+    generator, no file): seconds and peak RSS."""
+    import resource
+
+    from generate_posegraph import SIGMAS, generate
+
+    i, j, Z, _ = generate(n)
+    info = np.broadcast_to(np.diag(1 / SIGMAS ** 2), (i.size, 6, 6)).copy()
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    t0 = time.perf_counter()
+    rx.initialize_pose3(n, i, j, Z, info)
+    seconds = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    print(f"generated helix: {n} poses, {i.size} edges: initialize_pose3 {seconds:.1f} s, "
+          f"peak RSS {before:.2f} GB before, {after:.2f} GB after")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("graphs", nargs="*", default=DEFAULT, help="names in $LIE_FACTORS_DATA or g2o paths")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--generated", type=int, default=0,
+                    help="instead: the array initializer alone on a generated helix of this many poses")
     a = ap.parse_args(argv)
+    if a.generated:
+        generated(a.generated)
+        return 0
     print("| graph | poses | factors | method | GTSAM (s) | arrays (s) | ratio | initialize(): GTSAM inside → "
           "arrays inside (s) | max rel. difference |")
     print("|---|---|---|---|---|---|---|---|---|")

@@ -454,21 +454,25 @@ def _pose_step(n, ii, jj, Z, info, R) -> np.ndarray:
     RzT = np.swapaxes(Rz, 1, 2)
     e = _pose3_log(RzT @ Rij, -np.einsum("kij,kj->ki", RzT, tz))
     M = _pose3_logmap_derivative(e)
-    MT = np.swapaxes(M, 1, 2)
-    K = MT @ info @ M  # H_j = M: H_jᵀ Λ H_j
-    Me = np.einsum("kab,kb->ka", MT @ info, e)  # H_jᵀ Λ e
+    MTI = np.swapaxes(M, 1, 2) @ info
+    K = MTI @ M  # H_j = M: H_jᵀ Λ H_j
+    Me = np.einsum("kab,kb->ka", MTI, e)  # H_jᵀ Λ e
+    del M, MTI  # (E, 6, 6) temporaries: 50 MB per 10⁵ edges each
     P = np.zeros((E, 6, 6))
     P[:, :3, :3] = Rij
     P[:, 3:, 3:] = Rij
     PI = P @ K  # −H_iᵀ Λ H_j, since H_i = −M Pᵀ
-    Hii = PI @ np.swapaxes(P, 1, 2)
-    D = _scatter_add(ii, Hii, N) + _scatter_add(jj, K, N)
+    D = _scatter_add(ii, PI @ np.swapaxes(P, 1, 2), N) + _scatter_add(jj, K, N)
+    del K
     D[n] += np.eye(6)  # the anchor's unit prior
     g = _scatter_add(ii, np.einsum("kab,kb->ka", P, Me), N) - _scatter_add(jj, Me, N)  # −Hᵀ Λ e
+    del P
     r0, c0, v0 = _diag_lower_triplets(D, 6)
     r1, c1, v1 = _lower_block_triplets(ii, jj, -PI, 6)
-    delta = solve_spd(6 * N, np.concatenate([r0, r1]), np.concatenate([c0, c1]), np.concatenate([v0, v1]),
-                      g.ravel()).reshape(N, 6)
+    del PI, D
+    rows, cols, vals = np.concatenate([r0, r1]), np.concatenate([c0, c1]), np.concatenate([v0, v1])
+    del r0, r1, c0, c1, v0, v1
+    delta = solve_spd(6 * N, rows, cols, vals, g.ravel()).reshape(N, 6)
     dR, V = _rot_exp_V(delta[:, :3])
     T = np.zeros((N, 4, 4))
     T[:, :3, :3] = R @ dR
@@ -630,8 +634,11 @@ def _lago_orientations(n, keys, ii, jj, dth, w, use_odometric_path) -> np.ndarra
     theta_tree = _sum_to_root(parent, step, n)
     if np.isnan(theta_tree).any():
         lost = int(np.nonzero(np.isnan(theta_tree))[0][0])
-        raise RelaxationError(f"LAGO's {'odometric path' if use_odometric_path else 'spanning tree'} does not "
-                              f"reach pose {int(keys[lost]) if lost < n else 'anchor'} through the factors")
+        where = f"pose {int(keys[lost])}" if lost < n else "the anchor"
+        if use_odometric_path:  # GTSAM's lago throws (map::at) here
+            raise RelaxationError(f"LAGO's odometric path (consecutive keys, its first key hung from the prior) "
+                                  f"does not reach {where}; use_odometric_path=False takes Kruskal's tree")
+        raise RelaxationError(f"LAGO's spanning tree does not reach {where}")
 
     # --- loop edges regularized by the multiple of 2π closing their cycle; angles by linear LS
     chord = ~in_tree
@@ -670,8 +677,8 @@ def lago_pose2(n, i, j, measured, information, prior_index=None, prior_measured=
     for name, a in (("information", info), ("prior_information", pinfo)):
         off = a - np.einsum("kii->ki", a)[:, :, None] * np.eye(3)
         if np.any(off != 0.0):
-            raise RelaxationError(f"LAGO needs diagonal noise models; {name}[{int(np.argmax(np.any(off != 0, axis=(1, 2))))}] "
-                                  "is a full matrix")
+            first = int(np.argmax(np.any(off != 0, axis=(1, 2))))
+            raise RelaxationError(f"LAGO needs diagonal noise models; {name}[{first}] is a full matrix")
     keys = np.arange(n, dtype=np.int64) if keys is None else np.asarray(keys, dtype=np.int64)
     if keys.shape != (n,) or np.any(np.diff(keys) <= 0):
         raise ValueError(f"keys: expected ({n},) increasing integers")

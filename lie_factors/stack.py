@@ -51,13 +51,20 @@ def call(func: Callable[..., T], *args, **kwargs) -> T:
         except BaseException as exc:  # handed to the caller, whatever it is
             box["error"] = exc
 
+    worker = None
     with _size_lock:
-        old = threading.stack_size(STACK_BYTES)
         try:
-            worker = threading.Thread(target=run, name="lie_factors-large-stack", daemon=True)
-            worker.start()
-        finally:
-            threading.stack_size(old)
+            old = threading.stack_size(STACK_BYTES)
+        except (ValueError, RuntimeError):  # a platform that cannot set it: the caller's stack, as before
+            pass
+        else:
+            try:
+                worker = threading.Thread(target=run, name="lie_factors-large-stack", daemon=True)
+                worker.start()
+            finally:
+                threading.stack_size(old)
+    if worker is None:
+        return func(*args, **kwargs)
     while worker.is_alive():
         worker.join(0.05)  # short joins: the main thread still sees Ctrl-C between them
     if "error" in box:

@@ -327,3 +327,18 @@ def test_initialize_without_cholmod_runs_gtsams(monkeypatch):
     fallback = _pose3s(LI.initialize(g, "chordal").values, keys)
     assert np.max(np.abs(fallback - _pose3s(ref, keys))) == 0.0
     assert 0.0 < np.max(np.abs(arrays - fallback)) < 1e-9  # the arrays' answer differs by rounding only
+
+
+def test_lago_odometric_path_without_a_prior_on_its_root_fails_as_gtsams():
+    """The odometric path hangs its first key from the anchor; with the prior elsewhere GTSAM throws (map::at)."""
+    args = (2, [0], [1], [[1.0, 0.0, 0.5]], np.eye(3)[None])
+    prior = dict(prior_index=[1], prior_measured=[[0.0, 0.0, 0.0]], prior_information=100 * np.eye(3)[None])
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.BetweenFactorPose2(0, 1, gtsam.Pose2(1, 0, 0.5), gtsam.noiseModel.Unit.Create(3)))
+    g.add(gtsam.PriorFactorPose2(1, gtsam.Pose2(), gtsam.noiseModel.Diagonal.Precisions(np.full(3, 100.0))))
+    with pytest.raises(IndexError):
+        gtsam.lago.initialize(g, True)
+    with pytest.raises(rx.RelaxationError, match="odometric path"):
+        rx.lago_pose2(*args, **prior)
+    ours = rx.lago_pose2(*args, **prior, use_odometric_path=False)
+    assert _rel(ours, _pose2s(gtsam.lago.initialize(g, False), [0, 1]), angles=True) < 1e-12
