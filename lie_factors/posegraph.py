@@ -713,10 +713,15 @@ class PoseGraphRun:
             history.append(info)
             self.events.iteration(info)
 
+        import numba
+
+        threads = numba.get_num_threads()
         try:
             problem = Problem.from_arrays(pg.group, a.keys, X, a.edge_keys, a.measured, a.information,
                                           [prior])
             del X
+            if problem.graph_size * problem.blocks[pg.group].spec.dim ** 2 < PARALLEL_MIN_WORK:
+                numba.set_num_threads(1)
             self._opt = opt = BatchLevenbergMarquardt(problem, None, params)
             self.timings["setup"] = clock.seconds()
             step.restart()
@@ -725,6 +730,8 @@ class PoseGraphRun:
             raise PoseGraphError(f"batch backend: {exc}") from None
         except RuntimeError as exc:
             raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
+        finally:
+            numba.set_num_threads(threads)
         seconds = clock.seconds()
         self.timings["iterations"] = seconds - self.timings["setup"]
         result = OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
@@ -788,6 +795,15 @@ class PoseGraphRun:
 
 #: Keys of ``RunRecord.timings`` (``--json``): the steps of a :class:`PoseGraphRun`, in order.
 TIMING_KEYS = ("imports", "read", "init", "setup", "iterations", "write")
+
+
+#: Factors × (tangent dimension)² below which the default path runs the batch loops on one
+#: numba thread: their fork/join costs more than it saves there.  Whole command, 2 runs each,
+#: load 2–4 (docs/benchmarks.md, issue 17 h17a): 1 thread made the iterations faster on intel
+#: (2.5k SE(2) factors, 0.05–0.08 vs 0.22–0.26 s), sphere2500 (5k SE(3)), city10000 (21k SE(2):
+#: 1.9·10⁵) and torus3D (9k SE(3): 3.3·10⁵, 0.28 vs 0.38–0.41 s); 2 threads were faster from
+#: the 20k-pose helix (22k SE(3): 7.9·10⁵, 0.33 vs 0.37 s) and equal at 100k.
+PARALLEL_MIN_WORK = 500_000
 
 
 def _values_of(group: str, keys: np.ndarray, X: np.ndarray) -> gtsam.Values:
