@@ -299,3 +299,23 @@ def test_batch_modules_import_downward_only():
             "print(sorted(m for m in ('lie_factors.batch.optimizer', 'lie_factors.batch.robust')"
             " if m in sys.modules), file=sys.stderr)\n")
     assert _modules_after(code) == "[]"
+
+
+def test_small_graphs_run_the_batch_loops_on_one_thread(tmp_path):
+    """Below PARALLEL_MIN_WORK the default path iterates on one numba thread, then restores the count."""
+    import numba
+
+    path = tmp_path / "g.g2o"
+    path.write_text(_file_3d(np.random.default_rng(9)))
+    seen = []
+
+    class Events(P.RunEvents):
+        def iteration(self, info):
+            seen.append(numba.get_num_threads())
+
+    before = numba.get_num_threads()
+    job = P.PoseGraphRun(str(path), "batch", events=Events())
+    job.execute()
+    assert job.pg.edges * 36 < P.PARALLEL_MIN_WORK
+    assert seen and set(seen) == {1}
+    assert numba.get_num_threads() == before
