@@ -182,112 +182,75 @@ def _positive_float(text: str) -> float:
     return value
 
 
-#: --robust LOSS names (the CLI's subset of lie_factors.batch.robust.LOSSES)
-CLI_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
-
-
-def _robust_loss(args):
-    """The --robust option as a RobustLoss (None without it); CLIError on a bad name or parameter."""
-    if args.gnc is not None and args.gnc not in ("tls", "gm"):
-        raise CLIError(f"--gnc: unknown loss {args.gnc!r} (choose from tls, gm)")
-    if args.robust is None:
-        if args.robust_all:
-            raise CLIError("--robust-all needs --robust LOSS")
-        return None
-    from lie_factors.batch.robust import parse_loss
-
-    name = args.robust.partition(":")[0].strip().lower()
-    if name not in CLI_LOSSES:
-        raise CLIError(f"--robust: unknown loss {name!r} (choose from {', '.join(CLI_LOSSES)})")
-    try:
-        loss = parse_loss(args.robust)
-    except ValueError as exc:
-        raise CLIError(f"--robust: {exc}") from None
-    if args.gnc:
-        raise CLIError("--robust and --gnc are alternatives (GNC replaces the loss); give one")
-    return loss
-
-
-def _gnc_progress(args):
-    if args.quiet:
-        return None
-
-    def report(it, lam, cost, lm_iterations):
-        print(f"gnc iter {it + 1:3d}  lambda {lam:.3e}  weighted cost {cost:.6e}  "
-              f"({lm_iterations} LM iterations)", file=sys.stderr, flush=True)
-
-    return report
-
-
 def _run_posegraph(args) -> int:
+    """Parse → :class:`lie_factors.posegraph.PoseGraphRun` → print; the run owns every step."""
+    import time
+
     if args.incremental:  # the online replay (ISAM2) lives in its own module
         from lie_factors import incremental
 
         return incremental.main(args, _say, _emit_json)
     if args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
         raise CLIError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
-    from lie_factors import atomic, g2o
+    t = time.perf_counter()
     from lie_factors import posegraph as pgm
 
-    # Everything that can be wrong with the invocation is checked before the
-    # (possibly long) optimization.
-    pgm.get_backend(args.backend)
-    robust = _robust_loss(args)
-    for path in (args.output, args.plot):
-        if path:
-            atomic.check_writable(path)
-    pgm.load_factors(args.backend)
-    pg = pgm.load(args.dataset)
+    imports = time.perf_counter() - t
 
-    kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
-    lms = (f", {pg.landmark_count} landmarks, {pg.observations} landmark measurements"
-           if pg.observations else "")
-    _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges{lms}"
-               f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
-               f"backend {args.backend}")
-    if robust is not None:
-        what = "every edge" if args.robust_all else "the loop closures"
-        _say(args, f"robust loss {robust} on {what}")
+    class Printer(pgm.RunEvents):
+        def loaded(self, run):
+            pg = run.pg
+            kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
+            lms = (f", {pg.landmark_count} landmarks, {pg.observations} landmark measurements"
+                   if pg.observations else "")
+            _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges{lms}"
+                       f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
+                       f"backend {args.backend}")
+            if run.robust is not None:
+                what = "every edge" if args.robust_all else "the loop closures"
+                _say(args, f"robust loss {run.robust} on {what}")
 
-    def report_start(start):
-        for method, reason in start.skipped:
-            _say(args, f"init {method} not applicable: {reason}")
-        only = (" of the odometry edges and the prior only (loop closures left out under "
-                f"{'--gnc' if args.gnc else '--robust'})" if start.inliers_only else "")
-        _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{only} ({start.seconds:.3f} s)")
+        def started(self, start):
+            for method, reason in start.skipped:
+                _say(args, f"init {method} not applicable: {reason}")
+            only = (" of the odometry edges and the prior only (loop closures left out under "
+                    f"{'--gnc' if args.gnc else '--robust'})" if start.inliers_only else "")
+            _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{only} ({start.seconds:.3f} s)")
 
-    record, result, pg = pgm.run(pg, args.backend, args.max_iterations, _progress(args),
-                                 init=args.init, on_init=report_start, robust=robust,
-                                 robust_all=args.robust_all, gnc=args.gnc,
-                                 gnc_progress=_gnc_progress(args))
-    _report_compile(args)
-    status = "converged" if record.converged else "stopped (not converged)"
-    if args.gnc:
-        n_lc = len(pgm.loop_closures(pg))
-        _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop closures; "
-                   f"error {record.initial_error:.6g} -> weighted {record.final_error:.6g} after "
-                   f"{record.iterations} GNC iterations, {record.seconds:.3f} s "
-                   f"(+ {record.init_seconds:.3f} s initialization), {status}")
-    else:
-        _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
-                   f"{record.iterations} iterations, {record.seconds:.3f} s "
-                   f"(+ {record.init_seconds:.3f} s initialization), {status}")
+        def iteration(self, info):
+            if not args.quiet:
+                from lie_factors.results import format_iteration
 
-    if args.output:
-        g2o.write_g2o(args.output, pg.native_graph(), result.values)
-        _say(args, f"wrote {args.output}")
-    if args.plot:
-        from lie_factors.plotting import plot_trajectories
+                print(format_iteration(info), file=sys.stderr, flush=True)
 
-        trajectories = {f"initial ({record.init})": pgm.positions(result.start, pg.is3d, pg.group),
-                        "optimized": pgm.positions(result.values, pg.is3d, pg.group)}
-        points = ({"initial landmarks": pgm.landmark_positions(result.start, pg.is3d),
-                   "optimized landmarks": pgm.landmark_positions(result.values, pg.is3d)}
-                  if pg.landmark_count else None)
-        atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
-            tmp, trajectories, f"{pg.name} ({args.backend})", three_d=pg.is3d, points=points),
-            suffix=".png")
-        _say(args, f"wrote {args.plot}")
+        def gnc_iteration(self, it, lam, cost, lm_iterations):
+            if not args.quiet:
+                print(f"gnc iter {it + 1:3d}  lambda {lam:.3e}  weighted cost {cost:.6e}  "
+                      f"({lm_iterations} LM iterations)", file=sys.stderr, flush=True)
+
+        def optimized(self, run):
+            _report_compile(args)
+            record = run.record
+            status = "converged" if record.converged else "stopped (not converged)"
+            if args.gnc:
+                n_lc = len(pgm.loop_closures(run.pg))
+                _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop "
+                           f"closures; error {record.initial_error:.6g} -> weighted "
+                           f"{record.final_error:.6g} after {record.iterations} GNC iterations, "
+                           f"{record.seconds:.3f} s (+ {record.init_seconds:.3f} s initialization), {status}")
+            else:
+                _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
+                           f"{record.iterations} iterations, {record.seconds:.3f} s "
+                           f"(+ {record.init_seconds:.3f} s initialization), {status}")
+
+        def wrote(self, path):
+            _say(args, f"wrote {path}")
+
+    job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
+                           robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
+                           output=args.output, plot=args.plot, events=Printer(), lazy_values=True)
+    job.timings["imports"] = imports  # GTSAM and numpy, loaded with lie_factors.posegraph
+    record = job.execute()
     if args.json:
         _emit_json(record.to_dict())
     return 0

@@ -1015,6 +1015,148 @@ def read_g2o(path: str, summary: G2oSummary):
 
 
 # --------------------------------------------------------------------------- #
+# Reading into arrays (no GTSAM objects)
+# --------------------------------------------------------------------------- #
+
+#: g2o writes SE(3) information as [t, R]; GTSAM's Pose3 tangent is [ω, v].
+_SE3_INFO_ORDER = np.array([3, 4, 5, 0, 1, 2])
+
+
+@dataclass
+class PoseGraphArrays:
+    """A checked pose-graph file as arrays, in GTSAM's conventions (what ``readG2o`` would build).
+
+    ``group``: Pose2, Pose3 or Similarity3 (m×m matrices, n-dimensional
+    tangent: 3×3/3, 4×4/6, 4×4/7).  ``keys`` (P,) int64: every pose id,
+    sorted.  ``edge_keys`` (E, 2) int64, ``measured`` (E, m, m) and
+    ``information`` (E, n, n): the pose–pose edges in file order (edge k of
+    the file is factor k of GTSAM's graph), information in GTSAM's tangent
+    order.  ``vertices`` (P, m, m): the file's pose vertices in key order, or
+    None if the file has no pose vertex.  ``lines`` (E,): the edges' line numbers.
+    """
+
+    group: str
+    keys: np.ndarray
+    edge_keys: np.ndarray
+    measured: np.ndarray
+    information: np.ndarray
+    vertices: np.ndarray | None
+    lines: np.ndarray
+
+    @property
+    def is3d(self) -> bool:
+        return self.group != "Pose2"
+
+
+def arrays_supported(summary: G2oSummary) -> bool:
+    """Can :func:`read_arrays` represent this file?  Pose–pose files whose poses all have a
+    vertex, or none has one (landmark records and 2-D files whose edges introduce
+    poses GTSAM chains from odometry are read by GTSAM, :func:`read_g2o`)."""
+    if any(RECORDS[t].kind not in ("pose", "between") for t in summary.rows):
+        return False
+    vertices = summary.pose_vertex_ids
+    return len(vertices) == 0 or len(vertices) == len(summary.pose_ids)
+
+
+def _rot2(theta: np.ndarray) -> np.ndarray:
+    """Rot2::fromAngle(θ) as (N, 2, 2) matrices."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.stack((np.stack((c, -s), -1), np.stack((s, c), -1)), -2)
+
+
+def _rot3_quaternion(q: np.ndarray) -> np.ndarray:
+    """Rot3::Quaternion(qw, qx, qy, qz) of rows ``q`` = (qx, qy, qz, qw), shape (N, 3, 3).
+
+    Eigen's ``normalized().toRotationMatrix()``: q / ‖q‖, then the
+    products 2x·w, 2x·x, ... (checked against ``readG2o`` in the tests).
+    """
+    q = q / np.sqrt(np.einsum("ij,ij->i", q, q))[:, None]
+    x, y, z, w = q.T
+    tx, ty, tz = 2 * x, 2 * y, 2 * z
+    twx, twy, twz = tx * w, ty * w, tz * w
+    txx, txy, txz = tx * x, ty * x, tz * x
+    tyy, tyz, tzz = ty * y, tz * y, tz * z
+    R = np.empty((len(q), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = 1 - (tyy + tzz), txy - twz, txz + twy
+    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = txy + twz, 1 - (txx + tzz), tyz - twx
+    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = txz - twy, tyz + twx, 1 - (txx + tyy)
+    return R
+
+
+def _rot3_ypr(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """Rot3::Ypr(yaw, pitch, roll) = Rz(yaw)·Ry(pitch)·Rx(roll), shape (N, 3, 3)."""
+    cx, sx, cy, sy, cz, sz = (np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch),
+                              np.cos(yaw), np.sin(yaw))
+    R = np.empty((len(yaw), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = cy * cz, sx * sy * cz - cx * sz, cx * sy * cz + sx * sz
+    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = cy * sz, sx * sy * sz + cx * cz, cx * sy * sz - sx * cz
+    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -sy, sx * cy, cx * cy
+    return R
+
+
+def _elements(rows: Rows) -> np.ndarray:
+    """The group element of every row of a pose or edge record, shape (N, m, m)."""
+    rec = RECORDS[rows.tag]
+    v = rows.values
+    N = len(v)
+    if rec.group_name == "Similarity3":
+        from . import sim3  # Sim(3) records are converted by our exact exp (numba)
+
+        return sim3.exp(np.ascontiguousarray(v[:, :7]))
+    if rec.dim == 2:
+        X = np.zeros((N, 3, 3))
+        X[:, :2, :2] = _rot2(v[:, 2])
+        X[:, 0, 2], X[:, 1, 2], X[:, 2, 2] = v[:, 0], v[:, 1], 1.0
+        return X
+    X = np.zeros((N, 4, 4))
+    if "qw" in rec.values:
+        X[:, :3, :3] = _rot3_quaternion(v[:, 3:7])
+    else:  # VERTEX3 / EDGE3: x y z roll pitch yaw
+        X[:, :3, :3] = _rot3_ypr(v[:, 5], v[:, 4], v[:, 3])
+    X[:, :3, 3] = v[:, :3]
+    X[:, 3, 3] = 1.0
+    return X
+
+
+def _edge_information(rows: Rows) -> np.ndarray:
+    """Information matrices of an edge record's rows in GTSAM's tangent order, (N, n, n)."""
+    rec = RECORDS[rows.tag]
+    n = int(round((math.sqrt(8 * rec.info + 1) - 1) / 2))
+    info = _upper_to_symmetric(rows.values[:, len(rec.values):], n)
+    if rec.tag == "EDGE_SE3:QUAT":  # readG2o's permutation [t, R] → [ω, v]
+        info = info[:, _SE3_INFO_ORDER][:, :, _SE3_INFO_ORDER]
+    return info
+
+
+def read_arrays(summary: G2oSummary) -> PoseGraphArrays:
+    """The checked file's poses and edges as :class:`PoseGraphArrays`, with no GTSAM object.
+
+    The same numbers as ``gtsam.readG2o`` (quaternions normalized, SE(3)
+    information permuted to [ω, v]; Sim(3) records as :func:`read_g2o`),
+    computed per record type on the arrays :func:`check_g2o` parsed.
+    Raises ``ValueError`` for files :func:`arrays_supported` refuses.
+    """
+    if not arrays_supported(summary):
+        raise ValueError(f"{summary.path}: landmark records or poses without a vertex line: "
+                         "use read_g2o")
+    keys = np.asarray(summary.pose_ids, dtype=np.int64)
+    edges = summary._of_kind("between")
+    lines = np.concatenate([r.lines for r in edges])
+    order = np.argsort(lines, kind="stable")  # GTSAM's factor order is the file's line order
+    edge_keys = np.concatenate([r.ids[:, :2] for r in edges])[order]
+    measured = np.concatenate([_elements(r) for r in edges])[order]
+    information = np.concatenate([_edge_information(r) for r in edges])[order]
+    vertices = None
+    poses = summary._of_kind("pose")
+    if poses:
+        ids = np.concatenate([r.ids[:, 0] for r in poses])
+        X = np.concatenate([_elements(r) for r in poses])
+        vertices = X[np.argsort(ids)]  # every pose has exactly one vertex (arrays_supported, check_g2o)
+    return PoseGraphArrays(summary.group, keys, np.ascontiguousarray(edge_keys), measured, information,
+                           vertices, lines[order])
+
+
+# --------------------------------------------------------------------------- #
 # Writing
 # --------------------------------------------------------------------------- #
 

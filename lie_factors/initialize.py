@@ -29,6 +29,12 @@ composed odometry of the file leads GTSAM's LM to a local minimum (error
     Between/Prior on Pose2/Pose3/Similarity3 (landmarks, ...) starts from the
     given values.
 
+``chordal`` and ``lago`` run on arrays (:mod:`lie_factors.relaxation`: the same
+results as GTSAM's to ~1e-10, numpy and CHOLMOD, no per-factor objects);
+GTSAM's own initializers run, on a large-stack thread (:mod:`lie_factors.stack`),
+where cvxopt is absent or a noise model's square-root information is not
+upper triangular.
+
 Anchor and priors, as GTSAM's initializers treat them (``InitializePose.h``):
 every ``PriorFactor`` becomes a between factor from a fictitious pose at the
 identity with key ``initialize::kAnchorKey`` = 99999999, which gets the only
@@ -49,6 +55,7 @@ import numpy as np
 
 import gtsam
 
+from . import relaxation, stack
 from .errors import PoseGraphError
 
 #: ``--init`` choices, in the CLI's order.
@@ -225,7 +232,8 @@ def _run_gtsam(pg: _PoseGraph, call) -> gtsam.Values:
     if ANCHOR_KEY in pg.keys:
         rename = {k: n for n, k in enumerate(pg.keys)}
     try:
-        values = call(_native_graph(pg, rename))
+        # GTSAM's elimination recurses once per level: a long chain needs more than 8 MiB of stack.
+        values = stack.call(call, _native_graph(pg, rename))
     except (RuntimeError, ValueError, IndexError) as exc:  # e.g. IndeterminantLinearSystemException
         text = str(exc).strip().splitlines()
         raise InitializationError(f"GTSAM failed: {text[0] if text else type(exc).__name__}") from None
@@ -254,9 +262,61 @@ def _check_values(values: gtsam.Values, pg: _PoseGraph, what: str) -> gtsam.Valu
     return values
 
 
+def _arrays(pg: _PoseGraph):
+    """The graph as :mod:`lie_factors.relaxation`'s arrays (n, i, j, Z, information, prior index, Z, information),
+    or None where GTSAM's own initializers must run: CHOLMOD (cvxopt) absent, or a noise model whose
+    square-root information is not upper triangular (GTSAM weighs the chordal rows by its (0, 0) entry,
+    which equals √information[0, 0] only for the upper-triangular factor) or is singular (constrained)."""
+    if not relaxation.cholmod_available():
+        return None
+    index = {k: n for n, k in enumerate(pg.keys)}
+    as_array = (lambda p: p.matrix()) if pg.is3d else (lambda p: (p.x(), p.y(), p.theta()))
+
+    def collect(factors, nkeys):
+        if not factors:
+            d = 6 if pg.is3d else 3
+            return np.zeros((0, nkeys), dtype=np.int64), np.zeros((0, 4, 4) if pg.is3d else (0, 3)), np.zeros((0, d, d))
+        R = np.array([f.noiseModel().R() for f in factors])
+        lower = np.tril(np.ones(R.shape[1:], dtype=bool), -1)
+        if (np.any(R[:, lower]) or not np.all(np.isfinite(R))
+                or np.any(np.diagonal(R, axis1=1, axis2=2) <= 0)):
+            return None
+        idx = np.array([[index[k] for k in f.keys()] for f in factors], dtype=np.int64)
+        Z = np.array([as_array(f.measured() if nkeys == 2 else f.prior()) for f in factors])
+        return idx, Z, np.swapaxes(R, 1, 2) @ R
+
+    between, priors = collect(pg.between, 2), collect(pg.priors, 1)
+    if between is None or priors is None:
+        return None
+    return (len(pg.keys), between[0][:, 0], between[0][:, 1], between[1], between[2],
+            priors[0][:, 0], priors[1], priors[2])
+
+
+def _run_arrays(func, arrays, **kwargs) -> np.ndarray:
+    try:
+        return func(*arrays, **kwargs)
+    except (relaxation.RelaxationError, ValueError) as exc:
+        raise InitializationError(str(exc)) from None
+
+
+def _from_arrays(pg: _PoseGraph, poses: np.ndarray) -> gtsam.Values:
+    values = gtsam.Values()
+    if pg.is3d:
+        for k, T in zip(pg.keys, poses):
+            values.insert(k, gtsam.Pose3(T))
+    else:
+        for k, (x, y, th) in zip(pg.keys, poses.tolist()):
+            values.insert(k, gtsam.Pose2(x, y, th))
+    return values
+
+
 def _chordal(pg: _PoseGraph) -> gtsam.Values:
     if pg.group == "Similarity3":
         raise InitializationError("GTSAM's chordal initializer is for Pose2/Pose3 graphs; this one is Similarity3")
+    arrays = _arrays(pg)
+    if arrays is not None:
+        func = relaxation.initialize_pose3 if pg.is3d else relaxation.chordal_pose2
+        return _from_arrays(pg, _run_arrays(func, arrays))
     if pg.is3d:
         return _check_values(_run_gtsam(pg, gtsam.InitializePose3.initialize), pg, "chordal initializer")
     planar = _planar_pose3_graph(pg)
@@ -278,13 +338,7 @@ def _pose2_info_to_pose3(model) -> np.ndarray:
     are then the edge's rotation precision, as for a 3-D graph.
     """
     R = model.R()
-    info2 = R.T @ R
-    idx = [3, 4, 2]  # x, y, θ → v_x, v_y, ω_z
-    info3 = np.zeros((6, 6))
-    info3[np.ix_(idx, idx)] = info2
-    info3[0, 0] = info3[1, 1] = info2[2, 2]
-    info3[5, 5] = info2[0, 0]
-    return info3
+    return relaxation.pose2_information_to_pose3(R.T @ R)
 
 
 def _planar_pose3_graph(pg: _PoseGraph) -> _PoseGraph:
@@ -319,6 +373,10 @@ def _lago(pg: _PoseGraph) -> gtsam.Values:
     # The odometric path (edges between consecutive keys) is LAGO's own spanning
     # tree; where it does not reach every pose, its minimum spanning tree.
     path = _odometric_path_complete(pg)
+    arrays = _arrays(pg)
+    if arrays is not None:
+        return _from_arrays(pg, _run_arrays(relaxation.lago_pose2, arrays, keys=np.asarray(pg.keys, dtype=np.int64),
+                                            use_odometric_path=path))
     return _check_values(_run_gtsam(pg, lambda g: gtsam.lago.initialize(g, path)), pg, "LAGO")
 
 

@@ -1,20 +1,26 @@
 """Pose-graph optimization of g2o files with GTSAM, native or lie_factors factors.
 
-Pipeline (each step a function, the CLI and the benchmark just chain them):
+:class:`PoseGraphRun` owns a run (``lie-factors posegraph`` is one; :func:`run`
+is one without outputs), step by step:
 
 1. :func:`lie_factors.g2o.resolve_dataset` — a path, or the name of a file shipped with GTSAM
    (``sphere2500.txt``) found with ``gtsam.findExampleDataFile``.
-2. :func:`lie_factors.g2o.check_g2o` — our own line-by-line check, so a bad file gives
-   ``file:line: what was expected`` instead of GTSAM silently skipping lines
+2. :func:`lie_factors.g2o.check_g2o` — our own vectorized check of every line, so a bad
+   file gives ``file:line: what was expected`` instead of GTSAM silently skipping lines
    (``readG2o`` drops every edge after a ``#`` comment, for instance).
-3. :func:`load` — ``gtsam.readG2o(path, is3D)``; poses without a vertex line
-   are initialized by composing measurements along a BFS spanning tree.
-4. :func:`build_graph` — the between factors re-created with the chosen
-   backend's constructors, plus a prior on the first pose.
-5. :func:`lie_factors.initialize.initialize` — where LM starts: GTSAM's chordal
-   relaxation (3-D) or LAGO (2-D) by default, the file's vertices on request.
-6. :func:`optimize` — Levenberg–Marquardt driven one ``iterate()`` at a time
-   from Python, with GTSAM's own stopping rule, reporting each iteration.
+3. :func:`load` — a pose graph as arrays (:func:`lie_factors.g2o.read_arrays`); its
+   GTSAM form (``gtsam.readG2o``; poses without a vertex line initialized by
+   composing measurements along a BFS spanning tree) on first use.
+4. Initialization — on the arrays (:mod:`lie_factors.initialize_arrays`) on the
+   default path, else :func:`lie_factors.initialize.initialize` on GTSAM's factors:
+   the chordal relaxation (3-D) or LAGO (2-D) by default, the file's vertices on request.
+5. The backend: ``batch`` on a plain pose graph builds
+   :meth:`lie_factors.batch.Problem.from_arrays` (no factor object); otherwise
+   :func:`build_graph` re-creates the between factors with the backend's
+   constructors, plus a prior on the first pose, and :func:`optimize` (or the
+   batch solver) runs Levenberg–Marquardt one ``iterate()`` at a time from
+   Python, with GTSAM's own stopping rule, reporting each iteration.
+6. Output files (g2o, png), each written atomically.
 
 g2o formats (checking, reading, writing) live in :mod:`lie_factors.g2o`; result
 types in :mod:`lie_factors.results`.
@@ -25,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import time
 from dataclasses import dataclass
 from typing import Callable
 
@@ -33,10 +40,11 @@ import numpy as np
 import gtsam
 
 from .errors import PoseGraphError
-from .g2o import check_g2o, read_g2o, resolve_dataset
+from .g2o import arrays_supported, check_g2o, read_arrays, read_g2o, resolve_dataset
 from .initialize import METHODS as INIT_METHODS
 from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
 from .results import IterationInfo, OptimizeResult
+from .stack import large_stack
 from .timing import Stopwatch, warm_up_factors
 
 
@@ -46,7 +54,14 @@ from .timing import Stopwatch, warm_up_factors
 
 @dataclass
 class PoseGraph:
-    """A checked g2o file read by GTSAM.
+    """A checked g2o file: as arrays (pose graphs) and, when asked for, as GTSAM reads it.
+
+    ``arrays``: :class:`lie_factors.g2o.PoseGraphArrays` (poses, edges,
+    measurements and information in GTSAM's conventions) for files of poses
+    and pose–pose edges, else None.  The GTSAM form (``between``,
+    ``initial``, ``landmarks``) of such a file is read on first use
+    (``gtsam.readG2o``, see :func:`load`); pass None for them with ``summary``
+    (:func:`lie_factors.g2o.check_g2o`'s) to defer it:
 
     ``between``: native GTSAM graph of BetweenFactorPose2/3 exactly as
     ``readG2o`` built them (no prior); ``landmarks``: the landmark
@@ -61,32 +76,55 @@ class PoseGraph:
     path: str
     name: str
     is3d: bool
-    between: gtsam.NonlinearFactorGraph
-    initial: gtsam.Values
+    between: gtsam.NonlinearFactorGraph | None
+    initial: gtsam.Values | None
     first_key: int
     initialized_from_edges: bool
-    landmarks: gtsam.NonlinearFactorGraph = dataclasses.field(default_factory=gtsam.NonlinearFactorGraph)
+    # default_factory (not default): no class attribute, so a deleted one reaches __getattr__
+    landmarks: gtsam.NonlinearFactorGraph | None = dataclasses.field(default_factory=gtsam.NonlinearFactorGraph)
     landmark_vertex_keys: frozenset = frozenset()
     group: str = ""
+    arrays: object = None
+    summary: object = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self):
         if not self.group:
             self.group = "Pose3" if self.is3d else "Pose2"
+        if self.between is None:
+            if self.summary is None:
+                raise ValueError("PoseGraph: give the GTSAM graph, or the checked file's summary")
+            # Read by GTSAM on first use (__getattr__ runs only for missing attributes).
+            del self.between, self.initial, self.landmarks
+
+    def __getattr__(self, name):
+        if name in ("between", "initial", "landmarks") and "summary" in self.__dict__:
+            self.between, self.initial, self.landmarks, self.landmark_vertex_keys = \
+                _read_gtsam(self.path, self.summary)
+            return self.__dict__[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def poses(self) -> int:
+        if self.arrays is not None:
+            return len(self.arrays.keys)
         return len(pose_keys(self.initial))
 
     @property
     def landmark_count(self) -> int:
+        if self.arrays is not None:
+            return 0
         return int(self.initial.size()) - self.poses
 
     @property
     def edges(self) -> int:
+        if self.arrays is not None:
+            return len(self.arrays.edge_keys)
         return int(self.between.size())
 
     @property
     def observations(self) -> int:
+        if self.arrays is not None:
+            return 0
         return int(self.landmarks.size())
 
     def native_graph(self) -> gtsam.NonlinearFactorGraph:
@@ -110,16 +148,37 @@ def landmark_keys(values: gtsam.Values) -> list[int]:
 
 
 def load(dataset: str) -> PoseGraph:
-    """Resolve, check and read ``dataset``; raise :class:`PoseGraphError` if unusable."""
+    """Resolve, check and read ``dataset``; raise :class:`PoseGraphError` if unusable.
+
+    Pose graphs are read into arrays only (:func:`lie_factors.g2o.read_arrays`);
+    the GTSAM graph and Values are built when first asked for.  Files with
+    landmarks are read by GTSAM at once.
+    """
     path = resolve_dataset(dataset)
     summary = check_g2o(path)
+    pose_ids = summary.pose_ids
+    common = dict(path=path, name=os.path.basename(path), is3d=summary.is3d, first_key=pose_ids[0],
+                  initialized_from_edges=len(summary.pose_vertex_ids) == 0, group=summary.group,
+                  summary=summary)
+    if arrays_supported(summary):
+        return PoseGraph(between=None, initial=None, arrays=read_arrays(summary), **common)
+    between, initial, landmarks, with_vertex = _read_gtsam(path, summary)
+    return PoseGraph(between=between, initial=initial, landmarks=landmarks,
+                     landmark_vertex_keys=with_vertex, **common)
+
+
+def _read_gtsam(path: str, summary) -> tuple:
+    """(between graph, initial Values, landmark graph, landmark keys with a vertex) as GTSAM reads ``path``."""
     graph, initial = read_g2o(path, summary)
-    between = gtsam.NonlinearFactorGraph()
     landmarks = gtsam.NonlinearFactorGraph()
-    for k in range(graph.size()):
-        f = graph.at(k)
-        keys = f.keys()
-        (landmarks if any(is_landmark_key(key) for key in keys) else between).add(f)
+    if summary.observation_count == 0:
+        between = graph  # a pose graph: no factor to sort out (no Python loop over them)
+    else:
+        between = gtsam.NonlinearFactorGraph()
+        for k in range(graph.size()):
+            f = graph.at(k)
+            keys = f.keys()
+            (landmarks if any(is_landmark_key(key) for key in keys) else between).add(f)
     pose_ids = summary.pose_ids
     from_edges = len(summary.pose_vertex_ids) == 0
     if from_edges:
@@ -137,18 +196,7 @@ def load(dataset: str) -> PoseGraph:
             initial.insert(i, identity)
     with_vertex = frozenset(gtsam.symbol("l", int(j)) for j in summary.landmark_vertex_ids.tolist())
     _initialize_landmarks(initial, landmarks, summary.is3d, with_vertex)
-    return PoseGraph(
-        path=path,
-        name=os.path.basename(path),
-        is3d=summary.is3d,
-        between=between,
-        initial=initial,
-        first_key=pose_ids[0],
-        initialized_from_edges=from_edges,
-        landmarks=landmarks,
-        landmark_vertex_keys=with_vertex,
-        group=summary.group,
-    )
+    return between, initial, landmarks, with_vertex
 
 
 def _initialize_landmarks(initial: gtsam.Values, landmarks: gtsam.NonlinearFactorGraph, is3d: bool,
@@ -301,6 +349,7 @@ def build_graph(pg: PoseGraph, backend: str, robust=None,
 # Optimization, one iteration at a time
 # --------------------------------------------------------------------------- #
 
+@large_stack  # GTSAM's elimination recurses once per level: a long chain needs more than 8 MiB
 def optimize(
     graph: gtsam.NonlinearFactorGraph,
     initial: gtsam.Values,
@@ -428,11 +477,13 @@ class RunRecord:
     gnc: str | None = None
     outliers: list[int] | None = None
     init_inliers_only: bool | None = None
+    #: seconds of each step of a PoseGraphRun (see PoseGraphRun.timings)
+    timings: dict | None = None
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         # robust / gnc / outliers / init_inliers_only appear only in runs that use them.
-        for key in ("robust", "gnc", "outliers", "init_inliers_only"):
+        for key in ("robust", "gnc", "outliers", "init_inliers_only", "timings"):
             if d[key] is None:
                 del d[key]
         return d
@@ -440,9 +491,362 @@ class RunRecord:
 
 def loop_closures(pg: PoseGraph) -> np.ndarray:
     """Indices of the file's edges whose pose ids are not consecutive (|id1 − id2| ≠ 1)."""
+    if pg.arrays is not None:
+        k = pg.arrays.edge_keys
+        return np.flatnonzero(np.abs(k[:, 0] - k[:, 1]) != 1).astype(np.int64)
     return np.array([k for k in range(pg.between.size())
                      if abs(int(pg.between.at(k).keys()[0]) - int(pg.between.at(k).keys()[1])) != 1],
                     dtype=np.int64)
+
+
+#: --robust LOSS names the command accepts (a subset of lie_factors.batch.robust.LOSSES)
+CLI_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
+
+
+def parse_robust(robust, robust_all: bool = False, gnc: str | None = None):
+    """The run's robust loss: None, a ``RobustLoss`` as given, or one parsed from ``LOSS[:K]``.
+
+    Raises :class:`PoseGraphError` with a one-line reason (unknown loss or GNC
+    loss, bad parameter, ``robust_all`` without a loss, both robust and GNC).
+    """
+    if gnc is not None and gnc not in ("tls", "gm"):
+        raise PoseGraphError(f"--gnc: unknown loss {gnc!r} (choose from tls, gm)")
+    if robust is None:
+        if robust_all:
+            raise PoseGraphError("--robust-all needs --robust LOSS")
+        return None
+    if isinstance(robust, str):
+        name = robust.partition(":")[0].strip().lower()
+        if name not in CLI_LOSSES:
+            raise PoseGraphError(f"--robust: unknown loss {name!r} (choose from {', '.join(CLI_LOSSES)})")
+        from lie_factors.batch.robust import parse_loss  # numba: only runs with a loss load it
+
+        try:
+            robust = parse_loss(robust)
+        except ValueError as exc:
+            raise PoseGraphError(f"--robust: {exc}") from None
+    if gnc:
+        raise PoseGraphError("--robust and --gnc are alternatives (GNC replaces the loss); give one")
+    return robust
+
+
+class RunEvents:
+    """What a :class:`PoseGraphRun` reports while it runs (the CLI prints them); all no-ops here."""
+
+    def loaded(self, run: "PoseGraphRun") -> None:
+        """The file is read and checked (``run.pg``)."""
+
+    def started(self, start: Initialization) -> None:
+        """The initial values are chosen; LM starts next."""
+
+    def iteration(self, info: IterationInfo) -> None:
+        """One LM iteration done."""
+
+    def gnc_iteration(self, it: int, lam: float, cost: float, lm_iterations: int) -> None:
+        """One GNC outer iteration done."""
+
+    def optimized(self, run: "PoseGraphRun") -> None:
+        """The optimization is done (``run.record``, ``run.result``); the files come next."""
+
+    def wrote(self, path: str) -> None:
+        """An output file (``output`` or ``plot``) is complete."""
+
+
+class PoseGraphRun:
+    """One pose-graph run from reading to writing: ``lie-factors posegraph`` is one of these.
+
+    :meth:`execute` checks the invocation (backend, loss, output paths)
+    before any work, then reads the file (:func:`load`), initializes
+    (:func:`lie_factors.initialize.initialize`), optimizes with the backend,
+    and writes ``output`` (g2o) and ``plot`` (png); ``events``
+    (:class:`RunEvents`) hears each step.  The default path — ``batch`` on a
+    pose graph without robust loss or GNC — never builds a factor object: the
+    file's arrays become a :meth:`lie_factors.batch.Problem.from_arrays`.
+
+    After :meth:`execute`: ``record`` (:class:`RunRecord`), ``result``
+    (:class:`OptimizeResult`; ``result.values`` is built on first use by
+    :meth:`values` when ``lazy_values``), ``pg``, ``start``, and
+    ``timings`` (seconds: ``imports`` of the backend's modules, ``read``
+    (resolve, check, arrays), ``init``, ``setup`` (graph or problem, linear
+    system, symbolic analysis), ``iterations``, ``write``).
+    """
+
+    def __init__(self, dataset, backend: str = "batch", max_iterations: int = 100, init: str = "auto",
+                 robust=None, robust_all: bool = False, gnc: str | None = None,
+                 output: str | None = None, plot: str | None = None, events: RunEvents | None = None,
+                 lazy_values: bool = False):
+        self.dataset, self.backend, self.max_iterations, self.init = dataset, backend, max_iterations, init
+        self.robust_text = robust
+        self.robust = None  # the parsed loss (check)
+        self._checked = False
+        self.robust_all, self.gnc = robust_all, gnc
+        self.output, self.plot = output, plot
+        self.events = events if events is not None else RunEvents()
+        self.lazy_values = lazy_values
+        self.timings: dict[str, float] = {}
+        self.pg: PoseGraph | None = dataset if isinstance(dataset, PoseGraph) else None
+        self.record: RunRecord | None = None
+        self.result: OptimizeResult | None = None
+        self.start: Initialization | None = None
+        self._opt = None  # the batch optimizer of an array run (values() on demand)
+        self._start_X = None  # the array initializer's poses (P, m, m), in pg.arrays.keys order
+
+    # ------------------------------------------------------------------ steps
+    def check(self) -> None:
+        """Everything that can be wrong with the invocation, before the (possibly long) work."""
+        get_backend(self.backend)
+        self.robust = parse_robust(self.robust_text, self.robust_all, self.gnc)
+        self._checked = True
+        for path in (self.output, self.plot):
+            if path:
+                from .atomic import check_writable
+
+                check_writable(path)
+
+    @property
+    def uses_arrays(self) -> bool:
+        """The default path: batch backend, plain LM, a pose graph held as arrays."""
+        return (self.backend == "batch" and self.robust is None and self.gnc is None
+                and self.pg is not None and self.pg.arrays is not None)
+
+    def load(self) -> PoseGraph:
+        if not self._checked:
+            self.check()
+        t = time.perf_counter()
+        if self.pg is None:
+            self.pg = load(self.dataset)
+        self.timings["read"] = time.perf_counter() - t
+        if self.gnc is not None and loop_closures(self.pg).size == 0:
+            raise PoseGraphError(f"{self.pg.name}: --gnc needs loop closures (edges between "
+                                 "non-consecutive poses); this graph has none")
+        t = time.perf_counter()
+        if not self.uses_arrays:  # the array path needs no factor namespace
+            load_factors(self.backend)
+        else:
+            from lie_factors.batch import optimizer  # noqa: F401  (numba, the batch loops, CHOLMOD)
+        self.timings["imports"] = self.timings.get("imports", 0.0) + time.perf_counter() - t
+        self.events.loaded(self)
+        return self.pg
+
+    def initialize(self) -> Initialization:
+        """The initial values (every backend starts from the same ones; see :func:`run`)."""
+        pg, init = self.pg, self.init
+        # The initializers handle poses: give them the pose-pose part and the prior,
+        # then place the landmarks.  They run on GTSAM's own factors (the same
+        # measurements and noise models every backend's graph holds) before the
+        # backend's graph exists: the chordal relaxation's transient memory then
+        # does not stack on numba's (torus3D, batch: peak RSS 394 → 343 MiB; native 253).
+        t = time.perf_counter()
+        self._start_X = None
+        skipped: list = []
+        if self.uses_arrays and pg.initialized_from_edges == (pg.arrays.vertices is None):
+            # On the file's arrays (no GTSAM graph); None hands over to GTSAM's path below
+            # (as does a PoseGraph whose file values are load()'s spanning tree, not vertices).
+            from . import initialize_arrays
+
+            start, self._start_X = initialize_arrays.initialize(
+                pg.arrays, init, pg.first_key, _first_element(pg),
+                np.diag(1.0 / prior_noise(pg.is3d, pg.group).sigmas() ** 2))
+            if start is not None:
+                self.start = start
+                if not self.lazy_values:  # a Python caller gets gtsam.Values, as from GTSAM's path
+                    self.start_values()
+                self.timings["init"] = time.perf_counter() - t
+                self.events.started(self.start)
+                return self.start
+            skipped = self._start_X
+            self._start_X = None
+        pose_part = gtsam.NonlinearFactorGraph(pg.between)
+        pose_part.add(_prior_factor(pg, gtsam))
+        file_poses = (None if pg.initialized_from_edges
+                      else _poses_only(pg.initial, pg.group) if pg.landmark_count else pg.initial)
+        if pg.edges == 0 and init in ("auto", "file"):
+            # Landmark measurements only (e.g. one pose seeing one landmark): no pose
+            # graph for an initializer to relax; the file's values are the start.
+            start = Initialization(_poses_only(pg.initial, pg.group), "file", 0.0)
+        else:
+            # Robust and GNC runs doubt the loop closures: auto starts from the odometry and the prior.
+            inliers = (np.setdiff1d(np.arange(pg.edges + 1), loop_closures(pg))
+                       if self.gnc is not None or self.robust is not None else None)
+            start = initialize(pose_part, "spanning-tree" if skipped else init, file_poses, inliers=inliers)
+            start.skipped[:0] = skipped
+        del pose_part
+        self.start = dataclasses.replace(start, values=_with_landmarks(start.values, pg))
+        self.timings["init"] = time.perf_counter() - t
+        self.events.started(self.start)
+        return self.start
+
+    def optimize(self) -> OptimizeResult:
+        pg, backend, start = self.pg, self.backend, self.start
+        if self.uses_arrays:
+            return self._optimize_arrays()
+        t = time.perf_counter()
+        # GNC weighs the plain graph itself; a robust run wraps the loop closures' noise models.
+        loss = self.robust if self.gnc is None else None
+        graph = build_graph(pg, backend, loss, self.robust_all)
+        self._graph_size = int(graph.size())
+        self.timings["setup"] = time.perf_counter() - t
+        if self.gnc is not None:
+            self.record, self.result = _run_gnc(pg, graph, start, backend, self.max_iterations, self.gnc,
+                                                self.events.gnc_iteration)
+            self.timings["iterations"] = self.result.seconds
+            return self.result
+        opt = get_backend(backend).optimize or optimize
+        if self.robust is not None and backend == "batch":
+            opt = _optimize_batch_robust
+        result = opt(graph, start.values, max_iterations=self.max_iterations,
+                     progress=self.events.iteration)
+        result.start = start.values
+        self.timings["iterations"] = result.seconds
+        self.result = result
+        self.record = _record(pg, backend, graph, start, result,
+                              robust=None if self.robust is None
+                              else str(self.robust) + ("+all" if self.robust_all else ""),
+                              init_inliers_only=None if self.robust is None else start.inliers_only)
+        return result
+
+    def _optimize_arrays(self) -> OptimizeResult:
+        from lie_factors.batch import BatchLevenbergMarquardt, Problem
+        from lie_factors.batch.graph import BatchError, first_line, matrices_of
+
+        pg, a, start = self.pg, self.pg.arrays, self.start
+        # Compilation of the kernels (first run on a machine) is not optimization time.
+        clock = Stopwatch()
+        X = self._start_X if self._start_X is not None else matrices_of(start.values, pg.group, a.keys)
+        prior = (pg.first_key, _first_element(pg), prior_noise(pg.is3d, pg.group).R())
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(int(self.max_iterations))
+        step = Stopwatch()
+        history: list = []
+
+        def hook(it, err, lam):
+            info = IterationInfo(int(it), float(err), float(lam), step.seconds())
+            step.restart()
+            history.append(info)
+            self.events.iteration(info)
+
+        import numba
+
+        threads = numba.get_num_threads()
+        try:
+            problem = Problem.from_arrays(pg.group, a.keys, X, a.edge_keys, a.measured, a.information,
+                                          [prior])
+            del X
+            if problem.graph_size * problem.blocks[pg.group].spec.dim ** 2 < PARALLEL_MIN_WORK:
+                numba.set_num_threads(1)
+            self._opt = opt = BatchLevenbergMarquardt(problem, None, params)
+            self.timings["setup"] = clock.seconds()
+            step.restart()
+            res = opt.optimize(hook, values=not self.lazy_values)
+        except BatchError as exc:
+            raise PoseGraphError(f"batch backend: {exc}") from None
+        except RuntimeError as exc:
+            raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
+        finally:
+            numba.set_num_threads(threads)
+        seconds = clock.seconds()
+        self.timings["iterations"] = seconds - self.timings["setup"]
+        result = OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
+                                seconds, res.converged, history)
+        result.start = start.values if start.values is not None or self.lazy_values else self.start_values()
+        self.result = result
+        self._graph_size = problem.graph_size
+        self.record = _record(pg, self.backend, None, start, result, factors=problem.graph_size)
+        return result
+
+    def values(self) -> gtsam.Values:
+        """The optimized values (built now if the run kept them as arrays)."""
+        if self.result.values is None:
+            self.result.values = self._opt.values()
+        return self.result.values
+
+    def start_values(self) -> gtsam.Values:
+        """The values LM started from (built now if the array initializer gave matrices)."""
+        if self.start.values is None:
+            self.start.values = _values_of(self.pg.group, self.pg.arrays.keys, self._start_X)
+        if self.result is not None and self.result.start is None:
+            self.result.start = self.start.values
+        return self.start.values
+
+    def write(self) -> None:
+        """Write ``output`` (the optimized graph, g2o) and ``plot`` (png), each atomically."""
+        from . import atomic
+        from .g2o import write_g2o
+
+        pg, record = self.pg, self.record
+        t = time.perf_counter()
+        if self.output:
+            write_g2o(self.output, pg.native_graph(), self.values())
+            self.events.wrote(self.output)
+        if self.plot:
+            from lie_factors.plotting import plot_trajectories
+
+            values, begin = self.values(), self.start_values()
+            trajectories = {f"initial ({record.init})": positions(begin, pg.is3d, pg.group),
+                            "optimized": positions(values, pg.is3d, pg.group)}
+            points = ({"initial landmarks": landmark_positions(begin, pg.is3d),
+                       "optimized landmarks": landmark_positions(values, pg.is3d)}
+                      if pg.landmark_count else None)
+            atomic.replace_atomically(self.plot, lambda tmp: plot_trajectories(
+                tmp, trajectories, f"{pg.name} ({self.backend})", three_d=pg.is3d, points=points),
+                suffix=".png")
+            self.events.wrote(self.plot)
+        self.timings["write"] = time.perf_counter() - t
+
+    def execute(self) -> RunRecord:
+        """check → load → initialize → optimize → write; returns the :class:`RunRecord`."""
+        self.check()
+        self.load()
+        self.initialize()
+        self.optimize()
+        self.events.optimized(self)
+        self.write()
+        self.record.timings = {k: self.timings.get(k, 0.0) for k in TIMING_KEYS}
+        return self.record
+
+
+#: Keys of ``RunRecord.timings`` (``--json``): the steps of a :class:`PoseGraphRun`, in order.
+TIMING_KEYS = ("imports", "read", "init", "setup", "iterations", "write")
+
+
+#: Factors × (tangent dimension)² below which the default path runs the batch loops on one
+#: numba thread: their fork/join costs more than it saves there.  Whole command, 2 runs each,
+#: load 2–4 (docs/benchmarks.md, issue 17 h17a): 1 thread made the iterations faster on intel
+#: (2.5k SE(2) factors, 0.05–0.08 vs 0.22–0.26 s), sphere2500 (5k SE(3)), city10000 (21k SE(2):
+#: 1.9·10⁵) and torus3D (9k SE(3): 3.3·10⁵, 0.28 vs 0.38–0.41 s); 2 threads were faster from
+#: the 20k-pose helix (22k SE(3): 7.9·10⁵, 0.33 vs 0.37 s) and equal at 100k.
+PARALLEL_MIN_WORK = 500_000
+
+
+def _values_of(group: str, keys: np.ndarray, X: np.ndarray) -> gtsam.Values:
+    """gtsam.Values of ``group`` elements from their matrices ``X`` (N, m, m), one per key."""
+    values = gtsam.Values()
+    if group == "Pose2":
+        for k, M in zip(keys.tolist(), X):
+            values.insert(k, gtsam.Pose2(M[0, 2], M[1, 2], math.atan2(M[1, 0], M[0, 0])))
+    else:
+        make = getattr(gtsam, group)
+        for k, M in zip(keys.tolist(), X):
+            values.insert(k, make(M))
+    return values
+
+
+def _first_element(pg: PoseGraph) -> np.ndarray:
+    """The prior's element: the first pose's file vertex (the identity for edge-only files)."""
+    a = pg.arrays
+    if a is not None:
+        if a.vertices is None:
+            return np.eye(a.measured.shape[1])
+        return a.vertices[0]
+    return np.asarray(getattr(pg.initial, f"at{pg.group}")(pg.first_key).matrix())
+
+
+def _prior_factor(pg: PoseGraph, F):
+    """``F``'s prior factor on the first pose (see :func:`build_graph`)."""
+    Prior = getattr(F, f"PriorFactor{pg.group}")
+    first = (getattr(gtsam, pg.group)() if pg.initialized_from_edges and pg.arrays is not None
+             else getattr(pg.initial, f"at{pg.group}")(pg.first_key))
+    return Prior(pg.first_key, first, prior_noise(pg.is3d, pg.group))
 
 
 def run(
@@ -457,7 +861,7 @@ def run(
     gnc: str | None = None,
     gnc_progress: Callable | None = None,
 ) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
-    """Load (unless given a :class:`PoseGraph`), build with ``backend``, initialize, optimize.
+    """Load (unless given a :class:`PoseGraph`), initialize, optimize with ``backend``.
 
     ``init``: a method of :func:`lie_factors.initialize.initialize`, run on
     GTSAM's own factors of the file (the measurements and noise models every
@@ -470,68 +874,43 @@ def run(
     :class:`~lie_factors.initialize.Initialization` before LM starts.
     ``result.start`` holds the values LM started from.
 
-    ``robust``: a :class:`lie_factors.batch.robust.RobustLoss` on the loop
-    closures (all edges with ``robust_all``).  ``gnc``: "tls" or "gm" runs
-    graduated non-convexity instead of plain LM (odometry edges and the prior
-    are known inliers; ``max_iterations`` limits each inner LM;
-    ``gnc_progress(it, λ, cost, lm_iterations)`` after each outer iteration).
+    ``robust``: a :class:`lie_factors.batch.robust.RobustLoss` (or its text,
+    ``huber:1.345``) on the loop closures (all edges with ``robust_all``).
+    ``gnc``: "tls" or "gm" runs graduated non-convexity instead of plain LM
+    (odometry edges and the prior are known inliers; ``max_iterations``
+    limits each inner LM; ``gnc_progress(it, λ, cost, lm_iterations)`` after
+    each outer iteration).  A :class:`PoseGraphRun` without outputs.
     """
-    pg = load(dataset) if isinstance(dataset, str) else dataset
-    get_backend(backend)
-    if gnc is not None and loop_closures(pg).size == 0:
-        raise PoseGraphError(f"{pg.name}: --gnc needs loop closures (edges between non-consecutive "
-                             "poses); this graph has none")
-    # The initializers handle poses: give them the pose-pose part (build_graph
-    # puts the landmark measurements last), then place the landmarks.  They run
-    # on GTSAM's own factors (what every backend's graph holds, measurement and
-    # noise model alike, so every backend starts from the same values) before
-    # the backend's graph exists: the chordal relaxation's transient memory then
-    # does not stack on numba's (torus3D, batch: peak RSS 394 → 343 MiB; native 253).
-    native = build_graph(pg, "native")
-    pose_part = gtsam.NonlinearFactorGraph()
-    for k in range(pg.edges + 1):
-        pose_part.add(native.at(k))
-    file_poses = (None if pg.initialized_from_edges
-                  else _poses_only(pg.initial, pg.group) if pg.landmark_count else pg.initial)
-    if pg.edges == 0 and init in ("auto", "file"):
-        # Landmark measurements only (e.g. one pose seeing one landmark): no pose
-        # graph for an initializer to relax; the file's values are the start.
-        start = Initialization(_poses_only(pg.initial, pg.group), "file", 0.0)
-    else:
-        # Robust and GNC runs doubt the loop closures: auto starts from the odometry and the prior.
-        inliers = (np.setdiff1d(np.arange(pg.edges + 1), loop_closures(pg))
-                   if gnc is not None or robust is not None else None)
-        start = initialize(pose_part, init, file_poses, inliers=inliers)
-    start = dataclasses.replace(start, values=_with_landmarks(start.values, pg))
-    del pose_part
-    if on_init is not None:
-        on_init(start)
-    # GNC weighs the plain graph itself; a robust run wraps the loop closures' noise models.
-    loss = robust if gnc is None else None
-    graph = native if backend == "native" and loss is None else build_graph(pg, backend, loss, robust_all)
-    del native
-    if gnc is not None:
-        return _run_gnc(pg, graph, start, backend, max_iterations, gnc, gnc_progress)
-    opt = get_backend(backend).optimize or optimize
-    if robust is not None and backend == "batch":
-        opt = _optimize_batch_robust
-    result = opt(graph, start.values, max_iterations=max_iterations, progress=progress)
-    result.start = start.values
-    record = _record(pg, backend, graph, start, result,
-                     robust=None if robust is None else str(robust) + ("+all" if robust_all else ""),
-                     init_inliers_only=None if robust is None else start.inliers_only)
-    return record, result, pg
+
+    class Events(RunEvents):
+        def started(self, start):
+            if on_init is not None:
+                on_init(start)
+
+        def iteration(self, info):
+            if progress is not None:
+                progress(info)
+
+        def gnc_iteration(self, *args):
+            if gnc_progress is not None:
+                gnc_progress(*args)
+
+    job = PoseGraphRun(dataset, backend, max_iterations, init, robust, robust_all, gnc, events=Events())
+    record = job.execute()
+    return record, job.result, job.pg
 
 
 def _record(pg: PoseGraph, backend: str, graph, start, result: OptimizeResult, **extra) -> RunRecord:
-    """The run's :class:`RunRecord`: the graph, its start and ``result``'s figures, plus ``extra`` fields."""
+    """The run's :class:`RunRecord`: the graph (or ``factors=``), its start and ``result``'s
+    figures, plus ``extra`` fields."""
+    factors = extra.pop("factors", None)
     return RunRecord(
         backend=backend,
         dataset=pg.name,
         dimension=3 if pg.is3d else 2,
         poses=pg.poses,
         landmarks=pg.landmark_count,
-        factors=int(graph.size()),
+        factors=int(graph.size()) if factors is None else int(factors),
         iterations=result.iterations,
         initial_error=result.initial_error,
         final_error=result.final_error,
@@ -544,7 +923,7 @@ def _record(pg: PoseGraph, backend: str, graph, start, result: OptimizeResult, *
 
 
 def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, loss: str,
-             gnc_progress: Callable | None) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
+             gnc_progress: Callable | None) -> tuple[RunRecord, OptimizeResult]:
     """GNC per backend: native = gtsam.GncLMOptimizer; custom = our outer loop over GTSAM's LM
     with lie_factors factors (GTSAM's GncOptimizer cannot clone CustomFactors); batch = our
     outer loop over the batch solver."""
@@ -574,7 +953,7 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
     outliers = [int(k) for k in res.outliers if k < pg.between.size()]
     record = _record(pg, backend, graph, start, result, gnc=loss, outliers=outliers,
                      init_inliers_only=start.inliers_only)
-    return record, result, pg
+    return record, result
 
 
 def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.ndarray:

@@ -79,7 +79,9 @@ def test_chordal_3d_is_gtsams_initializer_for_native_and_custom_factors():
     for graph in (native, as_custom(native)):
         got = I.initialize(graph, "chordal")
         assert got.method == "chordal" and got.skipped == [] and got.seconds > 0
-        assert max_pose_diff(got.values, ref, True) < 1e-12
+        # Computed on arrays (lie_factors.relaxation): GTSAM's results up to rounding (7e-12 here);
+        # issue 17's contract is 1e-9.
+        assert max_pose_diff(got.values, ref, True) < 1e-9
     # …and it is a much better start than the file's composed odometry.
     assert native.error(ref) < 0.1 * native.error(pg.initial)
 
@@ -113,7 +115,8 @@ def test_lago_is_gtsams_initializer_for_native_and_custom_factors():
     for g in (graph, as_custom(graph)):
         got = I.initialize(g, "lago")
         assert got.method == "lago"
-        assert max_pose_diff(got.values, ref, False) < 1e-12
+        # On arrays (lie_factors.relaxation): GTSAM's up to rounding (2e-12 here); issue 17's contract is 1e-9.
+        assert max_pose_diff(got.values, ref, False) < 1e-9
     noise_free, truth = pose2_loop(noise=0.0)
     assert max_pose_diff(I.initialize(noise_free, "lago").values, truth, False) < 1e-9
 
@@ -293,7 +296,10 @@ def test_every_backend_starts_from_the_same_values():
     start = records["native"][1].start
     for backend, (record, result, _) in records.items():
         assert record.init == "chordal" and record.init_seconds > 0
-        assert max_pose_diff(result.start, start, True) < 1e-12
+        # batch initializes on the file's arrays (lie_factors.relaxation: GTSAM's algorithm,
+        # its own arithmetic, agreeing to 1e-9 as issue 17 asks); the others run GTSAM's.
+        tol = 1e-9 if backend == "batch" else 1e-12
+        assert max_pose_diff(result.start, start, True) < tol
         assert record.initial_error == pytest.approx(records["native"][0].initial_error, rel=1e-9)
 
 

@@ -21,14 +21,31 @@ Usage::
     result.values, result.iterations, result.errors, result.seconds, result.timings
 """
 
-from .graph import BatchError, Problem
-from .optimizer import (BatchLevenbergMarquardt, BatchResult, IndeterminantLinearSystem, TIMING_KEYS,
-                        optimize, run_batch)
-from .solvers import LINEAR_SOLVERS, NotPositiveDefinite, cholmod_available
-from .system import LinearSystem, Pattern
+import importlib
 
-__all__ = [
-    "BatchError", "BatchLevenbergMarquardt", "BatchResult", "IndeterminantLinearSystem", "LINEAR_SOLVERS",
-    "LinearSystem", "NotPositiveDefinite", "Pattern", "Problem", "TIMING_KEYS", "cholmod_available",
-    "optimize", "run_batch",
-]
+#: Public name → the submodule defining it.  Imported on first use (PEP 562), so that
+#: importing one submodule (say ``lie_factors.batch.losses``) does not load every
+#: other one, and ``import lie_factors.batch`` alone loads neither numba nor GTSAM.
+_EXPORTS = {
+    "BatchError": "graph", "Problem": "graph",
+    "BatchLevenbergMarquardt": "optimizer", "BatchResult": "optimizer",
+    "IndeterminantLinearSystem": "optimizer", "TIMING_KEYS": "optimizer", "optimize": "optimizer",
+    "run_batch": "optimizer",
+    "LINEAR_SOLVERS": "solvers", "NotPositiveDefinite": "solvers", "cholmod_available": "solvers",
+    "LinearSystem": "system", "Pattern": "system",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -50,6 +50,7 @@ from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
+from .. import stack
 from .._jit import kernel
 from ..timing import Stopwatch
 from .robust import WeightedLevenbergMarquardt, chi2_inlier_threshold
@@ -423,7 +424,7 @@ class GtsamInner:
     def optimize(self, weights: np.ndarray):
         opt = self.gtsam.LevenbergMarquardtOptimizer(self.weighted_graph(weights), self.initial,
                                                      self.lm_params)
-        values = opt.optimize()
+        values = stack.call(opt.optimize)  # GTSAM's elimination recurses: a large stack for long chains
         return values, int(opt.iterations())
 
 
@@ -461,7 +462,7 @@ def gtsam_gnc(graph, initial, params: GncParams | None = None) -> GncResult:
         else:
             opt.setInlierCostThresholds(float(th))
         thresholds = np.asarray(opt.getInlierCostThresholds(), dtype=np.float64).copy()
-        values = opt.optimize()
+        values = stack.call(opt.optimize)  # GTSAM's elimination recurses: a large stack for long chains
     finally:
         summary = capture.str()
         del capture

@@ -27,6 +27,7 @@ import numpy as np
 
 from .. import factors as _factors
 from .loops import GroupLoops
+from .losses import from_gtsam
 
 
 class BatchError(ValueError):
@@ -52,9 +53,17 @@ def _whitening(noise_model):
     return noise_model.R()
 
 
-def _robust_loss(noise_model):
-    from .robust import from_gtsam  # robust imports the optimizer, which imports this module
+def whitening(information: np.ndarray) -> np.ndarray:
+    """R (..., n, n) upper triangular with RᵀR = Λ for information matrices Λ (..., n, n).
 
+    ``noiseModel.Gaussian.Information``'s square root (the Cholesky factor);
+    ``numpy.linalg.LinAlgError`` if some Λ is not positive definite.
+    """
+    L = np.linalg.cholesky(np.asarray(information, dtype=np.float64))
+    return np.ascontiguousarray(np.swapaxes(L, -1, -2))
+
+
+def _robust_loss(noise_model):
     return from_gtsam(noise_model.robust())
 
 
@@ -118,14 +127,15 @@ class FactorGroup:
         E = len(fidx)
         self.E = E
         self.loops = block.loops
-        self.fidx = np.array(fidx, dtype=np.int64)
+        self.fidx = np.asarray(fidx, dtype=np.int64)
         self.i1 = block.local(k1)
         m = self.spec.kernels.MAT
-        self.C = np.array(C, dtype=np.float64).reshape(E, m, m)
-        self.R = np.array(R, dtype=np.float64).reshape(E, n, n)
+        # asarray: the array reader's columns are used as they are (no second copy)
+        self.C = np.ascontiguousarray(C, dtype=np.float64).reshape(E, m, m)
+        self.R = np.ascontiguousarray(R, dtype=np.float64).reshape(E, n, n)
         if self.kind == "between":
             self.i2 = block.local(k2)
-            self.Ad = np.array(Ad, dtype=np.float64).reshape(E, n, n)
+            self.Ad = np.ascontiguousarray(Ad, dtype=np.float64).reshape(E, n, n)
             self.A2 = np.empty((E, n, n))
         self.A1 = np.empty((E, n, n))
         self.b = np.empty((E, n))
@@ -192,6 +202,11 @@ def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
     return X
 
 
+def matrices_of(values: gtsam.Values, group: str, keys) -> np.ndarray:
+    """(N, m, m) element matrices of ``keys`` in ``values``, each a gtsam ``group`` (Pose3, ...)."""
+    return _read_matrices(values, _factors.GROUPS[group], [int(k) for k in keys])
+
+
 def _pose2(M):
     return gtsam.Pose2(M[0, 2], M[1, 2], math.atan2(M[1, 0], M[0, 0]))
 
@@ -235,6 +250,96 @@ class Problem:
         self._group_robust = bool(group_robust)
         self._read_factors(graph, initial)
         self._number_variables(initial)
+
+    @classmethod
+    def from_arrays(cls, group: str, keys: np.ndarray, X: np.ndarray, edge_keys: np.ndarray,
+                    measured: np.ndarray, information: np.ndarray,
+                    priors: list[tuple[int, np.ndarray, np.ndarray]] = ()) -> "Problem":
+        """A pose graph given as arrays, with no factor object: Between factors on ``group``, then priors.
+
+        ``group``: a :data:`lie_factors.factors.GROUPS` name (m×m elements,
+        n-dimensional tangent).  ``keys`` (P,) sorted pose keys with initial
+        elements ``X`` (P, m, m); ``edge_keys`` (E, 2), ``measured`` M (E, m, m)
+        and ``information`` Λ (E, n, n): factor k is Between(key1, key2, M_k)
+        with error Log(M⁻¹·X1⁻¹·X2) and whitening R = chol(Λ)ᵀ (RᵀR = Λ,
+        upper triangular, as ``noiseModel.Gaussian.Information``); ``priors``:
+        (key, prior element P (m, m), whitening R (n, n)), factors E, E+1, ...
+        The constants M⁻¹ and Ad(M⁻¹) come from ``factors.between_setup``, the
+        kernel a factor's construction runs (which also checks each M).
+        Every key of a factor must be in ``keys``; a self-loop edge is refused.
+        """
+        spec = _factors.GROUPS[group]
+        self = cls.__new__(cls)
+        self.graph = None
+        E = len(edge_keys)
+        self.graph_size = E + len(priors)
+        self.native, self.robust, self._group_robust = [], {}, False
+        block = VarBlock(spec)
+        self.blocks = {spec.name: block}
+        self.groups = []
+        keys = np.asarray(keys, dtype=np.int64)
+        edge_keys = np.asarray(edge_keys, dtype=np.int64).reshape(E, 2)
+        if E and (edge_keys[:, 0] == edge_keys[:, 1]).any():
+            raise BatchError("from_arrays: an edge connects a key to itself")
+        def constants(M, what):
+            Minv, Ad, codes = block.loops.setup(M)
+            bad = np.flatnonzero(codes != _factors.OK)
+            if bad.size:
+                k = int(bad[0])
+                raise BatchError(str(_factors._element_error(spec, np.asarray(M[k]), int(codes[k]),
+                                                             f"{what} {k}", "from_arrays")))
+            return Minv, Ad
+
+        if E:
+            g = FactorGroup("between", spec)
+            g.rows = None
+            k1, k2 = edge_keys[:, 0].astype(np.uint64), edge_keys[:, 1].astype(np.uint64)
+            block.use_keys(k1)
+            block.use_keys(k2)
+            Minv, Ad = constants(measured, "measured")
+            g.columns = (np.arange(E), k1, k2, Minv, Ad, whitening(information))
+            self.groups.append(g)
+        if len(priors):
+            g = FactorGroup("prior", spec)
+            g.rows = None
+            pk = np.array([k for k, _, _ in priors], dtype=np.uint64)
+            block.use_keys(pk)
+            Pinv, _ = constants(np.array([P for _, P, _ in priors], dtype=np.float64), "prior")
+            g.columns = (E + np.arange(len(priors)), pk, None, Pinv, None,
+                         np.array([R for _, _, R in priors], dtype=np.float64))
+            self.groups.append(g)
+        block.number_keys()
+        used = block._sorted.astype(np.int64)
+        pos = np.searchsorted(keys, used)
+        if len(used) and (pos.max() >= len(keys) or (keys[np.minimum(pos, len(keys) - 1)] != used).any()):
+            missing = used[(pos >= len(keys)) | (keys[np.minimum(pos, len(keys) - 1)] != used)][0]
+            raise BatchError(f"key {key_name(missing)} is used by a {spec.name} factor "
+                             "but has no initial element")
+        block.X = np.ascontiguousarray(np.asarray(X, dtype=np.float64)[pos])
+        for g in self.groups:
+            g.finalize(block)
+        self.managed = dict.fromkeys(block.keys, spec.name)
+        self._native_keys = []
+        n = spec.dim
+        P = len(block.keys)
+        self.var_keys = block.keys
+        self.var_dims = np.full(P, n, dtype=np.int64)
+        self.var_index = dict(zip(block.keys, range(P)))
+        self.var_offsets = n * np.arange(P, dtype=np.int64)
+        self.offset = dict(zip(block.keys, self.var_offsets.tolist()))
+        self.total_dim = n * P
+        block.var = np.arange(P, dtype=np.int64)
+        block.offsets = self.var_offsets
+        block.X0 = block.X.copy()
+        for g in self.groups:
+            g.v1, g.o1 = block.var[g.i1], block.offsets[g.i1]
+            if g.kind == "between":
+                g.v2, g.o2 = block.var[g.i2], block.offsets[g.i2]
+        self.other = gtsam.Values()
+        self._managed_initial = None  # values() builds the GTSAM objects from the matrices
+        self.other_keys = []
+        self._native_setup()
+        return self
 
     # ---------------------------------------------------------------- reading
     def _read_factors(self, graph, initial):
@@ -430,6 +535,12 @@ class Problem:
         variable (vectorized on the kernels): ~5× faster than constructing
         every pose from Python, and exact to rounding (checked in the tests).
         """
+        if self._managed_initial is None:  # from_arrays: no initial Values to retract
+            out = gtsam.Values()
+            for b in self.blocks.values():
+                for k, M in zip(b.keys, b.X):
+                    out.insert(k, to_gtsam(b.spec, M))
+            return out
         vv = gtsam.VectorValues()
         insert = vv.insert
         for b in self.blocks.values():

@@ -145,6 +145,14 @@ def _relative_log(g, X0, X, out):
         _dispatch.log(g, rel, out[i])
 
 
+@kernel
+def _setup(g, M, Minv, AdMinv, codes):
+    """Every factor's construction: Minv[i] = M[i]⁻¹, AdMinv[i] = Ad(M[i]⁻¹), codes[i] the check
+    of M[i] (``factors.between_setup``, the kernel each factor object runs)."""
+    for i in range(M.shape[0]):
+        codes[i] = _factors.between_setup(g, M[i], Minv[i], AdMinv[i])
+
+
 class GroupLoops:
     """The loops above bound to one group (``spec.group``, a :mod:`lie_factors._dispatch` tag)."""
 
@@ -168,6 +176,16 @@ class GroupLoops:
 
     def relative_log(self, *a):
         _relative_log(self.g, *a)
+
+    def setup(self, M):
+        """(M⁻¹ (N, m, m), Ad(M⁻¹) (N, n, n), check codes (N,)) of elements ``M`` (N, m, m)."""
+        M = np.ascontiguousarray(M, dtype=np.float64)
+        N, m = M.shape[0], M.shape[1]
+        Minv, Ad = np.empty((N, m, m)), np.empty((N, self.g.dim, self.g.dim))
+        codes = np.empty(N, dtype=np.int64)
+        if N:
+            _setup(self.g, M, Minv, Ad, codes)
+        return Minv, Ad, codes
 
 
 def threads() -> int:

@@ -132,7 +132,9 @@ class BatchLevenbergMarquardt:
         self.gauss_newton = isinstance(self.params, gtsam.GaussNewtonParams)
         self.min_model_fidelity = float(min_model_fidelity)
         self._read_params()
-        self.problem = Problem(graph, initial, group_robust=self.group_robust)
+        # A Problem (e.g. Problem.from_arrays) is used as it is; ``initial`` is then ignored.
+        self.problem = (graph if isinstance(graph, Problem)
+                        else Problem(graph, initial, group_robust=self.group_robust))
         self.system = LinearSystem(self.problem)
         self.solver = solvers.make(linear_solver, self.system)
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
@@ -331,8 +333,12 @@ class BatchLevenbergMarquardt:
         while not self._try_lambda(linear_error0, hdiag):
             pass
 
-    def optimize(self, progress: Callable[[int, float, float], None] | None = None) -> BatchResult:
-        """GTSAM's ``defaultOptimize``; ``progress(iteration, error, lambda)`` after each iterate."""
+    def optimize(self, progress: Callable[[int, float, float], None] | None = None,
+                 values: bool = True) -> BatchResult:
+        """GTSAM's ``defaultOptimize``; ``progress(iteration, error, lambda)`` after each iterate.
+
+        ``values=False``: ``result.values`` is None (the estimate stays in the
+        arrays; :meth:`values` builds the GTSAM Values when asked)."""
         t0 = time.perf_counter()
         new_error = self._error
         converged = False
@@ -357,7 +363,7 @@ class BatchLevenbergMarquardt:
                         or not math.isfinite(current_error)):
                     break
         t1 = time.perf_counter()
-        values = self.values()
+        values = self.values() if values else None
         self.timings["values"] += time.perf_counter() - t1
         seconds = time.perf_counter() - t0 + self.timings["setup"]
         timings = dict(self.timings)

@@ -19,6 +19,8 @@ import warnings
 import gtsam
 import numpy as np
 
+from .. import stack
+from ..relaxation import cholmod_available
 from .graph import BatchError
 
 LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")
@@ -26,14 +28,6 @@ LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")
 
 class NotPositiveDefinite(BatchError):
     """The (damped) normal equations are not positive definite (GTSAM: IndeterminantLinearSystem)."""
-
-
-def cholmod_available() -> bool:
-    try:
-        import cvxopt.cholmod  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 _fallback_warned = False
@@ -260,7 +254,7 @@ class GtsamSolver:
                 o, d = int(P.var_offsets[v]), int(P.var_dims[v])
                 gfg.add(k, np.diag(np.sqrt(scale[o:o + d])), np.zeros(d), self._units[d])
         try:
-            vv = gfg.optimize(self._ordering_for(gfg))
+            vv = stack.call(gfg.optimize, self._ordering_for(gfg))  # recursive elimination
         except RuntimeError as exc:
             raise NotPositiveDefinite(f"the linear system is not positive definite "
                                       f"(GTSAM: {str(exc).strip().splitlines()[0][:120]})") from None
