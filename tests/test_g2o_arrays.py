@@ -180,7 +180,7 @@ def _factor_problem(pg):
 
 @pytest.mark.parametrize("name", ["intel.g2o", "sphere2500.txt"])
 def test_problem_from_arrays_matches_the_factor_graph(name):
-    path = ROOT.parent.parent / "shared" / "data" / name
+    path = ROOT.parent / "shared" / "data" / name
     pg = P.load(str(path) if path.exists() else name)
     a = pg.arrays
     X = (a.vertices if a.vertices is not None

@@ -157,23 +157,23 @@ def test_lago_orientations_exact_where_gtsam_rounds():
             v = int(parent[v])
         return s
     tree = [to_root(v) for v in range(n)] + [0.0]
-    mpmath.mp.dps = 40
-    M, B = mpmath.zeros(n, n), mpmath.zeros(n, 1)
-    for e in range(ii.size):
-        a, b = int(ii[e]), int(jj[e])
-        chord = not (parent[a] == b or parent[b] == a)
-        d = dth[e] - (2 * round((dth[e] + tree[a] - tree[b]) / (2 * np.pi)) * np.pi if chord else 0.0)
-        we, de = mpmath.mpf(w[e]), mpmath.mpf(d)
-        if a < n:
-            M[a, a] += we
-            B[a, 0] -= we * de
-        if b < n:
-            M[b, b] += we
-            B[b, 0] += we * de
-        if a < n and b < n:
-            M[a, b] -= we
-            M[b, a] -= we
-    exact = np.array([float(v) for v in mpmath.lu_solve(M, B)])
+    with mpmath.workdps(40):  # local: the module-level precision is lie_factors.reference's
+        M, B = mpmath.zeros(n, n), mpmath.zeros(n, 1)
+        for e in range(ii.size):
+            a, b = int(ii[e]), int(jj[e])
+            chord = not (parent[a] == b or parent[b] == a)
+            d = dth[e] - (2 * round((dth[e] + tree[a] - tree[b]) / (2 * np.pi)) * np.pi if chord else 0.0)
+            we, de = mpmath.mpf(w[e]), mpmath.mpf(d)
+            if a < n:
+                M[a, a] += we
+                B[a, 0] -= we * de
+            if b < n:
+                M[b, b] += we
+                B[b, 0] += we * de
+            if a < n and b < n:
+                M[a, b] -= we
+                M[b, a] -= we
+        exact = np.array([float(v) for v in mpmath.lu_solve(M, B)])
     assert np.max(np.abs(th[:n] - exact)) < 1e-12
     ref = gtsam.lago.initializeOrientations(_gtsam_graph(is3d, keys, I, J, Z, INFO), True)
     gtsam_err = np.max(np.abs(np.array([ref.at(int(k))[0] for k in keys]) - exact))
