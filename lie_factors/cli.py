@@ -116,8 +116,8 @@ BACKENDS = ("native", "custom", "batch")
 INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
 
 INIT_DESCRIPTIONS = {
-    "chordal": "chordal relaxation (gtsam.InitializePose3)",
-    "lago": "LAGO (gtsam.lago)",
+    "chordal": "chordal relaxation (GTSAM's InitializePose3, on arrays)",
+    "lago": "LAGO (GTSAM's lago, on arrays)",
     "spanning-tree": "measurements composed along a spanning tree",
     "file": "vertices in the file",
 }

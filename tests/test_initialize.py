@@ -343,7 +343,7 @@ def test_cli_auto_names_the_start_and_why_lago_was_skipped(tmp_path, capsys):
     rec = json.loads(out.strip().splitlines()[-1])
     assert rec["init"] == "chordal" and rec["init_seconds"] > 0
     assert "init lago not applicable: LAGO needs diagonal noise models" in out
-    assert "initial guess: chordal relaxation (gtsam.InitializePose3)" in out
+    assert "initial guess: chordal relaxation (GTSAM's InitializePose3, on arrays)" in out
 
 
 def test_cli_each_method_runs(tmp_path, capsys):
