@@ -78,7 +78,7 @@ from lie_factors import _check, _jit, _validate
 from lie_factors import so3 as _so3
 from lie_factors._coeffs import (
     _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR, QA_TAYLOR, QB_TAYLOR,
-    _horner, _horner4, a_theta, b_theta, c_theta, dot3, e_omega, norm3, theta_dd,
+    _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, theta_dd,
 )
 from lie_factors._jit import kernel
 from lie_factors.se3 import _lin9, _rod9
@@ -108,6 +108,8 @@ SPECTRAL = 1.0
 #: where Q's terms cancel to ~1/|λ| of their size (a1 − b1 ~ e^λ/λ²): measured 2.4e-15 at
 #: λ = 4.99, |u| = 100 with the switch at 5, ≤ 8.7e-16 below 2.
 LAM_SPECTRAL = 2.0
+# D_log's θ < SPECTRAL branch takes e_θ from its Taylor band without testing θ against E_TAYLOR
+assert SPECTRAL <= E_TAYLOR
 
 _TWO_PI_HI = 6.283185307179586
 _TWO_PI_LO = 2.4492935982947064e-16
@@ -218,16 +220,6 @@ def _theta_abc(th):
     else:
         c = (1.0 - a) / t
     return a, b, c
-
-
-@kernel
-def _e_fast(w0, w1, w2):
-    """e_θ of :func:`lie_factors._coeffs.e_omega` (seed 000, Eq. 57); its Taylor band summed as
-    four interleaved Horner chains (same terms, a quarter of the latency)."""
-    th = norm3(w0, w1, w2)
-    if th < E_TAYLOR:
-        return _horner4(_E_SERIES, th * th)
-    return e_omega(w0, w1, w2)
 
 
 @kernel
@@ -765,7 +757,8 @@ def _dlog(x, out):
     lam = x[6]
     th = norm3(w0, w1, w2)
     if th < SPECTRAL:
-        ek = _e_fast(w0, w1, w2)
+        # θ < SPECTRAL < E_TAYLOR: e_θ is its Taylor band; the θ computed above (no second norm)
+        ek = _horner4(_E_SERIES, th * th)
         Ji = _rod9(w0, w1, w2, -0.5, ek)
         a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
         al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
