@@ -27,6 +27,7 @@ reads a g2o file and optimizes it runs our factors after the import change.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from types import SimpleNamespace
 
@@ -131,12 +132,6 @@ class G2oWriteError(ValueError):
     """
 
 
-#: Value types GTSAM's writer writes (VERTEX_SE2, VERTEX_SE3:QUAT, VERTEX_XY,
-#: VERTEX_TRACKXYZ); a Point2/Point3 is only one when inserted as such
-#: (``insertPoint3``), not as a plain numpy vector.
-_WRITTEN_VALUES = ("Pose2", "Pose3", "Point2", "Point3")
-
-
 def _writes_edge(factor, cache: dict) -> bool:
     """Whether GTSAM's own writeG2o writes an edge for ``factor``'s class.
 
@@ -178,32 +173,39 @@ def _check_noise(factor, k: int) -> None:
             "without a kernel, or one with the robust models' noise())")
 
 
-def _check_values(estimate: gtsam.Values) -> None:
-    written = 0
-    for name in _WRITTEN_VALUES:
-        extract = getattr(gtsam.utilities, f"extract{name}", None)
-        if extract is not None:
-            written += extract(estimate).shape[0]
-    if written == estimate.size():
-        return
-    for key in estimate.keys():
-        if not any(_holds(estimate, key, name) for name in _WRITTEN_VALUES):
-            raise G2oWriteError(
-                f"writeG2o: value {gtsam.DefaultKeyFormatter(key)} is not a Pose2, Pose3, Point2 "
-                "or Point3 (g2o vertices); GTSAM's writer would leave it out of the file")
-    raise G2oWriteError(  # pragma: no cover - extract* and at* disagree
-        f"writeG2o: {estimate.size() - written} values would be left out of the file")
+def _is_pose(values: gtsam.Values, key: int) -> bool:
+    for at in (values.atPose2, values.atPose3):
+        try:
+            at(key)
+            return True
+        except RuntimeError:
+            pass
+    return False
 
 
-def _holds(values: gtsam.Values, key: int, name: str) -> bool:
-    at = getattr(values, f"at{name}", None)
-    if at is None:
-        return False
-    try:
-        at(key)
-    except RuntimeError:
-        return False
-    return True
+def _check_written(path: str, graph: gtsam.NonlinearFactorGraph, estimate: gtsam.Values) -> None:
+    """Every factor and every value of ``graph``/``estimate`` has its line in the file at ``path``."""
+    vertices = edges = 0
+    with open(path) as fh:
+        for line in fh:
+            if line.startswith("VERTEX"):
+                vertices += 1
+            elif line.strip() and not line.startswith("PARAMS"):
+                edges += 1
+    missing = estimate.size() - vertices
+    if missing:
+        # Which ones, as far as Python can tell: Values.atPoint3 also reads a
+        # 3-vector inserted as a plain numpy array (a Vector, which GTSAM's
+        # writer passes over), so name every value that is not a pose.
+        others = [gtsam.DefaultKeyFormatter(k) for k in estimate.keys() if not _is_pose(estimate, k)]
+        raise G2oWriteError(
+            f"writeG2o: {missing} of the {estimate.size()} values have no g2o vertex type and would "
+            "be left out of the file (GTSAM writes Pose2, Pose3, Point2 and Point3 values; a numpy "
+            "array given to Values.insert is a Vector, Values.insertPoint3 makes a Point3); the "
+            f"values that are not poses: {', '.join(others[:10])}{' ...' if len(others) > 10 else ''}")
+    factors = sum(graph.at(k) is not None for k in range(graph.size()))
+    if edges != factors:  # every class was checked to write its edge: this is GTSAM's doing
+        raise G2oWriteError(f"writeG2o: GTSAM wrote {edges} edges for {factors} factors")
 
 
 def writeG2o(graph: gtsam.NonlinearFactorGraph, estimate: gtsam.Values, filename: str) -> None:
@@ -216,26 +218,37 @@ def writeG2o(graph: gtsam.NonlinearFactorGraph, estimate: gtsam.Values, filename
     types, a user's CustomFactor, ...) and every value that is not a Pose2,
     Pose3, Point2 or Point3; here any of those raises :class:`G2oWriteError`
     (a ValueError) naming it, and so does a robust noise model (GTSAM raises
-    ValueError for it too, after printing it and leaving a partial file).  The
-    checks run before the file is opened.  Remove what cannot be written
+    ValueError for it too, after printing it).  Remove what cannot be written
     (e.g. build the graph without its prior) to write the rest.
 
-    Keys are written as ``Symbol(key).index()``, as GTSAM does.
+    GTSAM writes to a scratch file, which is copied to ``filename`` only once
+    every factor and value is found in it; so a refusal leaves no file (GTSAM's
+    own writer leaves a partial one), and a directory that does not exist
+    raises (GTSAM's writes nothing, silently).  Keys are written as
+    ``Symbol(key).index()``, as GTSAM does.
     """
     native = to_gtsam_graph(graph)
-    if isinstance(native, gtsam.NonlinearFactorGraph) and isinstance(estimate, gtsam.Values):
-        cache: dict = {}
-        for k in range(native.size()):
-            f = native.at(k)
-            if f is None:
-                continue
-            if not _writes_edge(f, cache):
-                raise G2oWriteError(
-                    f"writeG2o: {_describe(f, k)} has no g2o edge type; GTSAM's writer would "
-                    "leave it out of the file")
-            _check_noise(f, k)
-        _check_values(estimate)
-    gtsam.writeG2o(native, estimate, filename)
+    if not (isinstance(native, gtsam.NonlinearFactorGraph) and isinstance(estimate, gtsam.Values)):
+        gtsam.writeG2o(native, estimate, filename)  # GTSAM's TypeError for the wrong arguments
+        return
+    cache: dict = {}
+    for k in range(native.size()):
+        f = native.at(k)
+        if f is None:
+            continue
+        _check_noise(f, k)  # first: GTSAM's writer prints a model it refuses
+        if not _writes_edge(f, cache):
+            raise G2oWriteError(
+                f"writeG2o: {_describe(f, k)} has no g2o edge type; GTSAM's writer would "
+                "leave it out of the file")
+    fd, scratch = tempfile.mkstemp(suffix=".g2o")
+    os.close(fd)
+    try:
+        gtsam.writeG2o(native, estimate, scratch)
+        _check_written(scratch, native, estimate)
+        shutil.copyfile(scratch, os.fspath(filename))
+    finally:
+        os.unlink(scratch)
 
 
 def readG2o(g2oFile: str, is3D: bool = False,
