@@ -1,29 +1,42 @@
-"""Run one of the Python examples shipped in the gtsam wheel, as GTSAM ships it or with our factors.
+"""Run Python examples shipped in the gtsam wheel, as GTSAM ships them or with our factors.
 
-    python run_gtsam_example.py NAME original|swapped [ARG ...]
+    python run_gtsam_example.py original|swapped OUTDIR CASES_JSON
 
-Run by tests/test_gtsam_examples.py in a fresh process, in an empty working
-directory.  ``swapped`` changes only the example's import lines: ``import
-gtsam`` becomes ``import lie_factors.dropin as gtsam`` and ``from gtsam import
-...`` becomes ``from lie_factors.dropin import ...`` (``from gtsam.X import``
-lines are left alone: nothing in GTSAM's submodules is replaced).
+``CASES_JSON``: a list of ``[name, [arg, ...]]``.  Run by
+tests/test_gtsam_examples.py, once per mode: one process runs every case, in
+order, each in its own empty working directory ``OUTDIR/<index>`` (one
+process rather than one per case: starting Python, gtsam, matplotlib and our
+kernels is most of the time of an example).  ``swapped`` changes only the
+example's import lines: ``import gtsam`` becomes ``import lie_factors.dropin
+as gtsam`` and ``from gtsam import ...`` becomes ``from lie_factors.dropin
+import ...`` (``from gtsam.X import`` lines are left alone: nothing in
+GTSAM's submodules is replaced).
 
-Around the example, identically in both modes: ``np.random`` seeded (several
-examples draw unseeded noise), matplotlib on Agg with ``plt.show`` and
-``plt.pause`` doing nothing (no display; ``pause`` would also sleep), ``argv``
-set to ``ARG ...``.  After it, on stdout: the data of every line plotted
-(examples that print nothing plot their estimates) and the contents of every
-file the example wrote.  On stderr, last line: the JSON count of
-lie_factors.factors' factors constructed, by class.
+Around each example, identically in both modes: ``np.random`` seeded (several
+examples draw unseeded noise) and numpy's print options reset, matplotlib on
+Agg with ``plt.show`` and ``plt.pause`` doing nothing (no display; ``pause``
+would also sleep) and every figure closed, ``sys.argv`` set to the case's
+arguments.  Written to ``OUTDIR/<index>/``:
+
+* ``stdout``: everything the example printed, Python's and C++'s (file
+  descriptor 1, unbuffered, so in program order), then the data of every line
+  it plotted (examples that print nothing plot their estimates), then the
+  contents of every file it wrote;
+* ``made.json``: how many of lie_factors.factors' factors it constructed, by class;
+* ``error``: the traceback, if it raised;
+* ``seconds``: its wall time.
 
 An example that is a module rather than a script (LandmarkLocalizationDataset)
 is driven by the code in ``DRIVERS``.
 """
 
+import ctypes
 import json
 import os
 import re
 import sys
+import time
+import traceback
 from collections import Counter
 
 import matplotlib
@@ -45,6 +58,9 @@ DRIVERS = {
 
 IMPORT = re.compile(r"(?m)^(\s*)import gtsam\s*$")
 FROM_IMPORT = re.compile(r"(?m)^(\s*)from gtsam import ")
+EXAMPLES = os.path.join(os.path.dirname(gtsam.__file__), "examples")
+
+_libc = ctypes.CDLL(None)
 
 
 def swap_imports(source: str) -> tuple[str, int]:
@@ -81,41 +97,72 @@ def plotted_data() -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    name, mode, *args = sys.argv[1:]
-    examples = os.path.join(os.path.dirname(gtsam.__file__), "examples")
-    path = os.path.join(examples, name + ".py")
+def _flush() -> None:
+    sys.stdout.flush()
+    _libc.fflush(None)  # C stdio (GTSAM's std::cout writes through it)
+
+
+def run_case(name: str, args: list, mode: str, made: Counter) -> None:
+    path = os.path.join(EXAMPLES, name + ".py")
     with open(path) as fh:
         source = fh.read()
-    made: Counter = Counter()
     if mode == "swapped":
         source, changed = swap_imports(source)
         if not changed:
-            raise SystemExit(f"{name}: no gtsam import line to change")
-        made = count_our_factors()
-    elif mode != "original":
-        raise SystemExit(f"mode must be original or swapped, not {mode!r}")
-
-    plt.show = lambda *a, **k: None
-    plt.pause = lambda *a, **k: None
-    sys.path.insert(0, examples)  # examples import their siblings (PreintegrationExample, ...)
+            raise RuntimeError(f"{name}: no gtsam import line to change")
+    plt.close("all")
+    np.set_printoptions(**_PRINT_OPTIONS)
     sys.argv = [path, *args]
     np.random.seed(0)
+    made.clear()
     before = set(os.listdir("."))
     namespace = {"__name__": name if name in DRIVERS else "__main__", "__file__": path}
     exec(compile(source, path, "exec"), namespace)
     if name in DRIVERS:
         exec(DRIVERS[name], namespace)
-
-    sys.stdout.flush()
+    _flush()
     print("=== plotted data")
     print(plotted_data())
     for fname in sorted(set(os.listdir(".")) - before):
         print(f"=== file {fname}")
         with open(fname) as fh:
             print(fh.read())
-    sys.stdout.flush()
-    print(json.dumps(dict(made)), file=sys.stderr)
+
+
+_PRINT_OPTIONS = np.get_printoptions()
+
+
+def main() -> None:
+    mode, outdir, cases = sys.argv[1], os.path.abspath(sys.argv[2]), json.loads(sys.argv[3])
+    if mode not in ("original", "swapped"):
+        raise SystemExit(f"mode must be original or swapped, not {mode!r}")
+    made = count_our_factors() if mode == "swapped" else Counter()
+    plt.show = lambda *a, **k: None
+    plt.pause = lambda *a, **k: None
+    sys.path.insert(0, EXAMPLES)  # examples import their siblings (PreintegrationExample, ...)
+    # C stdio unbuffered, so C++ and Python output interleave in program order.
+    _libc.setvbuf(ctypes.c_void_p.in_dll(_libc, "stdout"), None, 2, 0)  # 2 = _IONBF
+    saved_fd = os.dup(1)
+    for index, (name, args) in enumerate(cases):
+        where = os.path.join(outdir, str(index))
+        os.makedirs(where)
+        os.chdir(where)
+        _flush()
+        start = time.perf_counter()
+        with open("stdout", "w") as out:
+            os.dup2(out.fileno(), 1)
+            try:
+                run_case(name, args, mode, made)
+            except BaseException:  # noqa: BLE001 - recorded for the test, then the next case
+                with open("error", "w") as fh:
+                    fh.write(traceback.format_exc())
+            finally:
+                _flush()
+                os.dup2(saved_fd, 1)
+        with open("made.json", "w") as fh:
+            json.dump(dict(made), fh)
+        with open("seconds", "w") as fh:
+            fh.write(f"{time.perf_counter() - start:.2f}\n")
 
 
 if __name__ == "__main__":
