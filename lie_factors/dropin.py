@@ -13,17 +13,16 @@ Everything ``gtsam`` has is here under the same name, except:
 Submodules stay reachable as attributes (``gtsam.noiseModel``,
 ``gtsam.symbol_shorthand``, ``gtsam.utils``, ``gtsam.imuBias``,
 ``gtsam.utilities``, ...): they are GTSAM's own.  ``from gtsam.X import Y``
-lines need no change (nothing in GTSAM's submodules is replaced); ``import
-gtsam`` and ``from gtsam import ...`` lines become ``import
+and ``import gtsam.X as Y`` lines need no change (nothing in GTSAM's
+submodules is replaced; ``lie_factors.dropin`` is a module, not a package);
+``import gtsam`` and ``from gtsam import ...`` lines become ``import
 lie_factors.dropin as gtsam`` and ``from lie_factors.dropin import ...``.
 
 Values, noise models, geometry and GTSAM's other factors are GTSAM's objects,
 so a graph may mix our factors with GTSAM's and a user's own CustomFactors.
 """
 
-from __future__ import annotations
-
-import importlib
+import importlib as _importlib
 
 import gtsam as _gtsam
 from gtsam import *  # noqa: F401,F403  (gtsam's whole namespace, replaced names below)
@@ -53,15 +52,23 @@ for _name in dir(_optimizers):
 
 del _name
 
+#: ``from lie_factors.dropin import *`` gives what ``from gtsam import *`` gives (with ours in place).
+__all__ = [_n for _n in dir(_gtsam) if not _n.startswith("_")]
+
 
 def __getattr__(name: str):
     """Everything else from gtsam, submodules included (imported on first use, as ``gtsam.X`` is)."""
+    if name.startswith("__") and name.endswith("__"):
+        # Module machinery is this module's own: forwarding gtsam's __path__
+        # would make ``import lie_factors.dropin.utils`` load a second copy of
+        # gtsam.utils under another name.
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     try:
         return getattr(_gtsam, name)
     except AttributeError:
         pass
     try:
-        return importlib.import_module(f"gtsam.{name}")
+        return _importlib.import_module(f"gtsam.{name}")
     except ModuleNotFoundError:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
 

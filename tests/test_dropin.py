@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib
+
 import gtsam
 import numpy as np
 import pytest
@@ -54,12 +56,14 @@ def test_submodules_reachable_as_attributes():
     assert dropin.symbol_shorthand is gtsam.symbol_shorthand
     assert dropin.imuBias is gtsam.imuBias
     assert dropin.utilities is gtsam.utilities
-    import importlib
-
     assert dropin.utils is importlib.import_module("gtsam.utils")
     assert dropin.symbol_shorthand.X(3) == gtsam.symbol("x", 3)
     with pytest.raises(AttributeError, match="has no attribute 'no_such_name'"):
         dropin.no_such_name  # noqa: B018
+    # A module, not a package: no second copy of gtsam's submodules under another name.
+    assert not hasattr(dropin, "__path__")
+    with pytest.raises(ModuleNotFoundError, match="not a package"):
+        importlib.import_module("lie_factors.dropin.utils")
 
 
 def test_from_import_and_a_mixed_graph():
@@ -77,3 +81,12 @@ def test_from_import_and_a_mixed_graph():
     result = dropin.LevenbergMarquardtOptimizer(graph, values, dropin.LevenbergMarquardtParams()).optimize()
     assert result.atPose2(2).equals(Pose2(1, 0, 0.1).compose(Pose2(1, 0, 0.1)), 1e-9)
     assert type(graph.at(1)) is factors.BetweenFactorPose2
+
+
+def test_star_import_gives_gtsams_names_with_ours():
+    ns: dict = {}
+    exec("from lie_factors.dropin import *", ns)
+    assert {n for n in ns if not n.startswith("_")} == {n for n in dir(gtsam) if not n.startswith("_")}
+    assert ns["BetweenFactorPose3"] is factors.BetweenFactorPose3
+    assert ns["writeG2o"] is compat.writeG2o
+    assert ns["Pose3"] is gtsam.Pose3
