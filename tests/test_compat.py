@@ -414,3 +414,43 @@ def test_lago_exposes_what_gtsam_lago_exposes():
     public = {n for n in dir(gtsam.lago) if not n.startswith("_")}
     assert public <= {n for n in vars(lago) if not n.startswith("_")}
     assert {n for n in dir(gtsam.InitializePose3) if not n.startswith("_")} <= set(dir(InitializePose3))
+
+
+def _outcome(call):
+    """``("values", Values)`` or ``("raised", type, message)``."""
+    result = _gtsam_result(call)
+    if isinstance(result, Exception):
+        return ("raised", type(result), str(result))
+    return ("values", result)
+
+
+@pytest.mark.parametrize("name,is3D", [("pose3example.txt", True), ("noisyToyGraph.txt", False)])
+def test_initializers_on_robust_factors_do_what_gtsam_does_with_its_own(name, is3D):
+    # A robust model stays robust in the conversion: GTSAM's initializer then
+    # treats our factor exactly as it treats its own with that model.
+    # (GTSAM's readG2o takes no kernel for 3-D files: the models are wrapped here.)
+    plain, _ = gtsam.readG2o(gtsam.findExampleDataFile(name), is3D)
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(1.345)
+    native = gtsam.NonlinearFactorGraph()
+    for k in range(plain.size()):
+        f = plain.at(k)
+        native.add(type(f)(*f.keys(), f.measured(), gtsam.noiseModel.Robust.Create(huber, f.noiseModel())))
+    ours = from_gtsam_graph(native)
+    assert isinstance(ours.at(0).noiseModel(), gtsam.noiseModel.Robust)
+    if is3D:
+        model = gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
+        native.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(), model))
+        ours.add(F.PriorFactorPose3(0, gtsam.Pose3(), model))
+        calls = [(InitializePose3.initialize, gtsam.InitializePose3.initialize)]
+    else:
+        model = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+        native.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), model))
+        ours.add(F.PriorFactorPose2(0, gtsam.Pose2(), model))
+        calls = [(lago.initialize, gtsam.lago.initialize)]
+    for mine, theirs in calls:
+        a, b = _outcome(lambda: mine(ours)), _outcome(lambda: theirs(native))
+        assert a[0] == b[0]
+        if a[0] == "values":
+            _assert_same_values(a[1], b[1])
+        else:
+            assert a[1:] == b[1:]
