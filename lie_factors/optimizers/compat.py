@@ -275,8 +275,11 @@ class InitializePose3:
     """``gtsam.InitializePose3`` on graphs of our factors (converted by :func:`to_gtsam_graph`).
 
     Same static methods, arguments, results and exceptions as GTSAM's; only
-    the factor graph argument is converted.  Non-pose factors are ignored by
-    GTSAM, as for a graph of its own factors.
+    the factor graph argument is converted.  Factors GTSAM's initializer does
+    not use (landmarks, other types, a user's CustomFactor) it ignores, as in
+    a graph of its own factors; a robust noise model is handed over as it is
+    (GTSAM's factor with the same model), so GTSAM does with it what it does
+    with its own.
     """
 
     @staticmethod
@@ -306,7 +309,11 @@ class InitializePose3:
 
 
 def _lago_initialize(graph, *args, **kwargs):
-    """``gtsam.lago.initialize`` (LAGO on a Pose2 graph; or refine ``initialGuess``) with our factors."""
+    """``gtsam.lago.initialize`` (LAGO on a Pose2 graph; or refine ``initialGuess``) with our factors.
+
+    As :class:`InitializePose3`: the graph converted, everything else GTSAM's
+    (which raises ValueError for a noise model that is not diagonal, robust included).
+    """
     return gtsam.lago.initialize(to_gtsam_graph(graph), *args, **kwargs)
 
 
