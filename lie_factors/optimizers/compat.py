@@ -28,12 +28,11 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 from types import SimpleNamespace
 
 import gtsam
-
-from .. import factors as _ours
 
 __all__ = [
     "G2oWriteError",
@@ -47,14 +46,28 @@ __all__ = [
     "writeG2o",
 ]
 
-#: GTSAM's class for each of ours, and back (same names in both).
-_TO_GTSAM = {
-    cls: getattr(gtsam, name)
-    for name in _ours.__all__
-    if name.startswith(("BetweenFactor", "PriorFactor"))
-    for cls in [getattr(_ours, name)]
-}
-_FROM_GTSAM = {native: ours for ours, native in _TO_GTSAM.items()}
+_OURS = "lie_factors.factors"
+_tables: dict = {}
+
+
+def _table(direction: str) -> dict:
+    """GTSAM's class for each of ours (``"to"``), or ours for each of GTSAM's (``"from"``).
+
+    Built on first use: importing lie_factors.factors imports numba, which
+    ``import lie_factors.optimizers`` alone must not (the CLI's native paths).
+    """
+    if not _tables:
+        from .. import factors
+
+        _tables["to"] = {getattr(factors, name): getattr(gtsam, name) for name in factors.__all__
+                         if name.startswith(("BetweenFactor", "PriorFactor"))}
+        _tables["from"] = {native: ours for ours, native in _tables["to"].items()}
+    return _tables[direction]
+
+
+def _ours_exist() -> bool:
+    # No factor of ours can exist before lie_factors.factors is imported.
+    return _OURS in sys.modules
 
 
 def to_gtsam(factor):
@@ -63,10 +76,12 @@ def to_gtsam(factor):
     Same keys, same measured (or prior) value, and the same noise model object
     (a robust model stays robust), so GTSAM's factor has the same error.
     """
-    cls = _TO_GTSAM.get(type(factor))
+    if not _ours_exist():
+        return factor
+    cls = _table("to").get(type(factor))
     if cls is None:
         return factor
-    if isinstance(factor, _ours.BetweenFactor):
+    if len(factor.keys()) == 2:
         return cls(factor._key1, factor._key2, factor.measured(), factor._noise)
     return cls(factor._key, factor.prior(), factor._noise)
 
@@ -77,16 +92,16 @@ def from_gtsam(factor):
 
     Same keys, same measured (or prior) value, same noise model object.
     """
-    cls = _FROM_GTSAM.get(type(factor))
+    cls = _table("from").get(type(factor))
     if cls is None:
         return factor
     keys = list(factor.keys())
-    if issubclass(cls, _ours.BetweenFactor):
+    if len(keys) == 2:
         return cls(keys[0], keys[1], factor.measured(), factor.noiseModel())
     return cls(keys[0], factor.prior(), factor.noiseModel())
 
 
-def _mapped(graph, convert, table):
+def _mapped(graph, convert, table: dict):
     """``graph`` with ``convert`` applied to each factor whose class is in ``table``.
 
     The graph itself if there is none (no copy); else a new graph, factor
@@ -112,12 +127,14 @@ def to_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGr
 
     Returns ``graph`` itself when it holds none of ours.
     """
-    return _mapped(graph, to_gtsam, _TO_GTSAM)
+    if not _ours_exist() or not isinstance(graph, gtsam.NonlinearFactorGraph):
+        return graph
+    return _mapped(graph, to_gtsam, _table("to"))
 
 
 def from_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
     """``graph`` with each of GTSAM's Between/Prior factors replaced by ours (:func:`from_gtsam`)."""
-    return _mapped(graph, from_gtsam, _FROM_GTSAM)
+    return _mapped(graph, from_gtsam, _table("from"))
 
 
 # --------------------------------------------------------------------------- #
