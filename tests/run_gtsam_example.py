@@ -2,11 +2,11 @@
 
     python run_gtsam_example.py original|swapped OUTDIR CASES_JSON
 
-``CASES_JSON``: a list of ``[name, [arg, ...]]``.  Run by
-tests/test_gtsam_examples.py, once per mode: one process runs every case, in
-order, each in its own empty working directory ``OUTDIR/<index>`` (one
-process rather than one per case: starting Python, gtsam, matplotlib and our
-kernels is most of the time of an example).  ``swapped`` changes only the
+``CASES_JSON``: a list of ``[index, name, [arg, ...]]``.  Run by
+tests/test_gtsam_examples.py: one process runs the cases given, in order,
+each in its own empty working directory ``OUTDIR/<index>`` (one process
+rather than one per case: starting Python, gtsam, matplotlib and our kernels
+is most of the time of an example).  ``swapped`` changes only the
 example's import lines: ``import gtsam`` becomes ``import lie_factors.dropin
 as gtsam`` and ``from gtsam import ...`` becomes ``from lie_factors.dropin
 import ...`` (``from gtsam.X import`` lines are left alone: nothing in
@@ -143,7 +143,7 @@ def main() -> None:
     # C stdio unbuffered, so C++ and Python output interleave in program order.
     _libc.setvbuf(ctypes.c_void_p.in_dll(_libc, "stdout"), None, 2, 0)  # 2 = _IONBF
     saved_fd = os.dup(1)
-    for index, (name, args) in enumerate(cases):
+    for index, name, args in cases:
         where = os.path.join(outdir, str(index))
         os.makedirs(where)
         os.chdir(where)
