@@ -17,10 +17,12 @@ What may differ, and is normalised before comparing:
 * The last three columns of Levenberg–Marquardt's SUMMARY table are timings.
 * Eigen and numpy pad printed matrices to the widest entry: whitespace is not compared.
 
-Time: one process per mode runs every case (starting Python, gtsam, matplotlib
-and our kernels is most of an example's time); the two processes run at the
-same time.  The whole file: 26 s on this shared 2-core machine under load,
-7.1 s (original) and 9.4 s (swapped) per process when quiet; each case's
+Time: one process per mode runs the cases (starting Python, gtsam,
+matplotlib and our kernels is most of an example's time; the two LM-SUMMARY
+examples get processes of their own); the two modes run at the same time.
+The whole file takes about 12 s of CPU: 7.1 s (original) and 9.4 s
+(swapped) for the shared process when the machine was quiet, 45-60 s of
+wall time on this shared 2-core machine at load average 6-7.  Each case's
 time (original / swapped, quiet) is noted in CASES.
 """
 
