@@ -16,12 +16,16 @@ What may differ, and is normalised before comparing:
   lines (inputs read from the file, not results) are dropped.
 * The last three columns of Levenberg–Marquardt's SUMMARY table are timings.
 * Eigen and numpy pad printed matrices to the widest entry: whitespace is not compared.
+* A number printed to different digits on the two sides agrees to the coarser
+  side's last digit (GTSAM's C++ LM leaves std::cout at precision 2 after its
+  SUMMARY table for the rest of the example; a Python drop-in LM does not, so
+  its later prints carry more digits).  Numbers printed alike are held to 1e-9.
 
 Time: one process per mode runs the cases (starting Python, gtsam,
 matplotlib and our kernels is most of an example's time; the two LM-SUMMARY
 examples get processes of their own); the two modes run at the same time.
-The whole file takes about 12 s of CPU: 7.1 s (original) and 9.4 s
-(swapped) for the shared process when the machine was quiet, 45-60 s of
+The whole file takes about 17 s of CPU (user + sys); 7.1 s (original) and 9.4 s
+(swapped) of wall time for the shared process when the machine was quiet; 45-60 s of
 wall time on this shared 2-core machine at load average 6-7.  Each case's
 time (original / swapped, quiet) is noted in CASES.
 """
