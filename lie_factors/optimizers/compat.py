@@ -5,9 +5,10 @@ Several GTSAM functions pick factors out of a graph by their C++ class
 without a word.  Our factors are ``CustomFactor``\\ s, so on a graph of ours:
 
 * ``gtsam.writeG2o`` writes the vertices and no edge at all;
-* ``gtsam.InitializePose3.initialize`` finds no between factor and fails
-  ("underconstrained"); ``gtsam.lago.initialize`` fails with
-  ``IndexError: map::at``.
+* ``gtsam.InitializePose3.initialize`` and ``gtsam.lago.initialize`` return
+  an empty ``Values`` for a graph of ours, and fail on GTSAM's edges with our
+  prior (GTSAM's examples with the prior swapped): "Indeterminate linear
+  system" and ``IndexError: map::at``.
 
 The same-named functions here take the same arguments.  They hand GTSAM a
 copy of the graph in which each of our factors is replaced by GTSAM's own
@@ -17,8 +18,8 @@ are passed as they are.  GTSAM then does all the work, so the results are
 GTSAM's on that graph, bit for bit, and so are the exceptions.
 
 :func:`writeG2o` in addition never drops anything silently: a factor or a
-value GTSAM's writer would pass over raises :class:`G2oWriteError` before the
-file is opened (see its docstring for what GTSAM writes).
+value GTSAM's writer would pass over raises :class:`G2oWriteError`, and
+nothing is written (see its docstring for what GTSAM writes).
 
 :func:`readG2o` is GTSAM's reader returning our factors, so a script that
 reads a g2o file and optimizes it runs our factors after the import change.
