@@ -128,12 +128,12 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                    help="g2o file (2-D VERTEX_SE2/EDGE_SE2, 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
                         "EDGE3, or Sim(3) VERTEX_SIM3:EXPMAP/EDGE_SIM3:EXPMAP), or the name of a "
                         "file shipped with GTSAM, e.g. sphere2500.txt")
-    # batch is the default: it is the fast path (custom runs our factors inside GTSAM's C++ LM, whose
-    # per-callback copy of the Values makes it minutes on torus3D; docs/benchmarks.md).
+    # batch is the default: it is the fast path (custom runs GTSAM's LM algorithm from Python,
+    # lie_factors.optimizers, with GTSAM linearizing and eliminating; docs/benchmarks.md).
     p.add_argument("--backend", default="batch", metavar="NAME",
                    help=f"factor implementation: {' | '.join(BACKENDS)} (default: batch = lie_factors "
-                        "factors in the vectorized solver; custom = the same factors inside GTSAM's "
-                        "optimizer; native = GTSAM's own factors, the reference)")
+                        "factors in the vectorized solver; custom = the same factors in "
+                        "lie_factors.optimizers' drop-in of GTSAM's LM; native = GTSAM's own factors, the reference)")
     p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
                    default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")

@@ -26,6 +26,11 @@ The numerical work of one evaluation (inverse, compose, log, dlog and the
 product with ``Ad(M⁻¹)``) is a single call of :func:`between` / :func:`prior`,
 numba kernels over the group modules' cores (the same cores the public
 broadcasting functions run); the batch solver loops over the same two kernels.
+
+:class:`EvaluationPlan` evaluates every factor of this module in a graph with
+one call of :func:`between_many` (a loop over :func:`between`) per group, for
+a ``Values`` object an optimizer holds; the factors' callbacks, handed that
+object, return their rows (used by :mod:`lie_factors.optimizers`).
 """
 
 from __future__ import annotations
@@ -115,6 +120,14 @@ def prior(g, Pinv, X, e, H):
     for i in range(n):
         neg[i] = -e[i]
     _dispatch.dlog(g, neg, H)
+
+
+@kernel
+def between_many(g, Minv, AdMinv, X, i1, i2, e, H1, H2):
+    """:func:`between` for every factor k of a group: X1 = X[i1[k]], X2 = X[i2[k]] (a prior
+    is the Between factor from the identity, stored as one more element of X)."""
+    for k in range(i1.shape[0]):
+        between(g, Minv[k], AdMinv[k], X[i1[k]], X[i2[k]], e[k], H1[k], H2[k])
 
 
 # Codes of check_element; _ELEMENT_ERRORS turns them into messages.
@@ -352,6 +365,14 @@ class BetweenFactor(gtsam.CustomFactor):
         return self._measured
 
     def _evaluate(self, this, values, H):
+        plan = _prepared
+        if plan is not None and plan.values is values:  # computed for this very Values
+            slot = plan.slots.get(self)
+            if slot is not None:  # (e, H1, H2): views of this factor's rows
+                if H is not None:
+                    H[0] = slot[1]
+                    H[1] = slot[2]
+                return slot[0]
         spec = self.spec
         X1 = _fetch(values, self._key1, spec, type(self).__name__)
         X2 = _fetch(values, self._key2, spec, type(self).__name__)
@@ -404,6 +425,13 @@ class PriorFactor(gtsam.CustomFactor):
         return self._prior
 
     def _evaluate(self, this, values, H):
+        plan = _prepared
+        if plan is not None and plan.values is values:  # computed for this very Values
+            slot = plan.slots.get(self)
+            if slot is not None:  # (e, H1, H2): views of this factor's rows
+                if H is not None:
+                    H[0] = slot[2]
+                return slot[0]
         spec = self.spec
         X = _fetch(values, self._key, spec, type(self).__name__)
         group = spec.group
@@ -477,3 +505,141 @@ class PriorFactorSimilarity3(PriorFactor):
     """``PriorFactorSimilarity3(key, prior: gtsam.Similarity3, noise_model)``."""
 
     spec = GROUPS["Similarity3"]
+
+
+
+# --------------------------------------------------------------------------- #
+# Evaluating every factor of a graph at once, for one Values object
+# --------------------------------------------------------------------------- #
+
+#: The plan whose results the factors' callbacks may return (see :class:`EvaluationPlan`).
+_prepared = None
+
+
+class _GroupEvaluation:
+    """The factors of one group in a graph: constants stacked, results of the last evaluation."""
+
+    def __init__(self, spec: GroupSpec, members: list):
+        self.spec = spec
+        keys = sorted({key for f in members for key in f.keys()})
+        index = {key: i for i, key in enumerate(keys)}
+        identity = len(keys)  # X[identity] = I: priors are Between factors from the identity
+        self.keys = keys
+        self.at = getattr(gtsam.Values, spec.at)
+        n, m = spec.group.dim, spec.group.mat
+        count = len(members)
+        between = [isinstance(f, BetweenFactor) for f in members]
+        self.Minv = np.array([f._Minv if b else f._Pinv for f, b in zip(members, between)]).reshape(count, m, m)
+        self.AdMinv = np.array([f._AdMinv if b else f._AdPinv for f, b in zip(members, between)]
+                               ).reshape(count, n, n)
+        self.i1 = np.array([index[f._key1] if b else identity for f, b in zip(members, between)],
+                           dtype=np.int64)
+        self.i2 = np.array([index[f._key2] if b else index[f._key] for f, b in zip(members, between)],
+                           dtype=np.int64)
+        self.X = np.empty((len(keys) + 1, m, m))
+        self.X[identity] = np.eye(m)
+        self.rows = None  # Pose3: rows of extractPose3's output for self.keys
+        self.total = 0
+        self.e = np.empty((count, n))
+        self.H1 = np.empty((count, n, n))
+        self.H2 = np.empty((count, n, n))
+
+    def _read_pose3(self, values) -> bool:
+        """Fill X from one C++ pass over ``values`` (``utilities.extractPose3``: the rotation
+        matrices' and translations' own entries, so X is what ``.matrix()`` gives)."""
+        rows = gtsam.utilities.extractPose3(values)  # (every Pose3 in key order, 12)
+        if self.rows is None:
+            order = {key: j for j, key in enumerate(gtsam.utilities.allPose3s(values).keys())}
+            self.rows = np.array([order[key] for key in self.keys], dtype=np.int64)
+            self.total = len(order)
+        if rows.shape[0] != self.total:
+            return False
+        sel = rows[self.rows]
+        X = self.X[:-1]
+        X[:, :3, :3] = sel[:, :9].reshape(-1, 3, 3)
+        X[:, :3, 3] = sel[:, 9:]
+        X[:, 3, :3] = 0.0
+        X[:, 3, 3] = 1.0
+        return True
+
+    def evaluate(self, values) -> None:
+        at, X = self.at, self.X
+        if not (self.spec.name == "Pose3" and self._read_pose3(values)):
+            for j, key in enumerate(self.keys):
+                X[j] = at(values, key).matrix()
+        # Written in place: the callbacks hand out views of these rows, which GTSAM
+        # copies as it receives them.
+        between_many(self.spec.group, self.Minv, self.AdMinv, X, self.i1, self.i2,
+                     self.e, self.H1, self.H2)
+
+
+class EvaluationPlan:
+    """Every factor of this module in ``graph``, evaluated in one kernel call per group.
+
+    For an optimizer that holds its ``Values`` (:mod:`lie_factors.optimizers`)::
+
+        plan = EvaluationPlan(graph)
+        with plan.prepared(values):     # reads each variable once, evaluates every factor
+            linear = graph.linearize(values)
+
+    Inside the ``with``, each factor's callback, when GTSAM hands it that very
+    ``values`` object, returns its row of the results (the same kernel,
+    :func:`between`, on the same matrices) instead of fetching its variables
+    and calling the kernel itself; for any other object it evaluates as usual.
+    The ``values`` must not change inside the ``with`` (GTSAM's calls take it
+    as ``const``), nor afterwards while the plan may see it again: results are
+    reused when the same object is prepared twice in a row (an optimizer
+    linearizes at the trial point it has just evaluated).  If reading the variables fails (a missing key, a wrong
+    type), nothing is prepared and the callbacks raise their usual errors.
+    """
+
+    def __init__(self, graph: gtsam.NonlinearFactorGraph):
+        members: dict = {}
+        for i in range(graph.size()):
+            f = graph.at(i)
+            if isinstance(f, (BetweenFactor, PriorFactor)):
+                members.setdefault(f.spec.name, []).append(f)
+        self.groups = [_GroupEvaluation(GROUPS[name], fs) for name, fs in members.items()]
+        self.slots = {}  # factor → views (e, H1, H2) of its rows
+        for res, fs in zip(self.groups, members.values()):
+            self.slots.update(zip(fs, zip(res.e, res.H1, res.H2)))
+        self.values = None
+        self.last = None  # the Values the results were computed for
+        for res in self.groups:  # compile (or load) before any clock an optimizer keeps
+            warm_up(res.spec.group)
+            none = np.empty(0, dtype=np.int64)
+            between_many(res.spec.group, res.Minv[:0], res.AdMinv[:0], res.X, none, none,
+                         res.e[:0], res.H1[:0], res.H2[:0])
+
+    def __bool__(self) -> bool:
+        return bool(self.groups)
+
+    def prepared(self, values):
+        return _Prepared(self, values)
+
+
+class _Prepared:
+    def __init__(self, plan: EvaluationPlan, values):
+        self.plan, self.values = plan, values
+
+    def __enter__(self):
+        global _prepared
+        plan, values = self.plan, self.values
+        if plan.last is not values:
+            plan.last = None
+            try:
+                for res in plan.groups:
+                    res.evaluate(values)
+            except Exception:  # the callbacks will report it, as without a plan
+                return self
+            # Held, so that its id cannot be reused by another object while it is `last`.
+            plan.last = values
+        plan.values = values
+        _prepared = plan
+        return self
+
+    def __exit__(self, *exc):
+        global _prepared
+        _prepared = None
+        self.plan.values = None
+        return False

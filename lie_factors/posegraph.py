@@ -307,8 +307,12 @@ def optimize(
     max_iterations: int = 100,
     progress: Callable[[IterationInfo], None] | None = None,
     params: gtsam.LevenbergMarquardtParams | None = None,
+    optimizer: type | None = None,
 ) -> OptimizeResult:
     """Levenberg–Marquardt, stepped from Python exactly like ``optimizer.optimize()``.
+
+    ``optimizer``: ``gtsam.LevenbergMarquardtOptimizer`` (default) or a drop-in
+    with its interface (``lie_factors.optimizers.LevenbergMarquardtOptimizer``).
 
     GTSAM's ``NonlinearOptimizer::defaultOptimize``: stop at once if the error
     is already ≤ errorTol; otherwise ``iterate()`` while iterations <
@@ -324,7 +328,7 @@ def optimize(
     warm_up_factors()  # compile before the clock starts
     clock = Stopwatch()
     try:
-        opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+        opt = (optimizer or gtsam.LevenbergMarquardtOptimizer)(graph, initial, params)
         initial_error = new_error = float(opt.error())
         if not math.isfinite(initial_error):
             raise PoseGraphError(f"the initial error is {initial_error}: some residual overflows "
@@ -353,6 +357,13 @@ def optimize(
                           bool(converged), history)
 
 
+def _optimize_custom(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+    # GTSAM's LM run from Python on Values it holds: callbacks get that object, not a copy each.
+    from lie_factors.optimizers import LevenbergMarquardtOptimizer
+
+    return optimize(graph, initial, max_iterations, progress, params, optimizer=LevenbergMarquardtOptimizer)
+
+
 def _optimize_batch(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
     # Imported on use: lie_factors.batch compiles its loops, which native/custom never need.
     from lie_factors.batch import run_batch
@@ -371,7 +382,8 @@ def _optimize_batch_robust(graph, initial, max_iterations=100, progress=None, pa
 
 BACKENDS.update(
     native=Backend(_native_factors, optimize, "GTSAM's own BetweenFactor/PriorFactor (reference)"),
-    custom=Backend(_custom_factors, optimize, "lie_factors.factors (closed-form Jacobians)"),
+    custom=Backend(_custom_factors, _optimize_custom,
+                   "lie_factors.factors (closed-form Jacobians) in lie_factors.optimizers' drop-in LM"),
     batch=Backend(_custom_factors, _optimize_batch, "lie_factors factors, vectorized LM driven from Python"),
 )
 

@@ -1,6 +1,27 @@
-"""Drop-ins for GTSAM's optimizers and for GTSAM's functions that look for its own factor classes.
+"""Drop-ins for GTSAM's optimizers under which CustomFactor callbacks never receive a copy of ``Values``,
+and for GTSAM's functions that look for its own factor classes.
 
-Same names, arguments and results as GTSAM's; they run lie_factors' factors.
+Why the optimizers exist: a ``gtsam.CustomFactor`` callback is called from C++ with a
+``const Values&``.  pybind11 turns that reference into a Python object by
+*copying the whole Values* into a new wrapper, unless a Python object already
+wraps that very C++ ``Values``, in which case it hands over that object.
+Inside GTSAM's own optimizers the linearization point and every trial point
+are C++-only objects, so every callback of every factor copies the whole
+graph's values: the cost grows with the square of the graph.
+
+The drop-ins run GTSAM's algorithms step for step, but keep every ``Values``
+they linearize or evaluate in a Python object they hold, so that each
+callback receives that object.  GTSAM still linearizes
+(``graph.linearize``), evaluates (``graph.error``), retracts and eliminates;
+only the loop is in Python.  Changing the import is the whole change::
+
+    from lie_factors.optimizers import LevenbergMarquardtOptimizer
+    result = LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+
+Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg);
+:mod:`.compat` (``writeG2o``, ``readG2o``, ``InitializePose3``, ``lago``: GTSAM's
+functions that pick factors by their C++ class, made to accept ours).
 """
 
 from .compat import InitializePose3, lago, readG2o, writeG2o  # noqa: F401
+from .nonlinear import LevenbergMarquardtOptimizer, GaussNewtonOptimizer, DoglegOptimizer
