@@ -154,11 +154,32 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                    help="graduated non-convexity (GTSAM's GncOptimizer semantics) with truncated "
                         "least squares or Geman-McClure; odometry edges are known inliers; "
                         "the JSON gains 'outliers' (rejected edges, 0-based file order)")
+    p.add_argument("--incremental", action="store_true",
+                   help="replay the file online through ISAM2 instead (poses in id order, one per "
+                        "update; native = GTSAM's factors in gtsam.ISAM2, custom/batch = ours in "
+                        "lie_factors.optimizers.ISAM2); the JSON adds incremental, updates, "
+                        "update_seconds, update_p50, update_p99")
+    p.add_argument("--relinearize-threshold", type=_positive_float, default=0.1, metavar="T",
+                   help="with --incremental: ISAM2's relinearizeThreshold (default: 0.1)")
+    p.add_argument("--relinearize-skip", type=_bounded_int("--relinearize-skip", 1, MAX_ITERATIONS),
+                   default=10, metavar="N",
+                   help="with --incremental: ISAM2's relinearizeSkip (default: 10)")
     p.add_argument("--output", metavar="FILE.g2o", help="write the optimized graph (g2o)")
     p.add_argument("--plot", metavar="FILE.png", help="plot initial and optimized trajectories")
     p.add_argument("--json", action="store_true",
                    help="print a JSON summary as the last line of stdout")
     p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0, else argparse's one-line usage error (exit 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
 
 
 #: --robust LOSS names (the CLI's subset of lie_factors.batch.robust.LOSSES)
@@ -199,6 +220,12 @@ def _gnc_progress(args):
 
 
 def _run_posegraph(args) -> int:
+    if args.incremental:  # the online replay (ISAM2) lives in its own module
+        from lie_factors import incremental
+
+        return incremental.main(args, _say, _emit_json)
+    if args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
+        raise CLIError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
     from lie_factors import atomic, g2o
     from lie_factors import posegraph as pgm
 

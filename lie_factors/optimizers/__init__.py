@@ -19,9 +19,12 @@ only the loop is in Python.  Changing the import is the whole change::
     result = LevenbergMarquardtOptimizer(graph, initial, params).optimize()
 
 Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg);
+:mod:`.isam2` (ISAM2, IncrementalFixedLagSmoother: GTSAM's own, holding the
+linearization point while they update);
 :mod:`.compat` (``writeG2o``, ``readG2o``, ``InitializePose3``, ``lago``: GTSAM's
 functions that pick factors by their C++ class, made to accept ours).
 """
 
 from .compat import InitializePose3, lago, readG2o, writeG2o  # noqa: F401
 from .nonlinear import LevenbergMarquardtOptimizer, GaussNewtonOptimizer, DoglegOptimizer
+from .isam2 import ISAM2, IncrementalFixedLagSmoother

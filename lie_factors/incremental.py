@@ -1,0 +1,297 @@
+"""Online replay of a pose graph through ISAM2 (``lie-factors posegraph FILE --incremental``).
+
+The file is replayed as a robot would have built it:
+
+- Poses come in id order, one per ISAM2 update. Each factor is added in the
+  update where the last of its poses (in that order) appears: an edge between
+  poses i < j in update j, the prior on the first pose in the first update, a
+  landmark measurement in the update of its pose.
+- The new pose's initial value is the current estimate of the previous pose
+  composed with the odometry edge between them (either direction), or the
+  file's value where there is no such edge. A landmark enters with its first
+  measurement: at the file's vertex if it has one, else placed from that
+  measurement at its pose's initial value.
+- Factors: backend ``native`` puts GTSAM's own factors in ``gtsam.ISAM2``;
+  ``custom`` and ``batch`` put lie_factors' factors in
+  :class:`lie_factors.optimizers.ISAM2` (GTSAM's ISAM2 whose callbacks receive
+  its own linearization point instead of a copy of it).
+
+Each update's time is that of ``update`` plus reading back the new pose's
+estimate (what the next pose's initial value needs): ``update_seconds`` is
+their sum, ``update_p50``/``update_p99`` the median and 99th percentile.
+``final_error`` is the error of the whole graph (the backend's factors) at the
+final estimate.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+import gtsam
+
+from .errors import PoseGraphError
+from .posegraph import PoseGraph, build_graph, is_landmark_key, load, pose_keys
+from .timing import Stopwatch, warm_up_factors
+
+#: GTSAM's ISAM2Params defaults (relinearizeThreshold, relinearizeSkip).
+DEFAULT_RELINEARIZE_THRESHOLD = 0.1
+DEFAULT_RELINEARIZE_SKIP = 10
+#: A progress line every this many updates.
+PROGRESS_EVERY = 1000
+
+
+@dataclass
+class Step:
+    """One update: the pose it adds, the graph indices of its factors, the landmarks it adds,
+    and its odometry edge (file edge index, True if stored previous → new) or None."""
+
+    key: int
+    factors: list[int]
+    landmarks: list[int] = field(default_factory=list)
+    odometry: tuple[int, bool] | None = None
+
+
+def schedule(pg: PoseGraph, graph: gtsam.NonlinearFactorGraph) -> list[Step]:
+    """The updates of the replay of ``graph`` (built by :func:`lie_factors.posegraph.build_graph`
+    from ``pg``: file edge k is factor k, then the prior, then the landmark measurements)."""
+    order = pose_keys(pg.initial)
+    position = {k: n for n, k in enumerate(order)}
+    steps = [Step(k, []) for k in order]
+    seen_landmarks: set[int] = set()
+    for k in range(graph.size()):
+        keys = [int(key) for key in graph.at(k).keys()]
+        poses = [key for key in keys if not is_landmark_key(key)]
+        if not poses:
+            raise PoseGraphError(f"factor {k} has no pose: it cannot be placed in the replay")
+        step = steps[max(position[key] for key in poses)]
+        step.factors.append(k)
+        for key in keys:
+            if is_landmark_key(key) and key not in seen_landmarks:
+                seen_landmarks.add(key)
+                step.landmarks.append(key)
+    for k in range(pg.between.size()):
+        i, j = (int(key) for key in pg.between.at(k).keys())
+        a, b = position[i], position[j]
+        if abs(a - b) == 1:
+            step = steps[max(a, b)]
+            if step.odometry is None:
+                step.odometry = (k, a < b)
+    for step in steps:
+        if not step.factors:
+            raise PoseGraphError(
+                f"pose {step.key} has no edge to an earlier pose (in id order) and no prior: "
+                "it cannot be added online (--incremental needs every pose constrained when it appears)")
+    return steps
+
+
+@dataclass
+class Replay:
+    """What :func:`replay` measured; ``values``: the final estimate, ``start``: each pose's
+    (and landmark's) initial value as inserted."""
+
+    updates: int
+    update_seconds: float
+    update_p50: float
+    update_p99: float
+    seconds: float
+    final_error: float
+    values: gtsam.Values
+    start: gtsam.Values
+    factors: int
+    times: np.ndarray
+
+
+def isam2_params(relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
+                 relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP) -> gtsam.ISAM2Params:
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(float(relinearize_threshold))
+    params.relinearizeSkip = int(relinearize_skip)
+    return params
+
+
+def isam2_class(backend: str) -> type:
+    """``gtsam.ISAM2`` for the native backend, the drop-in for ours."""
+    if backend == "native":
+        return gtsam.ISAM2
+    from .optimizers.isam2 import ISAM2
+
+    return ISAM2
+
+
+def _landmark_initial(pg: PoseGraph, graph, k: int, key: int, poses: gtsam.Values):
+    """A landmark's initial value: its file vertex, else its measurement ``k`` from its pose's
+    initial value (``poses``)."""
+    if key in pg.landmark_vertex_keys or pg.is3d:
+        return pg.initial.atPoint3(key) if pg.is3d else pg.initial.atPoint2(key)
+    f = graph.at(k)
+    pose_key = next(int(x) for x in f.keys() if not is_landmark_key(x))
+    br = f.measured()
+    theta, r = br.bearing().theta(), br.range()
+    return poses.atPose2(pose_key).transformFrom(np.array([r * math.cos(theta), r * math.sin(theta)]))
+
+
+def _first_sentence(exc: Exception) -> str:
+    """GTSAM's message up to its first full stop (the indeterminate-system message names the
+    variable on its second line)."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    text = " ".join(lines[:2]) if len(lines) > 1 and not lines[0].endswith(".") else lines[0]
+    if "Indeterminate" in text:
+        text += (" (ISAM2 solves without damping: a variable is under-constrained when it appears, "
+                 "or the system is too poorly conditioned)")
+    return text
+
+
+def replay(pg: PoseGraph, backend: str = "custom",
+           params: gtsam.ISAM2Params | None = None,
+           progress: Callable[[int, int, float], None] | None = None,
+           graph: gtsam.NonlinearFactorGraph | None = None,
+           isam_class: type | None = None, max_seconds: float | None = None) -> Replay:
+    """Replay ``pg`` online (module docstring) with ``backend``'s factors.
+
+    ``progress(done, total, seconds)`` is called every :data:`PROGRESS_EVERY`
+    updates. ``graph``/``isam_class`` override the backend's graph and ISAM2
+    class (the benchmark runs our factors in plain ``gtsam.ISAM2`` with them).
+    ``max_seconds``: stop after the update that passes this many seconds (the
+    benchmark's cut-off for a leg that grows quadratically); ``updates`` then
+    counts the updates done and ``final_error`` is NaN.
+    """
+    if graph is None:
+        graph = build_graph(pg, backend)
+    if isam_class is None:
+        isam_class = isam2_class(backend)
+    steps = schedule(pg, graph)
+    group = pg.group
+    estimate = getattr(isam_class, f"calculateEstimate{group}")
+    at = getattr(gtsam.Values, f"at{group}")
+    batches = []
+    for step in steps:
+        g = gtsam.NonlinearFactorGraph()
+        for k in step.factors:
+            g.add(graph.at(k))
+        batches.append(g)
+    warm_up_factors()  # compile before the clock starts
+    isam = isam_class(params if params is not None else isam2_params())
+    start = gtsam.Values()
+    times = np.empty(len(steps))
+    previous = None
+    clock = Stopwatch()
+    for n, (step, new_factors) in enumerate(zip(steps, batches)):
+        if step.odometry is not None and previous is not None:
+            k, forward = step.odometry
+            measured = pg.between.at(k).measured()
+            guess = previous.compose(measured if forward else measured.inverse())
+        else:
+            guess = at(pg.initial, step.key)
+        new_theta = gtsam.Values()
+        new_theta.insert(step.key, guess)
+        start.insert(step.key, guess)
+        for key in step.landmarks:
+            k = next(i for i in step.factors if key in graph.at(i).keys())
+            point = _landmark_initial(pg, graph, k, key, new_theta)
+            new_theta.insert(key, point)
+            start.insert(key, point)
+        t0 = time.perf_counter()
+        try:
+            isam.update(new_factors, new_theta)
+            previous = estimate(isam, step.key)
+        except RuntimeError as exc:
+            raise PoseGraphError(f"ISAM2 update {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}"
+                                 ) from None
+        times[n] = time.perf_counter() - t0
+        if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
+            progress(n + 1, len(steps), clock.seconds())
+        if max_seconds is not None and n + 1 < len(steps) and clock.seconds() > max_seconds:
+            times = times[:n + 1]
+            break
+    seconds = clock.seconds()
+    values = isam.calculateEstimate()
+    final_error = float(graph.error(values)) if len(times) == len(steps) else math.nan
+    return Replay(updates=len(times), update_seconds=float(times.sum()),
+                  update_p50=float(np.percentile(times, 50)), update_p99=float(np.percentile(times, 99)),
+                  seconds=seconds, final_error=final_error, values=values, start=start,
+                  factors=int(graph.size()), times=times)
+
+
+# --------------------------------------------------------------------------- #
+# The CLI's --incremental (lie_factors.cli hands its parsed arguments over)
+# --------------------------------------------------------------------------- #
+
+def _refuse_batch_options(args) -> None:
+    for option, value, default in (("--robust", args.robust, None), ("--robust-all", args.robust_all, False),
+                                   ("--gnc", args.gnc, None), ("--init", args.init, "auto"),
+                                   ("--max-iterations", args.max_iterations, 100)):
+        if value != default:
+            raise PoseGraphError(f"{option} does not apply to --incremental (ISAM2 replays the file "
+                                 "online from its own estimates)")
+
+
+def main(args, say: Callable[[object, str], None], emit_json: Callable[[dict], None]) -> int:
+    """``lie-factors posegraph FILE --incremental``: load, replay, report (stdout via ``say``,
+    progress on stderr, JSON via ``emit_json``), write ``--output``/``--plot``."""
+    from . import atomic, g2o
+    from .posegraph import get_backend, load_factors, positions
+
+    get_backend(args.backend)
+    _refuse_batch_options(args)
+    for path in (args.output, args.plot):
+        if path:
+            atomic.check_writable(path)
+    load_factors(args.backend)
+    pg = load(args.dataset)
+    params = isam2_params(args.relinearize_threshold, args.relinearize_skip)
+    kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
+    lms = (f", {pg.landmark_count} landmarks, {pg.observations} landmark measurements"
+           if pg.observations else "")
+    say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges{lms}; incremental (ISAM2, "
+              f"relinearize threshold {args.relinearize_threshold:g}, skip {args.relinearize_skip}), "
+              f"backend {args.backend}")
+
+    def report(done, total, seconds):
+        if not args.quiet:
+            print(f"update {done}/{total}: {seconds:.3f} s", file=sys.stderr, flush=True)
+
+    result = replay(pg, args.backend, params, report)
+    say(args, f"{result.updates} updates in {result.update_seconds:.3f} s (per update: median "
+              f"{result.update_p50 * 1e3:.3f} ms, p99 {result.update_p99 * 1e3:.3f} ms); "
+              f"final error {result.final_error:.6g}")
+    if args.output:
+        g2o.write_g2o(args.output, pg.native_graph(), result.values)
+        say(args, f"wrote {args.output}")
+    if args.plot:
+        from .plotting import plot_trajectories
+        from .posegraph import landmark_positions
+
+        trajectories = {"initial (online guesses)": positions(result.start, pg.is3d, pg.group),
+                        "ISAM2 estimate": positions(result.values, pg.is3d, pg.group)}
+        points = ({"initial landmarks": landmark_positions(result.start, pg.is3d),
+                   "estimated landmarks": landmark_positions(result.values, pg.is3d)}
+                  if pg.landmark_count else None)
+        atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
+            tmp, trajectories, f"{pg.name} ({args.backend}, incremental)", three_d=pg.is3d,
+            points=points), suffix=".png")
+        say(args, f"wrote {args.plot}")
+    if args.json:
+        emit_json({
+            "backend": args.backend,
+            "dataset": pg.name,
+            "dimension": 3 if pg.is3d else 2,
+            "poses": pg.poses,
+            "landmarks": pg.landmark_count,
+            "factors": result.factors,
+            "incremental": True,
+            "updates": result.updates,
+            "update_seconds": result.update_seconds,
+            "update_p50": result.update_p50,
+            "update_p99": result.update_p99,
+            "seconds": result.seconds,
+            "final_error": result.final_error,
+            "relinearize_threshold": float(args.relinearize_threshold),
+            "relinearize_skip": int(args.relinearize_skip),
+        })
+    return 0
