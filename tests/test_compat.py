@@ -454,18 +454,3 @@ def test_initializers_on_robust_factors_do_what_gtsam_does_with_its_own(name, is
             _assert_same_values(a[1], b[1])
         else:
             assert a[1:] == b[1:]
-
-
-def test_importing_the_optimizers_package_does_not_import_numba():
-    # The CLI's native paths may import lie_factors.optimizers; numba costs seconds.
-    import subprocess
-    import sys
-
-    code = ("import sys, lie_factors.optimizers, gtsam\n"
-            "from lie_factors.optimizers import compat\n"
-            "g = gtsam.NonlinearFactorGraph()\n"
-            "g.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))\n"
-            "assert compat.to_gtsam_graph(g) is g\n"
-            "print('numba' in sys.modules, 'lie_factors.factors' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.split() == ["False", "False"]

@@ -55,7 +55,7 @@ def _table(direction: str) -> dict:
     """GTSAM's class for each of ours (``"to"``), or ours for each of GTSAM's (``"from"``).
 
     Built on first use: importing lie_factors.factors imports numba, which
-    ``import lie_factors.optimizers`` alone must not (the CLI's native paths).
+    compat itself does not need for graphs of GTSAM's own factors.
     """
     if not _tables:
         from .. import factors
