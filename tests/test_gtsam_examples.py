@@ -24,10 +24,10 @@ What may differ, and is normalised before comparing:
 Time: one process per mode runs the cases (starting Python, gtsam,
 matplotlib and our kernels is most of an example's time; the two LM-SUMMARY
 examples get processes of their own); the two modes run at the same time.
-The whole file takes about 17 s of CPU (user + sys); 7.1 s (original) and 9.4 s
-(swapped) of wall time for the shared process when the machine was quiet; 45-60 s of
-wall time on this shared 2-core machine at load average 6-7.  Each case's
-time (original / swapped, quiet) is noted in CASES.
+The whole file: 11 s of wall time and of CPU on this shared 2-core machine
+when quiet (load average 1, 2026-11-23 22:16 UTC, the optimizer drop-ins
+merged), 45-60 s of wall time at load average 6-7.  Each case's time
+(original / swapped, quiet) is noted in CASES.
 """
 
 from __future__ import annotations
@@ -68,31 +68,31 @@ P3 = frozenset({"BetweenFactorPose3", "PriorFactorPose3"})
 
 # Seconds: original / swapped, in the runner's process (see the module docstring).
 CASES = [
-    Case("Pose2ISAM2Example", ours=P2),  # 0.17 / 0.54 (the first case loads our kernels)
-    Case("Pose3ISAM2Example", ours=P3),  # 0.22 / 0.30
-    Case("VisualISAM2Example", ours=frozenset({"PriorFactorPose3"})),  # 0.35 / 0.53
+    Case("Pose2ISAM2Example", ours=P2),  # 0.07 / 0.20 (the first case loads our kernels)
+    Case("Pose3ISAM2Example", ours=P3),  # 0.09 / 0.10
+    Case("VisualISAM2Example", ours=frozenset({"PriorFactorPose3"})),  # 0.14 / 0.20
     # readG2o, Gauss-Newton, prints the graph and the values
-    Case("Pose2SLAMExample_g2o", ours=P2),  # 0.01 / 0.01
-    Case("Pose3SLAMExample_g2o", ours=P3),  # 0.01 / 0.01
-    Case("Pose3SLAMExample_g2o", ("-o", "result.g2o"), ours=P3),  # 0.00 / 0.02: writeG2o
-    Case("Pose2SLAMExample_lago", ours=P2),  # 0.00 / 0.01: lago.initialize
-    Case("Pose2SLAMExample_lago", ("-o", "result.g2o"), ours=P2),  # 0.00 / 0.01
-    Case("Pose3SLAMExample_initializePose3Chordal", ours=P3),  # 0.01 / 0.01: InitializePose3
+    Case("Pose2SLAMExample_g2o", ours=P2),  # 0.00 / 0.01
+    Case("Pose3SLAMExample_g2o", ours=P3),  # 0.00 / 0.01
+    Case("Pose3SLAMExample_g2o", ("-o", "result.g2o"), ours=P3),  # 0.00 / 0.00: writeG2o
+    Case("Pose2SLAMExample_lago", ours=P2),  # 0.00 / 0.00: lago.initialize
+    Case("Pose2SLAMExample_lago", ("-o", "result.g2o"), ours=P2),  # 0.00 / 0.00
+    Case("Pose3SLAMExample_initializePose3Chordal", ours=P3),  # 0.00 / 0.00: InitializePose3
     # 4 s of simulated navigation instead of 12 (the time goes into plotting)
     # and the covariances, so Marginals runs on a graph with our priors.
     Case("ImuFactorExample", ("-T", "4", "--compute_covariances"),
-         ours=frozenset({"PriorFactorPose3"}), own_process=True),  # 1.93 / 2.17
+         ours=frozenset({"PriorFactorPose3"}), own_process=True),  # 0.70 / 0.96
     # (its --compute_covariances fails as shipped: NameError BIAS_KEY)
     Case("CombinedImuFactorExample", ("-T", "4"), ours=frozenset({"PriorFactorPose3"}),
-         own_process=True),  # 2.09 / 2.32
+         own_process=True),  # 0.70 / 1.00
     # prints nothing: its plotted estimates are compared
-    Case("ImuFactorISAM2Example", ours=frozenset({"PriorFactorPose3"})),  # 0.36 / 0.39
+    Case("ImuFactorISAM2Example", ours=frozenset({"PriorFactorPose3"})),  # 0.14 / 0.14
     # A module, driven by run_gtsam_example.DRIVERS: writeG2o with landmark
     # factors (GTSAM's BearingRangeFactor3D) beside our BetweenFactorPose3.
-    Case("LandmarkLocalizationDataset", ours=frozenset({"BetweenFactorPose3"})),  # 0.02 / 0.03
+    Case("LandmarkLocalizationDataset", ours=frozenset({"BetweenFactorPose3"})),  # 0.01 / 0.01
     # Builds no factor of ours (it names BetweenFactorPose3 in a docstring and
     # reads GTSAM's BetweenFactorPose3s); its writeG2o of the result is ours.
-    Case("ShonanAveragingCLI"),  # 0.12 / 0.16
+    Case("ShonanAveragingCLI"),  # 0.09 / 0.06
 ]
 
 #: shipped examples that build Between/Prior factors on Rot3/Pose2/Pose3/Similarity2/3
