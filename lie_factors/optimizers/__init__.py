@@ -1,6 +1,7 @@
-"""Drop-ins for GTSAM's optimizers under which CustomFactor callbacks never receive a copy of ``Values``.
+"""Drop-ins for GTSAM's optimizers under which CustomFactor callbacks never receive a copy of ``Values``,
+and for GTSAM's functions that look for its own factor classes.
 
-Why they exist: a ``gtsam.CustomFactor`` callback is called from C++ with a
+Why the optimizers exist: a ``gtsam.CustomFactor`` callback is called from C++ with a
 ``const Values&``.  pybind11 turns that reference into a Python object by
 *copying the whole Values* into a new wrapper, unless a Python object already
 wraps that very C++ ``Values``, in which case it hands over that object.
@@ -17,10 +18,13 @@ only the loop is in Python.  Changing the import is the whole change::
     from lie_factors.optimizers import LevenbergMarquardtOptimizer
     result = LevenbergMarquardtOptimizer(graph, initial, params).optimize()
 
-Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg),
-:mod:`.isam2` (ISAM2 and IncrementalFixedLagSmoother: GTSAM's own classes,
-holding ISAM2's linearization point while GTSAM runs).
+Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg);
+:mod:`.isam2` (ISAM2, IncrementalFixedLagSmoother: GTSAM's own, holding the
+linearization point while they update);
+:mod:`.compat` (``writeG2o``, ``readG2o``, ``InitializePose3``, ``lago``: GTSAM's
+functions that pick factors by their C++ class, made to accept ours).
 """
 
+from .compat import InitializePose3, lago, readG2o, writeG2o  # noqa: F401
 from .nonlinear import LevenbergMarquardtOptimizer, GaussNewtonOptimizer, DoglegOptimizer
 from .isam2 import ISAM2, IncrementalFixedLagSmoother

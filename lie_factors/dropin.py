@@ -1,0 +1,77 @@
+"""``gtsam`` with lie_factors' factors: ``import lie_factors.dropin as gtsam`` is the whole change.
+
+Everything ``gtsam`` has is here under the same name, except:
+
+* ``BetweenFactor{Rot3,Pose2,Pose3,Similarity2,Similarity3}`` and
+  ``PriorFactor{...}``: :mod:`lie_factors.factors`' classes (same arguments);
+* ``writeG2o``, ``readG2o``, ``InitializePose3``, ``lago``:
+  :mod:`lie_factors.optimizers.compat`'s, which accept those factors
+  (``readG2o`` returns them);
+* GTSAM's optimizers, where :mod:`lie_factors.optimizers` has a drop-in for
+  them (:data:`REPLACED` lists every replaced name and where it comes from).
+
+Submodules stay reachable as attributes (``gtsam.noiseModel``,
+``gtsam.symbol_shorthand``, ``gtsam.utils``, ``gtsam.imuBias``,
+``gtsam.utilities``, ...): they are GTSAM's own.  ``from gtsam.X import Y``
+and ``import gtsam.X as Y`` lines need no change (nothing in GTSAM's
+submodules is replaced; ``lie_factors.dropin`` is a module, not a package);
+``import gtsam`` and ``from gtsam import ...`` lines become ``import
+lie_factors.dropin as gtsam`` and ``from lie_factors.dropin import ...``.
+
+Values, noise models, geometry and GTSAM's other factors are GTSAM's objects,
+so a graph may mix our factors with GTSAM's and a user's own CustomFactors.
+"""
+
+import importlib as _importlib
+
+import gtsam as _gtsam
+from gtsam import *  # noqa: F401,F403  (gtsam's whole namespace, replaced names below)
+
+from . import factors as _factors
+from . import optimizers as _optimizers
+
+#: replaced name → the module its object comes from
+REPLACED: dict[str, str] = {}
+
+
+def _replace(name: str, module) -> None:
+    globals()[name] = getattr(module, name)
+    REPLACED[name] = module.__name__
+
+
+for _name in _factors.__all__:
+    if _name.startswith(("BetweenFactor", "PriorFactor")):
+        _replace(_name, _factors)
+
+# The compat functions, and whatever optimizer drop-ins lie_factors.optimizers
+# exports (LevenbergMarquardtOptimizer, ISAM2, ...), where GTSAM has the name.
+for _name in dir(_optimizers):
+    if not _name.startswith("_") and hasattr(_gtsam, _name) and not isinstance(
+            getattr(_optimizers, _name), type(_gtsam)):
+        _replace(_name, _optimizers)
+
+del _name
+
+#: ``from lie_factors.dropin import *`` gives what ``from gtsam import *`` gives (with ours in place).
+__all__ = [_n for _n in dir(_gtsam) if not _n.startswith("_")]
+
+
+def __getattr__(name: str):
+    """Everything else from gtsam, submodules included (imported on first use, as ``gtsam.X`` is)."""
+    if name.startswith("__") and name.endswith("__"):
+        # Module machinery is this module's own: forwarding gtsam's __path__
+        # would make ``import lie_factors.dropin.utils`` load a second copy of
+        # gtsam.utils under another name.
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    try:
+        return getattr(_gtsam, name)
+    except AttributeError:
+        pass
+    try:
+        return _importlib.import_module(f"gtsam.{name}")
+    except ModuleNotFoundError:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+
+
+def __dir__():
+    return sorted(set(globals()) | set(dir(_gtsam)))

@@ -1,0 +1,349 @@
+"""GTSAM's functions that look for GTSAM's own factor classes, made to accept ours.
+
+Several GTSAM functions pick factors out of a graph by their C++ class
+(``dynamic_pointer_cast<BetweenFactor<Pose3>>``) and pass over anything else
+without a word.  Our factors are ``CustomFactor``\\ s, so on a graph of ours:
+
+* ``gtsam.writeG2o`` writes the vertices and no edge at all;
+* ``gtsam.InitializePose3.initialize`` and ``gtsam.lago.initialize`` return
+  an empty ``Values`` for a graph of ours, and fail on GTSAM's edges with our
+  prior (GTSAM's examples with the prior swapped): "Indeterminate linear
+  system" and ``IndexError: map::at``.
+
+The same-named functions here take the same arguments.  They hand GTSAM a
+copy of the graph in which each of our factors is replaced by GTSAM's own
+class with the same keys, the same measured value and the *same noise model
+object* (:func:`to_gtsam_graph`); GTSAM's own factors, and any other factor,
+are passed as they are.  GTSAM then does all the work, so the results are
+GTSAM's on that graph, bit for bit, and so are the exceptions.
+
+:func:`writeG2o` in addition never drops anything silently: a factor or a
+value GTSAM's writer would pass over raises :class:`G2oWriteError`, and
+nothing is written (see its docstring for what GTSAM writes).
+
+:func:`readG2o` is GTSAM's reader returning our factors, so a script that
+reads a g2o file and optimizes it runs our factors after the import change.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+from types import SimpleNamespace
+
+import gtsam
+
+__all__ = [
+    "G2oWriteError",
+    "InitializePose3",
+    "from_gtsam",
+    "from_gtsam_graph",
+    "lago",
+    "readG2o",
+    "to_gtsam",
+    "to_gtsam_graph",
+    "writeG2o",
+]
+
+_OURS = "lie_factors.factors"
+_tables: dict = {}
+
+
+def _table(direction: str) -> dict:
+    """GTSAM's class for each of ours (``"to"``), or ours for each of GTSAM's (``"from"``).
+
+    Built on first use: importing lie_factors.factors imports numba, which
+    compat itself does not need for graphs of GTSAM's own factors.
+    """
+    if not _tables:
+        from .. import factors
+
+        _tables["to"] = {getattr(factors, name): getattr(gtsam, name) for name in factors.__all__
+                         if name.startswith(("BetweenFactor", "PriorFactor"))}
+        _tables["from"] = {native: ours for ours, native in _tables["to"].items()}
+    return _tables[direction]
+
+
+def _ours_exist() -> bool:
+    # No factor of ours can exist before lie_factors.factors is imported.
+    return _OURS in sys.modules
+
+
+def to_gtsam(factor):
+    """GTSAM's own factor for one of lie_factors.factors' (any other factor is returned as is).
+
+    Same keys, same measured (or prior) value, and the same noise model object
+    (a robust model stays robust), so GTSAM's factor has the same error.
+    """
+    if not _ours_exist():
+        return factor
+    cls = _table("to").get(type(factor))
+    if cls is None:
+        return factor
+    if len(factor.keys()) == 2:
+        return cls(factor._key1, factor._key2, factor.measured(), factor._noise)
+    return cls(factor._key, factor.prior(), factor._noise)
+
+
+def from_gtsam(factor):
+    """lie_factors.factors' factor for one of GTSAM's Between/Prior factors on
+    Rot3/Pose2/Pose3/Similarity2/Similarity3 (any other factor is returned as is).
+
+    Same keys, same measured (or prior) value, same noise model object.
+    """
+    cls = _table("from").get(type(factor))
+    if cls is None:
+        return factor
+    keys = list(factor.keys())
+    if len(keys) == 2:
+        return cls(keys[0], keys[1], factor.measured(), factor.noiseModel())
+    return cls(keys[0], factor.prior(), factor.noiseModel())
+
+
+def _mapped(graph, convert, table: dict):
+    """``graph`` with ``convert`` applied to each factor whose class is in ``table``.
+
+    The graph itself if there is none (no copy); else a new graph, factor
+    order kept, removed (null) slots left out.  Anything that is not a
+    NonlinearFactorGraph is returned as is, for GTSAM to reject with its own
+    exception.
+    """
+    if not isinstance(graph, gtsam.NonlinearFactorGraph):
+        return graph
+    n = graph.size()
+    factors = [graph.at(k) for k in range(n)]
+    if not any(type(f) in table for f in factors):
+        return graph
+    out = gtsam.NonlinearFactorGraph()
+    for f in factors:
+        if f is not None:
+            out.add(convert(f))
+    return out
+
+
+def to_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with each of our factors replaced by GTSAM's own class (:func:`to_gtsam`).
+
+    Returns ``graph`` itself when it holds none of ours.
+    """
+    if not _ours_exist() or not isinstance(graph, gtsam.NonlinearFactorGraph):
+        return graph
+    return _mapped(graph, to_gtsam, _table("to"))
+
+
+def from_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with each of GTSAM's Between/Prior factors replaced by ours (:func:`from_gtsam`)."""
+    return _mapped(graph, from_gtsam, _table("from"))
+
+
+# --------------------------------------------------------------------------- #
+# g2o files
+# --------------------------------------------------------------------------- #
+
+class G2oWriteError(ValueError):
+    """:func:`writeG2o` cannot write a factor or a value, or a robust noise model.
+
+    A ValueError, the class GTSAM's own writer raises for a noise model it
+    cannot write.
+    """
+
+
+def _writes_edge(factor, cache: dict) -> bool:
+    """Whether GTSAM's own writeG2o writes an edge for ``factor``'s class.
+
+    Asked of GTSAM itself, once per class and call: the factor alone is
+    written to a scratch file with no values, and anything but a header
+    (PARAMS_*) line is its edge.  This follows the installed GTSAM (4.3.0
+    writes BetweenFactorPose2/Pose3 and BearingRangeFactor3D; 4.2 only the
+    first two) instead of a list that could fall behind it.
+    """
+    cls = type(factor)
+    if cls not in cache:
+        one = gtsam.NonlinearFactorGraph()
+        one.add(factor)
+        fd, path = tempfile.mkstemp(suffix=".g2o")
+        os.close(fd)
+        try:
+            gtsam.writeG2o(one, gtsam.Values(), path)
+            with open(path) as fh:
+                cache[cls] = any(line.strip() and not line.startswith("PARAMS") for line in fh)
+        except ValueError:
+            # GTSAM refuses this very factor (noise models are checked before,
+            # so something else about it): the class is one it writes, and the
+            # real write raises the same error.
+            cache[cls] = True
+        finally:
+            os.unlink(path)
+    return cache[cls]
+
+
+def _describe(factor, k: int) -> str:
+    keys = ", ".join(gtsam.DefaultKeyFormatter(key) for key in factor.keys())
+    return f"factor {k} ({type(factor).__name__} on {keys})"
+
+
+def _check_noise(factor, k: int) -> None:
+    model = factor.noiseModel() if hasattr(factor, "noiseModel") else None
+    if model is not None and not isinstance(model, gtsam.noiseModel.Gaussian):
+        kind = type(model).__name__
+        raise G2oWriteError(
+            f"writeG2o: {_describe(factor, k)} has a {kind} noise model; a g2o edge holds an "
+            "information matrix only, so its kernel would be lost (write the graph read "
+            "without a kernel, or one with the robust models' noise())")
+
+
+def _is_pose(values: gtsam.Values, key: int) -> bool:
+    for at in (values.atPose2, values.atPose3):
+        try:
+            at(key)
+            return True
+        except RuntimeError:
+            pass
+    return False
+
+
+def _check_written(path: str, graph: gtsam.NonlinearFactorGraph, estimate: gtsam.Values) -> None:
+    """Every factor and every value of ``graph``/``estimate`` has its line in the file at ``path``."""
+    vertices = edges = 0
+    with open(path) as fh:
+        for line in fh:
+            if line.startswith("VERTEX"):
+                vertices += 1
+            elif line.strip() and not line.startswith("PARAMS"):
+                edges += 1
+    missing = estimate.size() - vertices
+    if missing:
+        # Which ones, as far as Python can tell: Values.atPoint3 also reads a
+        # 3-vector inserted as a plain numpy array (a Vector, which GTSAM's
+        # writer passes over), so name every value that is not a pose.
+        others = [gtsam.DefaultKeyFormatter(k) for k in estimate.keys() if not _is_pose(estimate, k)]
+        raise G2oWriteError(
+            f"writeG2o: {missing} of the {estimate.size()} values have no g2o vertex type and would "
+            "be left out of the file (GTSAM writes Pose2, Pose3, Point2 and Point3 values; a numpy "
+            "array given to Values.insert is a Vector, Values.insertPoint3 makes a Point3); the "
+            f"values that are not poses: {', '.join(others[:10])}{' ...' if len(others) > 10 else ''}")
+    factors = sum(graph.at(k) is not None for k in range(graph.size()))
+    if edges != factors:  # every class was checked to write its edge: this is GTSAM's doing
+        raise G2oWriteError(f"writeG2o: GTSAM wrote {edges} edges for {factors} factors")
+
+
+def writeG2o(graph: gtsam.NonlinearFactorGraph, estimate: gtsam.Values, filename: str) -> None:
+    """Write ``graph`` and ``estimate`` to a g2o file, as ``gtsam.writeG2o`` does, with our factors.
+
+    Our factors are written as GTSAM's own classes with the same measured
+    value and noise model (:func:`to_gtsam`), so the file is the one GTSAM
+    writes for its own factors.  Nothing is dropped silently: GTSAM's writer
+    passes over every factor it has no g2o edge for (priors, factors on other
+    types, a user's CustomFactor, ...) and every value that is not a Pose2,
+    Pose3, Point2 or Point3; here any of those raises :class:`G2oWriteError`
+    (a ValueError) naming it, and so does a robust noise model (GTSAM raises
+    ValueError for it too, after printing it).  Remove what cannot be written
+    (e.g. build the graph without its prior) to write the rest.
+
+    GTSAM writes to a scratch file, which is copied to ``filename`` only once
+    every factor and value is found in it; so a refusal leaves no file (GTSAM's
+    own writer leaves a partial one), and a directory that does not exist
+    raises (GTSAM's writes nothing, silently).  Keys are written as
+    ``Symbol(key).index()``, as GTSAM does.
+    """
+    native = to_gtsam_graph(graph)
+    if not (isinstance(native, gtsam.NonlinearFactorGraph) and isinstance(estimate, gtsam.Values)):
+        gtsam.writeG2o(native, estimate, filename)  # GTSAM's TypeError for the wrong arguments
+        return
+    cache: dict = {}
+    for k in range(native.size()):
+        f = native.at(k)
+        if f is None:
+            continue
+        _check_noise(f, k)  # first: GTSAM's writer prints a model it refuses
+        if not _writes_edge(f, cache):
+            raise G2oWriteError(
+                f"writeG2o: {_describe(f, k)} has no g2o edge type; GTSAM's writer would "
+                "leave it out of the file")
+    fd, scratch = tempfile.mkstemp(suffix=".g2o")
+    os.close(fd)
+    try:
+        gtsam.writeG2o(native, estimate, scratch)
+        _check_written(scratch, native, estimate)
+        shutil.copyfile(scratch, os.fspath(filename))
+    finally:
+        os.unlink(scratch)
+
+
+def readG2o(g2oFile: str, is3D: bool = False,
+            kernelFunctionType=gtsam.KernelFunctionType.KernelFunctionTypeNONE):
+    """``gtsam.readG2o`` with lie_factors' Between factors: ``(graph, initial)``.
+
+    GTSAM reads the file (same vertices, edges, noise models, kernels and
+    errors for a malformed file); each of its BetweenFactorPose2/Pose3 is then
+    replaced by ours with the same keys, measured value and noise model
+    (:func:`from_gtsam`).  Landmark factors stay GTSAM's.
+    """
+    graph, initial = gtsam.readG2o(g2oFile, is3D, kernelFunctionType)
+    return from_gtsam_graph(graph), initial
+
+
+# --------------------------------------------------------------------------- #
+# Initializers
+# --------------------------------------------------------------------------- #
+
+class InitializePose3:
+    """``gtsam.InitializePose3`` on graphs of our factors (converted by :func:`to_gtsam_graph`).
+
+    Same static methods, arguments, results and exceptions as GTSAM's; only
+    the factor graph argument is converted.  Factors GTSAM's initializer does
+    not use (landmarks, other types, a user's CustomFactor) it ignores, as in
+    a graph of its own factors; a robust noise model is handed over as it is
+    (GTSAM's factor with the same model), so GTSAM does with it what it does
+    with its own.
+    """
+
+    @staticmethod
+    def buildPose3graph(graph, *args, **kwargs):
+        """GTSAM's: the Pose3 between factors, priors as betweens to the anchor (GTSAM's classes)."""
+        return gtsam.InitializePose3.buildPose3graph(to_gtsam_graph(graph), *args, **kwargs)
+
+    @staticmethod
+    def computeOrientationsChordal(pose3Graph, *args, **kwargs):
+        """GTSAM's chordal relaxation of the rotations of a graph of Pose3 between factors."""
+        return gtsam.InitializePose3.computeOrientationsChordal(to_gtsam_graph(pose3Graph), *args, **kwargs)
+
+    @staticmethod
+    def computeOrientationsGradient(pose3Graph, *args, **kwargs):
+        """GTSAM's gradient-descent rotations of a graph of Pose3 between factors."""
+        return gtsam.InitializePose3.computeOrientationsGradient(to_gtsam_graph(pose3Graph), *args, **kwargs)
+
+    @staticmethod
+    def initialize(graph, *args, **kwargs):
+        """GTSAM's initializer: rotations (chordal, or gradient), then one Gauss–Newton step on the poses."""
+        return gtsam.InitializePose3.initialize(to_gtsam_graph(graph), *args, **kwargs)
+
+    @staticmethod
+    def initializeOrientations(graph, *args, **kwargs):
+        """GTSAM's chordal rotations of the Pose3 subgraph."""
+        return gtsam.InitializePose3.initializeOrientations(to_gtsam_graph(graph), *args, **kwargs)
+
+
+def _lago_initialize(graph, *args, **kwargs):
+    """``gtsam.lago.initialize`` (LAGO on a Pose2 graph; or refine ``initialGuess``) with our factors.
+
+    As :class:`InitializePose3`: the graph converted, everything else GTSAM's
+    (which raises ValueError for a noise model that is not diagonal, robust included).
+    """
+    return gtsam.lago.initialize(to_gtsam_graph(graph), *args, **kwargs)
+
+
+def _lago_initialize_orientations(graph, *args, **kwargs):
+    """``gtsam.lago.initializeOrientations`` (LAGO's Pose2 orientations) with our factors."""
+    return gtsam.lago.initializeOrientations(to_gtsam_graph(graph), *args, **kwargs)
+
+
+#: ``gtsam.lago`` on graphs of our factors: ``lago.initialize``, ``lago.initializeOrientations``.
+lago = SimpleNamespace(
+    __name__="lie_factors.optimizers.compat.lago",
+    __doc__="gtsam.lago's functions on graphs of lie_factors' factors (converted to GTSAM's classes).",
+    initialize=_lago_initialize,
+    initializeOrientations=_lago_initialize_orientations,
+)

@@ -1,0 +1,92 @@
+"""lie_factors.dropin: gtsam's namespace with our factors and drop-ins in place of GTSAM's."""
+
+from __future__ import annotations
+
+import importlib
+
+import gtsam
+import numpy as np
+import pytest
+
+import lie_factors.dropin as dropin
+from lie_factors import factors, optimizers
+from lie_factors.optimizers import compat
+
+GROUPS = ("Rot3", "Pose2", "Pose3", "Similarity2", "Similarity3")
+
+
+def test_factor_classes_are_ours():
+    for group in GROUPS:
+        for kind in ("BetweenFactor", "PriorFactor"):
+            name = kind + group
+            assert getattr(dropin, name) is getattr(factors, name)
+            assert dropin.REPLACED[name] == "lie_factors.factors"
+
+
+def test_compat_functions_are_ours():
+    assert dropin.writeG2o is compat.writeG2o
+    assert dropin.readG2o is compat.readG2o
+    assert dropin.InitializePose3 is compat.InitializePose3
+    assert dropin.lago is compat.lago
+
+
+def test_every_other_name_is_gtsams_own_object():
+    public = [n for n in dir(gtsam) if not n.startswith("_")]
+    assert len(public) > 500
+    for name in public:
+        if name in dropin.REPLACED:
+            assert getattr(dropin, name) is not getattr(gtsam, name)
+        else:
+            assert getattr(dropin, name) is getattr(gtsam, name), name
+    assert set(dir(gtsam)) <= set(dir(dropin))
+
+
+def test_replaced_names_are_exactly_ours_and_optimizers_dropins():
+    from_optimizers = {n for n in dir(optimizers) if not n.startswith("_") and hasattr(gtsam, n)
+                       and not isinstance(getattr(optimizers, n), type(gtsam))}
+    from_factors = {k + g for k in ("BetweenFactor", "PriorFactor") for g in GROUPS}
+    assert set(dropin.REPLACED) == from_optimizers | from_factors
+    assert {"writeG2o", "readG2o", "InitializePose3", "lago"} <= from_optimizers
+    for name, module in dropin.REPLACED.items():
+        assert getattr(dropin, name) is getattr(__import__(module, fromlist=[name]), name)
+
+
+def test_submodules_reachable_as_attributes():
+    assert dropin.noiseModel is gtsam.noiseModel
+    assert dropin.symbol_shorthand is gtsam.symbol_shorthand
+    assert dropin.imuBias is gtsam.imuBias
+    assert dropin.utilities is gtsam.utilities
+    assert dropin.utils is importlib.import_module("gtsam.utils")
+    assert dropin.symbol_shorthand.X(3) == gtsam.symbol("x", 3)
+    with pytest.raises(AttributeError, match="has no attribute 'no_such_name'"):
+        dropin.no_such_name  # noqa: B018
+    # A module, not a package: no second copy of gtsam's submodules under another name.
+    assert not hasattr(dropin, "__path__")
+    with pytest.raises(ModuleNotFoundError, match="not a package"):
+        importlib.import_module("lie_factors.dropin.utils")
+
+
+def test_from_import_and_a_mixed_graph():
+    from lie_factors.dropin import (BetweenFactorPose2, NonlinearFactorGraph, Pose2, PriorFactorPose2,
+                                    Values, noiseModel)
+
+    graph = NonlinearFactorGraph()
+    noise = noiseModel.Diagonal.Sigmas(np.array([0.1, 0.1, 0.05]))
+    graph.add(PriorFactorPose2(0, Pose2(), noise))
+    graph.add(BetweenFactorPose2(0, 1, Pose2(1, 0, 0.1), noise))
+    graph.add(gtsam.BetweenFactorPose2(1, 2, Pose2(1, 0, 0.1), noise))  # GTSAM's own, beside ours
+    values = Values()
+    for k in range(3):
+        values.insert(k, Pose2(0.9 * k, 0.05, 0.0))
+    result = dropin.LevenbergMarquardtOptimizer(graph, values, dropin.LevenbergMarquardtParams()).optimize()
+    assert result.atPose2(2).equals(Pose2(1, 0, 0.1).compose(Pose2(1, 0, 0.1)), 1e-9)
+    assert type(graph.at(1)) is factors.BetweenFactorPose2
+
+
+def test_star_import_gives_gtsams_names_with_ours():
+    ns: dict = {}
+    exec("from lie_factors.dropin import *", ns)
+    assert {n for n in ns if not n.startswith("_")} == {n for n in dir(gtsam) if not n.startswith("_")}
+    assert ns["BetweenFactorPose3"] is factors.BetweenFactorPose3
+    assert ns["writeG2o"] is compat.writeG2o
+    assert ns["Pose3"] is gtsam.Pose3
