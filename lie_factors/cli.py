@@ -200,10 +200,7 @@ def _run_posegraph(args) -> int:
     class Printer(pgm.RunEvents):
         def loaded(self, run):
             pg = run.pg
-            kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
-            lms = (f", {pg.landmark_count} landmarks, {pg.observations} landmark measurements"
-                   if pg.observations else "")
-            _say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges{lms}"
+            _say(args, f"{pg.describe()}"
                        f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
                        f"backend {args.backend}")
             if run.robust is not None:

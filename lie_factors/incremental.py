@@ -245,10 +245,7 @@ def main(args, say: Callable[[object, str], None], emit_json: Callable[[dict], N
     load_factors(args.backend)
     pg = load(args.dataset)
     params = isam2_params(args.relinearize_threshold, args.relinearize_skip)
-    kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[pg.group]
-    lms = (f", {pg.landmark_count} landmarks, {pg.observations} landmark measurements"
-           if pg.observations else "")
-    say(args, f"{pg.name}: {kind}, {pg.poses} poses, {pg.edges} edges{lms}; incremental (ISAM2, "
+    say(args, f"{pg.describe()}; incremental (ISAM2, "
               f"relinearize threshold {args.relinearize_threshold:g}, skip {args.relinearize_skip}), "
               f"backend {args.backend}")
 

@@ -127,6 +127,14 @@ class PoseGraph:
             return 0
         return int(self.landmarks.size())
 
+    def describe(self) -> str:
+        """``"name: SE(3), N poses, M edges[, K landmarks, L landmark measurements]"``: the
+        first line a run prints (batch and incremental alike)."""
+        kind = {"Pose2": "SE(2)", "Pose3": "SE(3)", "Similarity3": "Sim(3)"}[self.group]
+        lms = (f", {self.landmark_count} landmarks, {self.observations} landmark measurements"
+               if self.observations else "")
+        return f"{self.name}: {kind}, {self.poses} poses, {self.edges} edges{lms}"
+
     def native_graph(self) -> gtsam.NonlinearFactorGraph:
         """The file's factors as GTSAM built them (what :func:`lie_factors.g2o.write_g2o` writes)."""
         graph = gtsam.NonlinearFactorGraph(self.between)
