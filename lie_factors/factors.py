@@ -481,6 +481,16 @@ class PriorFactorSimilarity3(PriorFactor):
 _prepared = None
 
 
+def pose3_from_rows(rows: np.ndarray, X: np.ndarray) -> None:
+    """Write (N, 4, 4) Pose3 matrices into ``X`` from ``gtsam.utilities.extractPose3``'s
+    (N, 12) rows (the rotation's 9 entries row-major, then the translation): the
+    entries ``.matrix()`` gives, without one Python call per pose."""
+    X[:, :3, :3] = rows[:, :9].reshape(-1, 3, 3)
+    X[:, :3, 3] = rows[:, 9:12]
+    X[:, 3, :3] = 0.0
+    X[:, 3, 3] = 1.0
+
+
 class _GroupEvaluation:
     """The factors of one group in a graph: constants stacked, results of the last evaluation."""
 
@@ -519,12 +529,7 @@ class _GroupEvaluation:
             self.total = len(order)
         if rows.shape[0] != self.total:
             return False
-        sel = rows[self.rows]
-        X = self.X[:-1]
-        X[:, :3, :3] = sel[:, :9].reshape(-1, 3, 3)
-        X[:, :3, 3] = sel[:, 9:]
-        X[:, 3, :3] = 0.0
-        X[:, 3, 3] = 1.0
+        pose3_from_rows(rows[self.rows], self.X[:-1])
         return True
 
     def evaluate(self, values) -> None:

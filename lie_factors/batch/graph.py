@@ -182,12 +182,10 @@ def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
             raise BatchError(f"key {key_name(k)} must hold a gtsam.{spec.name} "
                              f"(it is used by a {spec.name} factor)")
         E = E[pos]
-        X[:] = 0.0
         if spec.name == "Pose3":
-            X[:, :3, :3] = E[:, :9].reshape(-1, 3, 3)
-            X[:, :3, 3] = E[:, 9:12]
-            X[:, 3, 3] = 1.0
+            _factors.pose3_from_rows(E, X)
         else:
+            X[:] = 0.0
             c, s_ = np.cos(E[:, 2]), np.sin(E[:, 2])
             X[:, 0, 0], X[:, 0, 1], X[:, 1, 0], X[:, 1, 1] = c, -s_, s_, c
             X[:, 0, 2], X[:, 1, 2], X[:, 2, 2] = E[:, 0], E[:, 1], 1.0
