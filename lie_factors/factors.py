@@ -47,6 +47,7 @@ from ._validate import ORTHONORMAL_TOL
 # Codes of check_element (defined with the check in _check); _ELEMENT_ERRORS turns them into messages.
 from ._check import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION
 from ._jit import kernel
+from .elements import pose3_from_rows
 
 __all__ = [
     "BetweenFactorRot3",
@@ -479,16 +480,6 @@ class PriorFactorSimilarity3(PriorFactor):
 
 #: The plan whose results the factors' callbacks may return (see :class:`EvaluationPlan`).
 _prepared = None
-
-
-def pose3_from_rows(rows: np.ndarray, X: np.ndarray) -> None:
-    """Write (N, 4, 4) Pose3 matrices into ``X`` from ``gtsam.utilities.extractPose3``'s
-    (N, 12) rows (the rotation's 9 entries row-major, then the translation): the
-    entries ``.matrix()`` gives, without one Python call per pose."""
-    X[:, :3, :3] = rows[:, :9].reshape(-1, 3, 3)
-    X[:, :3, 3] = rows[:, 9:12]
-    X[:, 3, :3] = 0.0
-    X[:, 3, 3] = 1.0
 
 
 class _GroupEvaluation:

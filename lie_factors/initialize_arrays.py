@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from .elements import pose2_matrices
 from .initialize import ANCHOR_KEY, Initialization, InitializationError, auto_order
 
 #: GTSAM's ``Gaussian::Information(M, smart=true)`` (what readG2o builds) makes a
@@ -28,15 +29,6 @@ GTSAM_DIAGONAL_TOL = 1e-9
 
 #: Methods this module runs; the rest go through GTSAM's path.
 ARRAY_METHODS = ("chordal", "lago", "file")
-
-
-def _pose2_matrices(x: np.ndarray) -> np.ndarray:
-    """[x, y, θ] (N, 3) → Pose2 matrices (N, 3, 3), as ``Pose2(x, y, θ).matrix()``."""
-    c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
-    X = np.zeros((len(x), 3, 3))
-    X[:, 0, 0], X[:, 0, 1], X[:, 1, 0], X[:, 1, 1] = c, -s, s, c
-    X[:, 0, 2], X[:, 1, 2], X[:, 2, 2] = x[:, 0], x[:, 1], 1.0
-    return X
 
 
 def _xytheta(X: np.ndarray) -> np.ndarray:
@@ -88,10 +80,10 @@ def _run(name: str, a, prior_key: int, prior_element: np.ndarray, prior_informat
             info, pinfo = _diagonal_as_gtsam(a, pI)
             x = relaxation.lago_pose2(n, i, j, Z, info, p, pZ, pinfo, keys=a.keys,
                                       use_odometric_path=_odometric_path_complete(a.keys, a.edge_keys))
-            return _pose2_matrices(x)
+            return pose2_matrices(x)
         if a.group == "Pose3":
             return relaxation.initialize_pose3(n, i, j, Z, a.information, p, pZ, pI)
-        return _pose2_matrices(relaxation.chordal_pose2(n, i, j, Z, a.information, p, pZ, pI))
+        return pose2_matrices(relaxation.chordal_pose2(n, i, j, Z, a.information, p, pZ, pI))
     except relaxation.RelaxationError as exc:
         raise InitializationError(str(exc)) from None
 

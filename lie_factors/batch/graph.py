@@ -26,6 +26,7 @@ import gtsam
 import numpy as np
 
 from .. import factors as _factors
+from ..elements import pose2_matrices, pose3_from_rows
 from .loops import GroupLoops
 from .losses import from_gtsam
 
@@ -183,12 +184,9 @@ def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
                              f"(it is used by a {spec.name} factor)")
         E = E[pos]
         if spec.name == "Pose3":
-            _factors.pose3_from_rows(E, X)
+            pose3_from_rows(E, X)
         else:
-            X[:] = 0.0
-            c, s_ = np.cos(E[:, 2]), np.sin(E[:, 2])
-            X[:, 0, 0], X[:, 0, 1], X[:, 1, 0], X[:, 1, 1] = c, -s_, s_, c
-            X[:, 0, 2], X[:, 1, 2], X[:, 2, 2] = E[:, 0], E[:, 1], 1.0
+            X[:] = pose2_matrices(E)
         return X
     at = getattr(values, spec.at)
     for j, k in enumerate(keys):
