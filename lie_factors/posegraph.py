@@ -45,7 +45,7 @@ from .initialize import METHODS as INIT_METHODS
 from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
 from .results import IterationInfo, OptimizeResult
 from .stack import large_stack
-from .timing import Stopwatch, warm_up_factors
+from .timing import IterationLog, Stopwatch, warm_up_factors
 
 
 # --------------------------------------------------------------------------- #
@@ -724,15 +724,7 @@ class PoseGraphRun:
         prior = (pg.first_key, _first_element(pg), prior_noise(pg.is3d, pg.group).R())
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(int(self.max_iterations))
-        step = Stopwatch()
-        history: list = []
-
-        def hook(it, err, lam):
-            info = IterationInfo(int(it), float(err), float(lam), step.seconds())
-            step.restart()
-            history.append(info)
-            self.events.iteration(info)
-
+        log = IterationLog(self.events.iteration)
         import numba
 
         threads = numba.get_num_threads()
@@ -744,8 +736,8 @@ class PoseGraphRun:
                 numba.set_num_threads(1)
             self._opt = opt = BatchLevenbergMarquardt(problem, None, params)
             self.timings["setup"] = clock.seconds()
-            step.restart()
-            res = opt.optimize(hook, values=not self.lazy_values)
+            log.restart()
+            res = opt.optimize(log, values=not self.lazy_values)
         except BatchError as exc:
             raise PoseGraphError(f"batch backend: {exc}") from None
         except RuntimeError as exc:
@@ -755,7 +747,7 @@ class PoseGraphRun:
         seconds = clock.seconds()
         self.timings["iterations"] = seconds - self.timings["setup"]
         result = OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
-                                seconds, res.converged, history)
+                                seconds, res.converged, log.history)
         result.start = start.values if start.values is not None or self.lazy_values else self.start_values()
         self.result = result
         self._graph_size = problem.graph_size

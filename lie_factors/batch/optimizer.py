@@ -26,8 +26,8 @@ import gtsam
 import numpy as np
 
 from ..errors import PoseGraphError
-from ..results import IterationInfo, OptimizeResult
-from ..timing import Stopwatch
+from ..results import OptimizeResult
+from ..timing import IterationLog, Stopwatch
 from . import solvers
 from .graph import BatchError, Problem, first_line
 from .solvers import NotPositiveDefinite
@@ -402,24 +402,15 @@ def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iter
     params.setMaxIterations(int(max_iterations))
     # Compilation of the loops (first run on a machine) is not optimization time.
     clock = Stopwatch()
-    step = Stopwatch()
-    history: list = []
-
-    def hook(it, err, lam):
-        info = IterationInfo(int(it), float(err), float(lam), step.seconds())
-        step.restart()
-        history.append(info)
-        if progress is not None:
-            progress(info)
-
+    log = IterationLog(progress)
     try:
         cls = BatchLevenbergMarquardt if optimizer_class is None else optimizer_class
         opt = cls(graph, initial, params, linear_solver=linear_solver)
-        step.restart()
-        res = opt.optimize(hook)
+        log.restart()
+        res = opt.optimize(log)
     except BatchError as exc:
         raise PoseGraphError(f"batch backend: {exc}") from None
     except RuntimeError as exc:
         raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
     return OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
-                          clock.seconds(), res.converged, history)
+                          clock.seconds(), res.converged, log.history)
