@@ -380,17 +380,24 @@ def _lago(pg: _PoseGraph) -> gtsam.Values:
     return _check_values(_run_gtsam(pg, lambda g: gtsam.lago.initialize(g, path)), pg, "LAGO")
 
 
+def odometric_path_complete(keys: np.ndarray, edge_keys: np.ndarray) -> bool:
+    """Whether the edges k–(k+1) link every pose to the smallest key, as lago's odometric tree needs.
+
+    ``keys`` (P,) sorted pose keys, ``edge_keys`` (E, 2) the between factors' keys.
+    """
+    # uint64, GTSAM's Key: differences are taken in both directions (no sign to overflow).
+    keys = np.asarray(keys, dtype=np.uint64)
+    edge_keys = np.asarray(edge_keys, dtype=np.uint64).reshape(-1, 2)
+    if len(keys) == 0 or int(keys[-1] - keys[0]) != len(keys) - 1 or ANCHOR_KEY in set(keys.tolist()):
+        return False
+    a, b = edge_keys[:, 0], edge_keys[:, 1]
+    consecutive = (a - b == 1) | (b - a == 1)
+    lows = np.unique(np.minimum(a[consecutive], b[consecutive]))
+    return bool(np.isin(keys[:-1], lows).all())
+
+
 def _odometric_path_complete(pg: _PoseGraph) -> bool:
-    """Whether the edges k–(k+1) link every pose to the smallest key, as lago's odometric tree needs."""
-    chain = set()
-    for f in pg.between:
-        i, j = f.keys()
-        if abs(int(i) - int(j)) == 1:
-            chain.add(min(i, j))
-    keys = pg.keys
-    return (keys[-1] - keys[0] == len(keys) - 1
-            and all(k in chain for k in keys[:-1])
-            and ANCHOR_KEY not in keys)
+    return odometric_path_complete(pg.keys, [f.keys() for f in pg.between])
 
 
 def spanning_tree_initial(graph: gtsam.NonlinearFactorGraph, is3d: bool, root: int,

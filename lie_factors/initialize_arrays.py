@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from .elements import pose2_matrices
-from .initialize import ANCHOR_KEY, Initialization, InitializationError, auto_order
+from .initialize import Initialization, InitializationError, auto_order, odometric_path_complete
 
 #: GTSAM's ``Gaussian::Information(M, smart=true)`` (what readG2o builds) makes a
 #: Diagonal model when every off-diagonal entry is at most this (checkIfDiagonal).
@@ -50,15 +50,6 @@ def _diagonal_as_gtsam(a, prior_information: np.ndarray):
     return diag, pdiag
 
 
-def _odometric_path_complete(keys: np.ndarray, edge_keys: np.ndarray) -> bool:
-    """Whether the edges k–(k+1) link every pose to the smallest key (lago's odometric tree)."""
-    if len(keys) == 0 or keys[-1] - keys[0] != len(keys) - 1 or ANCHOR_KEY in set(keys.tolist()):
-        return False
-    consecutive = np.abs(edge_keys[:, 0] - edge_keys[:, 1]) == 1
-    lows = np.unique(np.minimum(edge_keys[consecutive, 0], edge_keys[consecutive, 1]))
-    return bool(np.isin(keys[:-1], lows).all())
-
-
 def _run(name: str, a, prior_key: int, prior_element: np.ndarray, prior_information: np.ndarray):
     from . import relaxation  # cvxopt (CHOLMOD) and numpy; loaded only by array initialization
 
@@ -79,7 +70,7 @@ def _run(name: str, a, prior_key: int, prior_element: np.ndarray, prior_informat
                 raise InitializationError(f"LAGO is for Pose2 graphs; this one is {a.group}")
             info, pinfo = _diagonal_as_gtsam(a, pI)
             x = relaxation.lago_pose2(n, i, j, Z, info, p, pZ, pinfo, keys=a.keys,
-                                      use_odometric_path=_odometric_path_complete(a.keys, a.edge_keys))
+                                      use_odometric_path=odometric_path_complete(a.keys, a.edge_keys))
             return pose2_matrices(x)
         if a.group == "Pose3":
             return relaxation.initialize_pose3(n, i, j, Z, a.information, p, pZ, pI)
