@@ -36,9 +36,10 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from lie_factors import batch, factors, posegraph  # noqa: E402
+from lie_factors import batch, factors
+from lie_factors.app import run as posegraph  # noqa: E402
 
-DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "..", "shared", "data"))
+DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "data"))
 DEFAULT = "sphere2500,torus3D,city10000,intel,kitti_00,parking-garage,se3chain6k,se3chain20k,se2chain20k"
 SPLIT = ("linearize", "assemble", "factorize", "retract", "error")
 
@@ -181,7 +182,7 @@ def peak_rss(backend, dataset="torus3D", *extra):
     """Peak RSS (MiB) of ``lie-factors posegraph DATASET --backend BACKEND [extra]`` in a fresh process."""
     # VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss across fork + exec, so a
     # child of this (large) benchmark process would report the parent's peak.
-    code = ("import sys; from lie_factors import cli; rc = cli.main(sys.argv[1:]); "
+    code = ("import sys; from lie_factors.app import cli; rc = cli.main(sys.argv[1:]); "
             "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]; "
             "print(hwm.split()[1], file=sys.stderr); sys.exit(rc)")
     env = dict(os.environ, PYTHONPATH=ROOT)

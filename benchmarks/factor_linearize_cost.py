@@ -1,4 +1,4 @@
-"""Cost of ``graph.linearize(values)`` with lie_factors' BetweenFactorPose3 (issue 3).
+"""Cost of ``graph.linearize(values)`` with lie_factors' BetweenFactorPose3.
 
 On GTSAM's sphere2500 (``gtsam.findExampleDataFile("sphere2500.txt")``, edges
 only, initialized by composing measurements along a spanning tree) the same
@@ -24,7 +24,8 @@ import time
 import gtsam
 import numpy as np
 
-from lie_factors import factors, posegraph
+from lie_factors import factors
+from lie_factors.app import run as posegraph
 
 
 def _empty(this, values, H):

@@ -4,7 +4,7 @@ Both run in this process, alternated, best of ``--repeat`` runs each (the
 machine is shared: the best run is the least disturbed one).  The check does
 everything ``lie-factors posegraph`` checks before GTSAM reads the file
 (parse, per-record checks, duplicates, references, connectivity); the target
-(issue 10) is check ≤ 2 × readG2o.
+is check ≤ 2 × readG2o.
 
     python benchmarks/g2o_check.py [--data-dir DIR] [--datasets A B ...] [--repeat N]
 
@@ -52,7 +52,7 @@ def _timed(fn) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data-dir", default=str(ROOT.parent / "shared" / "data"))
+    ap.add_argument("--data-dir", default=str(ROOT / "data"))
     ap.add_argument("--datasets", nargs="+", default=DEFAULT)
     ap.add_argument("--repeat", type=int, default=7)
     args = ap.parse_args(argv)

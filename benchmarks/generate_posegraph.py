@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from lie_factors.relaxation import _rot_exp_V  # noqa: E402  (numpy Exp of stacks; no numba)
+from lie_factors.initialization.relaxation import _rot_exp_V  # noqa: E402  (numpy Exp of stacks; no numba)
 
 SIGMAS = np.array([0.01, 0.01, 0.01, 0.05, 0.05, 0.05])  # [ω (rad), v (m)]
 

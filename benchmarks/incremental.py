@@ -1,4 +1,4 @@
-"""Online replay through ISAM2, three ways (issue 16):
+"""Online replay through ISAM2, three ways:
 
 - ``native``: GTSAM's own factors in ``gtsam.ISAM2``;
 - ``plain``: lie_factors' factors in plain ``gtsam.ISAM2`` (every callback gets a copy of
@@ -6,7 +6,7 @@
   with the other legs' time for the same number of updates);
 - ``dropin``: lie_factors' factors in :class:`lie_factors.optimizers.ISAM2`.
 
-Each replay is :func:`lie_factors.incremental.replay` (what ``lie-factors posegraph FILE
+Each replay is :func:`lie_factors.app.incremental.replay` (what ``lie-factors posegraph FILE
 --incremental`` runs: poses in id order, one per update, GTSAM's default ISAM2Params).
 The legs alternate (repeat ▸ dataset ▸ leg) and each reports its best of ``--repeat``.
 Datasets: files (``--data-dir``) and ``helix``: a generated 10k-pose SE(3) helix that
@@ -42,7 +42,8 @@ if str(ROOT) not in sys.path:
 import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 
-from lie_factors import g2o, incremental, posegraph  # noqa: E402
+from lie_factors import g2o
+from lie_factors.app import incremental, run as posegraph  # noqa: E402
 
 DEFAULT_DATASETS = ["intel", "city10000", "sphere2500", "helix"]
 LEGS = ("native", "plain", "dropin")
@@ -133,7 +134,7 @@ def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int) -
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data-dir", default="/work/shared/data", help="directory of the g2o files")
+    ap.add_argument("--data-dir", default=str(ROOT / "data"), help="directory of the g2o files")
     ap.add_argument("--datasets", nargs="+", default=DEFAULT_DATASETS)
     ap.add_argument("--legs", nargs="+", default=list(LEGS), choices=LEGS)
     ap.add_argument("--repeat", type=int, default=2)

@@ -1,4 +1,4 @@
-"""GTSAM's initializers vs lie_factors.relaxation (the same results on arrays), side by side.
+"""GTSAM's initializers vs lie_factors.initialization.relaxation (the same results on arrays), side by side.
 
     flock /work/coord/bench.lock python benchmarks/initializers.py --repeat 3
 
@@ -8,9 +8,9 @@ Per graph, alternating the two within each repetition, best of ``--repeat``:
   diagonal noise), or ``InitializePose3.initialize`` on the planar Pose3 graph
   (2-D with full covariances, lie_factors' rule) — run on a large-stack thread
   (lie_factors.stack), on GTSAM's own factor graph built beforehand;
-* ``arrays``: :func:`lie_factors.relaxation.initialize_pose3` / ``lago_pose2`` /
+* ``arrays``: :func:`lie_factors.initialization.relaxation.initialize_pose3` / ``lago_pose2`` /
   ``chordal_pose2`` on the arrays (indices, measurements, information);
-* ``initialize()``: :func:`lie_factors.initialize.initialize` on the graph
+* ``initialize()``: :func:`lie_factors.initialization.initialize` on the graph
   (factor objects in, Values out, as the CLI calls it), with the arrays inside
   vs with GTSAM's initializer inside (cvxopt hidden).
 
@@ -31,12 +31,12 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import gtsam  # noqa: E402
 
-from lie_factors import initialize as LI  # noqa: E402
-from lie_factors import relaxation as rx  # noqa: E402
+from lie_factors import initialization as LI  # noqa: E402
+from lie_factors.initialization import relaxation as rx  # noqa: E402
 from lie_factors import stack  # noqa: E402
-from lie_factors.posegraph import build_graph, load  # noqa: E402
+from lie_factors.app.run import build_graph, load  # noqa: E402
 
-DATA = os.environ.get("LIE_FACTORS_DATA", "/work/shared/data")
+DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data"))
 DEFAULT = ["sphere2500", "torus3D", "city10000", "intel", "kitti_00"]
 
 

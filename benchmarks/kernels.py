@@ -22,7 +22,7 @@ batched: every public kernel on ``--n`` elements (median of 7 calls after a warm
 call, input validation and output allocation included). Rotation angles uniform in
 [0, π), translations ~N(0, 10²), λ uniform in [-2, 2].
 
-accuracy: ``lie_factors.crosscheck.run``, ours and GTSAM's error against the
+accuracy: ``lie_factors.app.crosscheck.run``, ours and GTSAM's error against the
 50-digit reference per function and θ band.
 """
 
@@ -38,7 +38,8 @@ import time
 import gtsam
 import numpy as np
 
-from lie_factors import crosscheck, se2, se3, sim2, sim3, so3
+from lie_factors.app import crosscheck
+from lie_factors import se2, se3, sim2, sim3, so3
 
 #: The clock of every timing (set by --clock): the thread's CPU time or wall time.
 clock = time.thread_time

@@ -1,4 +1,4 @@
-"""Is numba worth its fixed start-up on a small graph?  One measurement for issue 17.
+"""Is numba worth its fixed start-up on a small graph?
 
     python benchmarks/numpy_vs_numba.py [DATASET.g2o]   (default sphere2500, SE(3), 4 949 edges)
 
@@ -8,7 +8,7 @@ Between factor (error e = Log(M⁻¹·X1⁻¹·X2), both Jacobians, whitening):
 
 * numba: ``lie_factors.batch.loops`` ``_between_lin`` (the library's kernel), warm;
 * numpy: the same quantities with numpy stacks — Log and the inverse right
-  Jacobian of SE(3) from ``lie_factors.relaxation`` (numpy, written for the
+  Jacobian of SE(3) from ``lie_factors.initialization.relaxation`` (numpy, written for the
   initializer), H2 = J_r⁻¹(e), H1 = −J_r⁻¹(e)·Ad(X2⁻¹X1) (GTSAM's ``between``
   Jacobians, equal to the kernel's: the script prints how closely), then R·H and R·e;
 
@@ -28,13 +28,14 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
-DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "..", "shared", "data"))
+DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "data"))
 
 FRESH = r"""
 import time, sys
 t0 = time.perf_counter(); import numba; t1 = time.perf_counter()
 import numpy as np
-from lie_factors import _dispatch, factors
+from lie_factors import factors
+from lie_factors.kernels import dispatch as _dispatch
 from lie_factors.batch import loops
 t2 = time.perf_counter()
 M = np.eye(4)[None].repeat(2, 0)
@@ -55,8 +56,8 @@ def best(f, n=5):
 
 def main():
     path = sys.argv[1] if len(sys.argv) > 1 else os.path.join(DATA, "sphere2500.g2o")
-    from lie_factors import posegraph as P
-    from lie_factors import relaxation as rx
+    from lie_factors.app import run as P
+    from lie_factors.initialization import relaxation as rx
     from lie_factors.batch import Problem
 
     pg = P.load(path)
@@ -89,7 +90,8 @@ def main():
     g.linearize(X)
     agree = max(float(np.abs(A2 - g.A2).max() / np.abs(g.A2).max()), float(np.abs(A1 - g.A1).max() / np.abs(g.A1).max()))
     # The scalar path (a GTSAM CustomFactor callback evaluates one factor): one element each.
-    from lie_factors import _dispatch, factors
+    from lie_factors.kernels import dispatch as _dispatch
+    from lie_factors import factors
     one = (Minv[:1], X[i1[:1]], X[i2[:1]], R[:1])
 
     def numpy_one():

@@ -24,7 +24,7 @@ import numpy as np
 
 from lie_factors import factors, optimizers
 
-DATA = os.environ.get("LIE_FACTORS_DATA", "/work/shared/data")
+DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data"))
 PRIOR_3D = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4]))
 PRIOR_2D = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
 

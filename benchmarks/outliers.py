@@ -4,7 +4,7 @@ For each graph the script
 
 1. optimizes the outlier-free graph with GTSAM's LM (the reference trajectory);
 2. plants ``--fraction`` × (number of loop closures) random false loop
-   closures (seeded; :func:`lie_factors.outliers.plant_false_loop_closures`:
+   closures (seeded; :func:`lie_factors.testing.outliers.plant_false_loop_closures`:
    random pose pairs ≥ 2 ids apart, uniformly random measurement, the noise
    model of a real loop closure);
 3. runs every method on every backend from the same initial guess (``--start``) and prints
@@ -23,7 +23,7 @@ inside C++ optimizers (README), which makes GNC's ~30 LM solves impractical.
 
 Starts (``--start``): ``auto`` (default) is what ``lie-factors posegraph``'s
 ``--init auto`` does under ``--gnc``/``--robust``: the odometry edges and the
-prior composed (:func:`lie_factors.initialize.initialize` with the known
+prior composed (:func:`lie_factors.initialization.initialize` with the known
 inliers); ``file`` the file's vertices (the chain: composed odometry);
 ``chordal`` the relaxation over every edge, false ones included (what
 ``--init auto`` is without ``--gnc``/``--robust``).
@@ -52,19 +52,20 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import gtsam  # noqa: E402
 
-from lie_factors import demo, outliers, posegraph as pgm  # noqa: E402
-from lie_factors.initialize import initialize  # noqa: E402
+from lie_factors.app import demo, run as pgm
+from lie_factors.testing import outliers  # noqa: E402
+from lie_factors.initialization import initialize  # noqa: E402
 from lie_factors.batch import gnc as gncm  # noqa: E402
 from lie_factors.batch.robust import LOSSES, RobustLoss, WeightedLevenbergMarquardt  # noqa: E402
 
-DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data")
+DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data")
 GRAPHS = ("sphere2500", "intel", "city10000", "chain1000")
 METHODS = ("lm", "huber", "cauchy", "tukey", "gm", "dcs", "gnc-tls")
 STARTS = ("auto", "file", "chordal")
 
 
 def load_graph(name: str) -> pgm.PoseGraph:
-    """A shared dataset by name, or ``chainN``: the demo's SE(3) trajectory with N poses."""
+    """A dataset of data/ by name, or ``chainN``: the demo's SE(3) trajectory with N poses."""
     if name.startswith("chain"):
         n = int(name[5:])
         prob = demo.simulate(n, seed=0)
@@ -183,7 +184,7 @@ def rmse(P, ref) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--graphs", nargs="+", default=list(GRAPHS),
-                    help=f"datasets in ../shared/data by name, or chainN (default: {' '.join(GRAPHS)})")
+                    help=f"datasets in data/ by name, or chainN (default: {' '.join(GRAPHS)})")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--backends", nargs="+", default=["native", "batch"], choices=["native", "batch"])
     ap.add_argument("--fraction", type=float, default=0.2,

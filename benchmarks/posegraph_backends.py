@@ -1,7 +1,7 @@
 """Pose-graph optimization through the CLI's backends: native, custom, batch.
 
 For each dataset and each start (``--init``; default: the file's vertices and
-``auto``): load once (lie_factors.posegraph.load), build the graph with each
+``auto``): load once (lie_factors.app.run.load), build the graph with each
 backend, initialize and run that backend's Levenberg-Marquardt
 (``posegraph.run``, what ``lie-factors posegraph`` runs), and tabulate the start
 used, iterations, final error, initialization and optimization seconds per
@@ -33,7 +33,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from lie_factors import atomic  # noqa: E402
-from lie_factors import posegraph as P  # noqa: E402
+from lie_factors.app import run as P  # noqa: E402
 DEFAULT_DATASETS = ["parking-garage", "sphere2500", "torus3D", "intel", "MIT", "CSAIL", "smallGrid3D"]
 DEFAULT_BACKENDS = ["native", "custom", "batch"]
 
@@ -143,7 +143,7 @@ def _gtsam_version() -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data-dir", default="/work/shared/data", help="directory of the g2o files")
+    parser.add_argument("--data-dir", default=str(ROOT / "data"), help="directory of the g2o files")
     parser.add_argument("--datasets", nargs="+", default=DEFAULT_DATASETS,
                         help="names (with or without .g2o), paths, or GTSAM example names")
     parser.add_argument("--backends", nargs="+", default=DEFAULT_BACKENDS, choices=list(P.BACKENDS))

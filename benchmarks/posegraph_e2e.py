@@ -3,7 +3,7 @@
     python benchmarks/posegraph_e2e.py [--repeats 2] [--datasets sphere2500,intel,...]
         [--init auto] [--output FILE.md]
 
-Each run is a fresh process (``python -c 'from lie_factors import cli; cli.main(...)'``,
+Each run is a fresh process (``python -c 'from lie_factors.app import cli; cli.main(...)'``,
 what the ``lie-factors`` script runs), timed from outside (wall seconds from
 spawning to exit, so Python's start-up and every import count), with its peak
 RSS read from ``/proc/self/status`` (``VmHWM``: ``ru_maxrss`` would carry this
@@ -14,7 +14,7 @@ best wall time of ``--repeats`` counts, with that run's ``--json`` record:
 check, initialization, set-up, iterations), and that process's CPU seconds
 (user + system, all threads: less disturbed by the machine's other users).
 
-Graphs: the datasets in ``$LIE_FACTORS_DATA`` (default ../shared/data),
+Graphs: the datasets in ``$LIE_FACTORS_DATA`` (default data/),
 ``w20000`` (GTSAM's ``w20000.txt``), and seeded SE(3) helix graphs with loop
 closures written by ``benchmarks/generate_posegraph.py`` (``helix20k``,
 ``helix100k``: 20 000 / 100 000 poses, a closure every 10th pose).
@@ -36,12 +36,12 @@ import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "..", "shared", "data"))
+DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "data"))
 GENERATED = os.environ.get("LIE_FACTORS_TMP", "/tmp")
 DEFAULT = "sphere2500,torus3D,city10000,intel,kitti_00,parking-garage,w20000,helix20k,helix100k"
 SPLIT = ("imports", "read", "init", "setup", "iterations")
 
-CODE = ("import sys; from lie_factors import cli; rc = cli.main(sys.argv[1:]); "
+CODE = ("import sys; from lie_factors.app import cli; rc = cli.main(sys.argv[1:]); "
         "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]; "
         "print('VmHWM', hwm.split()[1], file=sys.stderr); sys.exit(rc)")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from lie_factors import demo_sim3
+from lie_factors.app import demo_sim3
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Sim(3) kernels against their SE(3) counterparts, batched (issue 18).
+"""Sim(3) kernels against their SE(3) counterparts, batched.
 
     python benchmarks/sim3_vs_se3.py [N] [REPEATS]
 

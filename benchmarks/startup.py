@@ -1,9 +1,9 @@
-"""Start-up costs of the CLI (issue 10): help, first-run compilation, factor construction,
+"""Start-up costs of the CLI: help, first-run compilation, factor construction,
 and the whole ``posegraph --max-iterations 0`` command on city10000 split into its pieces.
 
-    python benchmarks/startup.py [--repeat 3] [--dataset ../shared/data/city10000.g2o] [--only SECTION]
+    python benchmarks/startup.py [--repeat 3] [--dataset data/city10000.g2o] [--only SECTION]
 
-Every whole-command figure is a fresh process (``python -m lie_factors.cli ...``), best of
+Every whole-command figure is a fresh process (``python -m lie_factors.app.cli ...``), best of
 ``--repeat``, backends alternated. The first-run figures use an empty NUMBA_CACHE_DIR (as a
 fresh clone has no ``__pycache__``); compile time = first-run wall − second-run wall.
 Prints markdown tables (docs/benchmarks.md, section "Start-up").
@@ -32,7 +32,7 @@ def wall(argv, env=ENV) -> float:
 
 
 def cli(*args) -> list[str]:
-    return [sys.executable, "-m", "lie_factors.cli", *args]
+    return [sys.executable, "-m", "lie_factors.app.cli", *args]
 
 
 def help_table(repeat: int) -> None:
@@ -114,7 +114,7 @@ def floor_table(repeat: int) -> None:
 COMPILE_SPLIT = r"""
 import numpy as np, gtsam, numba
 from lie_factors import so3, se3, factors, _dispatch
-from lie_factors._jit import compile_seconds
+from lie_factors.kernels.jit import compile_seconds
 R, T, x = np.eye(3), np.eye(4), np.zeros(6)
 o3, o6, M6, M4 = np.empty(3), np.empty(6), np.empty((6, 6)), np.empty((4, 4))
 F = np.asfortranarray(T)
@@ -190,7 +190,7 @@ import sys, time, json, tempfile, os
 t0 = time.perf_counter()
 import gtsam
 from lie_factors import g2o, posegraph as pgm
-from lie_factors.initialize import initialize
+from lie_factors.initialization import initialize
 t1 = time.perf_counter()
 backend = sys.argv[1]; path = sys.argv[2]
 pgm.load_factors(backend)
@@ -247,7 +247,7 @@ def city_table(dataset: str, repeat: int) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--dataset", default=os.path.join(ROOT, "..", "shared", "data", "city10000.g2o"))
+    ap.add_argument("--dataset", default=os.path.join(ROOT, "data", "city10000.g2o"))
     ap.add_argument("--only", choices=("help", "first-run", "compile-split", "construction", "city", "floor"), default=None)
     args = ap.parse_args(argv)
     sections = [("help", lambda: help_table(args.repeat)), ("first-run", first_run_table),

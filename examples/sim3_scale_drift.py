@@ -2,7 +2,7 @@
 
 A camera flies two laps of a wavy loop.  Its monocular odometry reports each
 relative motion as a similarity transform whose scale and rotation drift a
-little at every step (lie_factors.demo_sim3 simulates it); composing the
+little at every step (lie_factors.app.demo_sim3 simulates it); composing the
 odometry, the trajectory shrinks or swells exponentially.  A few loop closures
 measure the true relative similarity where the camera passes a place again.
 The Sim(3) pose graph (prior on the first pose, odometry, closures) is optimized
@@ -22,8 +22,9 @@ import sys
 import gtsam
 import numpy as np
 
-from lie_factors import demo_sim3, factors
-from lie_factors.plotting import plot_trajectories
+from lie_factors.app import demo_sim3
+from lie_factors import factors
+from lie_factors.app.plotting import plot_trajectories
 
 n = int(sys.argv[1]) if len(sys.argv) > 1 else 150
 out = sys.argv[2] if len(sys.argv) > 2 else "sim3_scale_drift.png"

@@ -7,7 +7,7 @@ Modules (tangent orderings are GTSAM's, see CONVENTIONS):
   (Similarity2, [x, y, θ, λ]), :mod:`lie_factors.sim3` (Similarity3, [ω, u, λ]):
   hat, vee, exp, log, ad, Ad, dexp, dlog.
 - :mod:`lie_factors.quaternion`, :mod:`lie_factors.dual_quaternion`: exp/log.
-- :mod:`lie_factors.series`: D_exp from its power series, the test oracle.
+- :mod:`lie_factors.testing.series`: D_exp from its power series, the test oracle.
 """
 
 __version__ = "0.1.0"

@@ -2,7 +2,7 @@
 
 Tangent xi = [ω, v] exactly as :mod:`lie_factors.se3` (rotation first), and
 ``to_matrix(exp(xi)) == se3.exp(xi)``: the seed's dual exponential
-exp(ω + ε v) (seed 004, "Closed-Form Exponential for DS³", half-angle
+exp(ω + ε v) (Jackson, "Closed-Form Exponential for DS³", half-angle
 convention) is the transform [[R, V v], [0, 1]] of se3.exp with this very
 ordering — verified against the mpmath definition in the tests.
 
@@ -17,10 +17,10 @@ import math
 
 import numpy as np
 
-from lie_factors import _check, _jit, _validate
+from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
 from lie_factors import quaternion as _quat
-from lie_factors._coeffs import a_theta, b_theta, c_theta, dot3, norm3
-from lie_factors._jit import kernel
+from lie_factors.kernels.coeffs import a_theta, b_theta, c_theta, dot3, norm3
+from lie_factors.kernels.jit import kernel
 
 #: Largest accepted |‖q_r‖ − 1| and |q_r · q_d| / max(1, ‖q_d‖).
 UNIT_TOL = 1e-9
@@ -28,7 +28,7 @@ UNIT_TOL = 1e-9
 
 @kernel
 def _exp(x, out):
-    # seed 004, boxed dual-quaternion exponential, h = θ/2, γ = ωᵀv:
+    # Jackson, boxed dual-quaternion exponential, h = θ/2, γ = ωᵀv:
     #   q_r = [cos h, sin h/θ · ω]
     #   q_d = [−γ sin h/(2θ), γ (½ cos h − sin h/θ)/θ² · ω + sin h/θ · v]
     # sin h/θ = ½ a(h); the cancelling (½ cos h − sin h/θ)/θ² = (c(h) − b(h))/8
@@ -50,7 +50,7 @@ def _exp(x, out):
 
 @kernel
 def _log(q, out):
-    # seed 004, boxed dual-quaternion logarithm, with φ = atan2(|r|, r0) the half angle:
+    # Jackson, boxed dual-quaternion logarithm, with φ = atan2(|r|, r0) the half angle:
     #   ω = 2 A r,  v = 2 (A d + (γ G − d0) r),  A = φ/|r|,  G = (r0 − A)/|r|²,  γ = rᵀd.
     # The seed's small-angle form of G is wrong (it substitutes r0 = cos(|r|/2); in fact
     # |r| = sin φ, r0 = cos φ). Stable: G = (sin φ cos φ − φ)/sin³φ = −4 c(2φ)/a(φ)³.
@@ -165,7 +165,7 @@ def _unit(dq, name="dq"):
 
 
 def exp(xi):
-    """(..., 6) → (..., 8): [q_r, q_d] of se3.exp(xi), xi = [ω, v] (seed 004)."""
+    """(..., 6) → (..., 8): [q_r, q_d] of se3.exp(xi), xi = [ω, v] (Jackson)."""
     if type(xi) is _ND and xi.shape == _6 and xi.dtype is _F64:
         out = _empty(_8)
         if _exp_one(xi, out):
@@ -174,7 +174,7 @@ def exp(xi):
 
 
 def log(dq):
-    """(..., 8) → (..., 6): xi = [ω, v] with |ω| ≤ π, the inverse of :func:`exp` (seed 004, corrected)."""
+    """(..., 8) → (..., 6): xi = [ω, v] with |ω| ≤ π, the inverse of :func:`exp` (Jackson, corrected)."""
     if type(dq) is _ND and dq.shape == _8 and dq.dtype is _F64:
         out = _empty(_6)
         if _log_one(dq, out):

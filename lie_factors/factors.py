@@ -12,7 +12,7 @@ GaussNewton, Dogleg, ISAM2, Marginals).
 Errors are GTSAM's definitions: ``Log(measured⁻¹ · X1⁻¹ · X2)`` for Between and
 ``Log(prior⁻¹ · X)`` for Prior. Jacobians are with respect to GTSAM's right
 retraction ``X · Exp(δ)``. With ``dlog(x) = D_exp(x)⁻¹`` the inverse *left*
-Jacobian (seed 000, Eq. 40) and ``J_r(x) = D_exp(−x)``:
+Jacobian (Eade, Eq. 40) and ``J_r(x) = D_exp(−x)``:
 
 * ``X2 → X2·Exp(δ)``: ``E → E·Exp(δ)`` so ``e → e + J_r(e)⁻¹ δ``:
   ``H2 = dlog(−e)``.
@@ -41,13 +41,13 @@ from types import ModuleType
 import gtsam
 import numpy as np
 
-from . import _dispatch
-from . import _check
-from ._validate import ORTHONORMAL_TOL
+from .kernels import dispatch as _dispatch
+from .kernels import checks as _check
+from .kernels.validate import ORTHONORMAL_TOL
 # Codes of check_element (defined with the check in _check); _ELEMENT_ERRORS turns them into messages.
-from ._check import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION
-from ._jit import kernel
-from .elements import pose3_from_rows
+from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION
+from .kernels.jit import kernel
+from .kernels.elements import pose3_from_rows
 
 __all__ = [
     "BetweenFactorRot3",
@@ -68,7 +68,7 @@ __all__ = [
 
 @kernel
 def between_error(g, Minv, X1, X2, e):
-    """e = Log(M⁻¹·X1⁻¹·X2) on group ``g`` (a :mod:`lie_factors._dispatch` tag)."""
+    """e = Log(M⁻¹·X1⁻¹·X2) on group ``g`` (a :mod:`lie_factors.kernels.dispatch` tag)."""
     m = X1.shape[0]
     # C-ordered copies: GTSAM hands out Fortran-ordered matrices, the batch
     # loops C-ordered ones; with copies every core is compiled for C only.
@@ -140,7 +140,7 @@ def check_element(g, X):
 
     Finite entries; rotation block R (d×d) with max|RᵀR − I| ≤ ORTHONORMAL_TOL
     and det R > 0; then the last row [0 … 0 1] (or [0 … 0 s], s > 0, for
-    similarity groups): :func:`lie_factors._check.element_code`, the check
+    similarity groups): :func:`lie_factors.kernels.checks.element_code`, the check
     the public functions' single-element path runs too.
     """
     return _check.element_code(X, _dispatch.rot_dim(g), _dispatch.corner(g), ORTHONORMAL_TOL)

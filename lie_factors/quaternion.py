@@ -1,6 +1,6 @@
 """Unit quaternions q = [w, x, y, z] (Hamilton product) for SO(3), tangent ω = [ω1, ω2, ω3].
 
-Half-angle convention (seed 004, boxed "exp(ω)"):
+Half-angle convention (Jackson, boxed "exp(ω)"):
 
     exp(ω) = [cos(θ/2), sin(θ/2) ω/θ],  θ = |ω|       (..., 3) → (..., 4)
     log(q) = 2 atan2(|q⃗|, w) q⃗/|q⃗|  with w ≥ 0       (..., 4) → (..., 3), |ω| ≤ π
@@ -16,9 +16,9 @@ import math
 
 import numpy as np
 
-from lie_factors import _check, _jit, _validate
-from lie_factors._coeffs import a_theta, norm3
-from lie_factors._jit import kernel
+from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
+from lie_factors.kernels.coeffs import a_theta, norm3
+from lie_factors.kernels.jit import kernel
 
 #: Largest accepted |‖q‖ − 1| for log / to_rotation.
 UNIT_TOL = 1e-9
@@ -26,7 +26,7 @@ UNIT_TOL = 1e-9
 
 @kernel
 def _exp(x, out):
-    # seed 004: exp(ω) = cos(θ/2) + sin(θ/2) ω/θ, with sin(θ/2)/θ = ½ a(θ/2)
+    # Jackson: exp(ω) = cos(θ/2) + sin(θ/2) ω/θ, with sin(θ/2)/θ = ½ a(θ/2)
     # (no 0/0 at θ = 0, no θ² underflow at θ = 1e-200).
     th = norm3(x[0], x[1], x[2])
     h = 0.5 * th
@@ -39,7 +39,7 @@ def _exp(x, out):
 
 @kernel
 def _log(q, out):
-    # seed 004: log q = 2 atan2(|q⃗|, q0) q⃗/|q⃗| after q → −q if q0 < 0 (shortest
+    # Jackson: log q = 2 atan2(|q⃗|, q0) q⃗/|q⃗| after q → −q if q0 < 0 (shortest
     # rotation, |ω| ≤ π). atan2(r, w)/r has no cancellation for any r > 0.
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     w = q[0] / n
@@ -163,7 +163,7 @@ def _unit(q, name="q"):
 
 
 def exp(x):
-    """(..., 3) → (..., 4): [cos(θ/2), sin(θ/2) ω/θ] (seed 004)."""
+    """(..., 3) → (..., 4): [cos(θ/2), sin(θ/2) ω/θ] (Jackson)."""
     if type(x) is _ND and x.shape == _3 and x.dtype is _F64:
         out = _empty(_4)
         if _exp_one(x, out):

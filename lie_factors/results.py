@@ -27,7 +27,7 @@ class OptimizeResult:
     seconds: float
     converged: bool
     history: list[IterationInfo] = field(default_factory=list)
-    #: the values LM started from (set by lie_factors.posegraph.run)
+    #: the values LM started from (set by lie_factors.app.run.run)
     start: gtsam.Values | None = None
 
 

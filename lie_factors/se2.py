@@ -8,14 +8,14 @@ Tangent ordering (translation first, as GTSAM's Pose2)::
               [0,  0, 0]]              shape (..., 3, 3)
     group element [[R(θ), t], [0, 0, 1]]
 
-``dexp`` is the seed's D_exp(x) = Σ ad_x^i/(i+1)! (seed 000, Eq. 35), the LEFT
+``dexp`` is the seed's D_exp(x) = Σ ad_x^i/(i+1)! (Eade, Eq. 35), the LEFT
 Jacobian: exp(x + ε) ≈ exp(dexp(x) ε)·exp(x). GTSAM's Pose2.ExpmapDerivative is
 the right Jacobian, ``ExpmapDerivative(x) == dexp(-x)`` (likewise Logmap).
 
 Every public function broadcasts over leading axes; the ``_name(..., out)``
 numba cores work on one element and never allocate.
 
-Coefficients (seed 000, Eqs. 50–52) ``a = sinθ/θ``, ``b = (1 - cosθ)/θ²``,
+Coefficients (Eade, Eqs. 50–52) ``a = sinθ/θ``, ``b = (1 - cosθ)/θ²``,
 ``c = (1 - a)/θ²``: ``a`` and ``b`` have cancellation-free closed forms
 (``b = 2 sin²(θ/2)/θ²``) and only need a Taylor band to avoid 0/0;
 ``c`` cancels catastrophically (relative error ≈ 6ε/θ²), so it uses its
@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from . import _check, _jit, _validate
+from .kernels import checks as _check, jit as _jit, validate as _validate
 
 DIM = 3
 MAT = 3
@@ -40,14 +40,14 @@ ANGLE_TAYLOR = 1e-4
 #: ≈ 2ε/θ relative accuracy in the dexp entries; at θ = 1 that is ≤ 4e-16).
 C_TAYLOR = 1.0
 
-# c_θ = Σ_k (-1)^k θ^{2k}/(2k+3)!  (seed 000, Eq. 81, second sum); 10 terms reach
+# c_θ = Σ_k (-1)^k θ^{2k}/(2k+3)!  (Eade, Eq. 81, second sum); 10 terms reach
 # θ^18/21! < 2e-20 at |θ| = 1.
 _C_SERIES = np.array([(-1.0) ** k / math.factorial(2 * k + 3) for k in range(10)])
 
 
 @_jit.kernel
 def _ab(th):
-    """(a_θ, b_θ) of seed 000, Eqs. (50), (51)."""
+    """(a_θ, b_θ) of Eade, Eqs. (50), (51)."""
     if abs(th) < ANGLE_TAYLOR:
         t = th * th
         return 1.0 - t / 6.0 * (1.0 - t / 20.0), 0.5 - t / 24.0 * (1.0 - t / 30.0)
@@ -58,7 +58,7 @@ def _ab(th):
 
 @_jit.kernel
 def _c(th):
-    """c_θ = (1 - a_θ)/θ² of seed 000, Eq. (52)."""
+    """c_θ = (1 - a_θ)/θ² of Eade, Eq. (52)."""
     if abs(th) < C_TAYLOR:
         t = th * th
         s = 0.0
@@ -96,7 +96,7 @@ def _exp(x, out):
     th = x[2]
     a, b = _ab(th)
     tb = th * b
-    # translation V u with V = a I + θ b J, the same block as D_exp (seed 000, Eq. 83)
+    # translation V u with V = a I + θ b J, the same block as D_exp (Eade, Eq. 83)
     out[0, 0] = math.cos(th)
     out[0, 1] = -math.sin(th)
     out[0, 2] = a * x[0] - tb * x[1]
@@ -113,7 +113,7 @@ def _log(X, out):
     th = math.atan2(X[1, 0], X[0, 0])
     a, b = _ab(th)
     # V⁻¹ = (a I - θ b J)/(a² + θ² b²) and a² + θ² b² = 2 b, so V⁻¹ = α I - (θ/2) J
-    # with α = a/(2b) = (θ/2) cot(θ/2) (same inverse as seed 000, Eq. 85)
+    # with α = a/(2b) = (θ/2) cot(θ/2) (same inverse as Eade, Eq. 85)
     al = a / (2.0 * b)
     h = 0.5 * th
     tx = X[0, 2]
@@ -125,7 +125,7 @@ def _log(X, out):
 
 @_jit.kernel
 def _ad(x, out):
-    # seed 000, Eq. (78)
+    # Eade, Eq. (78)
     out[0, 0] = 0.0
     out[0, 1] = -x[2]
     out[0, 2] = x[1]
@@ -157,7 +157,7 @@ def _dexp(x, out):
     a, b = _ab(th)
     tc = th * _c(th)
     tb = th * b
-    # seed 000, Eq. (83) corrected: third column (θ c x + b y, θ c y - b x); the seed
+    # Eade, Eq. (83) corrected: third column (θ c x + b y, θ c y - b x); the seed
     # drops the factor θ on c (see docs/errata.md)
     out[0, 0] = a
     out[0, 1] = -tb
@@ -175,7 +175,7 @@ def _dlog(x, out):
     th = x[2]
     a, b = _ab(th)
     tc = th * _c(th)
-    # seed 000, Eqs. (84)-(85): D_log = [[A⁻¹, -A⁻¹ v], [0, 1]], with the 2×2 inverse
+    # Eade, Eqs. (84)-(85): D_log = [[A⁻¹, -A⁻¹ v], [0, 1]], with the 2×2 inverse
     # A⁻¹ = (a I - θ b J)/(a² + θ² b²) = α I - (θ/2) J since a² + θ² b² = 2 b
     al = a / (2.0 * b)
     h = 0.5 * th
@@ -371,7 +371,7 @@ def vee(X):
 
 
 def exp(x):
-    """(..., 3) → (..., 3, 3): [[R(θ), V u], [0, 1]], V = a_θ I + θ b_θ J (seed 000, Eqs. 50–51)."""
+    """(..., 3) → (..., 3, 3): [[R(θ), V u], [0, 1]], V = a_θ I + θ b_θ J (Eade, Eqs. 50–51)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_M)
         if _exp_one(x, out):
@@ -392,7 +392,7 @@ def log(X):
 
 
 def ad(x):
-    """(..., 3) → (..., 3, 3): ad_x y = vee([hat x, hat y]) (seed 000, Eq. 78)."""
+    """(..., 3) → (..., 3, 3): ad_x y = vee([hat x, hat y]) (Eade, Eq. 78)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _ad_one(x, out):
@@ -410,7 +410,7 @@ def Ad(X):
 
 
 def dexp(x):
-    """(..., 3) → (..., 3, 3): left Jacobian D_exp(x) (seed 000, Eq. 83, corrected).
+    """(..., 3) → (..., 3, 3): left Jacobian D_exp(x) (Eade, Eq. 83, corrected).
 
     GTSAM's Pose2.ExpmapDerivative(x) equals dexp(-x).
     """
@@ -422,7 +422,7 @@ def dexp(x):
 
 
 def dlog(x):
-    """(..., 3) → (..., 3, 3): D_exp(x)⁻¹ in closed form (seed 000, Eqs. 84–85); singular at |θ| = 2π.
+    """(..., 3) → (..., 3, 3): D_exp(x)⁻¹ in closed form (Eade, Eqs. 84–85); singular at |θ| = 2π.
 
     GTSAM's Pose2.LogmapDerivative(x) equals dlog(-x).
     """

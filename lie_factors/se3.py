@@ -4,7 +4,7 @@ hat(x) = [[ω×, v], [0, 0]]. Shapes: ``hat``/``exp`` (..., 6) → (..., 4, 4);
 ``log`` (..., 4, 4) → (..., 6) with |ω| ≤ π; ``ad``/``dexp``/``dlog``
 (..., 6) → (..., 6, 6); ``Ad`` (..., 4, 4) → (..., 6, 6).
 
-Seed 000 (§5.2) writes the tangent as [u, ω] (translation first), so its block
+Eade (§5.2) writes the tangent as [u, ω] (translation first), so its block
 matrices appear transposed here: its upper-right block B is our lower-left one.
 In our ordering
 
@@ -12,7 +12,7 @@ In our ordering
     D_exp(x) = [[J, 0], [B, J]]                  J = D_exp(ω) of SO(3)
     D_exp⁻¹  = [[J⁻¹, 0], [−J⁻¹ B J⁻¹, J⁻¹]]
 
-``dexp(x)`` is the LEFT Jacobian (seed 000, Eq. 35): exp(x + ε) ≈
+``dexp(x)`` is the LEFT Jacobian (Eade, Eq. 35): exp(x + ε) ≈
 exp(dexp(x) ε) · exp(x); GTSAM's ``Pose3.ExpmapDerivative(x) == dexp(-x)``.
 """
 
@@ -20,12 +20,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from lie_factors import _check, _jit, _validate
+from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
 from lie_factors import so3 as _so3
-from lie_factors._coeffs import (
+from lie_factors.kernels.coeffs import (
     a_theta, b_theta, c_theta, dot3, e_omega, ef_omega, norm3, qa_theta, qb_theta,
 )
-from lie_factors._jit import kernel
+from lie_factors.kernels.jit import kernel
 
 DIM = 6
 MAT = 4
@@ -37,7 +37,7 @@ MAT = 4
 
 @kernel
 def _rod9(w0, w1, w2, p, q):
-    """I + p ω× + q ω×² as a 9-tuple (ω×² = ωωᵀ − θ² I, seed 000 Eq. 47)."""
+    """I + p ω× + q ω×² as a 9-tuple (ω×² = ωωᵀ − θ² I, Eade Eq. 47)."""
     return _lin9(w0, w1, w2, 1.0, p, q)
 
 
@@ -62,7 +62,7 @@ def _B9(w0, w1, w2, u0, u1, u2, th):
 
 @kernel
 def _B9c(w0, w1, w2, u0, u1, u2, g, b, c, qa, qb):
-    """Seed 000 Eq. (74) (= the off-diagonal block of Eq. 71), with u = v:
+    """Eade Eq. (74) (= the off-diagonal block of Eq. 71), with u = v:
 
         B = b u× + c (ω uᵀ + u ωᵀ) + (ωᵀu) W,
         W = (c − b) I + qa ω× + qb ω ωᵀ              (Eq. 70)
@@ -129,7 +129,7 @@ def _vee(X, out):
 @kernel
 def _exp(x, out):
     # exp = [[R, J v], [0, 1]] with R = I + a ω× + b ω×² and J = V = I + b ω× + c ω×²
-    # (seed 004, SE(3) boxed formula; V there is seed 000's D_exp(ω), Eq. 46).
+    # (Jackson, SE(3) boxed formula; V there is Eade's D_exp(ω), Eq. 46).
     w0, w1, w2 = x[0], x[1], x[2]
     th = norm3(w0, w1, w2)
     a = a_theta(th)
@@ -149,7 +149,7 @@ def _exp(x, out):
 @kernel
 def _log(X, out):
     # ω = log R (so3 core); v = V⁻¹ t with V⁻¹ = D_exp⁻¹(ω) = I − ½ω× + e_θ ω×²
-    # (seed 004's V⁻¹ expression = seed 000, Eq. 55).
+    # (Jackson's V⁻¹ expression = Eade, Eq. 55).
     _so3._log(X, out)
     w0, w1, w2 = out[0], out[1], out[2]
     Vi = _rod9(w0, w1, w2, -0.5, e_omega(w0, w1, w2))
@@ -161,7 +161,7 @@ def _log(X, out):
 
 @kernel
 def _ad(x, out):
-    # ad_x = [[ω×, 0], [v×, ω×]] (seed 000 Eq. 61 with blocks swapped to [ω, v]).
+    # ad_x = [[ω×, 0], [v×, ω×]] (Eade Eq. 61 with blocks swapped to [ω, v]).
     W = _rod9(x[0], x[1], x[2], 1.0, 0.0)
     U = _rod9(x[3], x[4], x[5], 1.0, 0.0)
     W = (0.0, W[1], W[2], W[3], 0.0, W[5], W[6], W[7], 0.0)
@@ -191,7 +191,7 @@ def _Ad(X, out):
 
 @kernel
 def _dexp(x, out):
-    # D_exp(x) = [[J, 0], [B, J]]: seed 000 Eq. (71) transposed to [ω, v].
+    # D_exp(x) = [[J, 0], [B, J]]: Eade Eq. (71) transposed to [ω, v].
     w0, w1, w2 = x[0], x[1], x[2]
     th = norm3(w0, w1, w2)
     J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
@@ -201,7 +201,7 @@ def _dexp(x, out):
 
 @kernel
 def _dlog(x, out):
-    # D_exp⁻¹(x) = [[J⁻¹, 0], [L, J⁻¹]] with L = −J⁻¹ B J⁻¹: seed 000 Eqs. (73)–(75),
+    # D_exp⁻¹(x) = [[J⁻¹, 0], [L, J⁻¹]] with L = −J⁻¹ B J⁻¹: Eade Eqs. (73)–(75),
     # J⁻¹ = I − ½ω× + e_θ ω×² from Eq. (55). The product is not formed: L is the
     # derivative of J⁻¹(ω) along u = v (verified symbolically and in the tests),
     #   L = −½ u× + e_θ (ω×u× + u×ω×) + (ωᵀu) f_θ ω×²,   f_θ = e_θ'/θ,
@@ -410,7 +410,7 @@ def vee(X):
 
 
 def exp(x):
-    """(..., 6) → (..., 4, 4): [[R, V v], [0, 1]] (seed 004), x = [ω, v]."""
+    """(..., 6) → (..., 4, 4): [[R, V v], [0, 1]] (Jackson), x = [ω, v]."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_M)
         if _exp_one(x, out):
@@ -449,7 +449,7 @@ def Ad(X):
 
 
 def dexp(x):
-    """(..., 6) → (..., 6, 6): left Jacobian D_exp (seed 000 Eqs. 35, 70–71; [ω, v] order)."""
+    """(..., 6) → (..., 6, 6): left Jacobian D_exp (Eade Eqs. 35, 70–71; [ω, v] order)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _dexp_one(x, out):
@@ -458,7 +458,7 @@ def dexp(x):
 
 
 def dlog(x):
-    """(..., 6) → (..., 6, 6): D_exp⁻¹ in closed form (seed 000 Eqs. 55, 73–75), |ω| < 2π."""
+    """(..., 6) → (..., 6, 6): D_exp⁻¹ in closed form (Eade Eqs. 55, 73–75), |ω| < 2π."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _dlog_one(x, out):

@@ -17,17 +17,17 @@ Relation to GTSAM (checked numerically against gtsam 4.3 in tests/test_sim2.py):
 GTSAM's Expmap/Logmap lose accuracy near θ = 0 (errors ~1e-13 at θ = 1e-4).
 
 Everything reduces to complex arithmetic with ``z = λ + iθ``: the rotation-scale
-block Q = [[λ, -θ], [θ, λ]] of ad_x (seed 000, Eq. 88) acts on (x + iy) as
+block Q = [[λ, -θ], [θ, λ]] of ad_x (Eade, Eq. 88) acts on (x + iy) as
 multiplication by z, so power series in Q are the same series in z:
 
-    φ1(z) = (e^z - 1)/z = p + iq          (seed 000, Eqs. 98, 101, 102)
-    φ2(z) = (e^z - 1 - z)/z² = g + ih     (seed 000, Eqs. 98, 103, 104 corrected)
+    φ1(z) = (e^z - 1)/z = p + iq          (Eade, Eqs. 98, 101, 102)
+    φ2(z) = (e^z - 1 - z)/z² = g + ih     (Eade, Eqs. 98, 103, 104 corrected)
 
 For |z| < ``PHI_TAYLOR`` both come from their power series (``PHI_TERMS`` terms),
 which is the only accurate way as λ² + θ² → 0 along any direction; above it,
 the closed forms with e^z - 1 = expm1(λ) cos θ - 2 sin²(θ/2) + i e^λ sin θ.
 
-``dexp`` is the LEFT Jacobian Σ ad^i/(i+1)! (seed 000, Eq. 35):
+``dexp`` is the LEFT Jacobian Σ ad^i/(i+1)! (Eade, Eq. 35):
 exp(x + ε) ≈ exp(dexp(x) ε)·exp(x); GTSAM's right Jacobian would be dexp(-x).
 """
 
@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from . import _check, _jit, _validate
+from .kernels import checks as _check, jit as _jit, validate as _validate
 
 DIM = 4
 MAT = 3
@@ -70,7 +70,7 @@ def _phi(lam, th):
     # e^z - 1 without cancelling e^λ cos θ against 1 when λ and θ are separately small
     er = math.expm1(lam) * math.cos(th) - 2.0 * s * s
     ei = math.exp(lam) * math.sin(th)
-    # seed 000, Eqs. (101), (102): φ1 = (e^z - 1) z̄/|z|²
+    # Eade, Eqs. (101), (102): φ1 = (e^z - 1) z̄/|z|²
     p = (er * lam + ei * th) / n2
     q = (ei * lam - er * th) / n2
     # φ2 = (e^z - 1 - z) z̄²/|z|⁴ = (φ1 - 1)/z; the literal seed Eqs. (103)-(104) are off
@@ -148,7 +148,7 @@ def _log(X, out):
 
 @_jit.kernel
 def _ad(x, out):
-    # seed 000, Eq. (88): [[Q, P], [0, 0]], Q = [[λ, -θ], [θ, λ]], P = [[y, -x], [-x, -y]]
+    # Eade, Eq. (88): [[Q, P], [0, 0]], Q = [[λ, -θ], [θ, λ]], P = [[y, -x], [-x, -y]]
     for i in range(2, 4):
         for j in range(4):
             out[i, j] = 0.0
@@ -191,7 +191,7 @@ def _dexp(x, out):
     for i in range(2, 4):
         for j in range(4):
             out[i, j] = 0.0
-    # seed 000, Eq. (100): [[φ1(Q), φ2(Q) P], [0, I]]
+    # Eade, Eq. (100): [[φ1(Q), φ2(Q) P], [0, I]]
     out[2, 2] = 1.0
     out[3, 3] = 1.0
     out[0, 0] = p
@@ -210,7 +210,7 @@ def _dlog(x, out):
     p, q, g, h = _phi(x[3], x[2])
     X0 = x[0]
     Y0 = x[1]
-    # seed 000, Eqs. (109)-(110): D_log = [[A⁻¹, -A⁻¹ B], [0, I]] with the analytic
+    # Eade, Eqs. (109)-(110): D_log = [[A⁻¹, -A⁻¹ B], [0, I]] with the analytic
     # 2×2 inverse A⁻¹ = [[p, q], [-q, p]]/(p² + q²) (i.e. 1/φ1(z))
     d = p * p + q * q
     ar = p / d
@@ -434,7 +434,7 @@ def log(X):
 
 
 def ad(x):
-    """(..., 4) → (..., 4, 4): ad_x y = vee([hat x, hat y]) (seed 000, Eq. 88)."""
+    """(..., 4) → (..., 4, 4): ad_x y = vee([hat x, hat y]) (Eade, Eq. 88)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _ad_one(x, out):
@@ -452,7 +452,7 @@ def Ad(X):
 
 
 def dexp(x):
-    """(..., 4) → (..., 4, 4): left Jacobian [[φ1(Q), φ2(Q) P], [0, I]] (seed 000, Eq. 100)."""
+    """(..., 4) → (..., 4, 4): left Jacobian [[φ1(Q), φ2(Q) P], [0, I]] (Eade, Eq. 100)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _dexp_one(x, out):
@@ -461,7 +461,7 @@ def dexp(x):
 
 
 def dlog(x):
-    """(..., 4) → (..., 4, 4): D_exp(x)⁻¹ in closed form (seed 000, Eqs. 109–110).
+    """(..., 4) → (..., 4, 4): D_exp(x)⁻¹ in closed form (Eade, Eqs. 109–110).
 
     Singular where φ1(λ + iθ) = 0, i.e. λ = 0, θ = ±2π.
     """

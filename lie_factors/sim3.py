@@ -43,9 +43,9 @@ spectral projectors of Ω (docs/sim3.md),
 and for f = g = 1/φ1 the divided differences need no subtraction:
 g[a, b] = −g(a) g(b) φ1[a, b].
 
-Evaluation (docs/sim3.md §6; seed 000 Eqs. 91–100 do the same for Sim(2): functions of
+Evaluation (docs/sim3.md §6; Eade Eqs. 91–100 do the same for Sim(2): functions of
 the eigenvalues λ ± iθ over λ² + θ², Eq. 99). With E = e^λ, A = φ1(λ), I1 = φ1′(λ),
-a2 = φ2(λ), the SO(3) functions a, b, c, qa = b′/θ, qb = c′/θ of θ (seed 000, Eqs. 50–52,
+a2 = φ2(λ), the SO(3) functions a, b, c, qa = b′/θ, qb = c′/θ of θ (Eade, Eqs. 50–52,
 64) and D = λ² + θ², the θ → 0 limits are taken analytically::
 
     b1 = (λ² I1 + θ² E (b − λc))/D           c1 = (λ (E b − I1) + θ² E c)/D          (C)
@@ -64,7 +64,7 @@ used for |λ| ≥ ``LAM_SPECTRAL``, where Q's terms cancel ~|λ|-fold. Below, D_
 is −W⁻¹ Q J⁻¹ (J⁻¹ and W⁻¹ well conditioned there), collapsed to rank-one terms
 (:func:`_L_product`).
 
-``dexp`` is the LEFT Jacobian Σ ad^i/(i+1)! (seed 000, Eq. 35):
+``dexp`` is the LEFT Jacobian Σ ad^i/(i+1)! (Eade, Eq. 35):
 exp(x + ε) ≈ exp(dexp(x) ε)·exp(x); a GTSAM-style right Jacobian is dexp(−x).
 """
 
@@ -74,13 +74,13 @@ import math
 
 import numpy as np
 
-from lie_factors import _check, _jit, _validate
+from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
 from lie_factors import so3 as _so3
-from lie_factors._coeffs import (
-    _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR, QA_TAYLOR, QB_TAYLOR,
-    _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, theta_dd,
+from lie_factors.kernels.coeffs import (
+    _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR,
+    QA_TAYLOR, QB_TAYLOR, _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, theta_dd,
 )
-from lie_factors._jit import kernel
+from lie_factors.kernels.jit import kernel
 from lie_factors.se3 import _lin9, _rod9
 
 DIM = 7
@@ -171,10 +171,10 @@ _INV_FACT_ARR = np.array(_INV_FACT)
 
 @kernel
 def _theta5(th):
-    """(a, b, c, qa, qb) of the SO(3) coefficient functions at θ ≥ 0 (seed 000, Eqs. 50–52, 64),
+    """(a, b, c, qa, qb) of the SO(3) coefficient functions at θ ≥ 0 (Eade, Eqs. 50–52, 64),
     from one sine and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation),
     c = (1 − a)/θ², qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² = c′(θ)/θ; Taylor bands of
-    :mod:`lie_factors._coeffs`."""
+    :mod:`lie_factors.kernels.coeffs`."""
     h = 0.5 * th
     t = th * th
     if th < A_TAYLOR:
@@ -780,7 +780,7 @@ def _dlog(x, out):
         return
     th, co, sn, omc = _trig(w0, w1, w2, th)
     t2 = th * th
-    # e_θ = 1/θ² − cot(θ/2)/(2θ) (seed 000, Eq. 57), cot(θ/2) = sin θ/(1 − cos θ) from the
+    # e_θ = 1/θ² − cot(θ/2)/(2θ) (Eade, Eq. 57), cot(θ/2) = sin θ/(1 − cos θ) from the
     # (reflected) values above; its Taylor band below E_TAYLOR
     cot2 = sn / omc  # cot(θ/2)
     ek = _horner4(_E_SERIES, t2) if th < E_TAYLOR else 1.0 / t2 - cot2 / (2.0 * th)

@@ -4,10 +4,10 @@ Shapes: ``hat`` (..., 3) → (..., 3, 3); ``exp`` (..., 3) → (..., 3, 3);
 ``log`` (..., 3, 3) → (..., 3) with |ω| ≤ π; ``ad``/``dexp``/``dlog``
 (..., 3) → (..., 3, 3); ``Ad`` (..., 3, 3) → (..., 3, 3).
 
-``dexp(x)`` is seed 000's D_exp (Eq. 35), the LEFT Jacobian:
+``dexp(x)`` is Eade's D_exp (Eq. 35), the LEFT Jacobian:
 exp(x + ε) ≈ exp(dexp(x) ε) · exp(x). GTSAM's ``Rot3.ExpmapDerivative(x)`` is
 the right Jacobian and equals ``dexp(-x)``. ``dlog(x) = dexp(x)⁻¹`` in closed
-form (seed 000, Eqs. 55–57), valid for |x| < 2π.
+form (Eade, Eqs. 55–57), valid for |x| < 2π.
 
 Each formula is one numba core (``_exp(x, out)`` ...) shared with the factors;
 the public functions validate and broadcast over leading axes.
@@ -19,9 +19,9 @@ import math
 
 import numpy as np
 
-from lie_factors import _check, _jit, _validate
-from lie_factors._coeffs import a_theta, b_theta, c_theta, e_omega, norm3
-from lie_factors._jit import kernel
+from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
+from lie_factors.kernels.coeffs import a_theta, b_theta, c_theta, e_omega, norm3
+from lie_factors.kernels.jit import kernel
 
 DIM = 3
 MAT = 3
@@ -59,7 +59,7 @@ def _vee(X, out):
 
 @kernel
 def _rodrigues(w0, w1, w2, p, q, out):
-    """out = I + p ω× + q ω×², using ω×² = ωωᵀ − θ² I (seed 000, Eq. 47).
+    """out = I + p ω× + q ω×², using ω×² = ωωᵀ − θ² I (Eade, Eq. 47).
 
     The diagonal of ω×² is written −(ω_j² + ω_k²) so that no θ² − ω_i²
     cancellation occurs.
@@ -80,7 +80,7 @@ def _rodrigues(w0, w1, w2, p, q, out):
 
 @kernel
 def _exp(x, out):
-    # Rodrigues: exp(ω×) = I + a_θ ω× + b_θ ω×² (seed 004, SO(3) boxed formula).
+    # Rodrigues: exp(ω×) = I + a_θ ω× + b_θ ω×² (Jackson, SO(3) boxed formula).
     th = norm3(x[0], x[1], x[2])
     _rodrigues(x[0], x[1], x[2], a_theta(th), b_theta(th), out)
 
@@ -95,7 +95,7 @@ def _log(X, out):
     sn = norm3(s0, s1, s2)
     th = math.atan2(sn, c)
     if c > LOG_SYM_COS:
-        # ω = θ/sin θ · s (seed 004: log R = θ/(2 sin θ) (R − Rᵀ)).
+        # ω = θ/sin θ · s (Jackson: log R = θ/(2 sin θ) (R − Rᵀ)).
         k = th / sn if sn > 0.0 else 1.0
         out[0] = k * s0
         out[1] = k * s1
@@ -128,7 +128,7 @@ def _log(X, out):
 
 @kernel
 def _ad(x, out):
-    # ad_ω = ω× (seed 000, Eq. 43).
+    # ad_ω = ω× (Eade, Eq. 43).
     _hat(x, out)
 
 
@@ -141,14 +141,14 @@ def _Ad(X, out):
 
 @kernel
 def _dexp(x, out):
-    # D_exp(ω) = I + b_θ ω× + c_θ ω×² (seed 000, Eq. 46; = Eq. 53).
+    # D_exp(ω) = I + b_θ ω× + c_θ ω×² (Eade, Eq. 46; = Eq. 53).
     th = norm3(x[0], x[1], x[2])
     _rodrigues(x[0], x[1], x[2], b_theta(th), c_theta(th), out)
 
 
 @kernel
 def _dlog(x, out):
-    # D_exp⁻¹(ω) = I − ½ ω× + e_θ ω×² (seed 000, Eq. 55), |ω| < 2π.
+    # D_exp⁻¹(ω) = I − ½ ω× + e_θ ω×² (Eade, Eq. 55), |ω| < 2π.
     _rodrigues(x[0], x[1], x[2], -0.5, e_omega(x[0], x[1], x[2]), out)
 
 
@@ -319,7 +319,7 @@ def vee(X):
 
 
 def exp(x):
-    """(..., 3) → (..., 3, 3): exp(ω×), Rodrigues' formula (seed 004)."""
+    """(..., 3) → (..., 3, 3): exp(ω×), Rodrigues' formula (Jackson)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_M)
         if _exp_one(x, out):
@@ -340,7 +340,7 @@ def log(X):
 
 
 def ad(x):
-    """(..., 3) → (..., 3, 3): ad_ω = ω× (seed 000, Eq. 43)."""
+    """(..., 3) → (..., 3, 3): ad_ω = ω× (Eade, Eq. 43)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _ad_one(x, out):
@@ -358,7 +358,7 @@ def Ad(X):
 
 
 def dexp(x):
-    """(..., 3) → (..., 3, 3): left Jacobian D_exp(ω) (seed 000, Eqs. 35, 46, 53)."""
+    """(..., 3) → (..., 3, 3): left Jacobian D_exp(ω) (Eade, Eqs. 35, 46, 53)."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _dexp_one(x, out):
@@ -367,7 +367,7 @@ def dexp(x):
 
 
 def dlog(x):
-    """(..., 3) → (..., 3, 3): D_exp(ω)⁻¹ (seed 000, Eqs. 55–57), |ω| < 2π."""
+    """(..., 3) → (..., 3, 3): D_exp(ω)⁻¹ (Eade, Eqs. 55–57), |ω| < 2π."""
     if type(x) is _ND and x.shape == _V and x.dtype is _F64:
         out = _empty(_J)
         if _dlog_one(x, out):

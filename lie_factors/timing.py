@@ -5,7 +5,7 @@ machine: no on-disk cache yet). The optimizers warm their kernels before
 starting the clock (:func:`warm_up_factors`), and their stopwatches subtract
 whatever compilation still happens while they run, so reported optimization
 seconds are the same on a first and a later run. This module imports neither
-numba nor GTSAM: it reads the compile clock of :mod:`lie_factors._jit` only if
+numba nor GTSAM: it reads the compile clock of :mod:`lie_factors.kernels.jit` only if
 something has loaded it (no kernel, no compilation).
 """
 
@@ -17,7 +17,7 @@ import time
 
 def compile_seconds() -> float:
     """Seconds numba has spent compiling in this process so far."""
-    jit = sys.modules.get("lie_factors._jit")
+    jit = sys.modules.get("lie_factors.kernels.jit")
     return jit.compile_seconds() if jit is not None else 0.0
 
 

@@ -1,6 +1,6 @@
 """Similarity3 graphs in the batch solver, against GTSAM's own Levenberg–Marquardt.
 
-The graph is the scale-drift scenario (lie_factors.demo_sim3, small): a drifting
+The graph is the scale-drift scenario (lie_factors.app.demo_sim3, small): a drifting
 dead-reckoned start, odometry and loop closures.  References: GTSAM's C++ LM on
 the same lie_factors factors (same iterations, same optimum), and GTSAM's LM on
 its native Similarity3 factors (inexact Jacobians: it may stop at a slightly
@@ -13,7 +13,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import batch, demo_sim3, factors
+from lie_factors import batch, factors
+from lie_factors.app import demo_sim3
 
 
 def _max_diff(a: gtsam.Values, b: gtsam.Values) -> float:

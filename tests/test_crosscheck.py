@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from lie_factors import crosscheck
+from lie_factors.app import crosscheck
 
 
 def test_crosscheck_rows_are_exact_and_show_gtsam_weak_spots():

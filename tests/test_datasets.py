@@ -1,4 +1,4 @@
-"""Every file in the installed gtsam's Data/ directory and in ../shared/data: it loads and optimizes
+"""Every file in the installed gtsam's Data/ directory and in the project's data/: it loads and optimizes
 (custom and batch agree with native), or it is refused for a reason that is checked here to be true.
 
 CI budget (the module must stay around a minute on a shared 2-core machine), so only the small
@@ -24,11 +24,11 @@ import numpy as np
 import pytest
 
 from lie_factors import factors, g2o
-from lie_factors import posegraph as P
+from lie_factors.app import run as P
 from lie_factors.errors import PoseGraphError
 
 GTSAM_DATA = Path(gtsam.findExampleDataFile("w20000.txt")).parent
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 SMALL_WORK = 200_000
 MEDIUM_WORK = 5_000_000
 BOUNDED_ITERATIONS = 2
@@ -68,8 +68,8 @@ def _files():
     for p in sorted(GTSAM_DATA.iterdir()):
         if p.is_file() and not p.name.startswith("."):
             out.append(p)
-    if SHARED.is_dir():
-        out += sorted(SHARED.glob("*.g2o"))
+    if DATA.is_dir():
+        out += sorted(DATA.glob("*.g2o"))
     return out
 
 

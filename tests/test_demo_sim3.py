@@ -1,4 +1,4 @@
-"""The scale-drift scenario: lie_factors.demo_sim3, `lie-factors demo --scenario sim3`, and
+"""The scale-drift scenario: lie_factors.app.demo_sim3, `lie-factors demo --scenario sim3`, and
 examples/sim3_scale_drift.py (small sizes)."""
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import cli, demo_sim3, factors
+from lie_factors.app import cli, demo_sim3
+from lie_factors import factors
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,7 +68,7 @@ def test_true_gradient_matches_central_differences():
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("sim3demo")
-    proc = subprocess.run([sys.executable, "-m", "lie_factors.cli", "demo", "--scenario", "sim3",
+    proc = subprocess.run([sys.executable, "-m", "lie_factors.app.cli", "demo", "--scenario", "sim3",
                            "--poses", "40", "--seed", "1", "--output", str(out), "--json"],
                           capture_output=True, text=True, timeout=600)
     return proc, out
@@ -82,7 +83,7 @@ def test_demo_sim3_reaches_stationary_point_native_does_not(demo_run):
                 "native_final_error", "gradient_norm_initial", "gradient_norm", "native_gradient_norm"):
         assert key in rec
     assert rec["scenario"] == "sim3" and rec["poses"] == 40 and rec["backend"] == "custom"
-    # Done-when of issue 9: ours at a stationary point, native's gradient beside it.
+    # ours at a stationary point, native's gradient beside it.
     assert rec["gradient_norm"] <= 1e-6 * rec["gradient_norm_initial"]
     assert rec["native_gradient_norm"] > 100 * rec["gradient_norm"]
     assert rec["final_error"] <= rec["native_final_error"]

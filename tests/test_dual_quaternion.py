@@ -1,4 +1,4 @@
-"""Unit dual quaternions [q_r, q_d], q_d = ½ (0, t) ⊗ q_r, tangent [ω, v] as se3 (seed 004)."""
+"""Unit dual quaternions [q_r, q_d], q_d = ½ (0, t) ⊗ q_r, tangent [ω, v] as se3 (Jackson)."""
 
 import math
 
@@ -6,9 +6,9 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from lie_factors import _coeffs as C
+from lie_factors.kernels import coeffs as C
 from lie_factors import dual_quaternion as DQ
-from lie_factors import reference as ref
+from lie_factors.testing import reference as ref
 from lie_factors import se3
 
 
@@ -109,11 +109,11 @@ def test_compose_inverse():
     np.testing.assert_allclose(DQ.to_matrix(DQ.inverse(A)), se3.inverse(se3.exp(a)), atol=1e-13)
 
 
-# ------------------------------------------------------------ seed 004 checks (docs/errata.md)
+# ------------------------------------------------------------ Jackson checks (docs/errata.md)
 
 
 def test_seed_exp_formula_verified():
-    """Seed 004's boxed dual exponential, literally, equals ours (and [ω, v] = se3's order)."""
+    """Jackson's boxed dual exponential, literally, equals ours (and [ω, v] = se3's order)."""
     for xi in _points([0.3, 1.0, 2.5], seed=5, combos=1):
         w, v = xi[:3], xi[3:]
         th, g, h = np.linalg.norm(w), w @ v, np.linalg.norm(w) / 2
@@ -123,7 +123,7 @@ def test_seed_exp_formula_verified():
 
 
 def test_erratum_dq_log_small_angle_series():
-    """Seed 004 replaces (r0 − a)γ/θ² (θ = |r|) by γ (θ cos(θ/2) − tan⁻¹(θ/r0))/θ³, using
+    """Jackson replaces (r0 − a)γ/θ² (θ = |r|) by γ (θ cos(θ/2) − tan⁻¹(θ/r0))/θ³, using
     r0 = cos(θ/2) although θ there is |r| = sin(φ), r0 = cos(φ); and gives the series
     5/24 − 379/1920 θ² + … The correct quantity (θ r0 − tan⁻¹(θ/r0))/θ³ with
     r0 = √(1 − θ²) is −2/3 − θ²/5 − 3θ⁴/28 − …"""
@@ -149,7 +149,7 @@ def test_erratum_dq_log_small_angle_series():
 
 
 def test_seed_exact_log_formula_verified():
-    """Away from θ = 0 seed 004's exact dual log (with tan⁻¹) is right."""
+    """Away from θ = 0 Jackson's exact dual log (with tan⁻¹) is right."""
     for xi in _points([0.5, 2.0, 3.0], seed=6, combos=1):
         dq = DQ.exp(xi)
         r0, r, d0, d = dq[0], dq[1:4], dq[4], dq[5:]

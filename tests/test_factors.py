@@ -13,8 +13,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import _dispatch, _validate, factors
-from lie_factors import reference as ref
+from lie_factors.kernels import dispatch as _dispatch, registry, validate as _validate
+from lie_factors import factors
+from lie_factors.testing import reference as ref
 
 RNG = np.random.default_rng(20261121)
 
@@ -479,7 +480,7 @@ def test_accessors():
                                        (_dispatch.SIM2, 3, 2)], ids=lambda v: getattr(v, "name", None))
 def test_check_element_codes_straddle_the_tolerance(tag, m, d):
     X = np.eye(m)
-    if tag.corner == _dispatch.POSITIVE:
+    if tag.corner == registry.POSITIVE:
         X[-1, -1] = 0.5
     assert factors.check_element(tag, X) == factors.OK
     assert factors.check_element(tag, np.asfortranarray(X)) == factors.OK
@@ -498,13 +499,13 @@ def test_check_element_codes_straddle_the_tolerance(tag, m, d):
     flip = X.copy()
     flip[0, 0] = -1.0  # a reflection, still orthonormal
     assert factors.check_element(tag, flip) == factors.REFLECTION
-    if tag.corner != _dispatch.NO_CORNER:
+    if tag.corner != registry.NO_CORNER:
         row = X.copy()
         row[-1, 0] = 1e-300
         assert factors.check_element(tag, row) == factors.BAD_LAST_ROW
         corner = X.copy()
-        corner[-1, -1] = 2.0 if tag.corner == _dispatch.ONE else -0.5
-        expected = factors.BAD_LAST_ROW if tag.corner == _dispatch.ONE else factors.BAD_SCALE
+        corner[-1, -1] = 2.0 if tag.corner == registry.ONE else -0.5
+        expected = factors.BAD_LAST_ROW if tag.corner == registry.ONE else factors.BAD_SCALE
         assert factors.check_element(tag, corner) == expected
 
 

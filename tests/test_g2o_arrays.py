@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from lie_factors import factors, g2o
-from lie_factors import posegraph as P
+from lie_factors.app import run as P
 from lie_factors.batch import BatchLevenbergMarquardt, Problem
 from lie_factors.batch.graph import whitening
 
@@ -180,7 +180,7 @@ def _factor_problem(pg):
 
 @pytest.mark.parametrize("name", ["intel.g2o", "sphere2500.txt"])
 def test_problem_from_arrays_matches_the_factor_graph(name):
-    path = ROOT.parent / "shared" / "data" / name
+    path = ROOT / "data" / name
     pg = P.load(str(path) if path.exists() else name)
     a = pg.arrays
     X = (a.vertices if a.vertices is not None
@@ -263,7 +263,7 @@ def test_2d_array_initialization_matches_gtsams(tmp_path, diagonal):
     assert job.start.method == native.init == ("lago" if diagonal else "chordal")
     assert job.start.skipped == gtsam_job.start.skipped
     assert len(job.start.skipped) == (0 if diagonal else 1)
-    # 1e-9 relative (issue 17): to the size of the graph, ~10 here
+    # 1e-9 relative : to the size of the graph, ~10 here
     scale = max(1.0, max(np.abs(native_result.start.atPose2(k).translation()).max()
                          for k in job.pg.arrays.keys.tolist()))
     for k in job.pg.arrays.keys.tolist():
@@ -284,7 +284,7 @@ def _modules_after(code: str) -> str:
 def test_native_backend_and_input_check_do_not_import_numba(tmp_path):
     path = tmp_path / "g.g2o"
     path.write_text(_file_3d(np.random.default_rng(8)))
-    code = ("import sys\nfrom lie_factors import cli, g2o\n"
+    code = ("import sys\nfrom lie_factors import g2o\nfrom lie_factors.app import cli\n"
             f"g2o.read_arrays(g2o.check_g2o({str(path)!r}))\n"
             "assert 'numba' not in sys.modules\n"
             f"assert cli.main(['posegraph', {str(path)!r}, '--backend', 'native', '--quiet']) == 0\n"

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lie_factors import g2o
-from lie_factors import posegraph as P
+from lie_factors.app import run as P
 from lie_factors.errors import PoseGraphError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -286,7 +286,7 @@ def test_duplicate_ids_and_self_loops(tmp_path):
 
 def _cli(*args, cwd=None):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.run([sys.executable, "-m", "lie_factors.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "lie_factors.app.cli", *args], capture_output=True,
                           text=True, env=env, cwd=cwd, timeout=300)
 
 

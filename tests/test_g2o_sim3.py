@@ -16,9 +16,10 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import cli, demo_sim3, g2o
-from lie_factors import posegraph as P
-from lie_factors import reference as ref
+from lie_factors.app import cli, demo_sim3
+from lie_factors import g2o
+from lie_factors.app import run as P
+from lie_factors.testing import reference as ref
 
 SIM3_INFO = " ".join(" ".join(["4"] + ["0"] * (6 - r)) for r in range(7))  # 4·I, 28 values
 

@@ -8,12 +8,13 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import cli, demo, outliers
+from lie_factors.app import cli, demo
+from lie_factors.testing import outliers
 from lie_factors import factors as lf
-from lie_factors import posegraph as P
+from lie_factors.app import run as P
 from lie_factors.batch import gnc
 from lie_factors.batch.robust import parse_loss
-from lie_factors.initialize import initialize
+from lie_factors.initialization import initialize
 
 M = gtsam.noiseModel.mEstimator
 

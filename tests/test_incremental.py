@@ -9,8 +9,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import cli, incremental
-from lie_factors import posegraph as P
+from lie_factors.app import cli, incremental
+from lie_factors.app import run as P
 from lie_factors.optimizers import ISAM2
 
 ROOT = Path(__file__).resolve().parents[1]

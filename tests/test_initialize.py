@@ -1,4 +1,4 @@
-"""lie_factors.initialize: GTSAM's initializers on our factors, the fallbacks, the anchor."""
+"""lie_factors.initialization: GTSAM's initializers on our factors, the fallbacks, the anchor."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from lie_factors import factors as F
-from lie_factors import initialize as I
-from lie_factors import posegraph as P
+from lie_factors import initialization as I
+from lie_factors.app import run as P
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SMALL = DATA / "smallGrid3D.g2o"
@@ -79,8 +79,8 @@ def test_chordal_3d_is_gtsams_initializer_for_native_and_custom_factors():
     for graph in (native, as_custom(native)):
         got = I.initialize(graph, "chordal")
         assert got.method == "chordal" and got.skipped == [] and got.seconds > 0
-        # Computed on arrays (lie_factors.relaxation): GTSAM's results up to rounding (7e-12 here);
-        # issue 17's contract is 1e-9.
+        # Computed on arrays (lie_factors.initialization.relaxation): GTSAM's results up to rounding (7e-12 here);
+        # the contract for a reimplementation is 1e-9.
         assert max_pose_diff(got.values, ref, True) < 1e-9
     # …and it is a much better start than the file's composed odometry.
     assert native.error(ref) < 0.1 * native.error(pg.initial)
@@ -115,7 +115,7 @@ def test_lago_is_gtsams_initializer_for_native_and_custom_factors():
     for g in (graph, as_custom(graph)):
         got = I.initialize(g, "lago")
         assert got.method == "lago"
-        # On arrays (lie_factors.relaxation): GTSAM's up to rounding (2e-12 here); issue 17's contract is 1e-9.
+        # On arrays (lie_factors.initialization.relaxation): GTSAM's up to rounding (2e-12 here); the contract for a reimplementation is 1e-9.
         assert max_pose_diff(got.values, ref, False) < 1e-9
     noise_free, truth = pose2_loop(noise=0.0)
     assert max_pose_diff(I.initialize(noise_free, "lago").values, truth, False) < 1e-9
@@ -296,8 +296,8 @@ def test_every_backend_starts_from_the_same_values():
     start = records["native"][1].start
     for backend, (record, result, _) in records.items():
         assert record.init == "chordal" and record.init_seconds > 0
-        # batch initializes on the file's arrays (lie_factors.relaxation: GTSAM's algorithm,
-        # its own arithmetic, agreeing to 1e-9 as issue 17 asks); the others run GTSAM's.
+        # batch initializes on the file's arrays (lie_factors.initialization.relaxation: GTSAM's algorithm,
+        # its own arithmetic, agreeing to 1e-9); the others run GTSAM's.
         tol = 1e-9 if backend == "batch" else 1e-12
         assert max_pose_diff(result.start, start, True) < tol
         assert record.initial_error == pytest.approx(records["native"][0].initial_error, rel=1e-9)
@@ -315,7 +315,7 @@ def test_run_file_start_is_the_vertices_and_auto_is_no_worse():
 # ---------------------------------------------------------------------- CLI
 
 def cli_run(capsys, *argv):
-    from lie_factors import cli
+    from lie_factors.app import cli
 
     status = cli.main(list(argv))
     out, err = capsys.readouterr()
@@ -329,7 +329,7 @@ def write_graph(tmp_path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Value
 
 
 def test_cli_init_choices_are_the_librarys():
-    from lie_factors import cli
+    from lie_factors.app import cli
 
     assert cli.INIT_METHODS == I.METHODS
     assert set(cli.INIT_DESCRIPTIONS) == set(I.METHODS) - {"auto"}

@@ -9,8 +9,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import cli, g2o
-from lie_factors import posegraph as P
+from lie_factors.app import cli
+from lie_factors import g2o
+from lie_factors.app import run as P
 
 
 def _random_info(rng, n):

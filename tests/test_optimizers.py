@@ -399,7 +399,7 @@ def test_bad_arguments():
 
 def test_cli_custom_backend_runs_the_drop_in(monkeypatch):
     """`lie-factors posegraph --backend custom` optimizes with the drop-in LM (same result as GTSAM's LM)."""
-    from lie_factors import posegraph
+    from lie_factors.app import run as posegraph
 
     made = []
 

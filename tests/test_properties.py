@@ -12,8 +12,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lie_factors import se2, se3, series, sim2, sim3, so3
-from lie_factors.crosscheck import rotation_slice
+from lie_factors import se2, se3, sim2, sim3, so3
+from lie_factors.testing import series
+from lie_factors.app.crosscheck import rotation_slice
 
 GROUPS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2, "sim3": sim3}
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])

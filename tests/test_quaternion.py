@@ -1,4 +1,4 @@
-"""Unit quaternions [w, x, y, z], half-angle exp/log (seed 004), against mpmath at 50 digits."""
+"""Unit quaternions [w, x, y, z], half-angle exp/log (Jackson), against mpmath at 50 digits."""
 
 import math
 
@@ -7,9 +7,9 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from lie_factors import _coeffs as C
+from lie_factors.kernels import coeffs as C
 from lie_factors import quaternion as Q
-from lie_factors import reference as ref
+from lie_factors.testing import reference as ref
 from lie_factors import so3
 
 TOL = 1e-14
@@ -103,7 +103,7 @@ def test_log_exactly_pi():
 
 
 def test_seed_tan_inverse_form_is_the_shortest_log():
-    """Seed 004 writes log q = 2 tan⁻¹(|q⃗|/q0) q⃗/|q⃗|. Verified correct (not an erratum):
+    """Jackson writes log q = 2 tan⁻¹(|q⃗|/q0) q⃗/|q⃗|. Verified correct (not an erratum):
     for q0 < 0 the negative angle it yields is exactly the shortest log; only q0 = 0
     needs IEEE division (|q⃗|/0 = inf, atan(inf) = π/2)."""
     for w in _points([0.3, 2.0, 4.0, 6.0], seed=6):

@@ -1,4 +1,4 @@
-"""lie_factors.relaxation against GTSAM's own initializers (InitializePose3, lago) on the same graphs."""
+"""lie_factors.initialization.relaxation against GTSAM's own initializers (InitializePose3, lago) on the same graphs."""
 
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ import mpmath
 import numpy as np
 import pytest
 
-from lie_factors import relaxation as rx
-from lie_factors import initialize as LI
-from lie_factors.posegraph import load
+from lie_factors.initialization import relaxation as rx
+from lie_factors import initialization as LI
+from lie_factors.app.run import load
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
-SHARED = "/work/shared/data"
+DATA = os.path.join(ROOT, "data")
 
 
 def _path(name):
@@ -71,7 +71,7 @@ def _pose2s(values, keys):
 
 
 def _gtsam_planar_chordal(graph, keys):
-    """GTSAM's InitializePose3 on the planar Pose3 graph lie_factors.initialize builds: (n, 3) [x, y, yaw]."""
+    """GTSAM's InitializePose3 on the planar Pose3 graph lie_factors.initialization builds: (n, 3) [x, y, yaw]."""
     planar = LI._native_graph(LI._planar_pose3_graph(LI._convert(graph)))
     values = gtsam.InitializePose3.initialize(planar)
     return np.array([[values.atPose3(int(k)).x(), values.atPose3(int(k)).y(),
@@ -157,7 +157,7 @@ def test_lago_orientations_exact_where_gtsam_rounds():
             v = int(parent[v])
         return s
     tree = [to_root(v) for v in range(n)] + [0.0]
-    with mpmath.workdps(40):  # local: the module-level precision is lie_factors.reference's
+    with mpmath.workdps(40):  # local: the module-level precision is lie_factors.testing.reference's
         M, B = mpmath.zeros(n, n), mpmath.zeros(n, 1)
         for e in range(ii.size):
             a, b = int(ii[e]), int(jj[e])
@@ -199,11 +199,10 @@ def test_full_covariance_2d_is_rejected_by_lago_and_taken_by_chordal():
     assert _rel(rx.chordal_pose2(len(keys), I, J, Z, INFO), ref, angles=True) < 1e-9
 
 
-@pytest.mark.skipif(not os.path.exists(os.path.join(SHARED, "torus3D.g2o")), reason="shared benchmark data absent")
 @pytest.mark.parametrize("name,method", [("intel.g2o", "chordal2"), ("city10000.g2o", "lago"),
                                          ("parking-garage.g2o", "chordal3")])
 def test_benchmark_graphs(name, method):
-    is3d, keys, I, J, Z, INFO = _arrays(os.path.join(SHARED, name))
+    is3d, keys, I, J, Z, INFO = _arrays(os.path.join(DATA, name))
     g = _gtsam_graph(is3d, keys, I, J, Z, INFO)
     if method == "chordal3":
         ours, ref = rx.initialize_pose3(len(keys), I, J, Z, INFO), _pose3s(gtsam.InitializePose3.initialize(g), keys)
@@ -282,7 +281,7 @@ def test_bad_arrays_raise(change, match):
 
 
 def test_relaxation_does_not_import_numba():
-    code = ("import sys, numpy as np; from lie_factors import relaxation as rx;"
+    code = ("import sys, numpy as np; from lie_factors.initialization import relaxation as rx;"
             "T = np.eye(4)[None]; rx.initialize_pose3(2, [0], [1], T, np.eye(6)[None]);"
             "rx.lago_pose2(2, [0], [1], [[1, 0, 0]], np.eye(3)[None]);"
             "assert 'numba' not in sys.modules, 'numba imported'")
@@ -290,7 +289,7 @@ def test_relaxation_does_not_import_numba():
 
 
 # --------------------------------------------------------------------------- #
-# lie_factors.initialize: arrays where they give GTSAM's answer, GTSAM's own initializer elsewhere
+# lie_factors.initialization: arrays where they give GTSAM's answer, GTSAM's own initializer elsewhere
 # --------------------------------------------------------------------------- #
 
 def _small_graph_with(noise_of):

@@ -9,7 +9,8 @@ import mpmath
 import numpy as np
 import pytest
 
-from lie_factors import demo, outliers
+from lie_factors.app import demo
+from lie_factors.testing import outliers
 from lie_factors import factors as lf
 from lie_factors.batch.robust import (LOSSES, RobustLoss, WeightedLevenbergMarquardt,
                                       chi2_inlier_threshold, from_gtsam, parse_loss)

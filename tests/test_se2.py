@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lie_factors import reference as ref
+from lie_factors.testing import reference as ref
 from lie_factors import se2
 
 TOL = 1e-14
@@ -152,7 +152,7 @@ def test_compose_inverse():
 
 
 def test_ad_exp_commute():
-    # Ad(exp(x)) = exp(ad x)  (seed 000, Eq. 9)
+    # Ad(exp(x)) = exp(ad x)  (Eade, Eq. 9)
     for x in _points([0.0, 1e-5, 0.7, 3.0]):
         assert ref.rel_err(se2.Ad(se2.exp(x)), mp.expm(ref.ad(G, _mp(x)))) <= TOL
 
@@ -314,7 +314,7 @@ def test_gtsam_pose2_small_angle_is_inaccurate_ours_is_not():
 
 
 def test_erratum_eq80_ad_cubed():
-    """Seed 000 Eq. (80) says ad³ = -θ³ ad; the definition gives ad³ = -θ² ad."""
+    """Eade Eq. (80) says ad³ = -θ³ ad; the definition gives ad³ = -θ² ad."""
     for th in (0.5, 2.0, -1.3):
         x = _mp([0.7, -0.4, th])
         A = ref.ad(G, x)
@@ -335,7 +335,7 @@ def _dexp_seed_eq83_literal(x):
 
 
 def test_erratum_eq83_third_column():
-    """Seed 000 Eq. (83) writes the third column (c x + b y, c y - b x); right is θ c x + b y, θ c y - b x."""
+    """Eade Eq. (83) writes the third column (c x + b y, c y - b x); right is θ c x + b y, θ c y - b x."""
     for x in ([0.7, -0.4, 0.5], [2.0, 1.0, -2.2], [-1.0, 3.0, 3.0]):
         x = np.array(x)
         r = ref.dexp(G, _mp(x))

@@ -1,4 +1,4 @@
-"""SE(3) kernels, tangent [ω, v], against lie_factors.reference (mpmath, 50 digits).
+"""SE(3) kernels, tangent [ω, v], against lie_factors.testing.reference (mpmath, 50 digits).
 
 Bound 1e-14 (CONVENTIONS.md error measure) over θ = 0, 1e-200, 1e-15…1, the
 coefficient thresholds straddled, up to π (exp/log) and 2π − 1e-3 (dexp/dlog),
@@ -13,8 +13,8 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from lie_factors import _coeffs as C
-from lie_factors import reference as ref
+from lie_factors.kernels import coeffs as C
+from lie_factors.testing import reference as ref
 from lie_factors import se3, so3
 
 TOL = 1e-14
@@ -140,7 +140,7 @@ def test_dlog_closed_form_equals_seed_eq75_product():
 
 
 def test_erratum_eq65_coefficient_of_ad_is_b_not_a():
-    """Seed 000 Eq. (65) reads I + a_θ ad_x + c_θ ad_x² + (ωᵀu)[[0, Q],[0, 0]];
+    """Eade Eq. (65) reads I + a_θ ad_x + c_θ ad_x² + (ωᵀu)[[0, Q],[0, 0]];
     the series Σ ad^i/(i+1)! gives b_θ (as Eq. 66 and 71 do)."""
     x = np.array([0.3, -0.9, 1.2, 0.7, 0.2, -0.5])
     w, u = x[:3], x[3:]
@@ -180,7 +180,7 @@ def test_Ad_compose_inverse():
         np.testing.assert_allclose(se3.compose(X, se3.inverse(X)), np.eye(4),
                                    atol=4e-15 * max(1, np.abs(X).max()))
         np.testing.assert_allclose(se3.compose(X, X), X @ X, atol=1e-15 * max(1, np.abs(X).max()) ** 2)
-        # Ad(exp(x)) = exp(ad(x)) (seed 000, Eq. 9)
+        # Ad(exp(x)) = exp(ad(x)) (Eade, Eq. 9)
         assert ref.rel_err(se3.Ad(X), mp.expm(ref.ad("se3", ref.mpf_vec(x)))) <= TOL
     assert np.array_equal(se3.vee(se3.hat(x)), x)
 
@@ -265,7 +265,7 @@ def test_near_pi_ours_exact_gtsam_recorded():
 
 
 def test_erratum_seed004_se3_series_and_blocks():
-    """Seed 004 (SE(3) section) expands exp of [[ω×, v], [0, 1]] — the algebra element has
+    """Jackson (SE(3) section) expands exp of [[ω×, v], [0, 1]] — the algebra element has
     0, not 1, in the corner (with 1 the corner of the exponential is e, not 1) — and says
     'the upper right block is just the rotation matrix': it is the upper LEFT block;
     the upper right is V v. Its final V and V⁻¹ formulas are right."""

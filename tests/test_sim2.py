@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lie_factors import reference as ref
+from lie_factors.testing import reference as ref
 from lie_factors import sim2
 
 TOL = 1e-14
@@ -152,7 +152,7 @@ def test_Ad_definition():
 
 
 def test_ad_exp_commute():
-    # Ad(exp(x)) = exp(ad x)  (seed 000, Eq. 9)
+    # Ad(exp(x)) = exp(ad x)  (Eade, Eq. 9)
     for x in _points([(0.0, 0.0), (1e-5, -1e-5), (0.7, 0.3), (3.0, -2.0), (-2.0, 4.0)]):
         assert ref.rel_err(sim2.Ad(sim2.exp(x)), mp.expm(ref.ad(G, _mp(x)))) <= TOL
 

@@ -1,7 +1,7 @@
-"""Sim(3) kernels, tangent [ω, u, λ], against lie_factors.reference (mpmath, 50 digits).
+"""Sim(3) kernels, tangent [ω, u, λ], against lie_factors.testing.reference (mpmath, 50 digits).
 
 error = max|ours − ref| / max(1, max|ref|) (CONVENTIONS.md) ≤ 1e-14 everywhere and ≤ 2e-15
-where |λ| ≤ 5 (issue 18), on the 2-D grid θ ∈ {0, 1e-200, 1e-15, 1e-8, 1e-4, 1e-2, 0.3, 1, 2,
+where |λ| ≤ 5, on the 2-D grid θ ∈ {0, 1e-200, 1e-15, 1e-8, 1e-4, 1e-2, 0.3, 1, 2,
 3, π − 1e-12, π} (and π(1 + 1e-9), 4, 5, 6, 2π − 1e-3 for dexp and dlog) × λ ∈ {0, ±1e-200,
 ±1e-4, ±0.1, ±1, ±5, ±45, ±θ}: θ and λ → 0 apart (one of them 0 or 1e-200) and
 together (λ = ±θ, and λ² + θ² → 0 along other directions), translations 1e-3, 1, 1e2 in
@@ -21,15 +21,15 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from lie_factors import _coeffs as C
-from lie_factors import reference as ref
+from lie_factors.kernels import coeffs as C
+from lie_factors.testing import reference as ref
 from lie_factors import sim3
 
 TOL = 1e-14
 PI = math.pi
 G = "sim3"
 
-TOL_SMALL_LAMBDA = 2e-15  # issue 18: wherever |λ| ≤ 5
+TOL_SMALL_LAMBDA = 2e-15  # wherever |λ| ≤ 5
 THETAS = [0.0, 1e-200, 1e-15, 1e-8, 1e-4, 1e-2, 0.3, 1.0, 2.0, 3.0, PI - 1e-12, PI]
 THETAS_BEYOND_PI = [PI * (1 + 1e-9), 4.0, 5.0, 6.0, 2 * PI - 1e-3]
 NORMS = [1e-3, 1.0, 1e2]
@@ -242,7 +242,7 @@ def test_ad_accuracy():
 
 
 def test_Ad_exp_is_expm_ad():
-    # Ad(exp(x)) = exp(ad x)  (seed 000, Eq. 9)
+    # Ad(exp(x)) = exp(ad x)  (Eade, Eq. 9)
     for x in _points([(0.0, 0.0), (1e-5, -1e-5), (0.7, 0.3), (3.0, -2.0), (2.0, 4.0)], seed=6):
         assert ref.rel_err(sim3.Ad(sim3.exp(x)), mp.expm(ref.ad(G, _mp(x)))) <= TOL
 
@@ -407,7 +407,7 @@ def test_gtsam_similarity3_same_convention(v):
 def test_gtsam_similarity3_accuracy_recorded():
     """Ours ≤ 1e-14 where GTSAM's Expmap is less accurate (small λ); GTSAM's error is printed.
 
-    Erratum (docs/errata.md): issue 9 says Expmap equals expm(Hat) to 2e-16; at λ = 3e-5 it
+    Erratum (docs/errata.md): GTSAM's Similarity3.Expmap is said to equal expm(Hat) to 2e-16; at λ = 3e-5 it
     is off by 5e-12 … 8e-12 (relative, |u| ≈ 1.6), at λ = 1e-5 by 5e-13 … 9e-13."""
     errs = {}
     for th, lam in ((0.3, 3e-5), (0.3, 1e-5), (1e-4, 1e-4), (1e-6, -1e-6), (0.0, 1e-7), (2.0, 1e-9)):
@@ -419,7 +419,7 @@ def test_gtsam_similarity3_accuracy_recorded():
     assert errs[(0.3, 3e-5)] > 1e-12 and errs[(0.3, 1e-5)] > 1e-13
 
 
-# --- the derivation map (/work/shared/notes/sim3-derivation.md), checked -----------------------
+# --- the derivation map (docs/sim3.md), checked -----------------------
 
 
 def test_note_coefficient_limits_at_zero():

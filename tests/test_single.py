@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lie_factors import _check, _jit, _validate, se2, se3, sim2, sim3, so3
+from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
+from lie_factors import se2, se3, sim2, sim3, so3
 from lie_factors import dual_quaternion as DQ
 from lie_factors import quaternion as Q
 

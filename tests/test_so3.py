@@ -1,6 +1,6 @@
-"""SO(3) kernels and the shared coefficients of lie_factors._coeffs.
+"""SO(3) kernels and the shared coefficients of lie_factors.kernels.coeffs.
 
-Accuracy is measured as in CONVENTIONS.md against lie_factors.reference
+Accuracy is measured as in CONVENTIONS.md against lie_factors.testing.reference
 (mpmath, 50 digits, from the definitions), bound 1e-14 everywhere.
 """
 
@@ -11,8 +11,8 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from lie_factors import _coeffs as C
-from lie_factors import reference as ref
+from lie_factors.kernels import coeffs as C
+from lie_factors.testing import reference as ref
 from lie_factors import so3
 
 TOL = 1e-14

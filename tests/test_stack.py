@@ -81,7 +81,7 @@ def chain100k(tmp_path_factory):
 @pytest.mark.parametrize("backend", ["native", "batch"])
 def test_100k_pose_chain_completes(chain100k, backend):
     """Used to die with SIGSEGV in GTSAM's InitializePose3 and LM (elimination recursing over the chain)."""
-    out = subprocess.run([sys.executable, "-m", "lie_factors.cli", "posegraph", chain100k, "--backend", backend,
+    out = subprocess.run([sys.executable, "-m", "lie_factors.app.cli", "posegraph", chain100k, "--backend", backend,
                           "--json", "--quiet"], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     rec = json.loads(out.stdout.strip().splitlines()[-1])

@@ -8,7 +8,7 @@ a module defines ``main(...) -> int | None`` and either
 - ``add_arguments(parser)``: then ``main(args)`` gets our parsed
   ``argparse.Namespace``; or
 - nothing else: then ``main(argv)`` gets the list of arguments after the
-  subcommand name and parses them itself (``lie_factors.crosscheck`` does).
+  subcommand name and parses them itself (``lie_factors.app.crosscheck`` does).
 
 User errors (bad file, unwritable output, unknown backend, ...) print ONE line
 ``lie-factors: error: ...`` on stderr and exit with status 2, never a traceback.
@@ -102,7 +102,7 @@ def _bounded_int(option: str, low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
-#: lie_factors.posegraph.BACKENDS, spelled out so that building the parser does
+#: lie_factors.app.run.BACKENDS, spelled out so that building the parser does
 #: not import GTSAM (a test checks they agree).
 BACKENDS = ("native", "custom", "batch")
 
@@ -111,7 +111,7 @@ BACKENDS = ("native", "custom", "batch")
 # posegraph
 # --------------------------------------------------------------------------- #
 
-#: lie_factors.initialize.METHODS, spelled out so that building the parser
+#: lie_factors.initialization.METHODS, spelled out so that building the parser
 #: does not import GTSAM (a test checks they agree).
 INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
 
@@ -183,17 +183,17 @@ def _positive_float(text: str) -> float:
 
 
 def _run_posegraph(args) -> int:
-    """Parse → :class:`lie_factors.posegraph.PoseGraphRun` → print; the run owns every step."""
+    """Parse → :class:`lie_factors.app.run.PoseGraphRun` → print; the run owns every step."""
     import time
 
     if args.incremental:  # the online replay (ISAM2) lives in its own module
-        from lie_factors import incremental
+        from lie_factors.app import incremental
 
         return incremental.main(args, _say, _emit_json)
     if args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
         raise CLIError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
     t = time.perf_counter()
-    from lie_factors import posegraph as pgm
+    from lie_factors.app import run as pgm
 
     imports = time.perf_counter() - t
 
@@ -246,7 +246,7 @@ def _run_posegraph(args) -> int:
     job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
                            robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
                            output=args.output, plot=args.plot, events=Printer(), lazy_values=True)
-    job.timings["imports"] = imports  # GTSAM and numpy, loaded with lie_factors.posegraph
+    job.timings["imports"] = imports  # GTSAM and numpy, loaded with lie_factors.app.run
     record = job.execute()
     if args.json:
         _emit_json(record.to_dict())
@@ -297,8 +297,9 @@ def _demo_output_dir(out_dir: str) -> None:
 
 
 def _run_demo(args) -> int:
-    from lie_factors import atomic, demo, g2o
-    from lie_factors import posegraph as pgm
+    from lie_factors import atomic, g2o
+    from lie_factors.app import demo
+    from lie_factors.app import run as pgm
 
     if args.poses is None:
         args.poses = DEMO_SCENARIOS[args.scenario][0]
@@ -327,7 +328,7 @@ def _run_demo(args) -> int:
     _say(args, f"ATE (RMSE)  {ate0:12.4f} m -> {ate1:.4f} m")
 
     g2o.write_g2o(g2o_path, demo.between_graph(problem), result.values)
-    from lie_factors.plotting import plot_trajectories
+    from lie_factors.app.plotting import plot_trajectories
 
     truth = [T.translation() for T in problem.truth]
     atomic.replace_atomically(png, lambda tmp: plot_trajectories(
@@ -357,10 +358,11 @@ def _run_demo(args) -> int:
 
 
 def _run_demo_sim3(args) -> int:
-    """The scale-drift scenario (:mod:`lie_factors.demo_sim3`): ours and GTSAM's native
+    """The scale-drift scenario (:mod:`lie_factors.app.demo_sim3`): ours and GTSAM's native
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
-    from lie_factors import atomic, demo_sim3, g2o
-    from lie_factors import posegraph as pgm
+    from lie_factors import atomic, g2o
+    from lie_factors.app import demo_sim3
+    from lie_factors.app import run as pgm
 
     if args.backend == "native":
         raise CLIError("--scenario sim3 always runs GTSAM's native factors beside ours; "
@@ -398,7 +400,7 @@ def _run_demo_sim3(args) -> int:
                f"native stopped at |g|/|g0| = {g_native / g0:.2e}")
 
     g2o.write_g2o(g2o_path, demo_sim3.between_graph(problem), ours.values)
-    from lie_factors.plotting import plot_trajectories
+    from lie_factors.app.plotting import plot_trajectories
 
     n = args.poses
     truth = demo_sim3.true_centres(problem.truth)
@@ -451,7 +453,7 @@ SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
 
 #: Subcommands living in their own module, offered only if the module imports.
 OPTIONAL_SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "crosscheck": ("lie_factors.crosscheck", "compare lie_factors against GTSAM and mpmath"),
+    "crosscheck": ("lie_factors.app.crosscheck", "compare lie_factors against GTSAM and mpmath"),
 }
 
 

@@ -4,7 +4,7 @@ Run as ``lie-factors crosscheck``.
 
 For every function and every band of rotation angles θ, the table gives the
 worst error of lie_factors and of GTSAM against a 50-digit reference computed
-from the definitions (:mod:`lie_factors.reference`), with the error measure of
+from the definitions (:mod:`lie_factors.testing.reference`), with the error measure of
 CONVENTIONS.md: max|A − R| / max(1, max|R|).
 
 GTSAM's ExpmapDerivative/LogmapDerivative are right Jacobians, so they are
@@ -26,8 +26,8 @@ from typing import Callable
 import gtsam
 import numpy as np
 
-from . import reference as ref
-from . import se2, se3, sim2, sim3, so3
+from ..testing import reference as ref
+from .. import se2, se3, sim2, sim3, so3
 
 KERNELS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2, "sim3": sim3}
 GROUPS = tuple(KERNELS)

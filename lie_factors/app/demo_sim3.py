@@ -186,17 +186,17 @@ class Comparison:
 
     @property
     def stationary(self) -> bool:
-        """Done-when of issue 9: ours' true gradient ≤ 1e-6 of the initial one."""
+        """ours' true gradient ≤ 1e-6 of the initial one."""
         return self.gradient_ours <= 1e-6 * self.gradient_initial
 
 
 def compare(problem: Problem, backend: str = "custom", max_iterations: int = 100,
             progress=None) -> Comparison:
     """Optimize ``problem`` with our factors (``backend`` custom or batch, of
-    :mod:`lie_factors.posegraph`) and with GTSAM's native ones, same start and
+    :mod:`lie_factors.app.run`) and with GTSAM's native ones, same start and
     :func:`lm_params`; ``progress`` gets our iterations."""
-    from . import factors
-    from . import posegraph as pgm
+    from .. import factors
+    from . import run as pgm
 
     graph = build_graph(problem, factors)
     native_graph = build_graph(problem, gtsam)

@@ -35,9 +35,9 @@ import numpy as np
 
 import gtsam
 
-from .errors import PoseGraphError
-from .posegraph import PoseGraph, build_graph, is_landmark_key, load, pose_keys
-from .timing import Stopwatch, warm_up_factors
+from ..errors import PoseGraphError
+from .run import PoseGraph, build_graph, is_landmark_key, load, pose_keys
+from ..timing import Stopwatch, warm_up_factors
 
 #: GTSAM's ISAM2Params defaults (relinearizeThreshold, relinearizeSkip).
 DEFAULT_RELINEARIZE_THRESHOLD = 0.1
@@ -58,7 +58,7 @@ class Step:
 
 
 def schedule(pg: PoseGraph, graph: gtsam.NonlinearFactorGraph) -> list[Step]:
-    """The updates of the replay of ``graph`` (built by :func:`lie_factors.posegraph.build_graph`
+    """The updates of the replay of ``graph`` (built by :func:`lie_factors.app.run.build_graph`
     from ``pg``: file edge k is factor k, then the prior, then the landmark measurements)."""
     order = pose_keys(pg.initial)
     position = {k: n for n, k in enumerate(order)}
@@ -119,7 +119,7 @@ def isam2_class(backend: str) -> type:
     """``gtsam.ISAM2`` for the native backend, the drop-in for ours."""
     if backend == "native":
         return gtsam.ISAM2
-    from .optimizers.isam2 import ISAM2
+    from ..optimizers.isam2 import ISAM2
 
     return ISAM2
 
@@ -219,7 +219,7 @@ def replay(pg: PoseGraph, backend: str = "custom",
 
 
 # --------------------------------------------------------------------------- #
-# The CLI's --incremental (lie_factors.cli hands its parsed arguments over)
+# The CLI's --incremental (lie_factors.app.cli hands its parsed arguments over)
 # --------------------------------------------------------------------------- #
 
 def _refuse_batch_options(args) -> None:
@@ -234,8 +234,8 @@ def _refuse_batch_options(args) -> None:
 def main(args, say: Callable[[object, str], None], emit_json: Callable[[dict], None]) -> int:
     """``lie-factors posegraph FILE --incremental``: load, replay, report (stdout via ``say``,
     progress on stderr, JSON via ``emit_json``), write ``--output``/``--plot``."""
-    from . import atomic, g2o
-    from .posegraph import get_backend, load_factors, positions
+    from .. import atomic, g2o
+    from .run import get_backend, load_factors, positions
 
     get_backend(args.backend)
     _refuse_batch_options(args)
@@ -262,7 +262,7 @@ def main(args, say: Callable[[object, str], None], emit_json: Callable[[dict], N
         say(args, f"wrote {args.output}")
     if args.plot:
         from .plotting import plot_trajectories
-        from .posegraph import landmark_positions
+        from .run import landmark_positions
 
         trajectories = {"initial (online guesses)": positions(result.start, pg.is3d, pg.group),
                         "ISAM2 estimate": positions(result.values, pg.is3d, pg.group)}

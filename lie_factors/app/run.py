@@ -11,8 +11,8 @@ is one without outputs), step by step:
 3. :func:`load` — a pose graph as arrays (:func:`lie_factors.g2o.read_arrays`); its
    GTSAM form (``gtsam.readG2o``; poses without a vertex line initialized by
    composing measurements along a BFS spanning tree) on first use.
-4. Initialization — on the arrays (:mod:`lie_factors.initialize_arrays`) on the
-   default path, else :func:`lie_factors.initialize.initialize` on GTSAM's factors:
+4. Initialization — on the arrays (:mod:`lie_factors.initialization.arrays`) on the
+   default path, else :func:`lie_factors.initialization.initialize` on GTSAM's factors:
    the chordal relaxation (3-D) or LAGO (2-D) by default, the file's vertices on request.
 5. The backend: ``batch`` on a plain pose graph builds
    :meth:`lie_factors.batch.Problem.from_arrays` (no factor object); otherwise
@@ -39,13 +39,14 @@ import numpy as np
 
 import gtsam
 
-from .errors import PoseGraphError
-from .g2o import arrays_supported, check_g2o, read_arrays, read_g2o, resolve_dataset
-from .initialize import METHODS as INIT_METHODS
-from .initialize import Initialization, InitializationError, initialize, spanning_tree_initial
-from .results import IterationInfo, OptimizeResult
-from .stack import large_stack
-from .timing import IterationLog, Stopwatch, warm_up_factors
+from ..errors import PoseGraphError
+from ..kernels.elements import values_from_matrices
+from ..g2o import arrays_supported, check_g2o, read_arrays, read_g2o, resolve_dataset
+from ..initialization import METHODS as INIT_METHODS
+from ..initialization import Initialization, InitializationError, initialize, spanning_tree_initial
+from ..results import IterationInfo, OptimizeResult
+from ..stack import large_stack
+from ..timing import IterationLog, Stopwatch, warm_up_factors
 
 
 # --------------------------------------------------------------------------- #
@@ -56,7 +57,7 @@ from .timing import IterationLog, Stopwatch, warm_up_factors
 class PoseGraph:
     """A checked g2o file: as arrays (pose graphs) and, when asked for, as GTSAM reads it.
 
-    ``arrays``: :class:`lie_factors.g2o.PoseGraphArrays` (poses, edges,
+    ``arrays``: :class:`lie_factors.pose_graph.PoseGraph` (poses, edges,
     measurements and information in GTSAM's conventions) for files of poses
     and pose–pose edges, else None.  The GTSAM form (``between``,
     ``initial``, ``landmarks``) of such a file is read on first use
@@ -457,7 +458,7 @@ class RunRecord:
     measurements + 1 prior; ``landmarks`` the landmark variables;
     ``seconds`` is optimization only (LM construction + iterations, not loading
     and not initialization); ``init`` is the initialization method used
-    (:data:`lie_factors.initialize.METHODS`) and ``init_seconds`` its cost;
+    (:data:`lie_factors.initialization.METHODS`) and ``init_seconds`` its cost;
     ``initial_error``/``final_error`` are GTSAM's 0.5·Σ‖whitened residual‖²
     (Σ ρ(‖whitened residual‖) for robust factors).  ``robust``: the loss
     (``name:k``, with ``+all`` if on every edge); ``gnc``: the GNC loss;
@@ -565,7 +566,7 @@ class PoseGraphRun:
 
     :meth:`execute` checks the invocation (backend, loss, output paths)
     before any work, then reads the file (:func:`load`), initializes
-    (:func:`lie_factors.initialize.initialize`), optimizes with the backend,
+    (:func:`lie_factors.initialization.initialize`), optimizes with the backend,
     and writes ``output`` (g2o) and ``plot`` (png); ``events``
     (:class:`RunEvents`) hears each step.  The default path — ``batch`` on a
     pose graph without robust loss or GNC — never builds a factor object: the
@@ -607,7 +608,7 @@ class PoseGraphRun:
         self._checked = True
         for path in (self.output, self.plot):
             if path:
-                from .atomic import check_writable
+                from ..atomic import check_writable
 
                 check_writable(path)
 
@@ -650,7 +651,7 @@ class PoseGraphRun:
         if self.uses_arrays and pg.initialized_from_edges == (pg.arrays.vertices is None):
             # On the file's arrays (no GTSAM graph); None hands over to GTSAM's path below
             # (as does a PoseGraph whose file values are load()'s spanning tree, not vertices).
-            from . import initialize_arrays
+            from ..initialization import arrays as initialize_arrays
 
             start, self._start_X = initialize_arrays.initialize(
                 pg.arrays, init, pg.first_key, _first_element(pg),
@@ -763,15 +764,15 @@ class PoseGraphRun:
     def start_values(self) -> gtsam.Values:
         """The values LM started from (built now if the array initializer gave matrices)."""
         if self.start.values is None:
-            self.start.values = _values_of(self.pg.group, self.pg.arrays.keys, self._start_X)
+            self.start.values = values_from_matrices(self.pg.group, self.pg.arrays.keys, self._start_X)
         if self.result is not None and self.result.start is None:
             self.result.start = self.start.values
         return self.start.values
 
     def write(self) -> None:
         """Write ``output`` (the optimized graph, g2o) and ``plot`` (png), each atomically."""
-        from . import atomic
-        from .g2o import write_g2o
+        from .. import atomic
+        from ..g2o import write_g2o
 
         pg, record = self.pg, self.record
         t = time.perf_counter()
@@ -779,7 +780,7 @@ class PoseGraphRun:
             write_g2o(self.output, pg.native_graph(), self.values())
             self.events.wrote(self.output)
         if self.plot:
-            from lie_factors.plotting import plot_trajectories
+            from lie_factors.app.plotting import plot_trajectories
 
             values, begin = self.values(), self.start_values()
             trajectories = {f"initial ({record.init})": positions(begin, pg.is3d, pg.group),
@@ -811,24 +812,11 @@ TIMING_KEYS = ("imports", "read", "init", "setup", "iterations", "write")
 
 #: Factors × (tangent dimension)² below which the default path runs the batch loops on one
 #: numba thread: their fork/join costs more than it saves there.  Whole command, 2 runs each,
-#: load 2–4 (docs/benchmarks.md, issue 17 h17a): 1 thread made the iterations faster on intel
+#: load 2–4 (docs/benchmarks.md): 1 thread made the iterations faster on intel
 #: (2.5k SE(2) factors, 0.05–0.08 vs 0.22–0.26 s), sphere2500 (5k SE(3)), city10000 (21k SE(2):
 #: 1.9·10⁵) and torus3D (9k SE(3): 3.3·10⁵, 0.28 vs 0.38–0.41 s); 2 threads were faster from
 #: the 20k-pose helix (22k SE(3): 7.9·10⁵, 0.33 vs 0.37 s) and equal at 100k.
 PARALLEL_MIN_WORK = 500_000
-
-
-def _values_of(group: str, keys: np.ndarray, X: np.ndarray) -> gtsam.Values:
-    """gtsam.Values of ``group`` elements from their matrices ``X`` (N, m, m), one per key."""
-    values = gtsam.Values()
-    if group == "Pose2":
-        for k, M in zip(keys.tolist(), X):
-            values.insert(k, gtsam.Pose2(M[0, 2], M[1, 2], math.atan2(M[1, 0], M[0, 0])))
-    else:
-        make = getattr(gtsam, group)
-        for k, M in zip(keys.tolist(), X):
-            values.insert(k, make(M))
-    return values
 
 
 def _first_element(pg: PoseGraph) -> np.ndarray:
@@ -863,7 +851,7 @@ def run(
 ) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
     """Load (unless given a :class:`PoseGraph`), initialize, optimize with ``backend``.
 
-    ``init``: a method of :func:`lie_factors.initialize.initialize`, run on
+    ``init``: a method of :func:`lie_factors.initialization.initialize`, run on
     GTSAM's own factors of the file (the measurements and noise models every
     backend's graph holds, so every backend starts from the same values);
     ``file`` is the file's vertices.  With ``robust`` or ``gnc``, ``auto``
@@ -871,7 +859,7 @@ def run(
     measurements composed: the loop closures, false ones included, are left
     out; ``start.inliers_only``).  Landmarks keep their file vertex, or are
     placed from their first measurement.  ``on_init`` is called with the
-    :class:`~lie_factors.initialize.Initialization` before LM starts.
+    :class:`~lie_factors.initialization.Initialization` before LM starts.
     ``result.start`` holds the values LM started from.
 
     ``robust``: a :class:`lie_factors.batch.robust.RobustLoss` (or its text,

@@ -51,7 +51,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 
 from .. import stack
-from .._jit import kernel
+from ..kernels.jit import kernel
 from ..timing import Stopwatch
 from .robust import WeightedLevenbergMarquardt, chi2_inlier_threshold
 

@@ -19,14 +19,13 @@ damped step for it is 0).
 
 from __future__ import annotations
 
-import math
 from types import SimpleNamespace
 
 import gtsam
 import numpy as np
 
 from .. import factors as _factors
-from ..elements import pose2_matrices, pose3_from_rows
+from ..kernels import elements
 from .loops import GroupLoops
 from .losses import from_gtsam
 
@@ -159,43 +158,14 @@ class FactorGroup:
 
 def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
     """(N, m, m) matrices of ``keys`` in ``values``; BatchError naming a missing/mistyped key."""
-    m = spec.kernels.MAT
-    X = np.empty((len(keys), m, m))
-    for k in keys:
-        if not values.exists(k):
-            raise BatchError(f"key {key_name(k)} is used by a {spec.name} factor "
-                             "but is missing from the initial Values")
-    if spec.name in ("Pose3", "Pose2"):
-        # Bulk extraction in C++ (all values of that type, in key order).
-        if spec.name == "Pose3":
-            typed = gtsam.utilities.allPose3s(values)
-            E = np.asarray(gtsam.utilities.extractPose3(values))
-        else:
-            typed = gtsam.utilities.allPose2s(values)
-            E = np.asarray(gtsam.utilities.extractPose2(values))
-        tkeys = np.asarray(typed.keys(), dtype=np.uint64)
-        want = np.asarray(keys, dtype=np.uint64)
-        pos = np.searchsorted(tkeys, want)
-        pos = np.minimum(pos, max(len(tkeys) - 1, 0))
-        bad = np.nonzero((len(tkeys) == 0) | (tkeys[pos] != want))[0] if len(want) else []
-        if len(bad):
-            k = keys[bad[0]]
-            raise BatchError(f"key {key_name(k)} must hold a gtsam.{spec.name} "
-                             f"(it is used by a {spec.name} factor)")
-        E = E[pos]
-        if spec.name == "Pose3":
-            pose3_from_rows(E, X)
-        else:
-            X[:] = pose2_matrices(E)
-        return X
-    at = getattr(values, spec.at)
-    for j, k in enumerate(keys):
-        try:
-            X[j] = at(k).matrix()
-        except RuntimeError:
-            raise BatchError(f"key {key_name(k)} must hold a gtsam.{spec.name} "
-                             f"(it is used by a {spec.name} factor)") from None
-    return X
+    try:
+        return elements.matrices_from_values(values, spec.name, keys)
+    except KeyError as exc:
+        raise BatchError(f"key {key_name(exc.args[0])} is used by a {spec.name} factor "
+                         "but is missing from the initial Values") from None
+    except TypeError as exc:
+        raise BatchError(f"key {key_name(exc.args[0])} must hold a gtsam.{spec.name} "
+                         f"(it is used by a {spec.name} factor)") from None
 
 
 def matrices_of(values: gtsam.Values, group: str, keys) -> np.ndarray:
@@ -203,22 +173,9 @@ def matrices_of(values: gtsam.Values, group: str, keys) -> np.ndarray:
     return _read_matrices(values, _factors.GROUPS[group], [int(k) for k in keys])
 
 
-def _pose2(M):
-    return gtsam.Pose2(M[0, 2], M[1, 2], math.atan2(M[1, 0], M[0, 0]))
-
-
-def _similarity2(M):
-    return gtsam.Similarity2(gtsam.Rot2.atan2(M[1, 0], M[0, 0]), np.array([M[0, 2], M[1, 2]]), 1.0 / M[2, 2])
-
-
-#: Groups whose GTSAM type has no constructor from its matrix; others use ``spec.cls(M)``.
-_FROM_MATRIX = {"Pose2": _pose2, "Similarity2": _similarity2}
-
-
 def to_gtsam(spec, M: np.ndarray):
     """The GTSAM object of the element matrix ``M``."""
-    make = _FROM_MATRIX.get(spec.name)
-    return make(M) if make is not None else spec.cls(M)
+    return elements.to_gtsam(spec.name, M)
 
 
 class Problem:

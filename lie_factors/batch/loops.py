@@ -1,7 +1,7 @@
 """Whole-graph numba loops over the factors' own kernels: linearize, evaluate, retract.
 
 Every loop is a cached top-level kernel taking the group tag ``g``
-(:mod:`lie_factors._dispatch`: one specialization per group, holding only
+(:mod:`lie_factors.kernels.dispatch`: one specialization per group, holding only
 that group's cores); the per-factor work is
 :func:`lie_factors.factors.between` / :func:`~lie_factors.factors.prior` (error
 and Jacobians) and their ``*_error`` halves, so no formula is repeated here.
@@ -23,11 +23,11 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .. import _dispatch
+from ..kernels import dispatch as _dispatch
 from .. import factors as _factors
-from .._jit import kernel
+from ..kernels.jit import kernel
 
-#: Like :data:`lie_factors._jit.kernel`, with ``prange`` loops run on numba's threads.
+#: Like :data:`lie_factors.kernels.jit.kernel`, with ``prange`` loops run on numba's threads.
 parallel_kernel = njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 
 #: Factors per parallel chunk: large enough that thread start-up and scratch allocation vanish.
@@ -154,7 +154,7 @@ def _setup(g, M, Minv, AdMinv, codes):
 
 
 class GroupLoops:
-    """The loops above bound to one group (``spec.group``, a :mod:`lie_factors._dispatch` tag)."""
+    """The loops above bound to one group (``spec.group``, a :mod:`lie_factors.kernels.dispatch` tag)."""
 
     def __init__(self, spec):
         self.g = spec.group

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from .._jit import kernel
+from ..kernels.jit import kernel
 
 __all__ = [
     "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH",

@@ -20,7 +20,7 @@ import gtsam
 import numpy as np
 
 from .. import stack
-from ..relaxation import cholmod_available
+from ..initialization.relaxation import cholmod_available
 from .graph import BatchError
 
 LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")

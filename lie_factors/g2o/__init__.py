@@ -80,8 +80,10 @@ import numpy as np
 
 import gtsam
 
-from .atomic import replace_atomically
-from .errors import PoseGraphError
+from ..atomic import replace_atomically
+from ..errors import PoseGraphError
+from ..pose_graph import PoseGraph
+from ..topology import components
 
 
 def resolve_dataset(name: str) -> str:
@@ -874,26 +876,6 @@ def _check_3d_references(name: str, s: G2oSummary) -> None:
                                  f"identity offsets)")
 
 
-def _components(n: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Connected-component label (smallest member) of nodes 0..n-1 joined by edges u–v.
-
-    Hook-and-compress in numpy: each round hooks the larger root under the
-    smaller, then jumps pointers until flat; rounds are few (O(log n)).
-    """
-    parent = np.arange(n)
-    while True:
-        pu, pv = parent[u], parent[v]
-        if (pu == pv).all():
-            return parent
-        lo, hi = np.minimum(pu, pv), np.maximum(pu, pv)
-        np.minimum.at(parent, hi, lo)
-        while True:
-            pp = parent[parent]
-            if (pp == parent).all():
-                break
-            parent = pp
-
-
 def _check_connected(name: str, s: G2oSummary) -> None:
     poses = np.asarray(s.pose_ids, dtype=np.int64)
     lms = np.asarray(s.landmark_ids, dtype=np.int64)
@@ -907,7 +889,7 @@ def _check_connected(name: str, s: G2oSummary) -> None:
         vs.append(P + np.searchsorted(lms, r.ids[:, 1]))
     u = np.concatenate(us) if us else np.zeros(0, dtype=np.int64)
     v = np.concatenate(vs) if vs else np.zeros(0, dtype=np.int64)
-    labels = _components(P + len(lms), u, v)
+    labels = components(P + len(lms), u, v)
     root = labels[0]
     lost = np.flatnonzero(labels != root)
     if lost.size:
@@ -1022,32 +1004,6 @@ def read_g2o(path: str, summary: G2oSummary):
 _SE3_INFO_ORDER = np.array([3, 4, 5, 0, 1, 2])
 
 
-@dataclass
-class PoseGraphArrays:
-    """A checked pose-graph file as arrays, in GTSAM's conventions (what ``readG2o`` would build).
-
-    ``group``: Pose2, Pose3 or Similarity3 (m×m matrices, n-dimensional
-    tangent: 3×3/3, 4×4/6, 4×4/7).  ``keys`` (P,) int64: every pose id,
-    sorted.  ``edge_keys`` (E, 2) int64, ``measured`` (E, m, m) and
-    ``information`` (E, n, n): the pose–pose edges in file order (edge k of
-    the file is factor k of GTSAM's graph), information in GTSAM's tangent
-    order.  ``vertices`` (P, m, m): the file's pose vertices in key order, or
-    None if the file has no pose vertex.  ``lines`` (E,): the edges' line numbers.
-    """
-
-    group: str
-    keys: np.ndarray
-    edge_keys: np.ndarray
-    measured: np.ndarray
-    information: np.ndarray
-    vertices: np.ndarray | None
-    lines: np.ndarray
-
-    @property
-    def is3d(self) -> bool:
-        return self.group != "Pose2"
-
-
 def arrays_supported(summary: G2oSummary) -> bool:
     """Can :func:`read_arrays` represent this file?  Pose–pose files whose poses all have a
     vertex, or none has one (landmark records and 2-D files whose edges introduce
@@ -1100,7 +1056,7 @@ def _elements(rows: Rows) -> np.ndarray:
     v = rows.values
     N = len(v)
     if rec.group_name == "Similarity3":
-        from . import sim3  # Sim(3) records are converted by our exact exp (numba)
+        from .. import sim3  # Sim(3) records are converted by our exact exp (numba)
 
         return sim3.exp(np.ascontiguousarray(v[:, :7]))
     if rec.dim == 2:
@@ -1128,8 +1084,8 @@ def _edge_information(rows: Rows) -> np.ndarray:
     return info
 
 
-def read_arrays(summary: G2oSummary) -> PoseGraphArrays:
-    """The checked file's poses and edges as :class:`PoseGraphArrays`, with no GTSAM object.
+def read_arrays(summary: G2oSummary) -> PoseGraph:
+    """The checked file's poses and edges as :class:`PoseGraph`, with no GTSAM object.
 
     The same numbers as ``gtsam.readG2o`` (quaternions normalized, SE(3)
     information permuted to [ω, v]; Sim(3) records as :func:`read_g2o`),
@@ -1152,7 +1108,7 @@ def read_arrays(summary: G2oSummary) -> PoseGraphArrays:
         ids = np.concatenate([r.ids[:, 0] for r in poses])
         X = np.concatenate([_elements(r) for r in poses])
         vertices = X[np.argsort(ids)]  # every pose has exactly one vertex (arrays_supported, check_g2o)
-    return PoseGraphArrays(summary.group, keys, np.ascontiguousarray(edge_keys), measured, information,
+    return PoseGraph(summary.group, keys, np.ascontiguousarray(edge_keys), measured, information,
                            vertices, lines[order])
 
 
@@ -1237,14 +1193,14 @@ def similarity3_from_g2o(v) -> gtsam.Similarity3:
 
     Shapes: ``v`` (7,).  Exact (``lie_factors.sim3.exp``).
     """
-    from . import sim3
+    from .. import sim3
 
     return gtsam.Similarity3(sim3.exp(np.asarray(v, dtype=np.float64)))
 
 
 def similarity3_to_g2o(X: gtsam.Similarity3) -> np.ndarray:
     """The 7 numbers g2o writes for GTSAM element ``X``: its ``Logmap`` [ω, u, λ], shape (7,)."""
-    from . import sim3
+    from .. import sim3
 
     return sim3.log(np.asarray(X.matrix(), dtype=np.float64))
 

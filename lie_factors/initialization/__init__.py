@@ -29,7 +29,7 @@ composed odometry of the file leads GTSAM's LM to a local minimum (error
     Between/Prior on Pose2/Pose3/Similarity3 (landmarks, ...) starts from the
     given values.
 
-``chordal`` and ``lago`` run on arrays (:mod:`lie_factors.relaxation`: the same
+``chordal`` and ``lago`` run on arrays (:mod:`lie_factors.initialization.relaxation`: the same
 results as GTSAM's to ~1e-10, numpy and CHOLMOD, no per-factor objects);
 GTSAM's own initializers run, on a large-stack thread (:mod:`lie_factors.stack`),
 where cvxopt is absent or a noise model's square-root information is not
@@ -55,8 +55,9 @@ import numpy as np
 
 import gtsam
 
-from . import relaxation, stack
-from .errors import PoseGraphError
+from .. import stack
+from . import relaxation
+from ..errors import PoseGraphError
 
 #: ``--init`` choices, in the CLI's order.
 METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
@@ -263,7 +264,7 @@ def _check_values(values: gtsam.Values, pg: _PoseGraph, what: str) -> gtsam.Valu
 
 
 def _arrays(pg: _PoseGraph):
-    """The graph as :mod:`lie_factors.relaxation`'s arrays (n, i, j, Z, information, prior index, Z, information),
+    """The graph as :mod:`lie_factors.initialization.relaxation`'s arrays (n, i, j, Z, information, prior index, Z, information),
     or None where GTSAM's own initializers must run: CHOLMOD (cvxopt) absent, or a noise model whose
     square-root information is not upper triangular (GTSAM weighs the chordal rows by its (0, 0) entry,
     which equals √information[0, 0] only for the upper-triangular factor) or is singular (constrained)."""

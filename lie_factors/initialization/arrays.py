@@ -1,16 +1,16 @@
-"""Where LM starts, on a pose graph held as arrays: :mod:`lie_factors.relaxation`'s initializers.
+"""Where LM starts, on a pose graph held as arrays: :mod:`lie_factors.initialization.relaxation`'s initializers.
 
-The same methods and the same ``auto`` order as :func:`lie_factors.initialize.initialize`
+The same methods and the same ``auto`` order as :func:`lie_factors.initialization.initialize`
 (``chordal``: GTSAM's InitializePose3, a 2-D graph as a planar Pose3 graph;
 ``lago``: GTSAM's lago, diagonal noise only; ``file``: the file's vertices),
-run on :class:`lie_factors.g2o.PoseGraphArrays` plus the prior
-:mod:`lie_factors.posegraph` puts on the first pose, with no GTSAM factor
+run on :class:`lie_factors.pose_graph.PoseGraph` plus the prior
+:mod:`lie_factors.app.run` puts on the first pose, with no GTSAM factor
 object (numpy and CHOLMOD, no numba).  They agree with GTSAM's to 1e-9
 (tests/test_relaxation.py, tests/test_g2o_arrays.py).
 
 :func:`initialize` returns None where it does not apply — ``spanning-tree``,
 Similarity3 graphs, no cvxopt, or ``auto`` when none of its array methods runs — and the
-caller then uses GTSAM's path (:func:`lie_factors.initialize.initialize`),
+caller then uses GTSAM's path (:func:`lie_factors.initialization.initialize`),
 which has every method; the reasons gathered here go with it.
 """
 
@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from .elements import pose2_matrices
-from .initialize import Initialization, InitializationError, auto_order, odometric_path_complete
+from ..kernels.elements import pose2_matrices
+from . import Initialization, InitializationError, auto_order, odometric_path_complete
 
 #: GTSAM's ``Gaussian::Information(M, smart=true)`` (what readG2o builds) makes a
 #: Diagonal model when every off-diagonal entry is at most this (checkIfDiagonal).
@@ -82,10 +82,10 @@ def _run(name: str, a, prior_key: int, prior_element: np.ndarray, prior_informat
 def initialize(a, method: str, prior_key: int, prior_element: np.ndarray, prior_information: np.ndarray):
     """(Initialization with ``values=None``, poses (P, m, m) in ``a.keys`` order), or (None, skipped).
 
-    ``a``: :class:`lie_factors.g2o.PoseGraphArrays` (Pose2 or Pose3); the prior
+    ``a``: :class:`lie_factors.pose_graph.PoseGraph` (Pose2 or Pose3); the prior
     on ``prior_key``: element (m, m) and information (n, n).  ``method`` as
-    :func:`lie_factors.initialize.initialize`; raises
-    :class:`~lie_factors.initialize.InitializationError` when a named method
+    :func:`lie_factors.initialization.initialize`; raises
+    :class:`~lie_factors.initialization.InitializationError` when a named method
     cannot run.  (None, skipped) hands over to GTSAM's path with the reasons
     ``auto`` gathered so far.
     """

@@ -7,7 +7,7 @@ function gives what GTSAM's initializer gives on the graph of
 Gaussian.Information(information[e]))`` followed by the priors
 ``PriorFactorPose3/Pose2(prior_index[p], prior_measured[p],
 Gaussian.Information(prior_information[p]))``, in that order (the order
-LAGO's spanning tree depends on; ``lie_factors.posegraph`` puts its prior
+LAGO's spanning tree depends on; ``lie_factors.app.run`` puts its prior
 after the edges too).  Without priors, one at the identity on pose 0 (the
 smallest key) with the variances of GTSAM's Pose3SLAMExample_g2o.py /
 lago's own: Pose3 (1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4), Pose2 (1e-6, 1e-6,
@@ -44,10 +44,10 @@ these do:
   then the linear least squares of the positions with the angles fixed.
 * :func:`chordal_pose2`: the planar graph as a Pose3 graph
   (:func:`pose2_information_to_pose3`) through :func:`initialize_pose3`,
-  read back as (x, y, yaw): what :mod:`lie_factors.initialize` does for a 2-D
+  read back as (x, y, yaw): what :mod:`lie_factors.initialization` does for a 2-D
   graph with full covariances.
 
-Errors: :class:`lie_factors.initialize.InitializationError`-compatible
+Errors: :class:`lie_factors.initialization.InitializationError`-compatible
 :class:`RelaxationError` (a ``PoseGraphError``) for graphs that cannot be
 initialized (disconnected, indeterminate); ``ValueError`` for malformed arrays.
 """
@@ -56,8 +56,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _validate
-from .errors import PoseGraphError
+from ..kernels import validate as _validate
+from ..errors import PoseGraphError
 
 #: Variances of the prior put on pose 0 when none is given (GTSAM's g2o examples).
 DEFAULT_PRIOR_VARIANCES_3D = np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4])

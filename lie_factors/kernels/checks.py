@@ -3,7 +3,7 @@
 The public functions' fast path (one float64 array of the element's exact
 shape, validated and computed in one numba call) checks with :func:`finite` and
 :func:`element_ok`. They only *accept or refuse*: a refused input goes on to the
-general path, whose numpy checks (:mod:`lie_factors._validate`) raise the
+general path, whose numpy checks (:mod:`lie_factors.kernels.validate`) raise the
 ``ValueError`` that names the problem. So these must never accept what those
 reject: they are the same tests, and the orthonormality bound is 1e-15 stricter
 so that a different summation order can never let a borderline block through.
@@ -17,8 +17,10 @@ import math
 
 import numpy as np
 
-from lie_factors._jit import kernel
-from lie_factors._validate import ORTHONORMAL_TOL
+from lie_factors.kernels.jit import kernel
+# ``corner`` of element_code: defined with the groups' facts.
+from lie_factors.kernels.registry import NO_CORNER, ONE, POSITIVE  # noqa: F401
+from lie_factors.kernels.validate import ORTHONORMAL_TOL
 
 #: The fast path's bound: ORTHONORMAL_TOL less a margin far above the rounding of
 #: RᵀR (a few ulp of 1), far below anything a caller could mean.
@@ -29,9 +31,6 @@ _FAST_ORTHONORMAL_TOL = ORTHONORMAL_TOL - 1e-15
 NDARRAY = np.ndarray
 F64 = np.dtype(np.float64)
 
-#: ``corner`` of :func:`element_ok`: no homogeneous row (a bare rotation); last
-#: row [0 … 0 1]; last row [0 … 0 s] with s > 0.
-NO_CORNER, ONE, POSITIVE = 0, 1, 2
 
 
 @kernel

@@ -8,7 +8,7 @@ cancellation error has fallen below ~1e-15 relative (measured against mpmath at
 < 1e-17 relative at the threshold. Inside the Taylor band θ² may underflow to
 0 (θ = 1e-200): nothing there divides by θ.
 
-Notation follows seed 000 (Eade, "Derivative of the exponential map"), §5.1–5.2:
+Notation follows Eade, "Derivative of the Exponential Map", §5.1–5.2:
 
     a_θ = sin θ / θ                       (Eq. 50)
     b_θ = (1 − cos θ) / θ²                (Eq. 51)
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 
-from lie_factors._jit import kernel
+from lie_factors.kernels.jit import kernel
 
 #: a_θ: sin θ / θ has no cancellation; the band only avoids 0/0 at θ = 0.
 A_TAYLOR = 1e-3
@@ -246,7 +246,7 @@ def norm3(x, y, z):
 
 @kernel
 def a_theta(theta):
-    """a_θ = sin θ/θ, seed 000 Eq. (50)."""
+    """a_θ = sin θ/θ, Eade Eq. (50)."""
     if theta < A_TAYLOR:
         return _horner(_A_SERIES, theta * theta)
     return math.sin(theta) / theta
@@ -254,7 +254,7 @@ def a_theta(theta):
 
 @kernel
 def b_theta(theta):
-    """b_θ = (1 − cos θ)/θ² = ½ (sin(θ/2)/(θ/2))², seed 000 Eq. (51).
+    """b_θ = (1 − cos θ)/θ² = ½ (sin(θ/2)/(θ/2))², Eade Eq. (51).
 
     The half-angle form has no cancellation at any θ.
     """
@@ -264,7 +264,7 @@ def b_theta(theta):
 
 @kernel
 def c_theta(theta):
-    """c_θ = (1 − a_θ)/θ² = (θ − sin θ)/θ³, seed 000 Eq. (52)."""
+    """c_θ = (1 − a_θ)/θ² = (θ − sin θ)/θ³, Eade Eq. (52)."""
     if theta < C_TAYLOR:
         return _horner(_C_SERIES, theta * theta)
     return (theta - math.sin(theta)) / (theta * theta * theta)
@@ -272,7 +272,7 @@ def c_theta(theta):
 
 @kernel
 def e_theta(theta):
-    """e_θ, the ω×² coefficient of D_exp⁻¹ (seed 000 Eqs. 55–57), valid for θ < 2π.
+    """e_θ, the ω×² coefficient of D_exp⁻¹ (Eade Eqs. 55–57), valid for θ < 2π.
 
     Closed form 1/θ² − cos(θ/2)/(2θ sin(θ/2)) (= Eq. 57 with 1 − cos θ =
     2 sin²(θ/2)); unlike Eq. (56) it has no 0/0 at θ = π where a_θ = 0.
@@ -376,7 +376,7 @@ def ef_omega(w0, w1, w2):
 
 @kernel
 def qa_theta(theta):
-    """(a_θ − 2 b_θ)/θ², the ω× coefficient of Q(ω), seed 000 Eq. (64)."""
+    """(a_θ − 2 b_θ)/θ², the ω× coefficient of Q(ω), Eade Eq. (64)."""
     if theta < QA_TAYLOR:
         return _horner(_QA_SERIES, theta * theta)
     return (a_theta(theta) - 2.0 * b_theta(theta)) / (theta * theta)
@@ -384,7 +384,7 @@ def qa_theta(theta):
 
 @kernel
 def qb_theta(theta):
-    """(b_θ − 3 c_θ)/θ², the ω×² coefficient of Q(ω), seed 000 Eq. (64)."""
+    """(b_θ − 3 c_θ)/θ², the ω×² coefficient of Q(ω), Eade Eq. (64)."""
     if theta < QB_TAYLOR:
         return _horner(_QB_SERIES, theta * theta)
     return (b_theta(theta) - 3.0 * c_theta(theta)) / (theta * theta)

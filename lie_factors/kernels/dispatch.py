@@ -26,8 +26,8 @@ and pass ``g`` on to other generic kernels; call it from Python with a tag
 (``_dispatch.SE3``, ``GroupSpec.group``). Calling a core that is not listed
 here: add one line below (``name = _core("_name", doc)``).
 
-Adding a group is a registration, like ``SIM3 = register(sim3, rot_dim=3,
-corner=POSITIVE)`` below, with a module that has ``DIM``, ``MAT`` and the cores
+Adding a group is its facts in :mod:`lie_factors.kernels.registry` and a registration
+here, like ``SIM3 = register(sim3)`` below, with a module that has the cores
 ``_inverse, _compose, _log, _exp, _dlog, _Ad``.
 
 The tag costs ≈1 µs per call from Python over an integer (numba reads its
@@ -45,10 +45,8 @@ from numba.core.imputils import lower_constant
 from numba.core.typing import signature
 from numba.extending import NativeValue, intrinsic, models, register_model, typeof_impl, unbox
 
-from . import se2, se3, sim2, sim3, so3
-# ``corner`` of register(), what the bottom-right entry of an element must be: the codes of
-# _check.element_code (the single-element checks), defined there once.
-from ._check import NO_CORNER, ONE, POSITIVE
+from .. import se2, se3, sim2, sim3, so3
+from . import registry
 
 
 class GroupType(types.Type):
@@ -85,13 +83,14 @@ class Group:
 
     __slots__ = ("name", "module", "dim", "mat", "rot_dim", "corner", "_numba_type_")
 
-    def __init__(self, module: ModuleType, rot_dim: int, corner: int):
+    def __init__(self, module: ModuleType):
         self.name = module.__name__.rsplit(".", 1)[-1]
         self.module = module
-        self.dim = int(module.DIM)
-        self.mat = int(module.MAT)
-        self.rot_dim = int(rot_dim)
-        self.corner = int(corner)
+        info = registry.GROUPS[self.name]
+        self.dim = info.dim
+        self.mat = info.mat
+        self.rot_dim = info.rot_dim
+        self.corner = info.corner
         # Read by numba's dispatcher in C, so a tag is typed without a Python call.
         self._numba_type_ = GroupType(self.name)
 
@@ -115,26 +114,27 @@ def _by_name(name: str) -> Group:
     return GROUPS[name]
 
 
-def register(module: ModuleType, rot_dim: int, corner: int) -> Group:
-    """Make ``module``'s cores reachable from group-generic kernels; returns its tag."""
-    group = Group(module, rot_dim, corner)
+def register(module: ModuleType) -> Group:
+    """Make ``module``'s cores reachable from group-generic kernels; returns its tag (its facts
+    are :mod:`lie_factors.kernels.registry`'s)."""
+    group = Group(module)
     if group.name in GROUPS:
         raise ValueError(f"group {group.name!r} is already registered")
     GROUPS[group.name] = group
     return group
 
 
-SO3 = register(so3, rot_dim=3, corner=NO_CORNER)
-SE3 = register(se3, rot_dim=3, corner=ONE)
-SE2 = register(se2, rot_dim=2, corner=ONE)
-SIM2 = register(sim2, rot_dim=2, corner=POSITIVE)
-SIM3 = register(sim3, rot_dim=3, corner=POSITIVE)
+SO3 = register(so3)
+SE3 = register(se3)
+SE2 = register(se2)
+SIM2 = register(sim2)
+SIM3 = register(sim3)
 
 
 def _group(g) -> Group:
     """The registered group of numba type ``g`` (raise a typing error for anything else)."""
     if not isinstance(g, GroupType):
-        raise TypingError(f"expected a lie_factors._dispatch group tag, got {g}")
+        raise TypingError(f"expected a lie_factors.kernels.dispatch group tag, got {g}")
     return GROUPS[g.group]
 
 

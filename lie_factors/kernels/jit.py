@@ -78,7 +78,7 @@ def apply(core, x: np.ndarray, core_ndim: int, out_core_shape: tuple) -> np.ndar
 
     ``x`` has shape ``batch + core_shape`` (``core_ndim`` trailing axes); the
     result has shape ``batch + out_core_shape``. ``x`` must already be a
-    validated float64 array (see :mod:`lie_factors._validate`).
+    validated float64 array (see :mod:`lie_factors.kernels.validate`).
     """
     batch = x.shape[: x.ndim - core_ndim]
     flat = np.ascontiguousarray(x.reshape((-1,) + x.shape[x.ndim - core_ndim :]))

@@ -5,7 +5,7 @@ shapes and non-finite values raise ``ValueError`` naming the expected shape
 instead of returning garbage.
 
 The single-element fast path of the public functions checks one element inside
-its numba call instead (:mod:`lie_factors._check`); what it refuses comes here
+its numba call instead (:mod:`lie_factors.kernels.checks`); what it refuses comes here
 for the message.
 """
 

@@ -6,7 +6,7 @@ forms are measured against.
 Everything here is written independently of ``lie_factors``: ``hat`` follows the
 table in CONVENTIONS.md, ``ad`` is the matrix of ``y -> vee([hat x, hat y])``
 obtained by bracketing basis vectors, ``exp`` is the matrix exponential of
-``hat(x)`` and ``dexp`` is the power series sum_i ad^i/(i+1)! (seed 000, Eq. 35),
+``hat(x)`` and ``dexp`` is the power series sum_i ad^i/(i+1)! (Eade, Eq. 35),
 all at ``DPS`` significant digits with mpmath.
 """
 

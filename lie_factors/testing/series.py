@@ -1,6 +1,6 @@
 """D_exp from its power series, for any algebra adjoint matrix: the test oracle.
 
-``dexp(ad_x) = sum_{i>=0} ad_x^i / (i+1)!`` (seed 000, Eq. 35). Nothing here
+``dexp(ad_x) = sum_{i>=0} ad_x^i / (i+1)!`` (Eade, Eq. 35). Nothing here
 knows about a particular group, so it shares no code with the closed forms in
 :mod:`so3`, :mod:`se3`, :mod:`se2` and :mod:`sim2` and can check them.
 
