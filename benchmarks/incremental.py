@@ -43,7 +43,9 @@ import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lie_factors import g2o
-from lie_factors.app import incremental, run as posegraph  # noqa: E402
+from lie_factors.app import incremental  # noqa: E402
+from lie_factors.app.backends import build_graph  # noqa: E402
+from lie_factors.app.load import load as load_dataset  # noqa: E402
 
 DEFAULT_DATASETS = ["intel", "city10000", "sphere2500", "helix"]
 LEGS = ("native", "plain", "dropin")
@@ -78,16 +80,16 @@ def helix(poses: int, seed: int = 0, per_turn: int = 100, radius: float = 10.0, 
 
 
 def load(name: str, data_dir: str, tmp: str, helix_poses: int):
-    """(PoseGraph, truth or None)."""
+    """(Dataset, truth or None)."""
     if name == "helix":
         graph, initial, truth = helix(helix_poses)
         path = os.path.join(tmp, f"helix{helix_poses}.g2o")
         g2o.write_g2o(path, graph, initial)
-        return posegraph.load(path), truth
+        return load_dataset(path), truth
     for candidate in (os.path.join(data_dir, name + ".g2o"), os.path.join(data_dir, name), name):
         if os.path.isfile(candidate):
-            return posegraph.load(candidate), None
-    return posegraph.load(name), None
+            return load_dataset(candidate), None
+    return load_dataset(name), None
 
 
 def ate(values: gtsam.Values, truth) -> float:
@@ -151,7 +153,7 @@ def main(argv=None) -> int:
         loaded = {}
         for name in args.datasets:
             pg, truth = load(name, args.data_dir, tmp, args.helix_poses)
-            graphs = {"native": posegraph.build_graph(pg, "native"), "custom": posegraph.build_graph(pg, "custom")}
+            graphs = {"native": build_graph(pg, "native"), "custom": build_graph(pg, "custom")}
             loaded[name] = (pg, truth, graphs)
         best: dict = {}
         for r in range(args.repeat):

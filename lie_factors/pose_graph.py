@@ -32,6 +32,17 @@ PRIOR_VARIANCES = {
 GROUPS = tuple(PRIOR_VARIANCES)
 
 
+def is_loop_closure(key1, key2):
+    """Whether an edge between poses ``key1`` and ``key2`` is a loop closure: |key1 − key2| ≠ 1
+    (the consecutive ones are odometry).  Scalars or arrays.
+
+    The one definition of a loop closure: robust losses go on the loop closures,
+    GNC takes the odometry and the priors as known inliers, and the outlier
+    benchmark plants false ones.
+    """
+    return np.abs(np.asarray(key1, dtype=np.int64) - np.asarray(key2, dtype=np.int64)) != 1
+
+
 def prior_information(group: str) -> np.ndarray:
     """(n, n): the information diag(1/σ²) of :data:`PRIOR_VARIANCES` for ``group``."""
     return np.diag(1.0 / PRIOR_VARIANCES[group])
@@ -88,14 +99,9 @@ class PoseGraph:
         return self.group != "Pose2"
 
     def loop_closures(self) -> np.ndarray:
-        """Indices of the edges whose keys are not consecutive (|key1 − key2| ≠ 1).
-
-        The one definition of a loop closure: the others are odometry.  Robust
-        losses go on the loop closures, GNC takes the odometry and the priors as
-        known inliers, and the outlier benchmark plants false ones.
-        """
+        """Indices of the edges that are loop closures (:func:`is_loop_closure`)."""
         k = np.asarray(self.edge_keys, dtype=np.int64).reshape(-1, 2)
-        return np.flatnonzero(np.abs(k[:, 0] - k[:, 1]) != 1).astype(np.int64)
+        return np.flatnonzero(is_loop_closure(k[:, 0], k[:, 1])).astype(np.int64)
 
     def index(self, keys) -> np.ndarray:
         """Positions of ``keys`` in :attr:`keys`; ``ValueError`` naming the first key not there."""

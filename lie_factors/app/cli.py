@@ -102,7 +102,7 @@ def _bounded_int(option: str, low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
-#: lie_factors.app.run.BACKENDS, spelled out so that building the parser does
+#: lie_factors.app.backends.BACKENDS, spelled out so that building the parser does
 #: not import GTSAM (a test checks they agree).
 BACKENDS = ("native", "custom", "batch")
 
@@ -116,11 +116,14 @@ BACKENDS = ("native", "custom", "batch")
 INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
 
 INIT_DESCRIPTIONS = {
-    "chordal": "chordal relaxation (GTSAM's InitializePose3, on arrays)",
-    "lago": "LAGO (GTSAM's lago, on arrays)",
+    "chordal": "chordal relaxation (GTSAM's InitializePose3)",
+    "lago": "LAGO (GTSAM's lago)",
     "spanning-tree": "measurements composed along a spanning tree",
     "file": "vertices in the file",
 }
+
+#: Whose chordal/LAGO initializer ran (lie_factors.initialization.ENGINES), after its description.
+ENGINE_NOTES = {"lie_factors": ", ours on arrays", "gtsam": ", GTSAM's own"}
 
 
 def _add_posegraph(p: argparse.ArgumentParser) -> None:
@@ -182,15 +185,23 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _refuse_batch_options(args) -> None:
+    for option, value, default in (("--robust", args.robust, None), ("--robust-all", args.robust_all, False),
+                                   ("--gnc", args.gnc, None), ("--init", args.init, "auto"),
+                                   ("--max-iterations", args.max_iterations, 100)):
+        if value != default:
+            raise CLIError(f"{option} does not apply to --incremental (ISAM2 replays the file "
+                           "online from its own estimates)")
+
+
 def _run_posegraph(args) -> int:
-    """Parse → :class:`lie_factors.app.run.PoseGraphRun` → print; the run owns every step."""
+    """Parse → :class:`lie_factors.app.run.PoseGraphRun` (or, with ``--incremental``, its ISAM2
+    replay) → print; the run owns every step."""
     import time
 
-    if args.incremental:  # the online replay (ISAM2) lives in its own module
-        from lie_factors.app import incremental
-
-        return incremental.main(args, _say, _emit_json)
-    if args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
+    if args.incremental:
+        _refuse_batch_options(args)
+    elif args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
         raise CLIError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
     t = time.perf_counter()
     from lie_factors.app import run as pgm
@@ -200,6 +211,10 @@ def _run_posegraph(args) -> int:
     class Printer(pgm.RunEvents):
         def loaded(self, run):
             pg = run.pg
+            if args.incremental:
+                _say(args, f"{pg.describe()}; incremental (ISAM2, relinearize threshold "
+                           f"{args.relinearize_threshold:g}, skip {args.relinearize_skip}), backend {args.backend}")
+                return
             _say(args, f"{pg.describe()}"
                        f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
                        f"backend {args.backend}")
@@ -212,7 +227,8 @@ def _run_posegraph(args) -> int:
                 _say(args, f"init {method} not applicable: {reason}")
             only = (" of the odometry edges and the prior only (loop closures left out under "
                     f"{'--gnc' if args.gnc else '--robust'})" if start.inliers_only else "")
-            _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{only} ({start.seconds:.3f} s)")
+            _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{ENGINE_NOTES.get(start.engine, '')}"
+                       f"{only} ({start.seconds:.3f} s)")
 
         def iteration(self, info):
             if not args.quiet:
@@ -225,12 +241,22 @@ def _run_posegraph(args) -> int:
                 print(f"gnc iter {it + 1:3d}  lambda {lam:.3e}  weighted cost {cost:.6e}  "
                       f"({lm_iterations} LM iterations)", file=sys.stderr, flush=True)
 
+        def replayed(self, done, total, seconds):
+            if not args.quiet:
+                print(f"update {done}/{total}: {seconds:.3f} s", file=sys.stderr, flush=True)
+
         def optimized(self, run):
-            _report_compile(args)
             record = run.record
+            if args.incremental:
+                r = run.replay
+                _say(args, f"{r.updates} updates in {r.update_seconds:.3f} s (per update: median "
+                           f"{r.update_p50 * 1e3:.3f} ms, p99 {r.update_p99 * 1e3:.3f} ms); "
+                           f"final error {r.final_error:.6g}")
+                return
+            _report_compile(args)
             status = "converged" if record.converged else "stopped (not converged)"
             if args.gnc:
-                n_lc = len(pgm.loop_closures(run.pg))
+                n_lc = len(run.pg.graph.loop_closures())
                 _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop "
                            f"closures; error {record.initial_error:.6g} -> weighted "
                            f"{record.final_error:.6g} after {record.iterations} GNC iterations, "
@@ -243,9 +269,15 @@ def _run_posegraph(args) -> int:
         def wrote(self, path):
             _say(args, f"wrote {path}")
 
-    job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
-                           robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
-                           output=args.output, plot=args.plot, events=Printer(), lazy_values=True)
+    if args.incremental:  # the online replay (ISAM2)
+        from lie_factors.app.incremental import IncrementalRun
+
+        job = IncrementalRun(args.dataset, args.backend, args.relinearize_threshold, args.relinearize_skip,
+                             output=args.output, plot=args.plot, events=Printer())
+    else:
+        job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
+                               robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
+                               output=args.output, plot=args.plot, events=Printer(), lazy_values=True)
     job.timings["imports"] = imports  # GTSAM and numpy, loaded with lie_factors.app.run
     record = job.execute()
     if args.json:
@@ -298,12 +330,11 @@ def _demo_output_dir(out_dir: str) -> None:
 
 def _run_demo(args) -> int:
     from lie_factors import atomic, g2o
-    from lie_factors.app import demo
-    from lie_factors.app import run as pgm
+    from lie_factors.app import backends, demo
 
     if args.poses is None:
         args.poses = DEMO_SCENARIOS[args.scenario][0]
-    pgm.get_backend(args.backend)
+    backends.get_backend(args.backend)
     if args.scenario == "sim3":
         return _run_demo_sim3(args)
     out_dir = args.output
@@ -311,13 +342,13 @@ def _run_demo(args) -> int:
     png = os.path.join(out_dir, "trajectory.png")
     g2o_path = os.path.join(out_dir, "optimized.g2o")
     atomic.check_writable(g2o_path)
-    factors = pgm.load_factors(args.backend)
+    factors = backends.load_factors(args.backend)
 
     problem = demo.simulate(args.poses, args.seed)
     graph = demo.build_graph(problem, factors)
     _say(args, f"demo: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
-    result = pgm.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
+    result = backends.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
                                                     _progress(args))
     _report_compile(args)
     ate0 = demo.ate_rmse(problem.initial, problem.truth)
@@ -328,14 +359,14 @@ def _run_demo(args) -> int:
     _say(args, f"ATE (RMSE)  {ate0:12.4f} m -> {ate1:.4f} m")
 
     g2o.write_g2o(g2o_path, demo.between_graph(problem), result.values)
-    from lie_factors.app.plotting import plot_trajectories
+    from lie_factors.app.plotting import plot_trajectories, positions
 
     truth = [T.translation() for T in problem.truth]
     atomic.replace_atomically(png, lambda tmp: plot_trajectories(
         tmp,
         {"ground truth": truth,
-         "initial": pgm.positions(problem.initial, True),
-         "optimized": pgm.positions(result.values, True)},
+         "initial": positions(problem.initial, True),
+         "optimized": positions(result.values, True)},
         f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m"),
         suffix=".png")
     _say(args, f"wrote {png} and {g2o_path}")
@@ -361,8 +392,7 @@ def _run_demo_sim3(args) -> int:
     """The scale-drift scenario (:mod:`lie_factors.app.demo_sim3`): ours and GTSAM's native
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
     from lie_factors import atomic, g2o
-    from lie_factors.app import demo_sim3
-    from lie_factors.app import run as pgm
+    from lie_factors.app import backends, demo_sim3
 
     if args.backend == "native":
         raise CLIError("--scenario sim3 always runs GTSAM's native factors beside ours; "
@@ -371,7 +401,7 @@ def _run_demo_sim3(args) -> int:
     png = os.path.join(args.output, "trajectory.png")
     g2o_path = os.path.join(args.output, "optimized.g2o")
     atomic.check_writable(g2o_path)
-    pgm.load_factors(args.backend)  # a clear error now if ours are unavailable
+    backends.load_factors(args.backend)  # a clear error now if ours are unavailable
 
     problem = demo_sim3.simulate(args.poses, args.seed)
     _say(args, f"demo sim3: {args.poses} poses, {len(problem.odometry)} odometry edges, "

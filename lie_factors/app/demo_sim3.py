@@ -193,17 +193,17 @@ class Comparison:
 def compare(problem: Problem, backend: str = "custom", max_iterations: int = 100,
             progress=None) -> Comparison:
     """Optimize ``problem`` with our factors (``backend`` custom or batch, of
-    :mod:`lie_factors.app.run`) and with GTSAM's native ones, same start and
+    :mod:`lie_factors.app.backends`) and with GTSAM's native ones, same start and
     :func:`lm_params`; ``progress`` gets our iterations."""
     from .. import factors
-    from . import run as pgm
+    from . import backends
 
     graph = build_graph(problem, factors)
     native_graph = build_graph(problem, gtsam)
-    optimize = pgm.get_backend(backend).optimize
+    optimize = backends.get_backend(backend).optimize
     ours = optimize(graph, problem.initial, max_iterations=max_iterations, progress=progress,
                     params=lm_params(max_iterations))
-    native = pgm.optimize(native_graph, problem.initial, max_iterations, None, lm_params(max_iterations))
+    native = backends.optimize(native_graph, problem.initial, max_iterations, None, lm_params(max_iterations))
     return Comparison(
         problem, graph, ours, native,
         ate_rmse(problem.initial, problem.truth), ate_rmse(ours.values, problem.truth),

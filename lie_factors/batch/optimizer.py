@@ -132,7 +132,7 @@ class BatchLevenbergMarquardt:
         self.gauss_newton = isinstance(self.params, gtsam.GaussNewtonParams)
         self.min_model_fidelity = float(min_model_fidelity)
         self._read_params()
-        # A Problem (e.g. Problem.from_arrays) is used as it is; ``initial`` is then ignored.
+        # A Problem (e.g. Problem.from_pose_graph) is used as it is; ``initial`` is then ignored.
         self.problem = (graph if isinstance(graph, Problem)
                         else Problem(graph, initial, group_robust=self.group_robust))
         self.system = LinearSystem(self.problem)

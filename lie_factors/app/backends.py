@@ -1,0 +1,173 @@
+"""The backends of a pose-graph run: where the factor classes come from and which LM runs them.
+
+``native``: GTSAM's own BetweenFactor/PriorFactor in GTSAM's LM (the reference);
+``custom``: :mod:`lie_factors.factors` in :class:`lie_factors.optimizers.LevenbergMarquardtOptimizer`
+(GTSAM's LM algorithm driven from Python, GTSAM linearizing and eliminating);
+``batch``: the same factors in the vectorized solver (:mod:`lie_factors.batch`).  The
+CLI's ``--backend`` choices come from :data:`BACKENDS`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import gtsam
+
+from ..errors import PoseGraphError
+from ..results import IterationInfo, OptimizeResult
+from ..stack import large_stack
+from ..timing import Stopwatch, warm_up_factors
+from .load import Dataset
+
+
+def _native_factors():
+    return gtsam
+
+
+def _custom_factors():
+    # Imported here, not at module top, so that `native` works without it.
+    from lie_factors import factors
+
+    return factors
+
+
+@dataclass(frozen=True)
+class Backend:
+    """``factors()`` returns an object with GTSAM-named constructors
+    (BetweenFactorPose2/3, PriorFactorPose2/3); ``optimize`` runs LM on the graph."""
+
+    factors: Callable[[], object]
+    optimize: Callable[..., "OptimizeResult"] = None  # type: ignore[assignment]
+    description: str = ""
+
+
+#: Add a backend here (e.g. "batch") — the CLI's --backend choices come from this table.
+BACKENDS: dict[str, Backend] = {}
+
+
+def get_backend(name: str) -> Backend:
+    try:
+        return BACKENDS[name]
+    except KeyError:
+        raise PoseGraphError(
+            f"unknown backend {name!r} (choose from {', '.join(BACKENDS)})"
+        ) from None
+
+
+def load_factors(backend: str):
+    """The factor-constructor namespace for ``backend``; clear error if unavailable."""
+    b = get_backend(backend)
+    try:
+        return b.factors()
+    except ImportError as exc:
+        raise PoseGraphError(f"backend {backend!r} is not available: {exc}") from None
+
+
+def build_graph(ds: Dataset, backend: str, robust=None, robust_all: bool = False) -> gtsam.NonlinearFactorGraph:
+    """The graph a run optimizes, built with ``backend``'s factor classes: the file's edges, the
+    prior on the first pose (:meth:`Dataset.posed`), then the landmark measurements (GTSAM's
+    own factors in every backend).
+
+    With ``robust`` (a :class:`lie_factors.batch.robust.RobustLoss`) the loop closures' noise
+    models — every edge's with ``robust_all`` — become ``noiseModel.Robust(loss, Gaussian)``
+    (:meth:`lie_factors.pose_graph.PoseGraph.factor_graph`).  Edge k of the file is factor k.
+    """
+    graph = ds.posed().factor_graph(load_factors(backend), None if robust is None else robust.to_gtsam(),
+                                    robust_all)
+    if ds.landmarks is not None:
+        graph.push_back(ds.landmarks.factors)
+    return graph
+
+
+# --------------------------------------------------------------------------- #
+# Optimization, one iteration at a time
+# --------------------------------------------------------------------------- #
+
+@large_stack  # GTSAM's elimination recurses once per level: a long chain needs more than 8 MiB
+def optimize(
+    graph: gtsam.NonlinearFactorGraph,
+    initial: gtsam.Values,
+    max_iterations: int = 100,
+    progress: Callable[[IterationInfo], None] | None = None,
+    params: gtsam.LevenbergMarquardtParams | None = None,
+    optimizer: type | None = None,
+) -> OptimizeResult:
+    """Levenberg–Marquardt, stepped from Python exactly like ``optimizer.optimize()``.
+
+    ``optimizer``: ``gtsam.LevenbergMarquardtOptimizer`` (default) or a drop-in
+    with its interface (``lie_factors.optimizers.LevenbergMarquardtOptimizer``).
+
+    GTSAM's ``NonlinearOptimizer::defaultOptimize``: stop at once if the error
+    is already ≤ errorTol; otherwise ``iterate()`` while iterations <
+    maxIterations, ``checkConvergence(relTol, absTol, errorTol, current, new)``
+    is false and the error is finite.  (``max_iterations=0`` runs none; GTSAM
+    would still run one.)  ``seconds`` covers building the optimizer (it
+    evaluates the initial error) and the iterations, never numba compilation
+    (kernels are warmed first; see :mod:`lie_factors.timing`).
+    """
+    if params is None:
+        params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    warm_up_factors()  # compile before the clock starts
+    clock = Stopwatch()
+    try:
+        opt = (optimizer or gtsam.LevenbergMarquardtOptimizer)(graph, initial, params)
+        initial_error = new_error = float(opt.error())
+        if not math.isfinite(initial_error):
+            raise PoseGraphError(f"the initial error is {initial_error}: some residual overflows "
+                                 f"(coordinates or information values too large?)")
+        converged = new_error <= params.getErrorTol()
+        history = []
+        while not converged and opt.iterations() < max_iterations:
+            current_error = new_error
+            step = Stopwatch()
+            opt.iterate()
+            new_error = float(opt.error())
+            info = IterationInfo(int(opt.iterations()), new_error, float(opt.lambda_()),
+                                 step.seconds())
+            history.append(info)
+            if progress is not None:
+                progress(info)
+            converged = gtsam.checkConvergence(params, current_error, new_error)
+            if not math.isfinite(current_error):
+                break
+        values = opt.values()
+    except RuntimeError as exc:
+        # e.g. IndeterminantLinearSystemException: report it, don't dump a traceback.
+        raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
+    seconds = clock.seconds()
+    return OptimizeResult(values, int(opt.iterations()), initial_error, new_error, seconds,
+                          bool(converged), history)
+
+
+def _optimize_custom(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+    # GTSAM's LM run from Python on Values it holds: callbacks get that object, not a copy each.
+    from lie_factors.optimizers import LevenbergMarquardtOptimizer
+
+    return optimize(graph, initial, max_iterations, progress, params, optimizer=LevenbergMarquardtOptimizer)
+
+
+def _optimize_batch(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+    # Imported on use: lie_factors.batch compiles its loops, which native/custom never need.
+    from lie_factors.batch import run_batch
+
+    return run_batch(graph, initial, max_iterations, progress, params)
+
+
+def _optimize_batch_robust(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+    # Robust noise models vectorized (Σ ρ, rows reweighted by √w) instead of linearized by GTSAM.
+    from lie_factors.batch import run_batch
+    from lie_factors.batch.robust import WeightedLevenbergMarquardt
+
+    return run_batch(graph, initial, max_iterations, progress, params,
+                     optimizer_class=WeightedLevenbergMarquardt)
+
+
+BACKENDS.update(
+    native=Backend(_native_factors, optimize, "GTSAM's own BetweenFactor/PriorFactor (reference)"),
+    custom=Backend(_custom_factors, _optimize_custom,
+                   "lie_factors.factors (closed-form Jacobians) in lie_factors.optimizers' drop-in LM"),
+    batch=Backend(_custom_factors, _optimize_batch, "lie_factors factors, vectorized LM driven from Python"),
+)
