@@ -99,7 +99,7 @@ def lm_params():
 # --------------------------------------------------------------------------- #
 
 def run_lm(pg, backend, loss):
-    graph = build_graph(pg, "native" if backend == "native" else "custom", loss)
+    graph = build_graph(pg, "native" if backend == "native" else "dropin", loss)
     t = time.perf_counter()
     if backend == "native":
         opt = gtsam.LevenbergMarquardtOptimizer(graph, pg.initial, lm_params())
@@ -118,7 +118,7 @@ def gnc_params(graph, pg):
 
 
 def run_gnc(pg, backend):
-    graph = build_graph(pg, "native" if backend == "native" else "custom")
+    graph = build_graph(pg, "native" if backend == "native" else "dropin")
     params = gnc_params(graph, pg)
     t = time.perf_counter()
     if backend == "native":

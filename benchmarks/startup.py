@@ -219,7 +219,7 @@ print(json.dumps({"imports": t2 - t0, "check": t3 - t2, "read": t4 - t3, "build"
 def city_table(dataset: str, repeat: int) -> None:
     import json
 
-    backends = ("native", "custom", "batch")
+    backends = ("native", "dropin", "batch")
     whole = {b: [] for b in backends}
     split = {b: None for b in backends}
     with tempfile.TemporaryDirectory() as out:

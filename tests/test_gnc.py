@@ -214,7 +214,7 @@ def outlier_file(tmp_path_factory):
     return path, planted
 
 
-@pytest.mark.parametrize("backend", ["native", "batch", "custom"])
+@pytest.mark.parametrize("backend", ["native", "batch", "dropin"])
 def test_cli_gnc_reports_the_planted_outliers(outlier_file, backend, capsys):
     path, planted = outlier_file
     assert cli.main(["posegraph", str(path), "--gnc", "tls", "--backend", backend, "--json", "--quiet"]) == 0

@@ -60,7 +60,7 @@ def write(tmp_path, text, name="g.g2o"):
 
 def test_schedule_and_initial_values_follow_the_rules(tmp_path):
     pg = load(write(tmp_path, TINY2D))
-    graph = build_graph(pg, "custom")
+    graph = build_graph(pg, "dropin")
     steps = incremental.schedule(pg, graph)
     assert [s.key for s in steps] == [0, 1, 2, 3, 4]
     # every factor in the update of its later pose: prior (factor 6) first, edge 2-0 with pose 2,
@@ -75,7 +75,7 @@ def test_schedule_and_initial_values_follow_the_rules(tmp_path):
             after_update.append(self.calculateEstimate())
             return result
 
-    result = incremental.replay(pg, "custom", isam_class=Recording)
+    result = incremental.replay(pg, "dropin", isam_class=Recording)
     # new pose = previous pose's estimate composed with the odometry edge (inverted if stored backwards)
     m01 = to_gtsam("Pose2", pg.graph.measured[0])
     assert np.allclose(result.start.atPose2(1).matrix(), pg.initial.atPose2(0).compose(m01).matrix(), atol=1e-12)
@@ -87,9 +87,9 @@ def test_schedule_and_initial_values_follow_the_rules(tmp_path):
     assert result.final_error == pytest.approx(float(graph.error(result.values)), rel=1e-15)
 
 
-def test_cli_incremental_native_and_custom_on_small_grid(capsys):
+def test_cli_incremental_native_and_dropin_on_small_grid(capsys):
     records = {}
-    for backend in ("native", "custom", "batch"):
+    for backend in ("native", "dropin", "batch"):
         status, out, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--backend", backend, "--json")
         assert status == 0, err
         records[backend] = d = last_json(out)
@@ -98,8 +98,8 @@ def test_cli_incremental_native_and_custom_on_small_grid(capsys):
         assert d["relinearize_threshold"] == 0.1 and d["relinearize_skip"] == 10
         assert "125 updates" in out
     # GTSAM's Pose3 between factor and ours: the same error, Jacobians equal to rounding
-    assert records["custom"]["final_error"] == pytest.approx(records["native"]["final_error"], rel=1e-9)
-    assert records["custom"]["final_error"] == records["batch"]["final_error"]
+    assert records["dropin"]["final_error"] == pytest.approx(records["native"]["final_error"], rel=1e-9)
+    assert records["dropin"]["final_error"] == records["batch"]["final_error"]
     # the replay's estimate is close to the batch optimum (the same minimum, ISAM2 stops short of it)
     status, out, _ = run_main(capsys, "posegraph", SMALL, "--backend", "native", "--json", "--init", "file")
     assert records["native"]["final_error"] == pytest.approx(last_json(out)["final_error"], rel=1e-2)
@@ -121,7 +121,7 @@ def test_cli_incremental_options_output_and_plot(tmp_path, capsys):
 @pytest.mark.parametrize("name", ["pose3example-grid.txt", "noisyToyGraph.txt",
                                   "known_landmark_localization_20.g2o"])
 def test_cli_incremental_on_gtsam_example_files(capsys, name):
-    status, out, err = run_main(capsys, "posegraph", name, "--incremental", "--backend", "custom", "--json")
+    status, out, err = run_main(capsys, "posegraph", name, "--incremental", "--backend", "dropin", "--json")
     assert status == 0, err
     d = last_json(out)
     pg = load(name)
@@ -133,7 +133,7 @@ def test_cli_incremental_sim3(tmp_path, capsys):
     status, _, err = run_main(capsys, "demo", "--scenario", "sim3", "--poses", "30", "--output",
                               str(tmp_path), "--quiet")
     assert status == 0, err
-    for backend in ("native", "custom"):
+    for backend in ("native", "dropin"):
         status, out, err = run_main(capsys, "posegraph", str(tmp_path / "optimized.g2o"), "--incremental",
                                     "--backend", backend, "--json", "--quiet")
         assert status == 0, err

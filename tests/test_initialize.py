@@ -301,7 +301,7 @@ def test_bad_graphs_are_refused():
 
 def test_every_backend_starts_from_the_same_values():
     pg = load(str(SMALL))
-    records = {b: P.run(pg, b, max_iterations=1, init="chordal") for b in ("native", "custom", "batch")}
+    records = {b: P.run(pg, b, max_iterations=1, init="chordal") for b in ("native", "dropin", "batch")}
     start = records["native"][1].start
     for backend, (record, result, _) in records.items():
         assert record.init == "chordal" and record.init_seconds > 0

@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import atomic, factors, g2o, results  # noqa: F401  (factors: the custom backend)
+from lie_factors import atomic, factors, g2o, results  # noqa: F401  (factors: the dropin backend)
 from lie_factors.app import backends
 from lie_factors.app import run as P
 from lie_factors.app.backends import build_graph, optimize
@@ -167,19 +167,19 @@ def test_backend_table_is_extensible(monkeypatch):
     assert record.backend == "alias" and record.iterations == 1
 
 
-def test_custom_matches_native_on_shipped_dataset():
+def test_dropin_matches_native_on_shipped_dataset():
     pg = load(str(SMALL))
     native, _, _ = P.run(pg, "native")
-    custom, _, _ = P.run(pg, "custom")
-    assert custom.initial_error == pytest.approx(native.initial_error, rel=1e-9)
-    assert custom.final_error == pytest.approx(native.final_error, rel=1e-6)
+    dropin, _, _ = P.run(pg, "dropin")
+    assert dropin.initial_error == pytest.approx(native.initial_error, rel=1e-9)
+    assert dropin.final_error == pytest.approx(native.final_error, rel=1e-6)
 
 
-def test_custom_matches_native_2d(tmp_path):
+def test_dropin_matches_native_2d(tmp_path):
     pg = load(os.path.join(os.path.dirname(__file__), "..", "data", "MIT.g2o"))
     native, _, _ = P.run(pg, "native")
-    custom, _, _ = P.run(pg, "custom")
-    assert custom.final_error == pytest.approx(native.final_error, rel=1e-6)
+    dropin, _, _ = P.run(pg, "dropin")
+    assert dropin.final_error == pytest.approx(native.final_error, rel=1e-6)
 
 
 # ------------------------------------------------------------------ output
@@ -230,7 +230,7 @@ def test_build_graph_shares_equal_noise_models(tmp_path):
     path = write(tmp_path, text)
     pg = load(path)
     read, _ = gtsam.readG2o(path, False)
-    for backend in ("native", "custom", "batch"):
+    for backend in ("native", "dropin", "batch"):
         graph = build_graph(pg, backend)
         noises = [graph.at(k).noiseModel() for k in range(pg.edges)]
         assert len({id(n) for n in noises}) == 2
@@ -239,7 +239,7 @@ def test_build_graph_shares_equal_noise_models(tmp_path):
     # The loop closures' Robust wrappers are shared the same way, the odometry stays Gaussian.
     from lie_factors.batch.robust import RobustLoss
 
-    graph = build_graph(pg, "custom", robust=RobustLoss("huber", 1.345))
+    graph = build_graph(pg, "dropin", robust=RobustLoss("huber", 1.345))
     noises = [graph.at(k).noiseModel() for k in range(pg.edges)]
     assert all(isinstance(n, gtsam.noiseModel.Robust) for n in noises[3:])
     assert not any(isinstance(n, gtsam.noiseModel.Robust) for n in noises[:3])

@@ -1,10 +1,11 @@
 """The backends of a pose-graph run: where the factor classes come from and which LM runs them.
 
 ``native``: GTSAM's own BetweenFactor/PriorFactor in GTSAM's LM (the reference);
-``custom``: :mod:`lie_factors.factors` in :class:`lie_factors.optimizers.LevenbergMarquardtOptimizer`
-(GTSAM's LM algorithm driven from Python, GTSAM linearizing and eliminating);
-``batch``: the same factors in the vectorized solver (:mod:`lie_factors.batch`).  The
-CLI's ``--backend`` choices come from :data:`BACKENDS`.
+``dropin``: :mod:`lie_factors.factors` in the drop-in of GTSAM's LM,
+:class:`lie_factors.optimizers.LevenbergMarquardtOptimizer` (GTSAM's algorithm driven
+from Python, GTSAM linearizing and eliminating; ``custom``, its former name, is
+still accepted); ``batch``: the same factors in the vectorized solver
+(:mod:`lie_factors.batch`).  The CLI's ``--backend`` choices come from :data:`BACKENDS`.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def _native_factors():
     return gtsam
 
 
-def _custom_factors():
+def _our_factors():
     # Imported here, not at module top, so that `native` works without it.
     from lie_factors import factors
 
@@ -46,14 +47,20 @@ class Backend:
 #: Add a backend here (e.g. "batch") — the CLI's --backend choices come from this table.
 BACKENDS: dict[str, Backend] = {}
 
+#: Former names of backends, still accepted: name → backend.
+ALIASES = {"custom": "dropin"}
+
+
+def backend_name(name: str) -> str:
+    """The backend ``name`` stands for (itself, or what its former name is now); clear error if none."""
+    name = ALIASES.get(name, name)
+    if name not in BACKENDS:
+        raise PoseGraphError(f"unknown backend {name!r} (choose from {', '.join(BACKENDS)})")
+    return name
+
 
 def get_backend(name: str) -> Backend:
-    try:
-        return BACKENDS[name]
-    except KeyError:
-        raise PoseGraphError(
-            f"unknown backend {name!r} (choose from {', '.join(BACKENDS)})"
-        ) from None
+    return BACKENDS[backend_name(name)]
 
 
 def load_factors(backend: str):
@@ -142,7 +149,7 @@ def optimize(
                           bool(converged), history)
 
 
-def _optimize_custom(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
+def _optimize_dropin(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
     # GTSAM's LM run from Python on Values it holds: callbacks get that object, not a copy each.
     from lie_factors.optimizers import LevenbergMarquardtOptimizer
 
@@ -150,7 +157,7 @@ def _optimize_custom(graph, initial, max_iterations=100, progress=None, params=N
 
 
 def _optimize_batch(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
-    # Imported on use: lie_factors.batch compiles its loops, which native/custom never need.
+    # Imported on use: lie_factors.batch compiles its loops, which native/dropin never need.
     from lie_factors.batch import run_batch
 
     return run_batch(graph, initial, max_iterations, progress, params)
@@ -167,7 +174,7 @@ def _optimize_batch_robust(graph, initial, max_iterations=100, progress=None, pa
 
 BACKENDS.update(
     native=Backend(_native_factors, optimize, "GTSAM's own BetweenFactor/PriorFactor (reference)"),
-    custom=Backend(_custom_factors, _optimize_custom,
+    dropin=Backend(_our_factors, _optimize_dropin,
                    "lie_factors.factors (closed-form Jacobians) in lie_factors.optimizers' drop-in LM"),
-    batch=Backend(_custom_factors, _optimize_batch, "lie_factors factors, vectorized LM driven from Python"),
+    batch=Backend(_our_factors, _optimize_batch, "lie_factors factors, vectorized LM driven from Python"),
 )

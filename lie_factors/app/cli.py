@@ -102,9 +102,12 @@ def _bounded_int(option: str, low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
-#: lie_factors.app.backends.BACKENDS, spelled out so that building the parser does
-#: not import GTSAM (a test checks they agree).
-BACKENDS = ("native", "custom", "batch")
+#: lie_factors.app.backends.BACKENDS and ALIASES, spelled out so that building the parser
+#: does not import GTSAM (a test checks they agree).
+BACKENDS = ("native", "dropin", "batch")
+BACKEND_ALIASES = {"custom": "dropin"}
+_BACKEND_HELP = ("dropin = lie_factors factors in lie_factors.optimizers' drop-in of GTSAM's LM "
+                 "(custom, its former name, still works)")
 
 
 # --------------------------------------------------------------------------- #
@@ -131,12 +134,12 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                    help="g2o file (2-D VERTEX_SE2/EDGE_SE2, 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
                         "EDGE3, or Sim(3) VERTEX_SIM3:EXPMAP/EDGE_SIM3:EXPMAP), or the name of a "
                         "file shipped with GTSAM, e.g. sphere2500.txt")
-    # batch is the default: it is the fast path (custom runs GTSAM's LM algorithm from Python,
+    # batch is the default: it is the fast path (dropin runs GTSAM's LM algorithm from Python,
     # lie_factors.optimizers, with GTSAM linearizing and eliminating; docs/benchmarks.md).
     p.add_argument("--backend", default="batch", metavar="NAME",
                    help=f"factor implementation: {' | '.join(BACKENDS)} (default: batch = lie_factors "
-                        "factors in the vectorized solver; custom = the same factors in "
-                        "lie_factors.optimizers' drop-in of GTSAM's LM; native = GTSAM's own factors, the reference)")
+                        f"factors in the vectorized solver; {_BACKEND_HELP}; native = GTSAM's own "
+                        "factors, the reference)")
     p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
                    default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")
@@ -159,7 +162,7 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                         "the JSON gains 'outliers' (rejected edges, 0-based file order)")
     p.add_argument("--incremental", action="store_true",
                    help="replay the file online through ISAM2 instead (poses in id order, one per "
-                        "update; native = GTSAM's factors in gtsam.ISAM2, custom/batch = ours in "
+                        "update; native = GTSAM's factors in gtsam.ISAM2, dropin/batch = ours in "
                         "lie_factors.optimizers.ISAM2); the JSON adds incremental, updates, "
                         "update_seconds, update_p50, update_p99")
     p.add_argument("--relinearize-threshold", type=_positive_float, default=0.1, metavar="T",
@@ -213,11 +216,11 @@ def _run_posegraph(args) -> int:
             pg = run.pg
             if args.incremental:
                 _say(args, f"{pg.describe()}; incremental (ISAM2, relinearize threshold "
-                           f"{args.relinearize_threshold:g}, skip {args.relinearize_skip}), backend {args.backend}")
+                           f"{args.relinearize_threshold:g}, skip {args.relinearize_skip}), backend {run.backend}")
                 return
             _say(args, f"{pg.describe()}"
                        f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
-                       f"backend {args.backend}")
+                       f"backend {run.backend}")
             if run.robust is not None:
                 what = "every edge" if args.robust_all else "the loop closures"
                 _say(args, f"robust loss {run.robust} on {what}")
@@ -308,8 +311,8 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output", default="lie-factors-demo", metavar="DIR",
                    help="directory for trajectory.png and optimized.g2o "
                         "(default: ./lie-factors-demo, created if missing)")
-    p.add_argument("--backend", default="custom", metavar="NAME",
-                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
+    p.add_argument("--backend", default="dropin", metavar="NAME",
+                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: dropin; {_BACKEND_HELP}; "
                         "sim3 runs native beside it anyway)")
     p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
                    default=100, metavar="K",
@@ -334,7 +337,7 @@ def _run_demo(args) -> int:
 
     if args.poses is None:
         args.poses = DEMO_SCENARIOS[args.scenario][0]
-    backends.get_backend(args.backend)
+    args.backend = backends.backend_name(args.backend)
     if args.scenario == "sim3":
         return _run_demo_sim3(args)
     out_dir = args.output
@@ -396,7 +399,7 @@ def _run_demo_sim3(args) -> int:
 
     if args.backend == "native":
         raise CLIError("--scenario sim3 always runs GTSAM's native factors beside ours; "
-                       "choose --backend custom or batch for ours")
+                       "choose --backend dropin or batch for ours")
     _demo_output_dir(args.output)
     png = os.path.join(args.output, "trajectory.png")
     g2o_path = os.path.join(args.output, "optimized.g2o")

@@ -190,9 +190,9 @@ class Comparison:
         return self.gradient_ours <= 1e-6 * self.gradient_initial
 
 
-def compare(problem: Problem, backend: str = "custom", max_iterations: int = 100,
+def compare(problem: Problem, backend: str = "dropin", max_iterations: int = 100,
             progress=None) -> Comparison:
-    """Optimize ``problem`` with our factors (``backend`` custom or batch, of
+    """Optimize ``problem`` with our factors (``backend`` dropin or batch, of
     :mod:`lie_factors.app.backends`) and with GTSAM's native ones, same start and
     :func:`lm_params`; ``progress`` gets our iterations."""
     from .. import factors

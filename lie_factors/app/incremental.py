@@ -12,7 +12,7 @@ The file is replayed as a robot would have built it:
   measurement: at the file's vertex if it has one, else placed from that
   measurement at its pose's initial value.
 - Factors: backend ``native`` puts GTSAM's own factors in ``gtsam.ISAM2``;
-  ``custom`` and ``batch`` put lie_factors' factors in
+  ``dropin`` and ``batch`` put lie_factors' factors in
   :class:`lie_factors.optimizers.ISAM2` (GTSAM's ISAM2 whose callbacks receive
   its own linearization point instead of a copy of it).
 
@@ -147,7 +147,7 @@ def _first_sentence(exc: Exception) -> str:
     return text
 
 
-def replay(ds: Dataset, backend: str = "custom",
+def replay(ds: Dataset, backend: str = "dropin",
            params: gtsam.ISAM2Params | None = None,
            progress: Callable[[int, int, float], None] | None = None,
            graph: gtsam.NonlinearFactorGraph | None = None,
@@ -244,7 +244,7 @@ class IncrementalRun(PoseGraphRun):
     replay (:func:`replay`); ``events.replayed`` hears its progress.  After :meth:`execute`:
     ``replay`` (:class:`Replay`) and ``record`` (:class:`ReplayRecord`)."""
 
-    def __init__(self, dataset, backend: str = "custom",
+    def __init__(self, dataset, backend: str = "dropin",
                  relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
                  relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP, output: str | None = None,
                  plot: str | None = None, events: RunEvents | None = None):

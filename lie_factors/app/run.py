@@ -29,8 +29,7 @@ from ..errors import PoseGraphError
 from ..initialization import Initialization, initialize
 from ..results import IterationInfo, OptimizeResult
 from ..timing import IterationLog, Stopwatch
-from .backends import build_graph, get_backend, load_factors, optimize
-from .backends import _optimize_batch_robust
+from .backends import _optimize_batch_robust, backend_name, build_graph, get_backend, load_factors, optimize
 from .load import Dataset, load
 from .record import TIMING_KEYS, Record, RunRecord
 
@@ -141,7 +140,7 @@ class PoseGraphRun:
     # ------------------------------------------------------------------ steps
     def check(self) -> None:
         """Everything that can be wrong with the invocation, before the (possibly long) work."""
-        get_backend(self.backend)
+        self.backend = backend_name(self.backend)
         self.robust = parse_robust(self.robust_text, self.robust_all, self.gnc)
         self._checked = True
         for path in (self.output, self.plot):
@@ -383,7 +382,7 @@ def _record(pg: Dataset, backend: str, factors: int, start: Initialization, resu
 
 def _run_gnc(pg: Dataset, graph, start: Initialization, values: gtsam.Values, backend: str,
              max_iterations: int, loss: str, gnc_progress: Callable | None) -> tuple[RunRecord, OptimizeResult]:
-    """GNC per backend: native = gtsam.GncLMOptimizer; custom = our outer loop over GTSAM's LM
+    """GNC per backend: native = gtsam.GncLMOptimizer; dropin = our outer loop over GTSAM's LM
     with lie_factors factors (GTSAM's GncOptimizer cannot clone CustomFactors); batch = our
     outer loop over the batch solver.  The odometry and the prior are known inliers."""
     from lie_factors.batch import gnc as gncm
