@@ -322,17 +322,43 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
 
 
-def _demo_output_dir(out_dir: str) -> None:
+def _demo_files(args) -> tuple[str, str]:
+    """The demo's (trajectory.png, optimized.g2o) in ``--output``, the directory created if missing,
+    the g2o path checked writable."""
+    from lie_factors import atomic
+
+    out_dir = args.output
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise CLIError(f"{out_dir}: exists and is not a directory")
     try:
         os.makedirs(out_dir, exist_ok=True)
     except OSError as exc:
         raise CLIError(f"{out_dir}: cannot create directory ({exc.strerror})") from None
+    files = os.path.join(out_dir, "trajectory.png"), os.path.join(out_dir, "optimized.g2o")
+    atomic.check_writable(files[1])
+    return files
+
+
+def _write_demo(args, files: tuple[str, str], between, values, trajectories: dict, title: str) -> None:
+    """The optimized graph (g2o) and the trajectories (png), each written atomically."""
+    from lie_factors import atomic, g2o
+    from lie_factors.app.plotting import plot_trajectories
+
+    png, g2o_path = files
+    g2o.write_g2o(g2o_path, between, values)
+    atomic.replace_atomically(png, lambda tmp: plot_trajectories(tmp, trajectories, title), suffix=".png")
+    _say(args, f"wrote {png} and {g2o_path}")
+
+
+def _demo_record(args, dataset: str, graph, result, ate0: float, ate1: float, scenario: str | None = None) -> dict:
+    """The ``--json`` record of a demo: its graph, ``result``'s figures and the ATE before and after."""
+    return {"backend": args.backend, **({"scenario": scenario} if scenario else {}), "dataset": dataset,
+            "dimension": 3, "poses": args.poses, "factors": int(graph.size()), "iterations": result.iterations,
+            "initial_error": result.initial_error, "final_error": result.final_error,
+            "seconds": result.seconds, "converged": result.converged, "ate_rmse_initial": ate0, "ate_rmse": ate1}
 
 
 def _run_demo(args) -> int:
-    from lie_factors import atomic, g2o
     from lie_factors.app import backends, demo
 
     if args.poses is None:
@@ -340,11 +366,7 @@ def _run_demo(args) -> int:
     args.backend = backends.backend_name(args.backend)
     if args.scenario == "sim3":
         return _run_demo_sim3(args)
-    out_dir = args.output
-    _demo_output_dir(out_dir)
-    png = os.path.join(out_dir, "trajectory.png")
-    g2o_path = os.path.join(out_dir, "optimized.g2o")
-    atomic.check_writable(g2o_path)
+    files = _demo_files(args)
     factors = backends.load_factors(args.backend)
 
     problem = demo.simulate(args.poses, args.seed)
@@ -352,7 +374,7 @@ def _run_demo(args) -> int:
     _say(args, f"demo: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
     result = backends.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
-                                                    _progress(args))
+                                                         _progress(args))
     _report_compile(args)
     ate0 = demo.ate_rmse(problem.initial, problem.truth)
     ate1 = demo.ate_rmse(result.values, problem.truth)
@@ -361,49 +383,26 @@ def _run_demo(args) -> int:
                f"({result.iterations} iterations, {result.seconds:.3f} s, {status})")
     _say(args, f"ATE (RMSE)  {ate0:12.4f} m -> {ate1:.4f} m")
 
-    g2o.write_g2o(g2o_path, demo.between_graph(problem), result.values)
-    from lie_factors.app.plotting import plot_trajectories, positions
+    from lie_factors.app.plotting import positions
 
-    truth = [T.translation() for T in problem.truth]
-    atomic.replace_atomically(png, lambda tmp: plot_trajectories(
-        tmp,
-        {"ground truth": truth,
-         "initial": positions(problem.initial, True),
-         "optimized": positions(result.values, True)},
-        f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m"),
-        suffix=".png")
-    _say(args, f"wrote {png} and {g2o_path}")
+    _write_demo(args, files, demo.between_graph(problem), result.values,
+                {"ground truth": [T.translation() for T in problem.truth],
+                 "initial": positions(problem.initial, True), "optimized": positions(result.values, True)},
+                f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m")
     if args.json:
-        _emit_json({
-            "backend": args.backend,
-            "dataset": f"demo(poses={args.poses}, seed={args.seed})",
-            "dimension": 3,
-            "poses": args.poses,
-            "factors": int(graph.size()),
-            "iterations": result.iterations,
-            "initial_error": result.initial_error,
-            "final_error": result.final_error,
-            "seconds": result.seconds,
-            "converged": result.converged,
-            "ate_rmse_initial": ate0,
-            "ate_rmse": ate1,
-        })
+        _emit_json(_demo_record(args, f"demo(poses={args.poses}, seed={args.seed})", graph, result, ate0, ate1))
     return 0
 
 
 def _run_demo_sim3(args) -> int:
     """The scale-drift scenario (:mod:`lie_factors.app.demo_sim3`): ours and GTSAM's native
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
-    from lie_factors import atomic, g2o
     from lie_factors.app import backends, demo_sim3
 
     if args.backend == "native":
         raise CLIError("--scenario sim3 always runs GTSAM's native factors beside ours; "
                        "choose --backend dropin or batch for ours")
-    _demo_output_dir(args.output)
-    png = os.path.join(args.output, "trajectory.png")
-    g2o_path = os.path.join(args.output, "optimized.g2o")
-    atomic.check_writable(g2o_path)
+    files = _demo_files(args)
     backends.load_factors(args.backend)  # a clear error now if ours are unavailable
 
     problem = demo_sim3.simulate(args.poses, args.seed)
@@ -432,44 +431,20 @@ def _run_demo_sim3(args) -> int:
     _say(args, f"ours reached {verdict} (|g|/|g0| = {g_ours / g0:.2e}, target <= 1e-06); "
                f"native stopped at |g|/|g0| = {g_native / g0:.2e}")
 
-    g2o.write_g2o(g2o_path, demo_sim3.between_graph(problem), ours.values)
-    from lie_factors.app.plotting import plot_trajectories
-
     n = args.poses
-    truth = demo_sim3.true_centres(problem.truth)
-    atomic.replace_atomically(png, lambda tmp: plot_trajectories(
-        tmp,
-        {"ground truth": truth,
-         "initial": demo_sim3.camera_centres(problem.initial, n),
-         "ours": demo_sim3.camera_centres(ours.values, n),
-         "native": demo_sim3.camera_centres(native.values, n)},
-        f"Sim(3) scale drift: {n} poses, ATE {ate0:.2f} m -> ours {ate_ours:.3f} m, "
-        f"native {ate_native:.3f} m"),
-        suffix=".png")
-    _say(args, f"wrote {png} and {g2o_path}")
+    _write_demo(args, files, demo_sim3.between_graph(problem), ours.values,
+                {"ground truth": demo_sim3.true_centres(problem.truth),
+                 "initial": demo_sim3.camera_centres(problem.initial, n),
+                 "ours": demo_sim3.camera_centres(ours.values, n),
+                 "native": demo_sim3.camera_centres(native.values, n)},
+                f"Sim(3) scale drift: {n} poses, ATE {ate0:.2f} m -> ours {ate_ours:.3f} m, "
+                f"native {ate_native:.3f} m")
     if args.json:
-        _emit_json({
-            "backend": args.backend,
-            "scenario": "sim3",
-            "dataset": f"demo-sim3(poses={n}, seed={args.seed})",
-            "dimension": 3,
-            "poses": n,
-            "factors": int(graph.size()),
-            "iterations": ours.iterations,
-            "initial_error": ours.initial_error,
-            "final_error": ours.final_error,
-            "seconds": ours.seconds,
-            "converged": ours.converged,
-            "ate_rmse_initial": ate0,
-            "ate_rmse": ate_ours,
-            "native_ate_rmse": ate_native,
-            "native_final_error": native.final_error,
-            "native_iterations": native.iterations,
-            "native_converged": native.converged,
-            "gradient_norm_initial": g0,
-            "gradient_norm": g_ours,
-            "native_gradient_norm": g_native,
-        })
+        _emit_json({**_demo_record(args, f"demo-sim3(poses={n}, seed={args.seed})", graph, ours, ate0, ate_ours,
+                                   "sim3"),
+                    "native_ate_rmse": ate_native, "native_final_error": native.final_error,
+                    "native_iterations": native.iterations, "native_converged": native.converged,
+                    "gradient_norm_initial": g0, "gradient_norm": g_ours, "native_gradient_norm": g_native})
     return 0
 
 
