@@ -301,6 +301,20 @@ def test_batch_modules_import_downward_only():
     assert _modules_after(code) == "[]"
 
 
+def test_g2o_modules_import_one_way():
+    """Inside lie_factors.g2o each module imports only the ones before it in this order (no cycle)."""
+    import ast
+
+    order = ["dataset", "records", "parse", "conventions", "check", "read", "write"]
+    package = ROOT / "lie_factors" / "g2o"
+    assert sorted(p.stem for p in package.glob("*.py")) == sorted(order + ["__init__"])
+    for k, name in enumerate(order):
+        tree = ast.parse((package / f"{name}.py").read_text(encoding="utf-8"))
+        inside = {node.module for node in ast.walk(tree)
+                  if isinstance(node, ast.ImportFrom) and node.level == 1}
+        assert inside <= set(order[:k]), (name, inside - set(order[:k]))
+
+
 def test_small_graphs_run_the_batch_loops_on_one_thread(tmp_path):
     """Below PARALLEL_MIN_WORK the default path iterates on one numba thread, then restores the count."""
     import numba
