@@ -107,23 +107,15 @@ def _compare_with_readg2o(path, is3d):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_2d_records_match_readg2o(tmp_path, seed):
+@pytest.mark.parametrize("is3d", [False, True], ids=["2d", "3d"])
+def test_records_match_readg2o(tmp_path, is3d, seed):
     path = tmp_path / "g.g2o"
-    path.write_text(_file_2d(np.random.default_rng(seed)))
-    a, initial = _compare_with_readg2o(path, False)
+    path.write_text((_file_3d if is3d else _file_2d)(np.random.default_rng(seed)))
+    a, initial = _compare_with_readg2o(path, is3d)
     assert list(a.keys) == sorted(initial.keys())
+    at = initial.atPose3 if is3d else initial.atPose2
     for n, key in enumerate(a.keys):
-        np.testing.assert_allclose(a.vertices[n], initial.atPose2(int(key)).matrix(), rtol=0, atol=4e-15)
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_3d_records_match_readg2o(tmp_path, seed):
-    path = tmp_path / "g.g2o"
-    path.write_text(_file_3d(np.random.default_rng(seed)))
-    a, initial = _compare_with_readg2o(path, True)
-    assert list(a.keys) == sorted(initial.keys())
-    for n, key in enumerate(a.keys):
-        np.testing.assert_allclose(a.vertices[n], initial.atPose3(int(key)).matrix(), rtol=0, atol=4e-15)
+        np.testing.assert_allclose(a.vertices[n], at(int(key)).matrix(), rtol=0, atol=4e-15)
 
 
 def test_edge_only_file(tmp_path):
