@@ -1,6 +1,6 @@
 """GTSAM's initializers vs lie_factors.initialization.relaxation (the same results on arrays), side by side.
 
-    flock /work/coord/bench.lock python benchmarks/initializers.py --repeat 3
+    python benchmarks/initializers.py --repeat 3
 
 Per graph, alternating the two within each repetition, best of ``--repeat``:
 
