@@ -1,6 +1,6 @@
 """GTSAM's initializers vs lie_factors.initialization.relaxation (the same results on arrays), side by side.
 
-    flock /work/coord/bench.lock python benchmarks/initializers.py --repeat 3
+    python benchmarks/initializers.py --repeat 3
 
 Per graph, alternating the two within each repetition, best of ``--repeat``:
 
@@ -31,8 +31,10 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import gtsam  # noqa: E402
 
+from lie_factors import g2o  # noqa: E402
 from lie_factors import initialization as LI  # noqa: E402
 from lie_factors.initialization import relaxation as rx  # noqa: E402
+from lie_factors.initialization.arrays import _xytheta as xytheta  # noqa: E402
 from lie_factors import stack  # noqa: E402
 from lie_factors.app.run import build_graph, load  # noqa: E402
 
@@ -40,21 +42,13 @@ DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(os.path.dirname(os.path.d
 DEFAULT = ["sphere2500", "torus3D", "city10000", "intel", "kitti_00"]
 
 
-def arrays_of(pg):
-    g = pg.between
-    keys = sorted({k for f in range(g.size()) for k in g.at(f).keys()})
-    idx = {k: n for n, k in enumerate(keys)}
-    I, J, Z, INFO = [], [], [], []
-    for k in range(g.size()):
-        f = g.at(k)
-        a, b = f.keys()
-        I.append(idx[a])
-        J.append(idx[b])
-        m = f.measured()
-        Z.append(m.matrix() if pg.is3d else [m.x(), m.y(), m.theta()])
-        R = f.noiseModel().R()
-        INFO.append(R.T @ R)
-    return np.array(keys), np.array(I), np.array(J), np.array(Z), np.array(INFO)
+def arrays_of(path):
+    """(keys, i, j, measured, information) of a g2o file's pose graph, as the relaxations take them:
+    indices into the sorted keys, measured 4×4 (3-D) or [x, y, θ] (2-D, converted here so that
+    the timings hold the initializer alone), information in GTSAM's tangent order."""
+    a = g2o.read_arrays(g2o.check_g2o(path))
+    i, j = (np.searchsorted(a.keys, a.edge_keys[:, c]) for c in (0, 1))
+    return a.keys, i, j, a.measured if a.is3d else xytheta(a.measured), a.information
 
 
 def best(fn, repeat):
@@ -70,7 +64,7 @@ def run(name, repeat):
     path = name if os.path.exists(name) else os.path.join(DATA, name + ".g2o")
     pg = load(path)
     graph = build_graph(pg, "native")  # the edges, then the prior on the first pose (at the identity here)
-    keys, I, J, Z, INFO = arrays_of(pg)
+    keys, I, J, Z, INFO = arrays_of(path)
     n = len(keys)
     pf = graph.at(graph.size() - 1)  # build_graph's prior on the first pose
     first = pf.prior()
