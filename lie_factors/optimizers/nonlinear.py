@@ -19,9 +19,11 @@ with ``diagonalDamping``, ``A = diag(√clamp(diag(JᵀJ), minDiagonal, maxDiago
 Levenberg–Marquardt's λ schedule, its trial of one λ, ``defaultOptimize`` and
 what they print are :mod:`lie_factors.lm`'s, shared with the batch solver; this
 module supplies how a step is solved, its linearized cost change computed and a
-trial point evaluated.  Parameters the Python wrapper cannot set
-(``minModelFidelity``, ``minDiagonal``, ``maxDiagonal``) have GTSAM's defaults,
-as they do in GTSAM's optimizer when called from Python.
+trial point evaluated.
+
+Parameters the Python wrapper cannot set (``minModelFidelity``, ``minDiagonal``,
+``maxDiagonal``) have GTSAM's defaults, as they do in GTSAM's optimizer when
+called from Python.
 """
 
 from __future__ import annotations
