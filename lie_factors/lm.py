@@ -31,8 +31,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-import gtsam
 import numpy as np
+from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 from .timing import Stopwatch
 
