@@ -22,8 +22,8 @@ is one without outputs), step by step:
    Python, with GTSAM's own stopping rule, reporting each iteration.
 6. Output files (g2o, png), each written atomically.
 
-g2o formats (checking, reading, writing) live in :mod:`lie_factors.g2o`; result
-types in :mod:`lie_factors.results`.
+g2o formats (checking, reading, writing) live in :mod:`lie_factors.g2o`; the
+LM loop and the result type in :mod:`lie_factors.lm`.
 """
 
 from __future__ import annotations
@@ -44,9 +44,9 @@ from ..kernels.elements import values_from_matrices
 from ..g2o import arrays_supported, check_g2o, read_arrays, read_g2o, resolve_dataset
 from ..initialization import METHODS as INIT_METHODS
 from ..initialization import Initialization, InitializationError, initialize, spanning_tree_initial
-from ..results import IterationInfo, OptimizeResult
+from ..lm import IterationInfo, OptimizeResult, default_optimize
 from ..stack import large_stack
-from ..timing import IterationLog, Stopwatch, warm_up_factors
+from ..timing import Stopwatch, warm_up_factors
 
 
 # --------------------------------------------------------------------------- #
@@ -372,13 +372,11 @@ def optimize(
     ``optimizer``: ``gtsam.LevenbergMarquardtOptimizer`` (default) or a drop-in
     with its interface (``lie_factors.optimizers.LevenbergMarquardtOptimizer``).
 
-    GTSAM's ``NonlinearOptimizer::defaultOptimize``: stop at once if the error
-    is already ≤ errorTol; otherwise ``iterate()`` while iterations <
-    maxIterations, ``checkConvergence(relTol, absTol, errorTol, current, new)``
-    is false and the error is finite.  (``max_iterations=0`` runs none; GTSAM
-    would still run one.)  ``seconds`` covers building the optimizer (it
-    evaluates the initial error) and the iterations, never numba compilation
-    (kernels are warmed first; see :mod:`lie_factors.timing`).
+    GTSAM's ``NonlinearOptimizer::defaultOptimize``
+    (:func:`lie_factors.lm.default_optimize`), reporting each iteration to
+    ``progress``.  ``seconds`` covers building the optimizer (it evaluates the
+    initial error) and the iterations, never numba compilation (kernels are
+    warmed first; see :mod:`lie_factors.timing`).
     """
     if params is None:
         params = gtsam.LevenbergMarquardtParams()
@@ -387,32 +385,17 @@ def optimize(
     clock = Stopwatch()
     try:
         opt = (optimizer or gtsam.LevenbergMarquardtOptimizer)(graph, initial, params)
-        initial_error = new_error = float(opt.error())
+        initial_error = float(opt.error())
         if not math.isfinite(initial_error):
             raise PoseGraphError(f"the initial error is {initial_error}: some residual overflows "
                                  f"(coordinates or information values too large?)")
-        converged = new_error <= params.getErrorTol()
-        history = []
-        while not converged and opt.iterations() < max_iterations:
-            current_error = new_error
-            step = Stopwatch()
-            opt.iterate()
-            new_error = float(opt.error())
-            info = IterationInfo(int(opt.iterations()), new_error, float(opt.lambda_()),
-                                 step.seconds())
-            history.append(info)
-            if progress is not None:
-                progress(info)
-            converged = gtsam.checkConvergence(params, current_error, new_error)
-            if not math.isfinite(current_error):
-                break
-        values = opt.values()
+        result = default_optimize(opt, params, progress)
+        result.values = opt.values()
     except RuntimeError as exc:
         # e.g. IndeterminantLinearSystemException: report it, don't dump a traceback.
         raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
-    seconds = clock.seconds()
-    return OptimizeResult(values, int(opt.iterations()), initial_error, new_error, seconds,
-                          bool(converged), history)
+    result.seconds = clock.seconds()
+    return result
 
 
 def _optimize_custom(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:
@@ -725,7 +708,6 @@ class PoseGraphRun:
         prior = (pg.first_key, _first_element(pg), prior_noise(pg.is3d, pg.group).R())
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(int(self.max_iterations))
-        log = IterationLog(self.events.iteration)
         import numba
 
         threads = numba.get_num_threads()
@@ -737,18 +719,15 @@ class PoseGraphRun:
                 numba.set_num_threads(1)
             self._opt = opt = BatchLevenbergMarquardt(problem, None, params)
             self.timings["setup"] = clock.seconds()
-            log.restart()
-            res = opt.optimize(log, values=not self.lazy_values)
+            result = opt.optimize(self.events.iteration, values=not self.lazy_values)
         except BatchError as exc:
             raise PoseGraphError(f"batch backend: {exc}") from None
         except RuntimeError as exc:
             raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
         finally:
             numba.set_num_threads(threads)
-        seconds = clock.seconds()
-        self.timings["iterations"] = seconds - self.timings["setup"]
-        result = OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
-                                seconds, res.converged, log.history)
+        result.seconds = clock.seconds()
+        self.timings["iterations"] = result.seconds - self.timings["setup"]
         result.start = start.values if start.values is not None or self.lazy_values else self.start_values()
         self.result = result
         self._graph_size = problem.graph_size
@@ -935,8 +914,8 @@ def _run_gnc(pg: PoseGraph, graph, start, backend: str, max_iterations: int, los
     if not isinstance(values, gtsam.Values):
         values = values.to_values()
     initial_error = float(graph.error(start.values))
-    result = OptimizeResult(values, res.iterations, initial_error, res.cost, res.seconds,
-                            res.stop != "maxIterations", [])
+    result = OptimizeResult(values, res.iterations, [initial_error, res.cost], [], res.seconds,
+                            res.stop != "maxIterations")
     result.start = start.values
     outliers = [int(k) for k in res.outliers if k < pg.between.size()]
     record = _record(pg, backend, graph, start, result, gnc=loss, outliers=outliers,
