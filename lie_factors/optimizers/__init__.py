@@ -23,6 +23,14 @@ Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg);
 linearization point while they update);
 :mod:`.compat` (``writeG2o``, ``readG2o``, ``InitializePose3``, ``lago``: GTSAM's
 functions that pick factors by their C++ class, made to accept ours).
+
+However a user swaps them in (the import line, ``import lie_factors.dropin as
+gtsam``, or assignment into GTSAM's namespace, ``gtsam.ISAM2 = ISAM2``, for a code
+base whose modules each ``import gtsam``), they behave the same: they take GTSAM's
+classes and functions from its compiled extension (``gtsam.gtsam``, which
+``gtsam/__init__.py`` re-exports), never from the package's namespace, so a
+drop-in assigned there is never what it calls (``ISAM2.update`` calling itself),
+whenever lie_factors is imported.
 """
 
 from .compat import InitializePose3, lago, readG2o, writeG2o  # noqa: F401

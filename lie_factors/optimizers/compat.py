@@ -33,7 +33,7 @@ import sys
 import tempfile
 from types import SimpleNamespace
 
-import gtsam
+from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 __all__ = [
     "G2oWriteError",

@@ -36,8 +36,8 @@ from __future__ import annotations
 import math
 import sys
 
-import gtsam
 import numpy as np
+from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 from .. import factors, lm
 
