@@ -167,3 +167,26 @@ def test_drop_ins_never_call_what_is_assigned_into_gtsams_namespace():
     proc = subprocess.run([sys.executable, "-c", _POISONED_FIRST, json.dumps(sorted(dropin.REPLACED))],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-3000:]
+
+
+def test_gtsams_logging_optimizer_takes_our_optimizer_classes():
+    """``gtsam.utils.logging_optimizer`` looks up an optimizer class's params class in a dict
+    keyed by GTSAM's classes: ours are in it, and the hooks see GTSAM's errors."""
+    from gtsam.utils.logging_optimizer import gtsam_optimize, optimize_using
+
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Unit.Create(3)
+    for r in (gtsam.Rot3.Expmap(np.array([0.1, 0, 0])), gtsam.Rot3.Expmap(np.array([-0.1, 0, 0]))):
+        graph.add(factors.PriorFactorRot3(0, r, noise))
+    initial = gtsam.Values()
+    initial.insert(0, gtsam.Rot3.Expmap(np.array([0.1, 0.2, 0])))
+    for name in ("LevenbergMarquardt", "GaussNewton", "Dogleg"):
+        ours, native = getattr(optimizers, f"{name}Optimizer"), getattr(gtsam, f"{name}Optimizer")
+        logs = {}
+        for side, cls in (("ours", ours), ("gtsam", native)):
+            log = logs[side] = []
+            result = optimize_using(cls, lambda opt, error: log.append(error), graph, initial)
+            assert result.atRot3(0).equals(gtsam.Rot3(), 1e-6)
+            params = getattr(gtsam, f"{name}Params")()
+            gtsam_optimize(cls(graph, initial, params), params, lambda opt, error: log.append(error))
+        np.testing.assert_allclose(logs["ours"], logs["gtsam"], rtol=1e-9, atol=1e-15)
