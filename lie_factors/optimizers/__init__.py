@@ -22,7 +22,8 @@ Modules: :mod:`.nonlinear` (Levenberg–Marquardt, Gauss–Newton, Dogleg);
 :mod:`.isam2` (ISAM2, IncrementalFixedLagSmoother: GTSAM's own, holding the
 linearization point while they update);
 :mod:`.compat` (``writeG2o``, ``readG2o``, ``InitializePose3``, ``lago``: GTSAM's
-functions that pick factors by their C++ class, made to accept ours).
+functions and classes that pick factors by their C++ class, made to accept ours,
+and its file readers, made to return ours).
 
 However a user swaps them in (the import line, ``import lie_factors.dropin as
 gtsam``, or assignment into GTSAM's namespace, ``gtsam.ISAM2 = ISAM2``, for a code
@@ -40,7 +41,12 @@ base whose modules each ``import gtsam``), they behave the same:
   returns GTSAM's own optimizer (:func:`.nonlinear.runs_in_python`).
 """
 
+from . import compat
 from .compat import InitializePose3, lago, readG2o, writeG2o  # noqa: F401
+
+# compat's other replacements of GTSAM's names, which depend on the GTSAM version
+# (fastSync*, ShonanAveraging2/3, load2D, parse3DFactors, ...).
+globals().update({_name: getattr(compat, _name) for _name in compat.GTSAM_NAMES})
 from .nonlinear import LevenbergMarquardtOptimizer, GaussNewtonOptimizer, DoglegOptimizer
 from .isam2 import ISAM2, IncrementalFixedLagSmoother
 
