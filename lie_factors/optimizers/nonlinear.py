@@ -24,6 +24,11 @@ trial point evaluated.
 Parameters the Python wrapper cannot set (``minModelFidelity``, ``minDiagonal``,
 ``maxDiagonal``) have GTSAM's defaults, as they do in GTSAM's optimizer when
 called from Python.
+
+Where this loop cannot run GTSAM's algorithm, the constructor returns GTSAM's own
+optimizer instead (:meth:`_NonlinearOptimizer.__new__`): the ``ITERATIVE`` and
+``CHOLMOD`` linear solvers, and a custom ordering set with ``params.setOrdering``
+(the wrapper cannot read it back) when no ``ordering`` argument is given.
 """
 
 from __future__ import annotations
@@ -31,8 +36,8 @@ from __future__ import annotations
 import math
 import sys
 
-import gtsam
 import numpy as np
+from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 from .. import factors, lm
 
@@ -83,11 +88,70 @@ class _LinearizedCost:
         return float(ax @ (self.b - 0.5 * ax))
 
 
+#: GTSAM's own optimizer for each params class, which the drop-in runs where its loop cannot.
+_GTSAM_OPTIMIZER = {
+    gtsam.GaussNewtonParams: gtsam.GaussNewtonOptimizer,
+    gtsam.LevenbergMarquardtParams: gtsam.LevenbergMarquardtOptimizer,
+    gtsam.DoglegParams: gtsam.DoglegOptimizer,
+}
+
+#: The linear solvers this loop runs, and the elimination function each passes to the
+#: wrapper (None: its default, EliminatePreferCholesky, which GTSAM's optimizers use).
+_ELIMINATION = {
+    "MULTIFRONTAL_CHOLESKY": None,
+    "SEQUENTIAL_CHOLESKY": None,
+    "MULTIFRONTAL_QR": gtsam.EliminateQR,
+    "SEQUENTIAL_QR": gtsam.EliminateQR,
+}
+
+
+def runs_in_python(params, ordering=None) -> bool:
+    """Whether the drop-in runs its own loop for ``params`` (else GTSAM's own optimizer runs).
+
+    It needs an elimination it can call through the wrapper (``_ELIMINATION``: not
+    ``ITERATIVE``, whose PCG/subgraph solvers the wrapper does not expose on a
+    linearization, nor ``CHOLMOD``, which GTSAM's optimizer rejects when it solves) and
+    an ordering it can read: ``params.setOrdering`` stores one the wrapper cannot
+    read back, so a ``CUSTOM`` ordering type needs the ``ordering`` argument.
+    """
+    return (params.getLinearSolverType() in _ELIMINATION
+            and (ordering is not None or params.getOrderingType() != "CUSTOM"))
+
+
 class _NonlinearOptimizer:
     """GTSAM's ``NonlinearOptimizer``: state (values, error, iterations), ``defaultOptimize``,
     ``solve`` of a linear system with the params' linear solver and ordering."""
 
     _params_type: type = gtsam.NonlinearOptimizerParams
+
+    def __new__(cls, graph=None, initialValues=None, *args, **kwargs):
+        """This class's optimizer, or GTSAM's own where this loop cannot run (:func:`runs_in_python`).
+
+        GTSAM's optimizer (``gtsam.LevenbergMarquardtOptimizer``, ...) is then
+        constructed from the same graph, values, params and ordering, and returned
+        instead of an instance of this class: GTSAM's results, methods and
+        exceptions, at GTSAM's speed. That is slower on graphs of Python factors:
+        each ``CustomFactor`` callback receives a copy of the whole ``Values``
+        (C++ holds every linearization and trial point), so an iteration costs
+        time proportional to the number of factors times the size of the graph.
+        """
+        ordering, params = cls._parse(args, dict(kwargs))
+        if isinstance(params, cls._params_type) and not runs_in_python(params, ordering):
+            own = _GTSAM_OPTIMIZER[cls._params_type]
+            if ordering is None:
+                return own(graph, initialValues, params)
+            # LM's wrapper has this overload; GN's and Dogleg's have none, so theirs raises TypeError.
+            return own(graph, initialValues, ordering, params)
+        return super().__new__(cls)
+
+    @staticmethod
+    def _parse(args, kwargs):
+        """(ordering, params) of the arguments after (graph, initialValues): ``[params][, ordering]``."""
+        names = ("params", "ordering")
+        if len(args) > len(names) or set(kwargs) - set(names) or set(names[:len(args)]) & set(kwargs):
+            raise TypeError("arguments: (graph, initialValues[, params][, ordering])")
+        bound = dict(zip(names, args), **kwargs)
+        return bound.get("ordering"), bound.get("params")
 
     def __init__(self, graph: gtsam.NonlinearFactorGraph, initialValues: gtsam.Values,
                  params=None, ordering: gtsam.Ordering | None = None):
@@ -121,31 +185,17 @@ class _NonlinearOptimizer:
     # ------------------------------------------------------------ params
     @staticmethod
     def _ordering_for(graph, params, ordering):
-        """GTSAM's ``ensureHasOrdering``: the given ordering, else one of the params' type."""
+        """GTSAM's ``ensureHasOrdering``: the given ordering, else one of the params' type
+        (never ``CUSTOM`` here: :meth:`__new__` hands those params to GTSAM's optimizer)."""
         if ordering is not None:
             return ordering
         kind = params.getOrderingType()
-        if kind == "CUSTOM":
-            # params.setOrdering() stores the ordering where the Python wrapper cannot read it.
-            raise ValueError(
-                "params carry a custom ordering (params.setOrdering), which gtsam's Python wrapper "
-                "cannot read back; pass it to the optimizer instead: "
-                "Optimizer(graph, initialValues, params, ordering=ordering)")
         return gtsam.Ordering.CreateNonlinearFactorGraph(getattr(gtsam.Ordering.OrderingType, kind), graph)
 
     @staticmethod
     def _elimination_function(params):
-        solver = params.getLinearSolverType()
-        if solver in ("MULTIFRONTAL_QR", "SEQUENTIAL_QR"):
-            return gtsam.EliminateQR
-        if solver in ("MULTIFRONTAL_CHOLESKY", "SEQUENTIAL_CHOLESKY"):
-            return None  # the wrapper's default, EliminatePreferCholesky (as GTSAM's optimizers)
-        if solver == "ITERATIVE":
-            raise NotImplementedError(
-                "lie_factors.optimizers: the ITERATIVE (PCG/subgraph) linear solver is not supported; "
-                "use MULTIFRONTAL_CHOLESKY, MULTIFRONTAL_QR, SEQUENTIAL_CHOLESKY or SEQUENTIAL_QR")
-        # CHOLMOD: GTSAM's NonlinearOptimizer::solve rejects it with this runtime_error.
-        raise RuntimeError("NonlinearOptimizer::solve: Optimization parameter is invalid")
+        """The elimination function of the params' linear solver (one :data:`_ELIMINATION` has)."""
+        return _ELIMINATION[params.getLinearSolverType()]
 
     def _verbosity_level(self) -> int:
         return lm.VERBOSITY.get(self._params.getVerbosity(), 0)
@@ -423,8 +473,6 @@ class DoglegOptimizer(_NonlinearOptimizer):
 
     def __init__(self, graph, initialValues, params=None, ordering=None):
         super().__init__(graph, initialValues, params, ordering)
-        if self._params.isIterative():
-            raise RuntimeError("Dogleg is not currently compatible with the linear conjugate gradient solver")
         self._delta = float(self._params.getDeltaInitial())
         self._verbose_dl = self._params.getVerbosityDL() != "SILENT"
 
