@@ -1,6 +1,6 @@
 """GTSAM's initializers vs ours (lie_factors.initialization.chordal / lago: the same results on arrays), side by side.
 
-    flock /work/coord/bench.lock python benchmarks/initializers.py --repeat 3
+    python benchmarks/initializers.py --repeat 3
 
 Per graph (its pose graph and the prior ``lie-factors posegraph`` puts on the first
 pose), alternating within each repetition, best of ``--repeat``:

@@ -2,7 +2,7 @@
 
     python benchmarks/numpy_vs_numba.py [DATASET.g2o]   (default sphere2500, SE(3), 4 949 edges)
 
-The alternative the issue names: numpy-vectorized batch kernels, no JIT.  Measured
+The alternative to numba: numpy-vectorized batch kernels, no JIT.  Measured
 here on the work one LM iteration repeats most, the linearization of every
 Between factor (error e = Log(M⁻¹·X1⁻¹·X2), both Jacobians, whitening):
 

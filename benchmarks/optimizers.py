@@ -22,7 +22,8 @@ import time
 import gtsam
 import numpy as np
 
-from lie_factors import factors, optimizers
+from lie_factors import factors, g2o, optimizers
+from lie_factors.optimizers import compat
 
 DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data"))
 PRIOR_3D = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4]))
@@ -36,23 +37,15 @@ OPTIMIZERS = {
 
 
 def graphs(path: str):
-    """(native graph, graph with our factors, initial values) of a g2o file."""
-    with open(path) as fh:
-        is3d = any(line.startswith(("VERTEX_SE3", "EDGE_SE3")) for line in fh)
-    native_edges, initial = gtsam.readG2o(path, is3d)
-    group = "Pose3" if is3d else "Pose2"
-    out = []
-    for F in (gtsam, factors):
-        Between, Prior = getattr(F, f"BetweenFactor{group}"), getattr(F, f"PriorFactor{group}")
-        g = gtsam.NonlinearFactorGraph()
-        for i in range(native_edges.size()):
-            f = native_edges.at(i)
-            k1, k2 = f.keys()
-            g.add(Between(k1, k2, f.measured(), f.noiseModel()))
-        first = min(initial.keys())
-        g.add(Prior(first, getattr(initial, f"at{group}")(first), PRIOR_3D if is3d else PRIOR_2D))
-        out.append(g)
-    return out[0], out[1], initial
+    """(native graph, graph with our factors, initial values) of a g2o file: its edges as
+    GTSAM reads them, then GTSAM's g2o-example prior on the first pose at its file value."""
+    summary = g2o.check_g2o(path)
+    native, initial = g2o.read_g2o(path, summary)
+    group = summary.group
+    first = min(initial.keys())
+    prior = getattr(gtsam, f"PriorFactor{group}")
+    native.add(prior(first, getattr(initial, f"at{group}")(first), PRIOR_3D if summary.is3d else PRIOR_2D))
+    return native, compat.from_gtsam_graph(native), initial
 
 
 def run(cls, graph, initial, params_type):

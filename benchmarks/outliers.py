@@ -34,8 +34,8 @@ Usage::
     python benchmarks/outliers.py --graphs intel chain1000 --methods lm gnc-tls
     python benchmarks/outliers.py --graphs intel --backends batch --start chordal
 
-Timing: best of ``--repeat`` runs, native and batch alternated (wrap in
-``flock /work/coord/bench.lock`` on a shared machine).
+Timing: best of ``--repeat`` runs, native and batch alternated (on a shared
+machine, run nothing else heavy meanwhile).
 """
 
 from __future__ import annotations

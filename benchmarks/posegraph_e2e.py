@@ -19,7 +19,7 @@ Graphs: the datasets in ``$LIE_FACTORS_DATA`` (default data/),
 closures written by ``benchmarks/generate_posegraph.py`` (``helix20k``,
 ``helix100k``: 20 000 / 100 000 poses, a closure every 10th pose).
 
-The issue-17 figures checked per row: whole command ≤ native's (≥ 10k
+The targets checked per row: whole command ≤ native's (≥ 10k
 factors) or ≤ native's + 0.5 s (smaller graphs); optimization ≤ 0.7×
 native's; the same optimum (1e-4 relative); peak RSS ≤ max(1.5× native's,
 native's + 150 MB).

@@ -5,7 +5,7 @@ each optimizer's result, relative to the initial one, plus LM iterations and
 seconds (best of ``--repeat`` runs, ours and native alternated).  Prints a
 Markdown table (docs/benchmarks.md, section "Sim(3) scale drift").
 
-    flock /work/coord/bench.lock python benchmarks/sim3_scale_drift.py [--poses 150] [--seeds 5]
+    python benchmarks/sim3_scale_drift.py [--poses 150] [--seeds 5]
 """
 
 from __future__ import annotations

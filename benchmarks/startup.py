@@ -113,7 +113,8 @@ def floor_table(repeat: int) -> None:
 
 COMPILE_SPLIT = r"""
 import numpy as np, gtsam, numba
-from lie_factors import so3, se3, factors, _dispatch
+from lie_factors import so3, se3, factors
+from lie_factors.kernels import dispatch as _dispatch
 from lie_factors.kernels.jit import compile_seconds
 R, T, x = np.eye(3), np.eye(4), np.zeros(6)
 o3, o6, M6, M4 = np.empty(3), np.empty(6), np.empty((6, 6)), np.empty((4, 4))

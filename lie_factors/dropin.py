@@ -4,11 +4,19 @@ Everything ``gtsam`` has is here under the same name, except:
 
 * ``BetweenFactor{Rot3,Pose2,Pose3,Similarity2,Similarity3}`` and
   ``PriorFactor{...}``: :mod:`lie_factors.factors`' classes (same arguments);
-* ``writeG2o``, ``readG2o``, ``InitializePose3``, ``lago``:
-  :mod:`lie_factors.optimizers.compat`'s, which accept those factors
-  (``readG2o`` returns them);
+* GTSAM's functions and classes that pick factors by their C++ class
+  (``writeG2o``, ``save2D``, ``InitializePose3``, ``lago``, ``fastSync*``,
+  ``ShonanAveraging2``/``3``) and its file readers (``readG2o``, ``load2D``,
+  ``load3D``, ``parse2DFactors``, ``parse3DFactors``):
+  :mod:`lie_factors.optimizers.compat`'s, which accept those factors (the
+  readers return them);
 * GTSAM's optimizers, where :mod:`lie_factors.optimizers` has a drop-in for
   them (:data:`REPLACED` lists every replaced name and where it comes from).
+
+Assigning these names into ``gtsam``'s own namespace (``for name in REPLACED:
+setattr(gtsam, name, getattr(lie_factors.dropin, name))``) swaps them into a
+code base whose modules each ``import gtsam``: the drop-ins hold GTSAM's own
+classes (see :mod:`lie_factors.optimizers`), so they never call themselves.
 
 Submodules stay reachable as attributes (``gtsam.noiseModel``,
 ``gtsam.symbol_shorthand``, ``gtsam.utils``, ``gtsam.imuBias``,

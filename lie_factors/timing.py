@@ -40,30 +40,3 @@ class Stopwatch:
 
     def seconds(self) -> float:
         return (time.perf_counter() - self._t0) - (compile_seconds() - self._c0)
-
-
-class IterationLog:
-    """The ``hook(it, error, λ)`` an LM loop calls after each iteration: records an
-    :class:`lie_factors.results.IterationInfo` with the seconds since the previous one
-    (a :class:`Stopwatch`) in ``history`` and hands it to ``progress``.
-
-    :meth:`restart` before the first iteration, so that set-up is not iteration time.
-    """
-
-    def __init__(self, progress=None):
-        from .results import IterationInfo
-
-        self._info = IterationInfo
-        self.progress = progress
-        self.history: list = []
-        self.step = Stopwatch()
-
-    def restart(self) -> None:
-        self.step.restart()
-
-    def __call__(self, it, err, lam) -> None:
-        info = self._info(int(it), float(err), float(lam), self.step.seconds())
-        self.step.restart()
-        self.history.append(info)
-        if self.progress is not None:
-            self.progress(info)

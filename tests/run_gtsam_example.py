@@ -1,18 +1,16 @@
 """Run Python examples shipped in the gtsam wheel, as GTSAM ships them or with our factors.
 
-    python run_gtsam_example.py original|swapped OUTDIR CASES_JSON
+    python run_gtsam_example.py original|swapped|assigned OUTDIR CASES_JSON
 
 ``CASES_JSON``: a list of ``[index, name, [arg, ...]]``.  Run by
 tests/test_gtsam_examples.py: one process runs the cases given, in order,
 each in its own empty working directory ``OUTDIR/<index>`` (one process
 rather than one per case: starting Python, gtsam, matplotlib and our kernels
 is most of the time of an example).  ``swapped`` changes only the
-example's import lines: ``import gtsam`` becomes ``import lie_factors.dropin
-as gtsam`` and ``from gtsam import ...`` becomes ``from lie_factors.dropin
-import ...`` (``from gtsam.X import`` lines are left alone: nothing in
-GTSAM's submodules is replaced).
+example's import lines; ``assigned`` runs it as shipped with our names
+assigned into ``gtsam``'s namespace first (``gtsam_swap.py`` says how).
 
-Around each example, identically in both modes: ``np.random`` seeded (several
+Around each example, identically in every mode: ``np.random`` seeded (several
 examples draw unseeded noise) and numpy's print options reset, matplotlib on
 Agg with ``plt.show`` and ``plt.pause`` doing nothing (no display; ``pause``
 would also sleep) and every figure closed, ``sys.argv`` set to the case's
@@ -33,7 +31,6 @@ is driven by the code in ``DRIVERS``.
 import ctypes
 import json
 import os
-import re
 import sys
 import time
 import traceback
@@ -46,6 +43,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import gtsam  # noqa: E402
+import gtsam_swap  # noqa: E402
 
 #: module-like examples: code run after the module body, in its namespace
 DRIVERS = {
@@ -56,18 +54,9 @@ DRIVERS = {
     ),
 }
 
-IMPORT = re.compile(r"(?m)^(\s*)import gtsam\s*$")
-FROM_IMPORT = re.compile(r"(?m)^(\s*)from gtsam import ")
 EXAMPLES = os.path.join(os.path.dirname(gtsam.__file__), "examples")
 
 _libc = ctypes.CDLL(None)
-
-
-def swap_imports(source: str) -> tuple[str, int]:
-    """``source`` with its gtsam import lines pointed at lie_factors.dropin, and how many were changed."""
-    source, n1 = IMPORT.subn(r"\1import lie_factors.dropin as gtsam", source)
-    source, n2 = FROM_IMPORT.subn(r"\1from lie_factors.dropin import ", source)
-    return source, n1 + n2
 
 
 def count_our_factors() -> Counter:
@@ -106,10 +95,7 @@ def run_case(name: str, args: list, mode: str, made: Counter) -> None:
     path = os.path.join(EXAMPLES, name + ".py")
     with open(path) as fh:
         source = fh.read()
-    if mode == "swapped":
-        source, changed = swap_imports(source)
-        if not changed:
-            raise RuntimeError(f"{name}: no gtsam import line to change")
+    source = gtsam_swap.prepare(mode, source, name)
     plt.close("all")
     np.set_printoptions(**_PRINT_OPTIONS)
     sys.argv = [path, *args]
@@ -134,9 +120,8 @@ _PRINT_OPTIONS = np.get_printoptions()
 
 def main() -> None:
     mode, outdir, cases = sys.argv[1], os.path.abspath(sys.argv[2]), json.loads(sys.argv[3])
-    if mode not in ("original", "swapped"):
-        raise SystemExit(f"mode must be original or swapped, not {mode!r}")
-    made = count_our_factors() if mode == "swapped" else Counter()
+    gtsam_swap.start(mode)
+    made = count_our_factors() if mode != "original" else Counter()
     plt.show = lambda *a, **k: None
     plt.pause = lambda *a, **k: None
     sys.path.insert(0, EXAMPLES)  # examples import their siblings (PreintegrationExample, ...)

@@ -272,7 +272,7 @@ def test_bad_argument_types():
 
 
 def test_run_batch_for_cli():
-    from lie_factors.app.run import IterationInfo, OptimizeResult
+    from lie_factors.lm import IterationInfo, OptimizeResult
 
     lie, _, initial = make_problem("Pose2", seed=6)
     seen = []

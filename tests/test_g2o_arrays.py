@@ -110,23 +110,15 @@ def _compare_with_readg2o(path, is3d):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_2d_records_match_readg2o(tmp_path, seed):
+@pytest.mark.parametrize("is3d", [False, True], ids=["2d", "3d"])
+def test_records_match_readg2o(tmp_path, is3d, seed):
     path = tmp_path / "g.g2o"
-    path.write_text(_file_2d(np.random.default_rng(seed)))
-    a, initial = _compare_with_readg2o(path, False)
+    path.write_text((_file_3d if is3d else _file_2d)(np.random.default_rng(seed)))
+    a, initial = _compare_with_readg2o(path, is3d)
     assert list(a.keys) == sorted(initial.keys())
+    at = initial.atPose3 if is3d else initial.atPose2
     for n, key in enumerate(a.keys):
-        np.testing.assert_allclose(a.vertices[n], initial.atPose2(int(key)).matrix(), rtol=0, atol=4e-15)
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_3d_records_match_readg2o(tmp_path, seed):
-    path = tmp_path / "g.g2o"
-    path.write_text(_file_3d(np.random.default_rng(seed)))
-    a, initial = _compare_with_readg2o(path, True)
-    assert list(a.keys) == sorted(initial.keys())
-    for n, key in enumerate(a.keys):
-        np.testing.assert_allclose(a.vertices[n], initial.atPose3(int(key)).matrix(), rtol=0, atol=4e-15)
+        np.testing.assert_allclose(a.vertices[n], at(int(key)).matrix(), rtol=0, atol=4e-15)
 
 
 def test_edge_only_file(tmp_path):
@@ -302,6 +294,20 @@ def test_batch_modules_import_downward_only():
             "print(sorted(m for m in ('lie_factors.batch.optimizer', 'lie_factors.batch.robust')"
             " if m in sys.modules), file=sys.stderr)\n")
     assert _modules_after(code) == "[]"
+
+
+def test_g2o_modules_import_one_way():
+    """Inside lie_factors.g2o each module imports only the ones before it in this order (no cycle)."""
+    import ast
+
+    order = ["dataset", "records", "parse", "conventions", "check", "read", "write"]
+    package = ROOT / "lie_factors" / "g2o"
+    assert sorted(p.stem for p in package.glob("*.py")) == sorted(order + ["__init__"])
+    for k, name in enumerate(order):
+        tree = ast.parse((package / f"{name}.py").read_text(encoding="utf-8"))
+        inside = {node.module for node in ast.walk(tree)
+                  if isinstance(node, ast.ImportFrom) and node.level == 1}
+        assert inside <= set(order[:k]), (name, inside - set(order[:k]))
 
 
 def test_small_graphs_run_the_batch_loops_on_one_thread(tmp_path):

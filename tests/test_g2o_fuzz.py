@@ -1,6 +1,6 @@
 """Fuzzing the g2o reader: every input ends in a correct load or ONE clear error line.
 
-Most cases run in-process against lie_factors.g2o / posegraph.load (hypothesis); a few go through
+Most cases run in-process against lie_factors.g2o / lie_factors.app.run.load (hypothesis); a few go through
 the CLI in a subprocess (exit status 2, one stderr line, no traceback, no partly written output).
 Properties checked on every generated file:
 * ``load`` either succeeds or raises PoseGraphError with a one-line message (nothing else escapes:
@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 
 from lie_factors import g2o
 import lie_factors.app.load as loading
+from lie_factors.g2o import parse
 from lie_factors.app import run as P
 from lie_factors.errors import PoseGraphError
 
@@ -97,13 +98,13 @@ def _check_one(tmp_path: Path, content: bytes) -> None:
     path = _write(tmp_path, content)
     # 1. fast and slow parses agree.
     try:
-        slow = g2o._slow_parse("fuzz.g2o", content)
+        slow = parse.slow_parse("fuzz.g2o", content)
         slow_rows = {t: (r.ids.tolist(), r.values.tolist(), r.lines.tolist()) for t, r in slow[0].items()}
         slow_err = None
     except PoseGraphError as exc:
         slow_rows, slow_err = None, str(exc)
     try:
-        fast = g2o._fast_parse("fuzz.g2o", content)
+        fast = parse.fast_parse("fuzz.g2o", content)
     except PoseGraphError as exc:
         assert str(exc) == slow_err  # the same first bad line and message
     else:
@@ -205,8 +206,8 @@ def test_huge_and_nonfinite_vertex_values(tmp_path, values):
 def test_fast_and_slow_paths_agree_on_clean_files(tmp_path):
     for text in BASES:
         content = text.encode()
-        fast = g2o._fast_parse("x", content)
-        slow = g2o._slow_parse("x", content)
+        fast = parse.fast_parse("x", content)
+        slow = parse.slow_parse("x", content)
         assert fast is not None
         for tag in slow[0]:
             np.testing.assert_array_equal(fast[0][tag].ids, slow[0][tag].ids)

@@ -20,7 +20,7 @@ def _random_info(rng, n):
 
 
 def test_3d_information_map_is_gtsams(tmp_path):
-    """readG2o's EDGE_SE3_TRACKXYZ noise = Jᵀ Λ J with J = [r·B, u] (what g2o.py states)."""
+    """readG2o's EDGE_SE3_TRACKXYZ noise = Jᵀ Λ J with J = [r·B, u] (lie_factors.g2o.conventions)."""
     rng = np.random.default_rng(7)
     for _ in range(5):
         p = rng.normal(size=3) * 3

@@ -152,12 +152,66 @@ def test_lm_optimize_and_ordering_argument():
     assert vo2.equals(vr2, 1e-9)
 
 
-def test_custom_ordering_in_params_is_refused_clearly():
+def _params_only_gtsam_runs(name: str, what: str, keys):
+    """Params of GTSAM's ``{name}Optimizer`` that the drop-in's loop cannot run."""
+    p = getattr(gtsam, f"{name}Params")()
+    if what == "custom-ordering":  # stored where the wrapper cannot read it back
+        p.setOrdering(gtsam.Ordering(sorted(keys, reverse=True)))
+    elif what == "iterative":
+        p.setLinearSolverType("ITERATIVE")
+        pcg = gtsam.PCGSolverParameters()
+        pcg.preconditioner = gtsam.DummyPreconditionerParameters()
+        p.setIterativeParams(pcg)
+    else:
+        p.setLinearSolverType("CHOLMOD")  # GTSAM's optimizer rejects it when it solves
+    p.setMaxIterations(5)
+    return p
+
+
+def _run(optimizer):
+    """("values", values, iterations, error) after optimize(), or ("raised", type, message)."""
+    try:
+        values = optimizer.optimize()
+    except Exception as exc:  # noqa: BLE001 - the outcome, whatever it is, is what we compare
+        return ("raised", type(exc), str(exc))
+    return ("values", values, optimizer.iterations(), optimizer.error())
+
+
+@pytest.mark.parametrize("what", ["custom-ordering", "iterative", "cholmod"])
+@pytest.mark.parametrize("name", ["LevenbergMarquardt", "GaussNewton", "Dogleg"])
+def test_params_the_loop_cannot_run_give_gtsams_own_optimizer(name, what):
     graph, initial = load(False, True)
-    p = lm_params()
-    p.setOrdering(gtsam.Ordering(sorted(initial.keys())))
-    with pytest.raises(ValueError, match="ordering"):
-        optimizers.LevenbergMarquardtOptimizer(graph, initial, p)
+    ours = getattr(optimizers, f"{name}Optimizer")(graph, initial, _params_only_gtsam_runs(name, what, initial.keys()))
+    native = getattr(gtsam, f"{name}Optimizer")
+    assert type(ours) is native
+    ref = native(graph, initial, _params_only_gtsam_runs(name, what, initial.keys()))
+    a, b = _run(ours), _run(ref)
+    assert a[0] == b[0]
+    if a[0] == "raised":
+        assert a[1:] == b[1:]
+    else:
+        assert a[1].equals(b[1], 0.0) and a[2:] == b[2:]
+    # GTSAM's optimizers reject CHOLMOD when they solve, and Dogleg an iterative solver.
+    assert (a[0] == "raised") == (what == "cholmod" or (name, what) == ("Dogleg", "iterative"))
+
+
+def test_ordering_argument_overrides_a_custom_ordering_in_params():
+    graph, initial = load(False, True)
+    ordering = gtsam.Ordering(sorted(initial.keys(), reverse=True))
+    p = _params_only_gtsam_runs("LevenbergMarquardt", "custom-ordering", initial.keys())
+    ours = optimizers.LevenbergMarquardtOptimizer(graph, initial, ordering, p)
+    assert type(ours) is optimizers.LevenbergMarquardtOptimizer  # the loop runs
+    ref = gtsam.LevenbergMarquardtOptimizer(graph, initial, ordering, lm_params())
+    assert ours.optimize().equals(ref.optimize(), 1e-9)
+    assert ours.iterations() == ref.iterations()
+    # GTSAM's GaussNewtonOptimizer/DoglegOptimizer wrappers take no ordering: with params only
+    # GTSAM's optimizer runs, the drop-in raises the wrapper's TypeError for an ordering argument.
+    gn = gtsam.GaussNewtonParams()
+    gn.setLinearSolverType("CHOLMOD")
+    with pytest.raises(TypeError, match="incompatible constructor arguments"):
+        optimizers.GaussNewtonOptimizer(graph, initial, gn, ordering=ordering)
+    with pytest.raises(TypeError):
+        optimizers.GaussNewtonOptimizer(graph, initial, gn, ordering, "too many")
 
 
 @pytest.mark.parametrize("is3d", [True, False], ids=["Pose3", "Pose2"])

@@ -34,19 +34,16 @@ def _recording(base):
     return Recording
 
 
-def online_pose2(n=60, seed=1):
-    """Per update: (factors, new values) of a noisy 2-D loop with loop closures every 5 poses."""
-    rng = np.random.default_rng(seed)
-    truth = [gtsam.Pose2(5 * np.cos(2 * np.pi * i / 20), 5 * np.sin(2 * np.pi * i / 20),
-                         2 * np.pi * i / 20 + np.pi / 2) for i in range(n)]
+def _online(truth, noise):
+    """Per update: (factors, new values) along ``truth``: odometry perturbed by ``noise()``, and
+    a loop closure back 20 poses every 5 poses."""
 
     def meas(i, j):
-        d = rng.normal(size=3) * np.array([0.05, 0.05, 0.02])
-        return truth[i].between(truth[j]).compose(gtsam.Pose2(*d))
+        return truth[i].between(truth[j]).compose(noise())
 
     steps = [([("prior", 0, truth[0])], truth[0])]
     guess = truth[0]
-    for i in range(1, n):
+    for i in range(1, len(truth)):
         m = meas(i - 1, i)
         guess = guess.compose(m)
         items = [("between", i - 1, i, m)]
@@ -56,26 +53,21 @@ def online_pose2(n=60, seed=1):
     return steps
 
 
+def online_pose2(n=60, seed=1):
+    """A noisy 2-D loop (:func:`_online`)."""
+    rng = np.random.default_rng(seed)
+    truth = [gtsam.Pose2(5 * np.cos(2 * np.pi * i / 20), 5 * np.sin(2 * np.pi * i / 20),
+                         2 * np.pi * i / 20 + np.pi / 2) for i in range(n)]
+    return _online(truth, lambda: gtsam.Pose2(*(rng.normal(size=3) * np.array([0.05, 0.05, 0.02]))))
+
+
 def online_pose3(n=60, seed=2):
+    """A noisy 3-D helix (:func:`_online`)."""
     rng = np.random.default_rng(seed)
     truth = [gtsam.Pose3(gtsam.Rot3.Yaw(2 * np.pi * i / 20 + np.pi / 2),
                          np.array([5 * np.cos(2 * np.pi * i / 20), 5 * np.sin(2 * np.pi * i / 20), 0.02 * i]))
              for i in range(n)]
-
-    def meas(i, j):
-        d = rng.normal(size=6) * np.array([0.01] * 3 + [0.05] * 3)
-        return truth[i].between(truth[j]).compose(gtsam.Pose3.Expmap(d))
-
-    steps = [([("prior", 0, truth[0])], truth[0])]
-    guess = truth[0]
-    for i in range(1, n):
-        m = meas(i - 1, i)
-        guess = guess.compose(m)
-        items = [("between", i - 1, i, m)]
-        if i % 5 == 0 and i >= 20:
-            items.append(("between", i - 20, i, meas(i - 20, i)))
-        steps.append((items, guess))
-    return steps
+    return _online(truth, lambda: gtsam.Pose3.Expmap(rng.normal(size=6) * np.array([0.01] * 3 + [0.05] * 3)))
 
 
 def params(skip=1, threshold=0.001, **kw):

@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors import atomic, factors, g2o, results  # noqa: F401  (factors: the dropin backend)
+from lie_factors import atomic, factors, g2o, lm  # noqa: F401  (factors: the dropin backend)
 from lie_factors.app import backends
 from lie_factors.app import run as P
 from lie_factors.app.backends import build_graph, optimize
@@ -134,7 +134,7 @@ def test_stepwise_lm_matches_gtsam_optimize():
     assert result.final_error == pytest.approx(graph.error(values), rel=1e-12)
     assert result.converged and result.initial_error > result.final_error
     assert [s.iteration for s in seen] == list(range(1, len(seen) + 1))
-    assert "lambda" in results.format_iteration(seen[0])
+    assert "lambda" in lm.format_iteration(seen[0])
 
 
 def test_max_iterations_respected():

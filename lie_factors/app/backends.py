@@ -17,7 +17,7 @@ from typing import Callable
 import gtsam
 
 from ..errors import PoseGraphError
-from ..results import IterationInfo, OptimizeResult
+from ..lm import IterationInfo, OptimizeResult, default_optimize
 from ..stack import large_stack
 from ..timing import Stopwatch, warm_up_factors
 from .load import Dataset
@@ -106,13 +106,11 @@ def optimize(
     ``optimizer``: ``gtsam.LevenbergMarquardtOptimizer`` (default) or a drop-in
     with its interface (``lie_factors.optimizers.LevenbergMarquardtOptimizer``).
 
-    GTSAM's ``NonlinearOptimizer::defaultOptimize``: stop at once if the error
-    is already ≤ errorTol; otherwise ``iterate()`` while iterations <
-    maxIterations, ``checkConvergence(relTol, absTol, errorTol, current, new)``
-    is false and the error is finite.  (``max_iterations=0`` runs none; GTSAM
-    would still run one.)  ``seconds`` covers building the optimizer (it
-    evaluates the initial error) and the iterations, never numba compilation
-    (kernels are warmed first; see :mod:`lie_factors.timing`).
+    GTSAM's ``NonlinearOptimizer::defaultOptimize``
+    (:func:`lie_factors.lm.default_optimize`), reporting each iteration to
+    ``progress``.  ``seconds`` covers building the optimizer (it evaluates the
+    initial error) and the iterations, never numba compilation (kernels are
+    warmed first; see :mod:`lie_factors.timing`).
     """
     if params is None:
         params = gtsam.LevenbergMarquardtParams()
@@ -121,32 +119,17 @@ def optimize(
     clock = Stopwatch()
     try:
         opt = (optimizer or gtsam.LevenbergMarquardtOptimizer)(graph, initial, params)
-        initial_error = new_error = float(opt.error())
+        initial_error = float(opt.error())
         if not math.isfinite(initial_error):
             raise PoseGraphError(f"the initial error is {initial_error}: some residual overflows "
                                  f"(coordinates or information values too large?)")
-        converged = new_error <= params.getErrorTol()
-        history = []
-        while not converged and opt.iterations() < max_iterations:
-            current_error = new_error
-            step = Stopwatch()
-            opt.iterate()
-            new_error = float(opt.error())
-            info = IterationInfo(int(opt.iterations()), new_error, float(opt.lambda_()),
-                                 step.seconds())
-            history.append(info)
-            if progress is not None:
-                progress(info)
-            converged = gtsam.checkConvergence(params, current_error, new_error)
-            if not math.isfinite(current_error):
-                break
-        values = opt.values()
+        result = default_optimize(opt, params, progress)
+        result.values = opt.values()
     except RuntimeError as exc:
         # e.g. IndeterminantLinearSystemException: report it, don't dump a traceback.
         raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
-    seconds = clock.seconds()
-    return OptimizeResult(values, int(opt.iterations()), initial_error, new_error, seconds,
-                          bool(converged), history)
+    result.seconds = clock.seconds()
+    return result
 
 
 def _optimize_dropin(graph, initial, max_iterations=100, progress=None, params=None) -> OptimizeResult:

@@ -49,7 +49,7 @@ def _progress(args) -> Callable | None:
     """Per-iteration progress printer on stderr, or None with --quiet."""
     if args.quiet:
         return None
-    from lie_factors.results import format_iteration
+    from lie_factors.lm import format_iteration
 
     def report(info):
         print(format_iteration(info), file=sys.stderr, flush=True)
@@ -235,7 +235,7 @@ def _run_posegraph(args) -> int:
 
         def iteration(self, info):
             if not args.quiet:
-                from lie_factors.results import format_iteration
+                from lie_factors.lm import format_iteration
 
                 print(format_iteration(info), file=sys.stderr, flush=True)
 

@@ -147,7 +147,7 @@ def lm_params(max_iterations: int = 100) -> gtsam.LevenbergMarquardtParams:
 class Comparison:
     """Ours and GTSAM's native factors on one problem: results, ATEs, true gradient norms.
 
-    ``ours``/``native``: :class:`lie_factors.results.OptimizeResult`; ``graph``: the
+    ``ours``/``native``: :class:`lie_factors.lm.OptimizeResult`; ``graph``: the
     graph ours optimized; gradients are ‖∇cost‖ at the start and at each result.
     """
 

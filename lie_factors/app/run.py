@@ -27,8 +27,8 @@ import numpy as np
 
 from ..errors import PoseGraphError
 from ..initialization import Initialization, initialize
-from ..results import IterationInfo, OptimizeResult
-from ..timing import IterationLog, Stopwatch
+from ..lm import IterationInfo, OptimizeResult
+from ..timing import Stopwatch
 from .backends import _optimize_batch_robust, backend_name, build_graph, get_backend, load_factors, optimize
 from .load import Dataset, load
 from .record import TIMING_KEYS, Record, RunRecord
@@ -237,7 +237,6 @@ class PoseGraphRun:
         clock = Stopwatch()
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(int(self.max_iterations))
-        log = IterationLog(self.events.iteration)
         import numba
 
         threads = numba.get_num_threads()
@@ -247,18 +246,15 @@ class PoseGraphRun:
                 numba.set_num_threads(1)
             self._opt = opt = BatchLevenbergMarquardt(problem, None, params)
             self.timings["setup"] = clock.seconds()
-            log.restart()
-            res = opt.optimize(log, values=not self.lazy_values)
+            result = opt.optimize(self.events.iteration, values=not self.lazy_values)
         except BatchError as exc:
             raise PoseGraphError(f"batch backend: {exc}") from None
         except RuntimeError as exc:
             raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
         finally:
             numba.set_num_threads(threads)
-        seconds = clock.seconds()
-        self.timings["iterations"] = seconds - self.timings["setup"]
-        result = OptimizeResult(res.values, res.iterations, res.initial_error, res.final_error,
-                                seconds, res.converged, log.history)
+        result.seconds = clock.seconds()
+        self.timings["iterations"] = result.seconds - self.timings["setup"]
         result.start = None if self.lazy_values else self.start_values()
         self.result = result
         self.record = _record(pg, self.backend, problem.graph_size, self.start, result)
@@ -404,8 +400,8 @@ def _run_gnc(pg: Dataset, graph, start: Initialization, values: gtsam.Values, ba
     if not isinstance(result_values, gtsam.Values):
         result_values = result_values.to_values()
     initial_error = float(graph.error(values))
-    result = OptimizeResult(result_values, res.iterations, initial_error, res.cost, res.seconds,
-                            res.stop != "maxIterations", [])
+    result = OptimizeResult(result_values, res.iterations, [initial_error, res.cost], [], res.seconds,
+                            res.stop != "maxIterations")
     result.start = values
     outliers = [int(k) for k in res.outliers if k < pg.edges]
     record = _record(pg, backend, graph.size(), start, result, gnc=loss, outliers=outliers,

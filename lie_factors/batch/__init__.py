@@ -28,7 +28,7 @@ import importlib
 #: other one, and ``import lie_factors.batch`` alone loads neither numba nor GTSAM.
 _EXPORTS = {
     "BatchError": "graph", "Problem": "graph",
-    "BatchLevenbergMarquardt": "optimizer", "BatchResult": "optimizer",
+    "BatchLevenbergMarquardt": "optimizer", "OptimizeResult": "optimizer",
     "IndeterminantLinearSystem": "optimizer", "TIMING_KEYS": "optimizer", "optimize": "optimizer",
     "run_batch": "optimizer",
     "LINEAR_SOLVERS": "solvers", "NotPositiveDefinite": "solvers", "cholmod_available": "solvers",

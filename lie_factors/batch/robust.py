@@ -50,7 +50,8 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
     ``Robust::WhitenSystem`` (and, with s, its ``makeWeightedGraph``) — through
     the solver's per-factor weights; the error is the robust one, as GTSAM's
     ``NoiseModelFactor::error``.  The LM loop (λ schedule, model fidelity,
-    convergence) is :class:`~lie_factors.batch.optimizer.BatchLevenbergMarquardt`'s.
+    convergence) is :mod:`lie_factors.lm`'s, through
+    :class:`~lie_factors.batch.optimizer.BatchLevenbergMarquardt`.
 
     Factors GTSAM linearizes itself (native factors, other estimators) keep
     GTSAM's own robust handling and are only scaled by ``s_f``.
@@ -140,11 +141,7 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
             b.X = b.X0.copy()
         P.other = gtsam.Values(self._other0)
         self.scale = np.asarray(scale, dtype=np.float64).copy()
-        self.lambda_ = 0.0 if self.gauss_newton else self.lambda_initial
-        self.current_factor = self.lambda_factor
+        self._lm_reset()
         self._iterations = 0
-        self.inner_iterations = 0
         self.timings = dict.fromkeys(self.timings, 0.0)
         self._error = self.objective()
-        self.errors = [self._error]
-        self.lambdas = [self.lambda_]

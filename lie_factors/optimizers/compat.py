@@ -4,25 +4,32 @@ Several GTSAM functions pick factors out of a graph by their C++ class
 (``dynamic_pointer_cast<BetweenFactor<Pose3>>``) and pass over anything else
 without a word.  Our factors are ``CustomFactor``\\ s, so on a graph of ours:
 
-* ``gtsam.writeG2o`` writes the vertices and no edge at all;
+* ``gtsam.writeG2o`` and ``gtsam.save2D`` write the vertices and no edge at all;
 * ``gtsam.InitializePose3.initialize`` and ``gtsam.lago.initialize`` return
   an empty ``Values`` for a graph of ours, and fail on GTSAM's edges with our
   prior (GTSAM's examples with the prior swapped): "Indeterminate linear
-  system" and ``IndexError: map::at``.
+  system" and ``IndexError: map::at``;
+* ``gtsam.fastSyncPose3`` and its siblings raise "FastSync requires at least one
+  between measurement";
+* ``gtsam.ShonanAveraging2``/``3``, constructed from a list of Between factors,
+  refuse ours (a list of GTSAM's classes is what the wrapper converts).
 
-The same-named functions here take the same arguments.  They hand GTSAM a
-copy of the graph in which each of our factors is replaced by GTSAM's own
-class with the same keys, the same measured value and the *same noise model
-object* (:func:`to_gtsam_graph`); GTSAM's own factors, and any other factor,
-are passed as they are.  GTSAM then does all the work, so the results are
-GTSAM's on that graph, bit for bit, and so are the exceptions.
+The same-named functions and classes here take the same arguments.  They hand
+GTSAM a copy of the graph (or list) in which each of our factors is replaced by
+GTSAM's own class with the same keys, the same measured value and the *same
+noise model object* (:func:`to_gtsam_graph`); GTSAM's own factors, and any other
+factor, are passed as they are.  GTSAM then does all the work, so the results
+are GTSAM's on that graph, bit for bit, and so are the exceptions.
 
 :func:`writeG2o` in addition never drops anything silently: a factor or a
 value GTSAM's writer would pass over raises :class:`G2oWriteError`, and
 nothing is written (see its docstring for what GTSAM writes).
 
-:func:`readG2o` is GTSAM's reader returning our factors, so a script that
-reads a g2o file and optimizes it runs our factors after the import change.
+GTSAM's readers (``readG2o``, ``load2D``, ``load3D``, ``parse2DFactors``,
+``parse3DFactors``) here return our factors, so a script that reads a file and
+optimizes it runs our factors after the import change.
+
+:data:`GTSAM_NAMES` lists every name of ``gtsam`` this module replaces.
 """
 
 from __future__ import annotations
@@ -33,19 +40,9 @@ import sys
 import tempfile
 from types import SimpleNamespace
 
-import gtsam
+from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
-__all__ = [
-    "G2oWriteError",
-    "InitializePose3",
-    "from_gtsam",
-    "from_gtsam_graph",
-    "lago",
-    "readG2o",
-    "to_gtsam",
-    "to_gtsam_graph",
-    "writeG2o",
-]
+from ..kernels.registry import BY_GTSAM
 
 _OURS = "lie_factors.factors"
 _tables: dict = {}
@@ -272,78 +269,124 @@ def writeG2o(graph: gtsam.NonlinearFactorGraph, estimate: gtsam.Values, filename
         os.unlink(scratch)
 
 
-def readG2o(g2oFile: str, is3D: bool = False,
-            kernelFunctionType=gtsam.KernelFunctionType.KernelFunctionTypeNONE):
-    """``gtsam.readG2o`` with lie_factors' Between factors: ``(graph, initial)``.
-
-    GTSAM reads the file (same vertices, edges, noise models, kernels and
-    errors for a malformed file); each of its BetweenFactorPose2/Pose3 is then
-    replaced by ours with the same keys, measured value and noise model
-    (:func:`from_gtsam`).  Landmark factors stay GTSAM's.
-    """
-    graph, initial = gtsam.readG2o(g2oFile, is3D, kernelFunctionType)
-    return from_gtsam_graph(graph), initial
-
-
 # --------------------------------------------------------------------------- #
-# Initializers
+# GTSAM's other functions and classes that pick factors by class
 # --------------------------------------------------------------------------- #
+
+def _native_argument(arg):
+    """``arg`` as GTSAM's functions take it: a factor graph (:func:`to_gtsam_graph`) or a list
+    of factors (``ShonanAveraging2(factors, parameters)``) with our factors as GTSAM's own
+    classes; anything else as it is."""
+    if isinstance(arg, gtsam.NonlinearFactorGraph):
+        return to_gtsam_graph(arg)
+    if isinstance(arg, (list, tuple)) and _ours_exist():
+        native = [to_gtsam(a) for a in arg]
+        if any(n is not a for n, a in zip(native, arg)):
+            return native
+    return arg
+
+
+def _ours_in(result):
+    """``result`` of one of GTSAM's readers with its Between factors as ours: a graph
+    (:func:`from_gtsam_graph`), a list of factors, or a tuple of those (``(graph, initial)``)."""
+    if isinstance(result, gtsam.NonlinearFactorGraph):
+        return from_gtsam_graph(result)
+    if isinstance(result, tuple):
+        return tuple(_ours_in(r) for r in result)
+    if isinstance(result, list):
+        return [from_gtsam(f) for f in result]
+    return result
+
+
+def _native_arguments(args, kwargs) -> tuple[list, dict]:
+    """``args`` and ``kwargs`` with each argument as GTSAM takes it (:func:`_native_argument`)."""
+    return [_native_argument(a) for a in args], {k: _native_argument(v) for k, v in kwargs.items()}
+
+
+def _wrapped(function, name: str, reader: bool = False):
+    """GTSAM's ``function`` taking our factors; a ``reader`` also returns ours (:func:`_ours_in`)."""
+
+    def call(*args, **kwargs):
+        args, kwargs = _native_arguments(args, kwargs)
+        result = function(*args, **kwargs)
+        return _ours_in(result) if reader else result
+
+    call.__name__ = call.__qualname__ = name.rsplit(".", 1)[-1]
+    call.__module__ = __name__
+    what = ("returning lie_factors' factors in place of GTSAM's Between factors on Rot3, Pose2, Pose3, "
+            "Similarity2, Similarity3 (same keys, measured value and noise model object, :func:`from_gtsam`)"
+            if reader else
+            "taking lie_factors' factors in a graph or a list, handed to GTSAM as its own classes "
+            "(:func:`to_gtsam`), which it picks out by their C++ class")
+    call.__doc__ = (f"``gtsam.{name}`` {what}; everything else GTSAM's, exceptions included.\n\n"
+                    "GTSAM's signature::\n\n    " + (function.__doc__ or "").strip().replace("\n", "\n    "))
+    return call
+
+
+#: GTSAM's readers of g2o/TORO files, returning our factors: a script that reads a file
+#: and optimizes it runs our factors after the import change.
+_READERS = ("readG2o", "load2D", "load3D", "parse2DFactors", "parse3DFactors")
+
+#: GTSAM's functions that take a graph and pick its factors by C++ class (``writeG2o``,
+#: which never drops a factor silently, is above): save2D, the fastSync solvers of our groups.
+_TAKERS = ("save2D", *(f"fastSync{g}" for g in BY_GTSAM))
+
+#: GTSAM's classes whose constructors take a list of its Between factors.
+_CLASSES = ("ShonanAveraging2", "ShonanAveraging3")
+
+
+def _class_accepting(cls):
+    """A subclass of GTSAM's ``cls`` whose constructor takes our factors where it takes GTSAM's."""
+
+    def __init__(self, *args, **kwargs):
+        args, kwargs = _native_arguments(args, kwargs)
+        cls.__init__(self, *args, **kwargs)
+
+    doc = (f"``gtsam.{cls.__name__}``, whose constructor also takes lie_factors' factors in its "
+           "list of Between factors (handed to GTSAM as its own classes, :func:`to_gtsam`).")
+    return type(cls.__name__, (cls,), {"__init__": __init__, "__doc__": doc, "__module__": __name__})
+
+
+for _name in _READERS + _TAKERS:
+    if hasattr(gtsam, _name):
+        globals()[_name] = _wrapped(getattr(gtsam, _name), _name, reader=_name in _READERS)
+for _name in _CLASSES:
+    if hasattr(gtsam, _name):
+        globals()[_name] = _class_accepting(getattr(gtsam, _name))
+
 
 class InitializePose3:
     """``gtsam.InitializePose3`` on graphs of our factors (converted by :func:`to_gtsam_graph`).
 
-    Same static methods, arguments, results and exceptions as GTSAM's; only
-    the factor graph argument is converted.  Factors GTSAM's initializer does
-    not use (landmarks, other types, a user's CustomFactor) it ignores, as in
-    a graph of its own factors; a robust noise model is handed over as it is
-    (GTSAM's factor with the same model), so GTSAM does with it what it does
-    with its own.
+    The same static methods (``initialize``, ``initializeOrientations``,
+    ``buildPose3graph``, ``computeOrientationsChordal``, ``computeOrientationsGradient``),
+    arguments, results and exceptions as GTSAM's; only the factor graphs are converted.
+    Factors GTSAM's initializer does not use (landmarks, other types, a user's
+    CustomFactor) it ignores, as in a graph of its own factors; a robust noise model is
+    handed over as it is (GTSAM's factor with the same model), so GTSAM does with it
+    what it does with its own.
     """
 
-    @staticmethod
-    def buildPose3graph(graph, *args, **kwargs):
-        """GTSAM's: the Pose3 between factors, priors as betweens to the anchor (GTSAM's classes)."""
-        return gtsam.InitializePose3.buildPose3graph(to_gtsam_graph(graph), *args, **kwargs)
 
-    @staticmethod
-    def computeOrientationsChordal(pose3Graph, *args, **kwargs):
-        """GTSAM's chordal relaxation of the rotations of a graph of Pose3 between factors."""
-        return gtsam.InitializePose3.computeOrientationsChordal(to_gtsam_graph(pose3Graph), *args, **kwargs)
-
-    @staticmethod
-    def computeOrientationsGradient(pose3Graph, *args, **kwargs):
-        """GTSAM's gradient-descent rotations of a graph of Pose3 between factors."""
-        return gtsam.InitializePose3.computeOrientationsGradient(to_gtsam_graph(pose3Graph), *args, **kwargs)
-
-    @staticmethod
-    def initialize(graph, *args, **kwargs):
-        """GTSAM's initializer: rotations (chordal, or gradient), then one Gauss–Newton step on the poses."""
-        return gtsam.InitializePose3.initialize(to_gtsam_graph(graph), *args, **kwargs)
-
-    @staticmethod
-    def initializeOrientations(graph, *args, **kwargs):
-        """GTSAM's chordal rotations of the Pose3 subgraph."""
-        return gtsam.InitializePose3.initializeOrientations(to_gtsam_graph(graph), *args, **kwargs)
-
-
-def _lago_initialize(graph, *args, **kwargs):
-    """``gtsam.lago.initialize`` (LAGO on a Pose2 graph; or refine ``initialGuess``) with our factors.
-
-    As :class:`InitializePose3`: the graph converted, everything else GTSAM's
-    (which raises ValueError for a noise model that is not diagonal, robust included).
-    """
-    return gtsam.lago.initialize(to_gtsam_graph(graph), *args, **kwargs)
-
-
-def _lago_initialize_orientations(graph, *args, **kwargs):
-    """``gtsam.lago.initializeOrientations`` (LAGO's Pose2 orientations) with our factors."""
-    return gtsam.lago.initializeOrientations(to_gtsam_graph(graph), *args, **kwargs)
-
-
-#: ``gtsam.lago`` on graphs of our factors: ``lago.initialize``, ``lago.initializeOrientations``.
+#: ``gtsam.lago`` on graphs of our factors (``lago.initialize``, ``lago.initializeOrientations``),
+#: as :class:`InitializePose3` (GTSAM raises ValueError for a noise model that is not diagonal).
 lago = SimpleNamespace(
     __name__="lie_factors.optimizers.compat.lago",
     __doc__="gtsam.lago's functions on graphs of lie_factors' factors (converted to GTSAM's classes).",
-    initialize=_lago_initialize,
-    initializeOrientations=_lago_initialize_orientations,
 )
+
+for _ours, _native, _prefix in ((InitializePose3, gtsam.InitializePose3, "InitializePose3."),
+                                (lago, gtsam.lago, "lago.")):
+    for _name in dir(_native):
+        if not _name.startswith("_") and callable(getattr(_native, _name)):
+            _function = _wrapped(getattr(_native, _name), _prefix + _name)
+            setattr(_ours, _name, staticmethod(_function) if isinstance(_ours, type) else _function)
+
+#: The names of ``gtsam`` that this module replaces (:mod:`lie_factors.dropin` puts them in place).
+GTSAM_NAMES = ("writeG2o", "InitializePose3", "lago",
+               *(n for n in (*_READERS, *_TAKERS, *_CLASSES) if hasattr(gtsam, n)))
+
+__all__ = ["G2oWriteError", "GTSAM_NAMES", "from_gtsam", "from_gtsam_graph", "to_gtsam", "to_gtsam_graph",
+           *GTSAM_NAMES]
+
+del _name, _ours, _native, _prefix, _function

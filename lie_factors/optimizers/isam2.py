@@ -63,7 +63,7 @@ from __future__ import annotations
 
 import functools
 
-import gtsam
+from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 __all__ = ["ISAM2", "IncrementalFixedLagSmoother"]
 

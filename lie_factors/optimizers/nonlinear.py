@@ -16,37 +16,37 @@ damping is added as GTSAM's ``buildDampedSystem`` adds it: one
 ``JacobianFactor(key, A, 0, Isotropic(dim, 1/√λ))`` per variable, ``A = I`` or,
 with ``diagonalDamping``, ``A = diag(√clamp(diag(JᵀJ), minDiagonal, maxDiagonal))``.
 
+Levenberg–Marquardt's λ schedule, its trial of one λ, ``defaultOptimize`` and
+what they print are :mod:`lie_factors.lm`'s, shared with the batch solver; this
+module supplies how a step is solved, its linearized cost change computed and a
+trial point evaluated.
+
 Parameters the Python wrapper cannot set (``minModelFidelity``, ``minDiagonal``,
 ``maxDiagonal``) have GTSAM's defaults, as they do in GTSAM's optimizer when
 called from Python.
+
+Where this loop cannot run GTSAM's algorithm, the constructor returns GTSAM's own
+optimizer instead (:meth:`_NonlinearOptimizer.__new__`): the ``ITERATIVE`` and
+``CHOLMOD`` linear solvers, and a custom ordering set with ``params.setOrdering``
+(the wrapper cannot read it back) when no ``ordering`` argument is given.
 """
 
 from __future__ import annotations
 
 import math
 import sys
-import time
 
-import gtsam
 import numpy as np
+from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
-from .. import factors
+from .. import factors, lm
 
 __all__ = ["LevenbergMarquardtOptimizer", "GaussNewtonOptimizer", "DoglegOptimizer"]
-
-#: LevenbergMarquardtParams fields without a Python setter (GTSAM's defaults).
-MIN_MODEL_FIDELITY = 1e-3
-MIN_DIAGONAL = 1e-6
-MAX_DIAGONAL = 1e32
 
 #: How GTSAM's IndeterminantLinearSystemException reads once pybind11 made it a RuntimeError.
 _INDETERMINANT = "Indeterminate linear system"
 
 _EPS = float(np.finfo(float).eps)
-
-_VERBOSITY = {name: i for i, name in enumerate(("SILENT", "TERMINATION", "ERROR", "VALUES", "DELTA", "LINEAR"))}
-_VERBOSITY_LM = {name: i for i, name in enumerate(
-    ("SILENT", "SUMMARY", "TERMINATION", "LAMBDA", "TRYLAMBDA", "TRYCONFIG", "DAMPED", "TRYDELTA"))}
 
 
 def _is_indeterminant(exc: BaseException) -> bool:
@@ -88,11 +88,70 @@ class _LinearizedCost:
         return float(ax @ (self.b - 0.5 * ax))
 
 
+#: GTSAM's own optimizer for each params class, which the drop-in runs where its loop cannot.
+_GTSAM_OPTIMIZER = {
+    gtsam.GaussNewtonParams: gtsam.GaussNewtonOptimizer,
+    gtsam.LevenbergMarquardtParams: gtsam.LevenbergMarquardtOptimizer,
+    gtsam.DoglegParams: gtsam.DoglegOptimizer,
+}
+
+#: The linear solvers this loop runs, and the elimination function each passes to the
+#: wrapper (None: its default, EliminatePreferCholesky, which GTSAM's optimizers use).
+_ELIMINATION = {
+    "MULTIFRONTAL_CHOLESKY": None,
+    "SEQUENTIAL_CHOLESKY": None,
+    "MULTIFRONTAL_QR": gtsam.EliminateQR,
+    "SEQUENTIAL_QR": gtsam.EliminateQR,
+}
+
+
+def runs_in_python(params, ordering=None) -> bool:
+    """Whether the drop-in runs its own loop for ``params`` (else GTSAM's own optimizer runs).
+
+    It needs an elimination it can call through the wrapper (``_ELIMINATION``: not
+    ``ITERATIVE``, whose PCG/subgraph solvers the wrapper does not expose on a
+    linearization, nor ``CHOLMOD``, which GTSAM's optimizer rejects when it solves) and
+    an ordering it can read: ``params.setOrdering`` stores one the wrapper cannot
+    read back, so a ``CUSTOM`` ordering type needs the ``ordering`` argument.
+    """
+    return (params.getLinearSolverType() in _ELIMINATION
+            and (ordering is not None or params.getOrderingType() != "CUSTOM"))
+
+
 class _NonlinearOptimizer:
     """GTSAM's ``NonlinearOptimizer``: state (values, error, iterations), ``defaultOptimize``,
     ``solve`` of a linear system with the params' linear solver and ordering."""
 
     _params_type: type = gtsam.NonlinearOptimizerParams
+
+    def __new__(cls, graph=None, initialValues=None, *args, **kwargs):
+        """This class's optimizer, or GTSAM's own where this loop cannot run (:func:`runs_in_python`).
+
+        GTSAM's optimizer (``gtsam.LevenbergMarquardtOptimizer``, ...) is then
+        constructed from the same graph, values, params and ordering, and returned
+        instead of an instance of this class: GTSAM's results, methods and
+        exceptions, at GTSAM's speed. That is slower on graphs of Python factors:
+        each ``CustomFactor`` callback receives a copy of the whole ``Values``
+        (C++ holds every linearization and trial point), so an iteration costs
+        time proportional to the number of factors times the size of the graph.
+        """
+        ordering, params = cls._parse(args, dict(kwargs))
+        if isinstance(params, cls._params_type) and not runs_in_python(params, ordering):
+            own = _GTSAM_OPTIMIZER[cls._params_type]
+            if ordering is None:
+                return own(graph, initialValues, params)
+            # LM's wrapper has this overload; GN's and Dogleg's have none, so theirs raises TypeError.
+            return own(graph, initialValues, ordering, params)
+        return super().__new__(cls)
+
+    @staticmethod
+    def _parse(args, kwargs):
+        """(ordering, params) of the arguments after (graph, initialValues): ``[params][, ordering]``."""
+        names = ("params", "ordering")
+        if len(args) > len(names) or set(kwargs) - set(names) or set(names[:len(args)]) & set(kwargs):
+            raise TypeError("arguments: (graph, initialValues[, params][, ordering])")
+        bound = dict(zip(names, args), **kwargs)
+        return bound.get("ordering"), bound.get("params")
 
     def __init__(self, graph: gtsam.NonlinearFactorGraph, initialValues: gtsam.Values,
                  params=None, ordering: gtsam.Ordering | None = None):
@@ -126,34 +185,20 @@ class _NonlinearOptimizer:
     # ------------------------------------------------------------ params
     @staticmethod
     def _ordering_for(graph, params, ordering):
-        """GTSAM's ``ensureHasOrdering``: the given ordering, else one of the params' type."""
+        """GTSAM's ``ensureHasOrdering``: the given ordering, else one of the params' type
+        (never ``CUSTOM`` here: :meth:`__new__` hands those params to GTSAM's optimizer)."""
         if ordering is not None:
             return ordering
         kind = params.getOrderingType()
-        if kind == "CUSTOM":
-            # params.setOrdering() stores the ordering where the Python wrapper cannot read it.
-            raise ValueError(
-                "params carry a custom ordering (params.setOrdering), which gtsam's Python wrapper "
-                "cannot read back; pass it to the optimizer instead: "
-                "Optimizer(graph, initialValues, params, ordering=ordering)")
         return gtsam.Ordering.CreateNonlinearFactorGraph(getattr(gtsam.Ordering.OrderingType, kind), graph)
 
     @staticmethod
     def _elimination_function(params):
-        solver = params.getLinearSolverType()
-        if solver in ("MULTIFRONTAL_QR", "SEQUENTIAL_QR"):
-            return gtsam.EliminateQR
-        if solver in ("MULTIFRONTAL_CHOLESKY", "SEQUENTIAL_CHOLESKY"):
-            return None  # the wrapper's default, EliminatePreferCholesky (as GTSAM's optimizers)
-        if solver == "ITERATIVE":
-            raise NotImplementedError(
-                "lie_factors.optimizers: the ITERATIVE (PCG/subgraph) linear solver is not supported; "
-                "use MULTIFRONTAL_CHOLESKY, MULTIFRONTAL_QR, SEQUENTIAL_CHOLESKY or SEQUENTIAL_QR")
-        # CHOLMOD: GTSAM's NonlinearOptimizer::solve rejects it with this runtime_error.
-        raise RuntimeError("NonlinearOptimizer::solve: Optimization parameter is invalid")
+        """The elimination function of the params' linear solver (one :data:`_ELIMINATION` has)."""
+        return _ELIMINATION[params.getLinearSolverType()]
 
-    def _verbosity(self) -> int:
-        return _VERBOSITY.get(self._params.getVerbosity(), 0)
+    def _verbosity_level(self) -> int:
+        return lm.VERBOSITY.get(self._params.getVerbosity(), 0)
 
     # ------------------------------------------------------------ state
     def error(self) -> float:
@@ -226,44 +271,9 @@ class _NonlinearOptimizer:
             return gtsam.Values()
         return self.values()
 
-    def _default_optimize(self) -> None:
-        p = self._params
-        verbosity = self._verbosity()
-        error_tol = p.getErrorTol()
-        current = self._error
-        if current <= error_tol:
-            if verbosity >= _VERBOSITY["ERROR"]:
-                print(f"Exiting, as error = {current} < {error_tol}")
-            return
-        if verbosity >= _VERBOSITY["VALUES"]:
-            self._values.print("Initial values")
-        if verbosity >= _VERBOSITY["ERROR"]:
-            print(f"Initial error: {current}")
-        max_iterations = p.getMaxIterations()
-        if self._iterations >= max_iterations:
-            if verbosity >= _VERBOSITY["TERMINATION"]:
-                print(f"iterations: {self._iterations} >? {max_iterations}")
-            return
-        rel, abs_, hook = p.getRelativeErrorTol(), p.getAbsoluteErrorTol(), p.iterationHook
-        new = current
-        while True:
-            current = new
-            self.iterate()
-            new = self._error
-            if hook is not None:
-                hook(self._iterations, current, new)
-            if verbosity >= _VERBOSITY["VALUES"]:
-                self._values.print("newValues")
-            if verbosity >= _VERBOSITY["ERROR"]:
-                print(f"newError: {new}")
-            if not (self._iterations < max_iterations
-                    and not gtsam.checkConvergence(p, current, new)
-                    and math.isfinite(current)):
-                break
-        if verbosity >= _VERBOSITY["TERMINATION"]:
-            print(f"iterations: {self._iterations} >? {max_iterations}")
-            if self._iterations >= max_iterations:
-                print("Terminating because reached maximum iterations")
+    def _default_optimize(self) -> lm.OptimizeResult:
+        """GTSAM's ``defaultOptimize`` (:func:`lie_factors.lm.default_optimize`)."""
+        return lm.default_optimize(self, self._params)
 
 
 class GaussNewtonOptimizer(_NonlinearOptimizer):
@@ -282,7 +292,8 @@ class GaussNewtonOptimizer(_NonlinearOptimizer):
     def iterate(self) -> gtsam.GaussianFactorGraph:
         linear = self._linearize(self._values)
         delta = self._solve(linear)
-        if self._verbosity() >= _VERBOSITY["DELTA"]:
+        if self._verbosity_level() >= lm.VERBOSITY["DELTA"]:
+            lm.COUT.sync()
             delta.print("delta")
         values = self._values.retract(delta)
         self._error = self._graph_error(values)
@@ -291,22 +302,15 @@ class GaussNewtonOptimizer(_NonlinearOptimizer):
         return linear
 
 
-class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
+class LevenbergMarquardtOptimizer(lm.LevenbergMarquardt, _NonlinearOptimizer):
     """Drop-in for ``gtsam.LevenbergMarquardtOptimizer(graph, initialValues[, ordering][, params])``.
 
-    GTSAM's ``iterate``/``tryLambda`` and ``LevenbergMarquardtState``:
-
-    * each iteration linearizes once; for each λ tried, the damped system
-      (the linear graph + one damping factor per variable, see the module
-      docstring) is solved; a failed solve (indeterminant system) counts as a
-      failed try;
-    * a step is retracted and evaluated only if the linearized cost decreases;
-      it is accepted if ``fidelity = Δcost / Δlinearized > minModelFidelity``
-      (when ``Δlinearized > ε·linearized error``);
-    * accepted: ``λ ← max(lowerBound, λ·max(1/3, 1 − (2·fidelity − 1)³))`` and
-      the factor doubles, or ``λ ← λ/factor`` with ``useFixedLambdaFactor``;
-      rejected: ``λ ← λ·factor`` (factor doubles unless fixed); give up once
-      ``λ ≥ lambdaUpperBound``, or stop trying when ``|Δcost| < relativeErrorTol·error``.
+    GTSAM's ``iterate``/``tryLambda`` and λ schedule are
+    :class:`lie_factors.lm.LevenbergMarquardt`'s; here, for each λ tried, the
+    damped system (the linear graph + one damping factor per variable, see the
+    module docstring) is solved with GTSAM's elimination, a failed solve
+    (indeterminant system) counting as a failed try, and a trial point is a
+    ``Values`` this optimizer holds.
     """
 
     _params_type = gtsam.LevenbergMarquardtParams
@@ -314,17 +318,7 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
     def __init__(self, graph, initialValues, *args, **kwargs):
         ordering, params = self._parse(args, kwargs)
         super().__init__(graph, initialValues, params, ordering)
-        p = self._params
-        self._lambda = float(p.getlambdaInitial())
-        self._factor = float(p.getlambdaFactor())
-        self._inner = 0
-        self._diagonal = bool(p.getDiagonalDamping())
-        self._fixed = bool(p.getUseFixedLambdaFactor())
-        self._upper = float(p.getlambdaUpperBound())
-        self._lower = float(p.getlambdaLowerBound())
-        self._verbosity_lm = _VERBOSITY_LM.get(p.getVerbosityLM(), 0)
-        self._log_file = p.getLogFile()
-        self._start = time.perf_counter()
+        self._lm_init(self._params)
         # Vanilla damping: one factor per variable of the values, built once; each
         # λ tried only sets their noise model (JacobianFactor.setModel), and the
         # damped graph shares them (push_back of a graph shares its factors).
@@ -352,30 +346,12 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
             raise TypeError("too many arguments: (graph, initialValues[, ordering][, params])")
         return ordering, params
 
-    def lambda_(self) -> float:
-        """The current λ."""
-        return self._lambda
-
-    def getInnerIterations(self) -> int:
-        """Total number of λ tried (GTSAM's ``getInnerIterations``)."""
-        return self._inner
-
     def print(self, str: str = "") -> None:  # noqa: A002 - GTSAM's argument name
         sys.stdout.write(f"{str}\n")
+        sys.stdout.flush()
         self._params.print("")
 
     # ------------------------------------------------------------ damping
-    def _sqrt_hessian_diagonal(self, cost: _LinearizedCost) -> dict:
-        """key → √clamp(diag(JᵀJ), minDiagonal, maxDiagonal) (GTSAM's clamped ``hessianDiagonal``)."""
-        diag = np.sqrt(np.minimum(np.maximum(cost.hessian_diagonal(), MIN_DIAGONAL), MAX_DIAGONAL))
-        out = {}
-        start = 0
-        for key in cost.keys:
-            d = self._dims[key]
-            out[key] = diag[start:start + d]
-            start += d
-        return out
-
     def _damping_factors(self, sqrt_diag):
         if sqrt_diag is None:
             if self._damping is None:
@@ -409,32 +385,41 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
         damped.push_back(graph)
         return damped
 
-    # ------------------------------------------------------------ iteration
-    def _write_log(self, error: float) -> None:
-        if self._log_file:
-            with open(self._log_file, "a") as fh:
-                fh.write(f"{self._inner},{time.perf_counter() - self._start},{error},"
-                         f"{self._lambda},{self._iterations}\n")
-
-    def iterate(self) -> gtsam.GaussianFactorGraph:
-        """One iteration: linearize once, then try λ until a step is accepted or LM gives up."""
-        linear = self._linearize(self._values)
-        if self._inner == 0:
-            self._write_log(self._error)
-            if self._verbosity_lm == _VERBOSITY_LM["SUMMARY"]:
-                print(f"Initial error: {self._error}, values: {self._values.size()}")
-        # [A b] read back (for diagonal damping, or for a small linearized change) at most once.
-        cost = _LinearizedCost(linear, self._dims) if self._diagonal else None
-        self._cost = cost
+    # ------------------------------------------------------------ lm.LevenbergMarquardt's hooks
+    def _lm_linearize(self) -> gtsam.GaussianFactorGraph:
+        # [A b] is read back (for diagonal damping, or for a small linearized change) at most once.
+        self._cost = None
         self._old_linear = None
-        sqrt_diag = self._sqrt_hessian_diagonal(cost) if self._diagonal else None
-        damping = self._damping_factors(sqrt_diag)
-        while not self._try_lambda(linear, damping):
-            self._write_log(self._error)
-        return linear
+        return self._linearize(self._values)
 
-    def _linear_change(self, linear, delta) -> tuple[float, float]:
-        """(linearized error at 0, its decrease at ``delta``).
+    def _lm_hessian_diagonal(self, linear) -> np.ndarray:
+        self._cost = _LinearizedCost(linear, self._dims)
+        return self._cost.hessian_diagonal()
+
+    def _lm_damping(self, linear, diagonal):
+        """The damping factors: unit ones, or ``diag(√D)`` per variable of the linear graph."""
+        if diagonal is None:
+            return self._damping_factors(None)
+        sqrt_diag = np.sqrt(diagonal)
+        out = {}
+        start = 0
+        for key in self._cost.keys:
+            d = self._dims[key]
+            out[key] = sqrt_diag[start:start + d]
+            start += d
+        return self._damping_factors(out)
+
+    def _lm_solve(self, linear, damping) -> gtsam.VectorValues | None:
+        damped = self._damped_system(linear, damping)
+        try:
+            return self._solve(damped)
+        except RuntimeError as exc:
+            if not _is_indeterminant(exc):
+                raise
+            return None
+
+    def _lm_linear_change(self, linear, delta) -> tuple[float, float, float]:
+        """(linearized error at 0, at ``delta``, the decrease).
 
         GTSAM 4.3 sums each factor's decrease; the difference of the two totals that
         ``GaussianFactorGraph.error`` gives carries rounding of the size of the total.
@@ -444,81 +429,31 @@ class LevenbergMarquardtOptimizer(_NonlinearOptimizer):
         if self._old_linear is None:
             self._old_linear = float(linear.error(gtsam.VectorValues.Zero(delta)))
         old = self._old_linear
-        change = old - float(linear.error(delta))
+        new = float(linear.error(delta))
+        change = old - new
         if abs(change) < 1e-4 * old:
             if self._cost is None:
                 self._cost = _LinearizedCost(linear, self._dims)
             change = self._cost.change(delta)
-        return old, change
+        return old, new, change
 
-    def _try_lambda(self, linear, damping) -> bool:
-        verbose = self._verbosity_lm >= _VERBOSITY_LM["TRYLAMBDA"]
-        if verbose:
-            print(f"trying lambda = {self._lambda}")
-        t0 = time.perf_counter()
-        damped = self._damped_system(linear, damping)
-        fidelity = 0.0
-        success = stop = False
-        new_error = math.inf
-        cost_change = 0.0
-        new_values = None
-        try:
-            delta = self._solve(damped)
-        except RuntimeError as exc:
-            if not _is_indeterminant(exc):
-                raise
-            delta = None
-        if delta is not None:
-            old_linear, linear_change = self._linear_change(linear, delta)
-            new_linear = old_linear - linear_change
-            if verbose:
-                print(f"linear delta norm = {delta.norm()}")
-                print(f"newlinearizedError = {new_linear}  linearizedCostChange = {linear_change}")
-            if linear_change >= 0:
-                new_values = self._values.retract(delta)
-                new_error = self._graph_error(new_values)
-                cost_change = self._error - new_error
-                if linear_change > _EPS * old_linear:
-                    fidelity = cost_change / linear_change
-                    success = fidelity > MIN_MODEL_FIDELITY
-                    if verbose:
-                        print(f"modelFidelity: {fidelity}")
-                if abs(cost_change) < self._params.getRelativeErrorTol() * self._error:
-                    stop = True
-        if self._verbosity_lm == _VERBOSITY_LM["SUMMARY"]:
-            if self._iterations == 0:
-                print("iter      cost      cost_change    lambda  success iter_time")
-            print(f"{self._iterations:4d} {new_error:12.6g} {cost_change:12.2g} {self._lambda:10.2g} "
-                  f"{int(delta is not None):6d} {time.perf_counter() - t0:10.2g}")
-        if success:
-            if self._fixed:
-                self._lambda /= self._factor
-            else:
-                self._lambda *= max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3)
-                self._factor *= 2.0
-            self._lambda = max(self._lower, self._lambda)
-            self._values = new_values
-            self._error = new_error
-            self._iterations += 1
-            self._inner += 1
-            return True
-        if not stop:
-            if verbose:
-                print("increasing lambda")
-            self._lambda *= self._factor
-            self._inner += 1
-            if not self._fixed:
-                self._factor *= 2.0
-            if self._lambda >= self._upper:
-                if (self._verbosity() >= _VERBOSITY["TERMINATION"]
-                        or self._verbosity_lm == _VERBOSITY_LM["SUMMARY"]):
-                    print("Warning:  Levenberg-Marquardt giving up because "
-                          "cannot decrease error with maximum lambda")
-                return True
-            return False
-        if verbose:
-            print("Levenberg-Marquardt: stopping as relative cost reduction is small")
-        return True
+    def _lm_evaluate(self, delta) -> tuple[gtsam.Values, float]:
+        values = self._values.retract(delta)
+        return values, self._graph_error(values)
+
+    def _lm_accept(self, values: gtsam.Values, error: float) -> None:
+        self._values = values
+
+    def _lm_size(self) -> int:
+        return self._values.size()
+
+    @staticmethod
+    def _lm_delta_norm(delta) -> float:
+        return delta.norm()
+
+    @staticmethod
+    def _lm_print_delta(delta) -> None:
+        delta.print("delta")
 
 
 class DoglegOptimizer(_NonlinearOptimizer):
@@ -538,8 +473,6 @@ class DoglegOptimizer(_NonlinearOptimizer):
 
     def __init__(self, graph, initialValues, params=None, ordering=None):
         super().__init__(graph, initialValues, params, ordering)
-        if self._params.isIterative():
-            raise RuntimeError("Dogleg is not currently compatible with the linear conjugate gradient solver")
         self._delta = float(self._params.getDeltaInitial())
         self._verbose_dl = self._params.getVerbosityDL() != "SILENT"
 
@@ -621,7 +554,8 @@ class DoglegOptimizer(_NonlinearOptimizer):
             x_d, new_f = self._values, f_error
             dx_d = None
             break
-        if dx_d is not None and self._verbosity() >= _VERBOSITY["DELTA"]:
+        if dx_d is not None and self._verbosity_level() >= lm.VERBOSITY["DELTA"]:
+            lm.COUT.sync()
             dx_d.print("delta")
         if dx_d is None:
             # GTSAM retracts a zero step: a new Values equal to the current one.

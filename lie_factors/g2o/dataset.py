@@ -1,0 +1,47 @@
+"""Where a g2o file is, and its bytes: a path, or the name of a file shipped with GTSAM."""
+
+from __future__ import annotations
+
+import os
+
+import gtsam
+
+from ..errors import PoseGraphError
+
+
+def _is_a_directory(path: str) -> PoseGraphError:
+    return PoseGraphError(f"{path}: is a directory, expected a g2o file")
+
+
+def resolve_dataset(name: str) -> str:
+    """Return a readable file path for ``name``: an existing path, else a GTSAM example.
+
+    Raises :class:`PoseGraphError` if it is neither.
+    """
+    if os.path.isdir(name):
+        raise _is_a_directory(name)
+    if os.path.isfile(name):
+        return name
+    # Only bare names are looked up among GTSAM's examples: a path with a
+    # directory that does not exist is a typo, not a dataset name.
+    if os.path.dirname(name) == "":
+        try:
+            return gtsam.findExampleDataFile(name)
+        except (RuntimeError, OSError, ValueError):  # the wrapper raises FileNotFoundError
+            pass
+        raise PoseGraphError(
+            f"{name}: no such file, and not a dataset shipped with GTSAM "
+            f"(gtsam.findExampleDataFile)"
+        )
+    raise PoseGraphError(f"{name}: no such file")
+
+
+def read_bytes(path: str) -> bytes:
+    """The whole file; :class:`PoseGraphError` (one line) if it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read()
+    except IsADirectoryError:
+        raise _is_a_directory(path) from None
+    except OSError as exc:
+        raise PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})") from None

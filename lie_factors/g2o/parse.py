@@ -1,0 +1,344 @@
+"""Parsing a g2o file's bytes into :class:`~lie_factors.g2o.records.Rows`, one per tag.
+
+Two parses that agree on every file (``tests/test_g2o_fuzz.py`` checks it):
+
+* :func:`fast_parse` — vectorized: lines grouped by tag, all numbers of a tag
+  converted by numpy at once; a tag whose lines do not parse cleanly is
+  re-parsed line by line;
+* :func:`slow_parse` — the reference, line by line in file order, raising the
+  precise error at the first malformed line.
+
+A line is accepted when its tag is in :data:`~lie_factors.g2o.records.RECORDS`
+and of the file's family (one dimension and pose type per file), it has the
+record's field count, its ids are integers in [0, 2^56) and its values are
+numbers C++ ``>>`` reads (no hex, no ``_``) and finite.  Errors name the line:
+``file:line: what was expected``.
+
+Both also list the comment lines and the "fragile" 2-D lines: those whose 2nd
+or 3rd field GTSAM's ``load2D`` second pass cannot read as an integer (it
+stops reading there; :func:`lie_factors.g2o.read.read_g2o` hands GTSAM a
+cleaned copy).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+
+from ..errors import PoseGraphError
+from .records import MAX_ID, RECORDS, Record, Rows
+
+_NUMBER_CHARS = b"0123456789+-.eE"
+_WHITESPACE = b" \t\r\v\f\n"
+_INT_RE = re.compile(rb"[+-]?[0-9]+\Z")
+# What C++ `is >> double` reads as one whole token (no inf/nan/hex, no '_').
+_FLOAT_RE = re.compile(rb"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z")
+# GTSAM's 2-D second pass reads the 2nd and 3rd field of every line as size_t.
+_SIZE_T_PREFIX = re.compile(rb"[+-]?([0-9]+)")
+
+
+def _size_t_readable(tok: bytes) -> bool:
+    """Does C++ `is >> size_t` succeed on this token (a digit prefix that fits 64 bits)?"""
+    m = _SIZE_T_PREFIX.match(tok)
+    return m is not None and int(m.group(1)) <= 2**64 - 1
+
+
+def _show(token: bytes, limit: int = 40) -> str:
+    text = token.decode("ascii", "backslashreplace")
+    return repr(text if len(text) <= limit else text[:limit] + "...")
+
+
+def _expects(rec: Record) -> str:
+    return f"{rec.tag} expects {rec.nfields} fields ({rec.field_text})"
+
+
+class _LineError(PoseGraphError):
+    """A malformed line; ``lineno`` lets the earliest of several be reported."""
+
+    def __init__(self, lineno: int, message: str):
+        super().__init__(message)
+        self.lineno = lineno
+
+
+def _record_of(tag: bytes) -> Record | None:
+    return RECORDS.get(tag.decode("ascii")) if tag.isascii() else None
+
+
+def _parse_line(name: str, lineno: int, tokens: list[bytes], dim_of: list):
+    """Check one line the slow, exact way: (record, ids, values), or raise the precise error.
+
+    ``dim_of`` is a one-element list holding (record, line) of the first record.
+    """
+    where = f"{name}:{lineno}"
+    tag = tokens[0]
+    rec = _record_of(tag)
+    if rec is None:
+        known = ", ".join(RECORDS)
+        raise _LineError(lineno, f"{where}: unknown tag {_show(tag)} "
+                                 f"(gtsam.readG2o would skip the line; expected one of {known})")
+    if dim_of[0] is None:
+        dim_of[0] = (rec, lineno)
+    elif rec.family != dim_of[0][0].family:
+        first_rec, first = dim_of[0]
+        if rec.dim != first_rec.dim:
+            raise _LineError(lineno, f"{where}: {rec.tag} is a {rec.dim}-D record but line {first} made "
+                                     f"this a {first_rec.dim}-D file (gtsam.readG2o reads one or the other)")
+        raise _LineError(lineno, f"{where}: {rec.tag} is a {rec.group_name} record but line {first} "
+                                 f"made this a {first_rec.group_name} file")
+    fields = tokens[1:]
+    if len(fields) != rec.nfields:
+        raise _LineError(lineno, f"{where}: {_expects(rec)}, got {len(fields)}")
+    nids = len(rec.ids)
+    ids = []
+    for k, tok in enumerate(fields[:nids]):
+        if not _INT_RE.match(tok):
+            raise _LineError(lineno, f"{where}: field {k + 2} ({_show(tok)}) should be an integer id")
+        value = int(tok)
+        if value < 0:
+            raise _LineError(lineno, f"{where}: field {k + 2}: negative id {value}")
+        if value > MAX_ID:
+            raise _LineError(lineno, f"{where}: field {k + 2}: id {value} is larger than 2^56 - 1 "
+                                     f"(GTSAM landmark keys keep 56 bits for the id)")
+        ids.append(value)
+    values = []
+    for k, tok in enumerate(fields[nids:], start=nids):
+        value = _as_float(tok)
+        if value is None:
+            raise _LineError(lineno, f"{where}: field {k + 2} ({_show(tok)}) is not a number")
+        if not math.isfinite(value):
+            raise _LineError(lineno, f"{where}: field {k + 2} ({_show(tok)}) is not finite")
+        values.append(value)
+    return rec, ids, values
+
+
+def _as_float(tok: bytes) -> float | None:
+    """The number C++ reads from the whole token, ±inf/nan for those words, else None."""
+    if _FLOAT_RE.match(tok):
+        return float(tok)
+    if tok.isascii() and tok.lower().lstrip(b"+-") in (b"inf", b"infinity", b"nan"):
+        return float(tok)
+    return None
+
+
+def _may_stop_gtsam(rec: Record) -> bool:
+    """Is this a 2-D line whose fields GTSAM's second pass reads as ``id1 id2`` (see read_g2o)?"""
+    return rec.dim == 2 and not (rec.gtsam and rec.kind in ("between", "observation"))
+
+
+def _is_fragile(rec: Record, tokens: list[bytes]) -> bool:
+    return _may_stop_gtsam(rec) and not all(_size_t_readable(t) for t in tokens[1:3])
+
+
+def _rows(rec: Record, ids: list, values: list, lines) -> Rows:
+    """Rows of one tag from the per-line lists of the exact parse."""
+    n = len(lines)
+    return Rows(rec.tag, np.array(ids, dtype=np.int64).reshape(n, len(rec.ids)),
+                np.array(values, dtype=np.float64).reshape(n, len(rec.values) + rec.info),
+                np.asarray(lines, dtype=np.int64))
+
+
+def slow_parse(name: str, data: bytes) -> tuple[dict[str, Rows], list[int], list[int]]:
+    """Reference parse, line by line in file order: (rows, comment lines, fragile 2-D lines).
+
+    Raises :class:`PoseGraphError` at the first malformed line.
+    """
+    dim_of = [None]
+    acc: dict[str, tuple[Record, list, list, list]] = {}
+    comments, fragile = [], []
+    for lineno, line in enumerate(data.split(b"\n"), start=1):
+        tokens = line.split()
+        if not tokens:
+            continue
+        if tokens[0][:1] == b"#":
+            comments.append(lineno)
+            continue
+        rec, ids, values = _parse_line(name, lineno, tokens, dim_of)
+        if rec.tag not in acc:
+            acc[rec.tag] = (rec, [], [], [])
+        _, a_ids, a_values, a_lines = acc[rec.tag]
+        a_ids.append(ids)
+        a_values.append(values)
+        a_lines.append(lineno)
+        if _is_fragile(rec, tokens):
+            fragile.append(lineno)
+    rows = {tag: _rows(rec, i, v, ln) for tag, (rec, i, v, ln) in acc.items()}
+    return rows, comments, fragile
+
+
+_WS_CODES = np.frombuffer(_WHITESPACE, dtype=np.uint8)
+
+
+def _tag_width() -> int:
+    return max(len(t) for t in RECORDS) + 1
+
+
+def _fast_groups(data: bytes):
+    """Lines grouped by tag without a Python loop over lines, or None to use the slow path.
+
+    Returns (tag → line indices (0-based, sorted), line starts, line ends,
+    comment line indices).  Tags are told apart by the first W bytes of each
+    line, cut at the first whitespace; a line starting with whitespace makes
+    us give up (the slow path handles it).
+    """
+    buf = np.frombuffer(data, dtype=np.uint8)
+    nl = np.flatnonzero(buf == 10)
+    starts = np.concatenate(([0], nl + 1))
+    ends = np.concatenate((nl, [len(buf)]))
+    used = np.flatnonzero(ends > starts)
+    if used.size == 0:
+        return {}, starts, ends, np.zeros(0, dtype=np.int64)
+    W = _tag_width()
+    padded = np.concatenate((buf, np.zeros(W, dtype=np.uint8)))
+    idx = starts[used, None] + np.arange(W)
+    win = padded[idx]
+    if np.isin(win[:, 0], _WS_CODES).any():
+        return None
+    win[idx >= ends[used, None]] = 32
+    cut = np.cumsum(np.isin(win, _WS_CODES), axis=1) > 0
+    win[cut] = 0
+    codes, inverse = np.unique(np.ascontiguousarray(win).view(f"S{W}").ravel(), return_inverse=True)
+    inverse = inverse.ravel()
+    order = np.argsort(inverse, kind="stable")
+    bounds = np.concatenate(([0], np.cumsum(np.bincount(inverse, minlength=len(codes)))))
+    groups, comments = {}, []
+    for c, code in enumerate(codes.tolist()):
+        lines = used[order[bounds[c]:bounds[c + 1]]]
+        if code[:1] == b"#":
+            comments.append(lines)
+        else:
+            groups[code] = lines
+    comments = np.sort(np.concatenate(comments)) if comments else np.zeros(0, dtype=np.int64)
+    return groups, starts, ends, comments
+
+
+def _parse_group(rec: Record, data: bytes, lines: np.ndarray, starts, ends) -> Rows | None:
+    """All lines of one tag (0-based indices) → Rows, or None if anything looks off."""
+    n = len(lines)
+    breaks = np.flatnonzero(np.diff(lines) != 1)
+    run_first = np.concatenate(([0], breaks + 1))
+    run_last = np.concatenate((breaks, [n - 1]))
+    blob = b"\n".join([data[starts[lines[f]]:ends[lines[l]]]
+                       for f, l in zip(run_first.tolist(), run_last.tolist())])
+    nf = rec.nfields + 1
+    tokens = blob.split()
+    if len(tokens) != n * nf:
+        return None
+    table = np.array(tokens, dtype="S").reshape(n, nf)[:, 1:]
+    if np.ascontiguousarray(table).tobytes().translate(None, _NUMBER_CHARS + b"\0"):
+        return None
+    nids = len(rec.ids)
+    if not np.char.isdigit(table[:, :nids]).all():
+        return None  # '+5', '1.0', '-3', ... : the slow path says which are ids
+    try:
+        # Restricted to [0-9+-.eE], float conversion of whole tokens accepts what
+        # C++ `>>` reads as one number (forms like '1e' or '1.2.3' fail here).
+        values = table[:, nids:].astype(np.float64)
+        ids_f = table[:, :nids].astype(np.float64)
+    except ValueError:
+        return None
+    if not np.isfinite(values).all() or (ids_f > MAX_ID).any():
+        return None
+    if (ids_f >= 2.0**53).any():  # beyond exact floats: integers from the text
+        ids = np.array([[int(t) for t in row] for row in table[:, :nids].tolist()], dtype=np.int64)
+    else:
+        ids = ids_f.astype(np.int64)
+    rows = Rows(rec.tag, ids.reshape(n, nids), np.ascontiguousarray(values), lines + 1)
+    if _may_stop_gtsam(rec):
+        rows.fragile = _fragile_rows(table[:, :2])
+    return rows
+
+
+def _fragile_rows(first_two: np.ndarray) -> np.ndarray:
+    """Rows whose 2nd or 3rd field C++ cannot read as size_t (0-based row indices)."""
+    bad = np.zeros(len(first_two), dtype=bool)
+    for col in np.ascontiguousarray(first_two).T:
+        col = np.ascontiguousarray(col)
+        b = np.frombuffer(col.tobytes(), dtype=np.uint8).reshape(len(col), -1)
+        c0 = b[:, 0]
+        c1 = b[:, 1] if b.shape[1] > 1 else np.zeros_like(c0)
+        digit0 = (c0 >= 48) & (c0 <= 57)
+        digit1 = (c1 >= 48) & (c1 <= 57)
+        sign = (c0 == 43) | (c0 == 45)
+        # 20+ characters may hold a digit run that overflows 64 bits: the exact test decides.
+        long = np.char.str_len(col) >= 20
+        bad |= ~(digit0 | (sign & digit1)) | long
+    rows = np.flatnonzero(bad)
+    exact = [r for r in rows.tolist() if not all(_size_t_readable(t) for t in first_two[r].tolist())]
+    return np.asarray(exact, dtype=np.int64)
+
+
+def _slow_group(name: str, rec: Record, data: bytes, lines, starts, ends) -> Rows:
+    """Line-by-line parse of one tag's lines (0-based indices); raises at its first bad line."""
+    dim_of = [(rec, int(lines[0]) + 1)]
+    ids, values, fragile = [], [], []
+    for row, i in enumerate(lines.tolist()):
+        tokens = data[starts[i]:ends[i]].split()
+        _, row_ids, row_values = _parse_line(name, i + 1, tokens, dim_of)
+        ids.append(row_ids)
+        values.append(row_values)
+        if _is_fragile(rec, tokens):
+            fragile.append(row)
+    rows = _rows(rec, ids, values, lines + 1)
+    if _may_stop_gtsam(rec):
+        rows.fragile = np.asarray(fragile, dtype=np.int64)
+    return rows
+
+
+def fast_parse(name: str, data: bytes):
+    """Vectorized parse: (rows, comment lines, fragile lines), or None if the slow path must run.
+
+    A tag group that does not parse cleanly is re-parsed line by line (exact);
+    unknown tags and a second dimension are located from the groups.  The
+    earliest problem line of all is the one reported (:class:`PoseGraphError`).
+    """
+    grouped = _fast_groups(data)
+    if grouped is None:
+        return None
+    groups, starts, ends, comments = grouped
+    if not groups:
+        return {}, (comments + 1).tolist(), []
+    first_line = {tag: int(lines[0]) for tag, lines in groups.items()}
+    first_tag = min(first_line, key=first_line.get)
+    first_rec = _record_of(first_tag)
+    problems: list[tuple[int, str]] = []
+    rows: dict[str, Rows] = {}
+    alien = []  # first lines of unknown tags and of the other dimension's records
+    for tag_b, lines in groups.items():
+        rec = _record_of(tag_b)
+        if rec is None or (first_rec is not None and rec.family != first_rec.family):
+            alien.append(int(lines[0]))
+            continue
+        parsed = _parse_group(rec, data, lines, starts, ends)
+        if parsed is None:
+            try:
+                parsed = _slow_group(name, rec, data, lines, starts, ends)
+            except _LineError as exc:
+                problems.append((exc.lineno, str(exc)))
+                continue
+        rows[rec.tag] = parsed
+    if alien:  # only the earliest matters (a CSV file has thousands of "tags")
+        i = min(alien)
+        first = (first_rec, first_line[first_tag] + 1) if first_rec is not None else None
+        try:
+            _parse_line(name, i + 1, data[starts[i]:ends[i]].split(), [first])
+        except _LineError as exc:
+            problems.append((exc.lineno, str(exc)))
+    if problems:
+        raise PoseGraphError(min(problems)[1])
+    fragile = []
+    for r in rows.values():
+        if r.fragile is not None and len(r.fragile):
+            fragile.extend(r.lines[r.fragile].tolist())
+    return rows, (comments + 1).tolist(), sorted(fragile)
+
+
+def parse(name: str, data: bytes) -> tuple[dict[str, Rows], list[int], list[int]]:
+    """(rows by tag, comment lines, fragile 2-D lines) of ``data``; ``name`` heads the error messages.
+
+    The vectorized parse, or the exact one where it gives up (a line starting
+    with whitespace).  Raises :class:`PoseGraphError` naming the first bad line.
+    """
+    parsed = fast_parse(name, data)
+    return parsed if parsed is not None else slow_parse(name, data)

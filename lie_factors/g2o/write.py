@@ -1,0 +1,131 @@
+"""Writing g2o files, atomically (:func:`lie_factors.atomic.replace_atomically`).
+
+* :func:`write_g2o` — ``gtsam.writeG2o`` plus the landmark records it drops;
+* :func:`write_sim3_g2o` — Sim(3) records, which GTSAM does not know.
+
+Numbers we write are Python's ``repr`` of the double: the shortest text that
+reads back as the same number.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+import gtsam
+
+from ..atomic import replace_atomically
+from .conventions import point_information_2d, similarity3_to_g2o
+
+
+def _numbers(values) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def _landmark2_lines(graph: gtsam.NonlinearFactorGraph) -> list[str]:
+    """``LANDMARK2`` lines for the graph's BearingRangeFactor2D s (gtsam.writeG2o drops them)."""
+    lines = []
+    for k in range(graph.size()):
+        f = graph.at(k)
+        if not isinstance(f, gtsam.BearingRangeFactor2D):
+            continue
+        i, l = f.keys()
+        br = f.measured()
+        b, r = br.bearing().theta(), br.range()
+        R = f.noiseModel().R()
+        info = point_information_2d(b, r, R.T @ R)
+        x, y = r * math.cos(b), r * math.sin(b)
+        vals = (x, y, info[0, 0], info[0, 1], info[1, 1])
+        lines.append(f"LANDMARK2 {gtsam.Symbol(i).index()} {gtsam.Symbol(l).index()} " + _numbers(vals))
+    return lines
+
+
+def _landmark_vertex_lines(values: gtsam.Values, written: set[int]) -> list[str]:
+    """VERTEX_XY / VERTEX_TRACKXYZ lines for the landmarks gtsam.writeG2o did not write.
+
+    A Point2/Point3 inserted from Python is stored as a dynamic-size vector,
+    which writeG2o silently skips; those written by GTSAM are in ``written``.
+    """
+    lines = []
+    for key in sorted(values.keys()):
+        sym = gtsam.Symbol(key)
+        if sym.chr() != ord("l") or sym.index() in written:
+            continue
+        # Stored as fixed-size (GTSAM's reader) or dynamic (from Python): try both getters.
+        try:
+            p = np.asarray(values.atPoint3(key), dtype=float)
+        except RuntimeError:
+            p = np.asarray(values.atPoint2(key), dtype=float)
+        tag = "VERTEX_TRACKXYZ" if p.size == 3 else "VERTEX_XY"
+        lines.append(f"{tag} {sym.index()} " + _numbers(p))
+    return lines
+
+
+def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    """``gtsam.writeG2o`` + the landmark records it drops, via a temporary file.
+
+    GTSAM writes poses, pose–pose edges and 3-D landmark measurements
+    (``EDGE_SE3_TRACKXYZ`` with an identity ``PARAMS_SE3OFFSET``); we add
+    the landmark vertices and the 2-D landmark measurements as ``LANDMARK2``
+    (pose-frame x y + information, exact inverse of how we read them).
+    ``graph`` must hold GTSAM's own factors: writeG2o recognises only
+    BetweenFactorPose2/3 and BearingRangeFactor3D, so custom factors would
+    silently lose the edges.  A graph of ``BetweenFactorSimilarity3`` is
+    written by :func:`write_sim3_g2o`.
+    """
+    if _is_sim3_graph(graph):
+        write_sim3_g2o(path, graph, values)
+        return
+
+    def write(tmp: str) -> None:
+        gtsam.writeG2o(graph, values, tmp)
+        with open(tmp, "rb") as fh:
+            written = {int(line.split()[1]) for line in fh
+                       if line.startswith((b"VERTEX_XY ", b"VERTEX_TRACKXYZ "))}
+        extra = _landmark_vertex_lines(values, written) + _landmark2_lines(graph)
+        if extra:
+            with open(tmp, "a") as fh:
+                fh.write("\n".join(extra) + "\n")
+
+    replace_atomically(path, write, suffix=".g2o")
+
+
+def _is_sim3_graph(graph: gtsam.NonlinearFactorGraph) -> bool:
+    return graph.size() > 0 and isinstance(graph.at(0), gtsam.BetweenFactorSimilarity3)
+
+
+def write_sim3_g2o(path: str, between: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    """Write ``VERTEX_SIM3:EXPMAP`` / ``EDGE_SIM3:EXPMAP`` lines, atomically.
+
+    ``between``: native ``gtsam.BetweenFactorSimilarity3`` factors (anything else
+    raises ``TypeError``, nothing is written); ``values``: ``gtsam.Similarity3``
+    per key, written in key order.  Each vertex gets g2o's default camera
+    ``1 1 0 0``; each edge the information matrix of its Gaussian noise model.
+    """
+    lines = []
+    for key in sorted(values.keys()):
+        v = similarity3_to_g2o(values.atSimilarity3(key))
+        lines.append(f"VERTEX_SIM3:EXPMAP {key} {_numbers(v)} 1 1 0 0\n")
+    iu = np.triu_indices(7)
+    for k in range(between.size()):
+        f = between.at(k)
+        if not isinstance(f, gtsam.BetweenFactorSimilarity3):
+            raise TypeError(f"write_sim3_g2o: factor {k} is a {type(f).__name__}, "
+                            "expected gtsam.BetweenFactorSimilarity3")
+        noise = f.noiseModel()
+        if not isinstance(noise, gtsam.noiseModel.Gaussian) or isinstance(
+                noise, (gtsam.noiseModel.Robust, gtsam.noiseModel.Constrained)):
+            raise TypeError(f"write_sim3_g2o: factor {k} has a {type(noise).__name__} noise model; "
+                            "g2o stores only Gaussian information matrices")
+        info = np.asarray(noise.information())
+        i, j = f.keys()
+        lines.append(f"EDGE_SIM3:EXPMAP {i} {j} {_numbers(similarity3_to_g2o(f.measured()))} "
+                     f"{_numbers(info[iu])}\n")
+    text = "".join(lines)
+
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8") as out:
+            out.write(text)
+
+    replace_atomically(path, write, suffix=".g2o")
