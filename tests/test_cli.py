@@ -10,31 +10,12 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import assert_one_line_error, last_json, run_main
 from lie_factors.app import cli
 from lie_factors import factors  # noqa: F401  (the dropin backend; a broken import must fail, not skip)
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = str(ROOT / "data" / "smallGrid3D.g2o")
-
-
-def run_main(capsys, *argv):
-    status = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
-def last_json(out: str) -> dict:
-    return json.loads(out.strip().splitlines()[-1])
-
-
-def assert_one_line_error(status, out, err, *fragments):
-    assert status == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("lie-factors: error: ")
-    assert "Traceback" not in err
-    for f in fragments:
-        assert f in lines[0], lines[0]
 
 
 # -------------------------------------------------------------------- demo
@@ -338,4 +319,4 @@ def test_largest_accepted_values_run(tmp_path, capsys):
                               "--max-iterations", str(cli.MAX_ITERATIONS), "--backend", "native",
                               "--quiet", "--json", "--output", str(tmp_path / "d"))
     assert status == 0
-    assert json.loads(out.strip().splitlines()[-1])["poses"] == 2
+    assert last_json(out)["poses"] == 2

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import gtsam
 import numpy as np
 import pytest
 
+from cli_helpers import assert_one_line_error, last_json, run_main
 from lie_factors.app import cli, incremental
 from lie_factors.app.backends import build_graph
 from lie_factors.app.load import load
@@ -32,24 +32,6 @@ EDGE_SE2 2 3 1 0 1.5708 {INFO2}
 EDGE_SE2 4 3 0 -1 -1.5708 {INFO2}
 EDGE_SE2 0 4 0.05 -0.02 0.01 {INFO2}
 """
-
-
-def run_main(capsys, *argv):
-    status = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
-def last_json(out: str) -> dict:
-    return json.loads(out.strip().splitlines()[-1])
-
-
-def assert_one_line_error(status, err, *fragments):
-    assert status == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("lie-factors: error: "), err
-    for f in fragments:
-        assert f in lines[0], lines[0]
 
 
 def write(tmp_path, text, name="g.g2o"):
@@ -130,7 +112,7 @@ def test_cli_incremental_on_gtsam_example_files(capsys, name):
 
 
 def test_cli_incremental_sim3(tmp_path, capsys):
-    status, _, err = run_main(capsys, "demo", "--scenario", "sim3", "--poses", "30", "--output",
+    status, out, err = run_main(capsys, "demo", "--scenario", "sim3", "--poses", "30", "--output",
                               str(tmp_path), "--quiet")
     assert status == 0, err
     for backend in ("native", "dropin"):
@@ -149,12 +131,12 @@ def test_progress_line_every_1000_updates(capsys):
 
 
 def test_incremental_errors_are_one_line(tmp_path, capsys):
-    status, _, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--robust", "huber")
-    assert_one_line_error(status, err, "--robust does not apply to --incremental")
-    status, _, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--init", "chordal")
-    assert_one_line_error(status, err, "--init does not apply")
-    status, _, err = run_main(capsys, "posegraph", SMALL, "--relinearize-skip", "2")
-    assert_one_line_error(status, err, "apply to --incremental only")
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--robust", "huber")
+    assert_one_line_error(status, out, err, "--robust does not apply to --incremental")
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--init", "chordal")
+    assert_one_line_error(status, out, err, "--init does not apply")
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--relinearize-skip", "2")
+    assert_one_line_error(status, out, err, "apply to --incremental only")
     with pytest.raises(SystemExit) as info:
         cli.main(["posegraph", SMALL, "--incremental", "--relinearize-threshold", "0"])
     assert info.value.code == 2
@@ -162,11 +144,11 @@ def test_incremental_errors_are_one_line(tmp_path, capsys):
     # pose 1 has no edge to pose 0: it cannot be added online
     text = (f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
             f"EDGE_SE2 0 2 2 0 0 {INFO2}\nEDGE_SE2 1 2 1 0 0 {INFO2}\n")
-    status, _, err = run_main(capsys, "posegraph", write(tmp_path, text), "--incremental")
-    assert_one_line_error(status, err, "pose 1 has no edge to an earlier pose")
+    status, out, err = run_main(capsys, "posegraph", write(tmp_path, text), "--incremental")
+    assert_one_line_error(status, out, err, "pose 1 has no edge to an earlier pose")
     # an ISAM2 failure (indeterminate system: pose 1 appears with one landmark measurement only)
     text = (f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\nLANDMARK2 1 5 3 4 10 0 10\n"
             f"EDGE_SE2 0 2 2 0 0 {INFO2}\nEDGE_SE2 1 2 1 0 0 {INFO2}\n")
-    status, _, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental",
+    status, out, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental",
                               "--backend", "native")
-    assert_one_line_error(status, err, "ISAM2 update 2 (pose 1) failed", "Indeterminate")
+    assert_one_line_error(status, out, err, "ISAM2 update 2 (pose 1) failed", "Indeterminate")

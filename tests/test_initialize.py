@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import gtsam
 import numpy as np
 import pytest
 
+from cli_helpers import last_json, run_main
 from lie_factors import factors as F
 from lie_factors import initialization as I
 from lie_factors.app import run as P
@@ -324,14 +324,6 @@ def test_run_file_start_is_the_vertices_and_auto_is_no_worse():
 
 # ---------------------------------------------------------------------- CLI
 
-def cli_run(capsys, *argv):
-    from lie_factors.app import cli
-
-    status = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
 def write_graph(tmp_path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     path = str(tmp_path / "g.g2o")
     gtsam.writeG2o(graph, values, path)
@@ -349,9 +341,9 @@ def test_cli_init_choices_are_the_librarys():
 def test_cli_auto_names_the_start_and_why_lago_was_skipped(tmp_path, capsys):
     graph, truth = pose2_loop(noise=0.03, full_cov=True, seed=5)
     path = write_graph(tmp_path, graph, truth)
-    status, out, err = cli_run(capsys, "posegraph", path, "--backend", "native", "--json")
+    status, out, err = run_main(capsys, "posegraph", path, "--backend", "native", "--json")
     assert status == 0
-    rec = json.loads(out.strip().splitlines()[-1])
+    rec = last_json(out)
     assert rec["init"] == "chordal" and rec["init_seconds"] > 0
     assert "init lago not applicable: LAGO needs diagonal noise models" in out
     assert "initial guess: chordal relaxation (GTSAM's InitializePose3), GTSAM's own" in out
@@ -362,25 +354,25 @@ def test_cli_each_method_runs(tmp_path, capsys):
     path = write_graph(tmp_path, graph, truth)
     finals = {}
     for method in I.METHODS:
-        status, out, _ = cli_run(capsys, "posegraph", path, "--backend", "native", "--init", method,
+        status, out, _ = run_main(capsys, "posegraph", path, "--backend", "native", "--init", method,
                                  "--quiet", "--json")
         assert status == 0
-        rec = json.loads(out.strip().splitlines()[-1])
+        rec = last_json(out)
         assert rec["init"] == ("lago" if method == "auto" else method)
         finals[method] = rec["final_error"]
     assert max(finals.values()) == pytest.approx(min(finals.values()), rel=1e-6)
 
 
 def test_cli_method_that_cannot_run_is_one_line(tmp_path, capsys):
-    status, out, err = cli_run(capsys, "posegraph", str(SMALL), "--init", "lago", "--quiet")
+    status, out, err = run_main(capsys, "posegraph", str(SMALL), "--init", "lago", "--quiet")
     assert status == 2 and err.count("\n") == 1
     assert err.startswith("lie-factors: error: lago: LAGO is for Pose2 graphs") and "Traceback" not in err
     edges_only = tmp_path / "e.g2o"
     edges_only.write_text("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
-    status, out, err = cli_run(capsys, "posegraph", str(edges_only), "--init", "file", "--quiet")
+    status, out, err = run_main(capsys, "posegraph", str(edges_only), "--init", "file", "--quiet")
     assert status == 2 and err == "lie-factors: error: file: no initial values given (the file has no vertices)\n"
     with pytest.raises(SystemExit) as exc:  # argparse's own usage error, status 2
-        cli_run(capsys, "posegraph", str(edges_only), "--init", "nope", "--quiet")
+        run_main(capsys, "posegraph", str(edges_only), "--init", "nope", "--quiet")
     assert exc.value.code == 2 and "invalid choice: 'nope'" in capsys.readouterr().err
 
 
