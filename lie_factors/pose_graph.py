@@ -233,7 +233,7 @@ class PoseGraph:
 
         def stack(items, nkeys):
             if not items:
-                return (np.zeros(0, dtype=np.int64), np.zeros((0,) + (nkeys,) * (nkeys > 1), dtype=np.int64),
+                return (np.zeros(0, dtype=np.int64), np.zeros((0, nkeys), dtype=np.int64),
                         np.zeros((0, g.mat, g.mat)), np.zeros((0, g.dim, g.dim)))
             slots, fk, M, info = zip(*items)
             return (np.array(slots, dtype=np.int64), np.array(fk, dtype=np.int64),
