@@ -36,7 +36,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..batch.graph import Problem
+from ..batch.solvers import CholmodSolver, NotPositiveDefinite
 from ..batch.system import LinearSystem
+from ..errors import InitializationError
 from ..kernels.elements import pose2_matrices
 from ..pose_graph import PoseGraph
 from . import anchor, sparse
@@ -97,8 +99,8 @@ def _pose_step(group: str, n, ii, jj, Z, info, X) -> np.ndarray:
 
     The between factors are :mod:`lie_factors.factors`' (error Log(Z⁻¹ X_i⁻¹ X_j)
     and its exact Jacobians: GTSAM's ``between`` times ``LogmapDerivative``),
-    linearized and assembled by the batch solver's loops, solved once by
-    CHOLMOD; X_i ← X_i Exp(δ_i).
+    linearized, assembled and solved by the batch solver's loops and CHOLMOD;
+    X_i ← X_i Exp(δ_i).
     """
     m, d = X.shape[1], 6 if group == "Pose3" else 3
     graph = PoseGraph(group, np.arange(n + 1), np.stack([ii, jj], axis=1), Z, info, None, None,
@@ -107,10 +109,10 @@ def _pose_step(group: str, n, ii, jj, Z, info, X) -> np.ndarray:
     problem.linearize()
     system = LinearSystem(problem)
     system.assemble()
-    p = system.pattern  # H's stored entries, column by column (CSC)
-    cols = np.repeat(np.arange(p.n), np.diff(p.colptr))
-    lower = p.rowind >= cols
-    delta = sparse.solve(p.n, p.rowind[lower], cols[lower], system.data[lower], system.rhs.copy())
+    try:
+        delta = CholmodSolver(system).solve(None)
+    except NotPositiveDefinite as exc:
+        raise InitializationError(str(exc)) from None
     return problem.retract(delta)[0][group]
 
 
