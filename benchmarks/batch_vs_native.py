@@ -37,7 +37,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from lie_factors import batch, factors
-from lie_factors.app import run as posegraph  # noqa: E402
+from lie_factors.app.backends import build_graph  # noqa: E402
+from lie_factors.app.load import load as load_dataset  # noqa: E402
+from lie_factors.pose_graph import PRIOR_VARIANCES  # noqa: E402
 
 DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "data"))
 DEFAULT = "sphere2500,torus3D,city10000,intel,kitti_00,parking-garage,se3chain6k,se3chain20k,se2chain20k"
@@ -79,7 +81,7 @@ def chain(n_factors: int, is3d: bool, seed: int = 0):
         if b == a + 1:
             est = est.compose(z)
             initial.insert(b, est)
-    prior = posegraph.prior_noise(is3d)
+    prior = gtsam.noiseModel.Diagonal.Variances(PRIOR_VARIANCES["Pose3" if is3d else "Pose2"])
     graph.add((gtsam.PriorFactorPose3 if is3d else gtsam.PriorFactorPose2)(0, truth[0], prior))
     return graph, initial
 
@@ -104,8 +106,8 @@ def load(name):
         n = int(name[8:].replace("k", "000"))
         native, initial = chain(n, name.startswith("se3"), seed=1)
         return native, as_lie(native), initial
-    pg = posegraph.load(os.path.join(DATA, name + ".g2o"))
-    return posegraph.build_graph(pg, "native"), posegraph.build_graph(pg, "batch"), pg.initial
+    pg = load_dataset(os.path.join(DATA, name + ".g2o"))
+    return build_graph(pg, "native"), build_graph(pg, "batch"), pg.initial
 
 
 def time_native(graph, initial):

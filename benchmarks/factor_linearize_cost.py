@@ -25,7 +25,7 @@ import gtsam
 import numpy as np
 
 from lie_factors import factors
-from lie_factors.app import run as posegraph
+from lie_factors.app.load import load
 
 
 def _empty(this, values, H):
@@ -51,10 +51,11 @@ def main(argv=None):
     parser.add_argument("--lm", action="store_true", help="also time one LM run per backend (slow: ~10 s)")
     args = parser.parse_args(argv)
 
-    pg = posegraph.load("sphere2500.txt")
+    pg = load("sphere2500.txt")
+    between = pg.native_graph()
     native, empty, ours = (gtsam.NonlinearFactorGraph() for _ in range(3))
-    for i in range(pg.between.size()):
-        f = pg.between.at(i)
+    for i in range(between.size()):
+        f = between.at(i)
         k1, k2 = f.keys()
         native.add(f)
         empty.add(gtsam.CustomFactor(f.noiseModel(), [k1, k2], _empty))

@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from lie_factors.initialization.relaxation import _rot_exp_V  # noqa: E402  (numpy Exp of stacks; no numba)
+from lie_factors import se3  # noqa: E402
 
 SIGMAS = np.array([0.01, 0.01, 0.01, 0.05, 0.05, 0.05])  # [ω (rad), v (m)]
 
@@ -63,15 +63,6 @@ def _inv(T):
     Ti[:, :3, 3] = -np.einsum("kab,kb->ka", Rt, T[:, :3, 3])
     Ti[:, 3, 3] = 1.0
     return Ti
-
-
-def _exp(xi):
-    R, V = _rot_exp_V(xi[:, :3])
-    T = np.zeros((xi.shape[0], 4, 4))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = np.einsum("kab,kb->ka", V, xi[:, 3:])
-    T[:, 3, 3] = 1.0
-    return T
 
 
 def compose_scan(Z: np.ndarray) -> np.ndarray:
@@ -127,7 +118,7 @@ def generate(n: int, lap: int = 1000, rise: float = 0.5, closure_every: int = 10
         i = np.concatenate([i, c - lap])
         j = np.concatenate([j, c])
     noise = rng.normal(size=(i.size, 6)) * SIGMAS
-    Z = (Tinv[i] @ T[j]) @ _exp(noise)
+    Z = (Tinv[i] @ T[j]) @ se3.exp(noise)
     vertices = compose_scan(Z[: n - 1])
     return i, j, Z, vertices
 

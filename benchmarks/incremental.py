@@ -19,7 +19,7 @@ the truth) is reported.
         [--legs native plain dropin] [--repeat 2] [--plain-limit 60] [--helix-poses 10000] [--cli]
 
 ``--cli`` instead times what a user runs: ``lie-factors posegraph FILE --incremental --backend
-native|custom --json`` in a fresh process each (wall seconds of the whole command, and its
+native|dropin --json`` in a fresh process each (wall seconds of the whole command, and its
 update_seconds), alternating, best of ``--repeat``.
 """
 
@@ -43,7 +43,9 @@ import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 
 from lie_factors import g2o
-from lie_factors.app import incremental, run as posegraph  # noqa: E402
+from lie_factors.app import incremental  # noqa: E402
+from lie_factors.app.backends import build_graph  # noqa: E402
+from lie_factors.app.load import load as load_dataset  # noqa: E402
 
 DEFAULT_DATASETS = ["intel", "city10000", "sphere2500", "helix"]
 LEGS = ("native", "plain", "dropin")
@@ -78,16 +80,16 @@ def helix(poses: int, seed: int = 0, per_turn: int = 100, radius: float = 10.0, 
 
 
 def load(name: str, data_dir: str, tmp: str, helix_poses: int):
-    """(PoseGraph, truth or None)."""
+    """(Dataset, truth or None)."""
     if name == "helix":
         graph, initial, truth = helix(helix_poses)
         path = os.path.join(tmp, f"helix{helix_poses}.g2o")
         g2o.write_g2o(path, graph, initial)
-        return posegraph.load(path), truth
+        return load_dataset(path), truth
     for candidate in (os.path.join(data_dir, name + ".g2o"), os.path.join(data_dir, name), name):
         if os.path.isfile(candidate):
-            return posegraph.load(candidate), None
-    return posegraph.load(name), None
+            return load_dataset(candidate), None
+    return load_dataset(name), None
 
 
 def ate(values: gtsam.Values, truth) -> float:
@@ -99,9 +101,9 @@ def run_leg(pg, leg: str, graphs: dict, plain_limit: float):
     if leg == "native":
         return incremental.replay(pg, "native", graph=graphs["native"])
     if leg == "plain":
-        return incremental.replay(pg, "custom", graph=graphs["custom"], isam_class=gtsam.ISAM2,
+        return incremental.replay(pg, "dropin", graph=graphs["dropin"], isam_class=gtsam.ISAM2,
                                   max_seconds=plain_limit)
-    return incremental.replay(pg, "custom", graph=graphs["custom"])
+    return incremental.replay(pg, "dropin", graph=graphs["dropin"])
 
 
 def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int) -> None:
@@ -113,7 +115,7 @@ def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int) -
     best: dict = {}
     for _ in range(repeat):
         for name in datasets:
-            for backend in ("native", "custom"):
+            for backend in ("native", "dropin"):
                 t0 = time.perf_counter()
                 out = subprocess.run([exe, "posegraph", paths[name], "--incremental", "--backend", backend,
                                       "--json", "--quiet"], check=True, capture_output=True, text=True).stdout
@@ -125,7 +127,7 @@ def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int) -
     print("| graph | backend | command wall s | update_seconds | p99 ms | final error | wall × native |")
     print("|---|---|---|---|---|---|---|")
     for name in datasets:
-        for backend in ("native", "custom"):
+        for backend in ("native", "dropin"):
             wall, d = best[(name, backend)]
             print(f"| {d['dataset']} | {backend} | {wall:.2f} | {d['update_seconds']:.3f} | "
                   f"{d['update_p99'] * 1e3:.2f} | {d['final_error']:.10g} | "
@@ -151,7 +153,7 @@ def main(argv=None) -> int:
         loaded = {}
         for name in args.datasets:
             pg, truth = load(name, args.data_dir, tmp, args.helix_poses)
-            graphs = {"native": posegraph.build_graph(pg, "native"), "custom": posegraph.build_graph(pg, "custom")}
+            graphs = {"native": build_graph(pg, "native"), "dropin": build_graph(pg, "dropin")}
             loaded[name] = (pg, truth, graphs)
         best: dict = {}
         for r in range(args.repeat):

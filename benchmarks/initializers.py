@@ -1,18 +1,19 @@
-"""GTSAM's initializers vs lie_factors.initialization.relaxation (the same results on arrays), side by side.
+"""GTSAM's initializers vs ours (lie_factors.initialization.chordal / lago: the same results on arrays), side by side.
 
     python benchmarks/initializers.py --repeat 3
 
-Per graph, alternating the two within each repetition, best of ``--repeat``:
+Per graph (its pose graph and the prior ``lie-factors posegraph`` puts on the first
+pose), alternating within each repetition, best of ``--repeat``:
 
 * ``gtsam``: ``InitializePose3.initialize`` (3-D), ``lago.initialize`` (2-D,
   diagonal noise), or ``InitializePose3.initialize`` on the planar Pose3 graph
   (2-D with full covariances, lie_factors' rule) — run on a large-stack thread
   (lie_factors.stack), on GTSAM's own factor graph built beforehand;
-* ``arrays``: :func:`lie_factors.initialization.relaxation.initialize_pose3` / ``lago_pose2`` /
-  ``chordal_pose2`` on the arrays (indices, measurements, information);
-* ``initialize()``: :func:`lie_factors.initialization.initialize` on the graph
-  (factor objects in, Values out, as the CLI calls it), with the arrays inside
-  vs with GTSAM's initializer inside (cvxopt hidden).
+* ``arrays``: ours, :func:`lie_factors.initialization.chordal.initialize` /
+  :func:`lie_factors.initialization.lago.initialize_pose2`, on the pose graph;
+* ``initialize()``: :func:`lie_factors.initialization.initialize` on the pose graph
+  (as the CLI calls it) with ``engine="gtsam"`` (GTSAM's graph built inside, what
+  ``--backend native`` runs) and with ours (the default backend's).
 
 Also max relative difference of the two answers (max|Δ| / max(1, max|ref|)).
 """
@@ -31,24 +32,20 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import gtsam  # noqa: E402
 
-from lie_factors import g2o  # noqa: E402
 from lie_factors import initialization as LI  # noqa: E402
-from lie_factors.initialization import relaxation as rx  # noqa: E402
-from lie_factors.initialization.arrays import _xytheta as xytheta  # noqa: E402
 from lie_factors import stack  # noqa: E402
-from lie_factors.app.run import build_graph, load  # noqa: E402
+from lie_factors.app.load import load  # noqa: E402
+from lie_factors.initialization import chordal, lago  # noqa: E402
+from lie_factors.initialization.planar import planar_pose3  # noqa: E402
+from lie_factors.kernels.elements import matrices_from_values  # noqa: E402
+from lie_factors.pose_graph import PoseGraph  # noqa: E402
 
 DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data"))
 DEFAULT = ["sphere2500", "torus3D", "city10000", "intel", "kitti_00"]
 
 
-def arrays_of(path):
-    """(keys, i, j, measured, information) of a g2o file's pose graph, as the relaxations take them:
-    indices into the sorted keys, measured 4×4 (3-D) or [x, y, θ] (2-D, converted here so that
-    the timings hold the initializer alone), information in GTSAM's tangent order."""
-    a = g2o.read_arrays(g2o.check_g2o(path))
-    i, j = (np.searchsorted(a.keys, a.edge_keys[:, c]) for c in (0, 1))
-    return a.keys, i, j, a.measured if a.is3d else xytheta(a.measured), a.information
+def _xytheta(X):
+    return np.stack([X[:, 0, 2], X[:, 1, 2], np.arctan2(X[:, 1, 0], X[:, 0, 0])], axis=1)
 
 
 def best(fn, repeat):
@@ -62,39 +59,30 @@ def best(fn, repeat):
 
 def run(name, repeat):
     path = name if os.path.exists(name) else os.path.join(DATA, name + ".g2o")
-    pg = load(path)
-    graph = build_graph(pg, "native")  # the edges, then the prior on the first pose (at the identity here)
-    keys, I, J, Z, INFO = arrays_of(path)
-    n = len(keys)
-    pf = graph.at(graph.size() - 1)  # build_graph's prior on the first pose
-    first = pf.prior()
-    prior = np.array([first.matrix() if pg.is3d else [first.x(), first.y(), first.theta()]])
-    pinfo = (lambda R: (R.T @ R)[None])(pf.noiseModel().R())
-    pidx = np.array([list(keys).index(pf.keys()[0])])
-    diagonal = all(isinstance(graph.at(k).noiseModel(), gtsam.noiseModel.Diagonal) for k in range(graph.size()))
+    pg = load(path).posed()  # the edges, then the prior on the first pose
+    n = len(pg.keys)
+    diagonal = bool(np.all(np.abs(pg.information - np.einsum("kii->ki", pg.information)[:, :, None] * np.eye(3))
+                           <= lago.GTSAM_DIAGONAL_TOL)) if not pg.is3d else False
     if pg.is3d:
-        method = "chordal (InitializePose3)"
+        method, init_method = "chordal (InitializePose3)", "chordal"
+        graph = pg.factor_graph()
         g_call = lambda: stack.call(gtsam.InitializePose3.initialize, graph)  # noqa: E731
-        a_call = lambda: rx.initialize_pose3(n, I, J, Z, INFO, pidx, prior, pinfo)  # noqa: E731
-        as_arr = lambda v: np.array([v.atPose3(int(k)).matrix() for k in keys])  # noqa: E731
-        init_method = "chordal"
+        a_call = lambda: chordal.initialize(pg)  # noqa: E731
+        as_arr = lambda v: matrices_from_values(v, "Pose3", pg.keys)  # noqa: E731
     elif diagonal:
-        method = "lago"
+        method, init_method = "lago", "lago"
+        graph = pg.factor_graph()
         g_call = lambda: stack.call(gtsam.lago.initialize, graph, True)  # noqa: E731
-        a_call = lambda: rx.lago_pose2(n, I, J, Z, INFO, pidx, prior, pinfo, keys=keys)  # noqa: E731
-        as_arr = lambda v: np.array([[v.atPose2(int(k)).x(), v.atPose2(int(k)).y(), v.atPose2(int(k)).theta()]  # noqa: E731
-                                     for k in keys])
-        init_method = "lago"
+        a_call = lambda: _xytheta(lago.initialize_pose2(pg))  # noqa: E731
+        as_arr = lambda v: _xytheta(matrices_from_values(v, "Pose2", pg.keys))  # noqa: E731
     else:
-        method = "chordal, planar Pose3"
-        planar = LI._native_graph(LI._planar_pose3_graph(LI._convert(graph)))
-        g_call = lambda: stack.call(gtsam.InitializePose3.initialize, planar)  # noqa: E731
-        a_call = lambda: rx.chordal_pose2(n, I, J, Z, INFO, pidx, prior, pinfo)  # noqa: E731
-        as_arr = lambda v: np.array([[v.atPose3(int(k)).x(), v.atPose3(int(k)).y(),  # noqa: E731
-                                      v.atPose3(int(k)).rotation().yaw()] for k in keys])
-        init_method = "chordal"
+        method, init_method = "chordal, planar Pose3", "chordal"
+        graph = planar_pose3(pg).factor_graph()
+        g_call = lambda: stack.call(gtsam.InitializePose3.initialize, graph)  # noqa: E731
+        a_call = lambda: _xytheta(chordal.initialize(pg))  # noqa: E731
+        as_arr = lambda v: (lambda T: np.stack([T[:, 0, 3], T[:, 1, 3], np.arctan2(T[:, 1, 0], T[:, 0, 0])], 1))(  # noqa: E731
+            matrices_from_values(v, "Pose3", pg.keys))
     tg = ta = tig = tia = float("inf")
-    real = rx.cholmod_available
     for _ in range(repeat):
         t0 = time.perf_counter()
         ref = g_call()
@@ -103,26 +91,23 @@ def run(name, repeat):
         ours = a_call()
         ta = min(ta, time.perf_counter() - t0)
         t0 = time.perf_counter()
-        LI.initialize(graph, init_method)
+        LI.initialize(pg, init_method)
         tia = min(tia, time.perf_counter() - t0)
-        rx.cholmod_available = lambda: False
-        try:
-            t0 = time.perf_counter()
-            LI.initialize(graph, init_method)
-            tig = min(tig, time.perf_counter() - t0)
-        finally:
-            rx.cholmod_available = real
+        t0 = time.perf_counter()
+        LI.initialize(pg, init_method, engine="gtsam")
+        tig = min(tig, time.perf_counter() - t0)
     refa = as_arr(ref)
     d = ours - refa
     if not pg.is3d:
         d[:, 2] = np.arctan2(np.sin(d[:, 2]), np.cos(d[:, 2]))
     rel = np.max(np.abs(d)) / max(1.0, np.max(np.abs(refa)))
-    return dict(graph=os.path.basename(path).removesuffix(".g2o"), poses=n, factors=int(graph.size()),
-                method=method, gtsam=tg, arrays=ta, init_gtsam=tig, init_arrays=tia, rel=rel)
+    return dict(graph=os.path.basename(path).removesuffix(".g2o"), poses=n,
+                factors=len(pg.edge_keys) + len(pg.prior_keys), method=method, gtsam=tg, arrays=ta,
+                init_gtsam=tig, init_arrays=tia, rel=rel)
 
 
 def generated(n: int) -> None:
-    """relaxation.initialize_pose3 alone on generate_posegraph's n-pose helix (arrays straight from the
+    """Our chordal initializer alone on generate_posegraph's n-pose helix (arrays straight from the
     generator, no file): seconds and peak RSS."""
     import resource
 
@@ -132,10 +117,10 @@ def generated(n: int) -> None:
     info = np.broadcast_to(np.diag(1 / SIGMAS ** 2), (i.size, 6, 6)).copy()
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     t0 = time.perf_counter()
-    rx.initialize_pose3(n, i, j, Z, info)
+    chordal.initialize(PoseGraph("Pose3", np.arange(n), np.stack([i, j], axis=1), Z, info, None, None))
     seconds = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
-    print(f"generated helix: {n} poses, {i.size} edges: initialize_pose3 {seconds:.1f} s, "
+    print(f"generated helix: {n} poses, {i.size} edges: chordal.initialize {seconds:.1f} s, "
           f"peak RSS {before:.2f} GB before, {after:.2f} GB after")
 
 
@@ -149,8 +134,8 @@ def main(argv=None) -> int:
     if a.generated:
         generated(a.generated)
         return 0
-    print("| graph | poses | factors | method | GTSAM (s) | arrays (s) | ratio | initialize(): GTSAM inside → "
-          "arrays inside (s) | max rel. difference |")
+    print("| graph | poses | factors | method | GTSAM (s) | ours (s) | ratio | initialize(): engine gtsam → "
+          "ours (s) | max rel. difference |")
     print("|---|---|---|---|---|---|---|---|---|")
     for name in a.graphs:
         r = run(name, a.repeat)

@@ -41,6 +41,7 @@ machine, run nothing else heavy meanwhile).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import multiprocessing as mp
 import os
 import sys
@@ -52,7 +53,12 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import gtsam  # noqa: E402
 
-from lie_factors.app import demo, run as pgm
+from lie_factors.app import demo  # noqa: E402
+from lie_factors.app.backends import build_graph  # noqa: E402
+from lie_factors.app.load import Dataset, load  # noqa: E402
+from lie_factors.app.plotting import positions as trajectory  # noqa: E402
+from lie_factors.kernels.elements import matrices_from_values  # noqa: E402
+from lie_factors.pose_graph import PoseGraph  # noqa: E402
 from lie_factors.testing import outliers  # noqa: E402
 from lie_factors.initialization import initialize  # noqa: E402
 from lie_factors.batch import gnc as gncm  # noqa: E402
@@ -64,21 +70,24 @@ METHODS = ("lm", "huber", "cauchy", "tukey", "gm", "dcs", "gnc-tls")
 STARTS = ("auto", "file", "chordal")
 
 
-def load_graph(name: str) -> pgm.PoseGraph:
+def load_graph(name: str) -> Dataset:
     """A dataset of data/ by name, or ``chainN``: the demo's SE(3) trajectory with N poses."""
     if name.startswith("chain"):
         n = int(name[5:])
         prob = demo.simulate(n, seed=0)
-        return pgm.PoseGraph(path="", name=f"SE(3) chain {n}", is3d=True,
-                             between=demo.between_graph(prob), initial=prob.initial, first_key=0,
-                             initialized_from_edges=False)
+        graph = PoseGraph.from_gtsam(demo.between_graph(prob))
+        graph = dataclasses.replace(graph, vertices=matrices_from_values(prob.initial, "Pose3", graph.keys))
+        return Dataset(path="", name=f"SE(3) chain {n}", graph=graph)
     path = os.path.join(DATA, name + ".g2o")
-    return pgm.load(path if os.path.exists(path) else name)
+    return load(path if os.path.exists(path) else name)
 
 
-def with_edges(pg: pgm.PoseGraph, between) -> pgm.PoseGraph:
-    return pgm.PoseGraph(pg.path, pg.name, pg.is3d, between, pg.initial, pg.first_key,
-                         pg.initialized_from_edges)
+def with_edges(pg: Dataset, between) -> Dataset:
+    """``pg`` with the between factors ``between`` (GTSAM's), starting where ``pg`` starts."""
+    graph = dataclasses.replace(PoseGraph.from_gtsam(between, pg.group, pg.graph.keys), vertices=pg.graph.vertices)
+    planted = Dataset(pg.path, pg.name, graph)
+    planted.initial = pg.initial
+    return planted
 
 
 def lm_params():
@@ -90,7 +99,7 @@ def lm_params():
 # --------------------------------------------------------------------------- #
 
 def run_lm(pg, backend, loss):
-    graph = pgm.build_graph(pg, "native" if backend == "native" else "custom", loss)
+    graph = build_graph(pg, "native" if backend == "native" else "dropin", loss)
     t = time.perf_counter()
     if backend == "native":
         opt = gtsam.LevenbergMarquardtOptimizer(graph, pg.initial, lm_params())
@@ -103,13 +112,13 @@ def run_lm(pg, backend, loss):
 
 
 def gnc_params(graph, pg):
-    closures = set(pgm.loop_closures(pg).tolist())
+    closures = set(pg.graph.loop_closures().tolist())
     known = [k for k in range(graph.size()) if k not in closures]
     return gncm.GncParams(loss="tls", known_inliers=known, lm_params=lm_params())
 
 
 def run_gnc(pg, backend):
-    graph = pgm.build_graph(pg, "native" if backend == "native" else "custom")
+    graph = build_graph(pg, "native" if backend == "native" else "dropin")
     params = gnc_params(graph, pg)
     t = time.perf_counter()
     if backend == "native":
@@ -149,15 +158,15 @@ def run_native_gnc_with_timeout(name, fraction, seed, start, timeout):
 # --------------------------------------------------------------------------- #
 
 def positions(values, pg) -> np.ndarray:
-    return pgm.positions(values, pg.is3d)
+    return trajectory(values, pg.is3d)
 
 
 def start_values(pg, how: str):
     """The initial values ``--start`` names (see the module docstring), and the method that made them."""
     if how == "file":
         return pg.initial, "file"
-    graph = pgm.build_graph(pg, "native")
-    inliers = np.setdiff1d(np.arange(pg.edges + 1), pgm.loop_closures(pg)) if how == "auto" else None
+    graph = build_graph(pg, "native")
+    inliers = np.setdiff1d(np.arange(pg.edges), pg.graph.loop_closures()) if how == "auto" else None
     s = initialize(graph, "auto" if how == "auto" else how, pg.initial, inliers=inliers)
     return s.values, s.method + (" of the odometry and the prior" if s.inliers_only else " of every edge")
 
@@ -166,11 +175,11 @@ def prepare(name, fraction, seed, reference=True, start="file"):
     pg = load_graph(name)
     ref = None
     if reference:
-        graph = pgm.build_graph(pg, "native")
+        graph = build_graph(pg, "native")
         ref = positions(gtsam.LevenbergMarquardtOptimizer(graph, pg.initial, lm_params()).optimize(), pg)
-    n_lc = len(pgm.loop_closures(pg))
+    n_lc = len(pg.graph.loop_closures())
     count = int(round(fraction * n_lc))
-    between, planted = outliers.plant_false_loop_closures(pg.between, sorted(pg.initial.keys()), count,
+    between, planted = outliers.plant_false_loop_closures(pg.graph.factor_graph(), pg.graph.keys.tolist(), count,
                                                           seed, pg.is3d)
     planted_pg = with_edges(pg, between)
     planted_pg.initial, label = start_values(planted_pg, start)
@@ -208,7 +217,7 @@ def main(argv=None) -> int:
         print(f"# {pg.name}: start {start}", flush=True)
         diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
         label = f"{pg.name} ({pg.poses} poses, {len(planted)} false / " \
-                f"{len(pgm.loop_closures(pg)) - len(planted)} true LC)"
+                f"{len(pg.graph.loop_closures()) - len(planted)} true LC)"
         for method in args.methods:
             # Repetitions alternate the backends, so both see the same machine load.
             best = {b: None for b in args.backends}

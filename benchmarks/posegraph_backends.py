@@ -1,4 +1,4 @@
-"""Pose-graph optimization through the CLI's backends: native, custom, batch.
+"""Pose-graph optimization through the CLI's backends: native, dropin, batch.
 
 For each dataset and each start (``--init``; default: the file's vertices and
 ``auto``): load once (lie_factors.app.run.load), build the graph with each
@@ -6,11 +6,11 @@ backend, initialize and run that backend's Levenberg-Marquardt
 (``posegraph.run``, what ``lie-factors posegraph`` runs), and tabulate the start
 used, iterations, final error, initialization and optimization seconds per
 backend, with the relative difference of the final error to native's from the
-same start (acceptance: ≤ 1e-6 for custom, ≤ 1e-4 for batch), the change of
+same start (acceptance: ≤ 1e-6 for dropin, ≤ 1e-4 for batch), the change of
 the final error against the file start, and the time ratio to native.
 
     python benchmarks/posegraph_backends.py [--data-dir DIR] [--datasets A B ...]
-        [--backends native custom batch] [--max-iterations K]
+        [--backends native dropin batch] [--max-iterations K]
         [--inits file auto] [--repeat N] [--output FILE.md]
 
 Prints the markdown table; with --output also writes it, with a short header, to that file.
@@ -34,15 +34,19 @@ if str(ROOT) not in sys.path:
 
 from lie_factors import atomic  # noqa: E402
 from lie_factors.app import run as P  # noqa: E402
+from lie_factors.app.backends import BACKENDS, build_graph  # noqa: E402
+from lie_factors.app.load import load  # noqa: E402
+from lie_factors.errors import PoseGraphError  # noqa: E402
+from lie_factors.initialization import METHODS as INIT_METHODS  # noqa: E402
 DEFAULT_DATASETS = ["parking-garage", "sphere2500", "torus3D", "intel", "MIT", "CSAIL", "smallGrid3D"]
-DEFAULT_BACKENDS = ["native", "custom", "batch"]
+DEFAULT_BACKENDS = ["native", "dropin", "batch"]
 
 
 def dataset_path(data_dir: str, name: str) -> str:
     for candidate in (name, os.path.join(data_dir, name), os.path.join(data_dir, name + ".g2o")):
         if os.path.isfile(candidate):
             return candidate
-    return name  # let posegraph.resolve_dataset try GTSAM's examples / report it
+    return name  # let g2o.resolve_dataset try GTSAM's examples / report it
 
 
 def run_dataset(path: str, backends: list[str], max_iterations: int, log,
@@ -52,7 +56,7 @@ def run_dataset(path: str, backends: list[str], max_iterations: int, log,
     The runs alternate (repeat ▸ start ▸ backend), so a slow spell of the shared
     machine hits every column alike.
     """
-    pg = P.load(path)
+    pg = load(path)
     base = {"dataset": pg.name, "dim": "SE(3)" if pg.is3d else "SE(2)", "poses": pg.poses,
             "factors": pg.edges + 1}
     rows = {init: dict(base, init=init) for init in inits}
@@ -60,8 +64,8 @@ def run_dataset(path: str, backends: list[str], max_iterations: int, log,
         try:
             # Warm-up outside the timing: the first call of each numba kernel
             # compiles it (~1 s), a one-off cost that is not per-iteration speed.
-            P.build_graph(pg, backend).linearize(pg.initial)
-        except P.PoseGraphError as exc:  # e.g. custom factors not importable
+            build_graph(pg, backend).linearize(pg.initial)
+        except PoseGraphError as exc:  # e.g. our factors not importable
             log(f"  {backend}: {exc}")
             for row in rows.values():
                 row[backend] = None
@@ -73,7 +77,7 @@ def run_dataset(path: str, backends: list[str], max_iterations: int, log,
                     continue
                 try:
                     record, _, _ = P.run(pg, backend, max_iterations, init=init)
-                except P.PoseGraphError as exc:
+                except PoseGraphError as exc:
                     log(f"  {backend} --init {init}: {exc}")
                     row[backend] = None
                     continue
@@ -146,9 +150,9 @@ def main(argv=None) -> int:
     parser.add_argument("--data-dir", default=str(ROOT / "data"), help="directory of the g2o files")
     parser.add_argument("--datasets", nargs="+", default=DEFAULT_DATASETS,
                         help="names (with or without .g2o), paths, or GTSAM example names")
-    parser.add_argument("--backends", nargs="+", default=DEFAULT_BACKENDS, choices=list(P.BACKENDS))
+    parser.add_argument("--backends", nargs="+", default=DEFAULT_BACKENDS, choices=list(BACKENDS))
     parser.add_argument("--max-iterations", type=int, default=100)
-    parser.add_argument("--inits", nargs="+", default=["file", "auto"], choices=list(P.INIT_METHODS),
+    parser.add_argument("--inits", nargs="+", default=["file", "auto"], choices=list(INIT_METHODS),
                         help="starts (lie-factors posegraph --init), one table row each")
     parser.add_argument("--repeat", type=int, default=1,
                         help="runs per (start, backend), interleaved; the fastest is reported")
@@ -161,7 +165,7 @@ def main(argv=None) -> int:
     if args.output:
         try:
             atomic.check_writable(args.output)  # before spending minutes optimizing
-        except P.PoseGraphError as exc:
+        except PoseGraphError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     rows = []
@@ -170,7 +174,7 @@ def main(argv=None) -> int:
         try:
             rows.extend(run_dataset(dataset_path(args.data_dir, name), args.backends, args.max_iterations,
                                     log, tuple(args.inits), args.repeat))
-        except P.PoseGraphError as exc:
+        except PoseGraphError as exc:
             log(f"  skipped: {exc}")
     table = markdown_table(rows, args.backends)
     print(table)
@@ -181,7 +185,7 @@ def main(argv=None) -> int:
             f"Generated by `benchmarks/posegraph_backends.py --backends {' '.join(args.backends)}` on {stamp} "
             f"(gtsam {_gtsam_version()}, Python {platform.python_version()}, {platform.machine()}).\n"
             "Same graph for every backend (readG2o noise models, prior on the first pose), "
-            "GTSAM's default LevenbergMarquardtParams (native/custom: GTSAM's optimizer stepped "
+            "GTSAM's default LevenbergMarquardtParams (native/dropin: GTSAM's optimizer stepped "
             "from Python; batch: lie_factors.batch), "
             f"max {args.max_iterations} iterations, starts {' '.join(args.inits)} (`--init`). "
             f"Seconds: wall clock, fastest (init + optimize) of {args.repeat} interleaved run(s), "

@@ -19,7 +19,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--poses", type=int, default=150)
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--backend", default="custom")
+    ap.add_argument("--backend", default="dropin")
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     demo_sim3.compare(demo_sim3.simulate(20, 0), args.backend)  # compile outside the timings

@@ -3,3 +3,7 @@
 
 class PoseGraphError(Exception):
     """A user-facing problem (bad file, unknown backend, ...): one clear line."""
+
+
+class InitializationError(PoseGraphError):
+    """An initializer cannot run on this graph; the message is the one-line reason."""

@@ -1,10 +1,51 @@
-"""A pose graph as arrays: the one representation the reader, the initializers and the solvers share."""
+"""A pose graph as arrays: the one representation the g2o reader, the initializers, the batch
+problem and the command line share.
+
+A GTSAM graph is made from it only where one is needed (:meth:`PoseGraph.factor_graph`:
+GTSAM's optimizers and initializers, writing a g2o file), and any GTSAM graph of
+Between/Prior factors on Pose2, Pose3 or Similarity3 becomes one
+(:meth:`PoseGraph.from_gtsam`).  Numpy only (GTSAM is imported by those two
+methods): the numba-free paths (``--backend native``, the input check) use it.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+
+from .errors import PoseGraphError
+from .kernels import registry
+from .kernels import validate as _validate
+
+#: Variances of the prior GTSAM's examples put on the first pose (Pose2SLAMExample_g2o.py,
+#: Pose3SLAMExample_g2o.py; lago's own), in each group's tangent order.  Similarity3: Pose3's,
+#: and the log-scale as tight as the rotation.
+PRIOR_VARIANCES = {
+    "Pose2": np.array([1e-6, 1e-6, 1e-8]),
+    "Pose3": np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4]),
+    "Similarity3": np.array([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4, 1e-6]),
+}
+
+#: The groups a pose graph can hold (GTSAM type names).
+GROUPS = tuple(PRIOR_VARIANCES)
+
+
+def is_loop_closure(key1, key2):
+    """Whether an edge between poses ``key1`` and ``key2`` is a loop closure: |key1 − key2| ≠ 1
+    (the consecutive ones are odometry).  Scalars or arrays.
+
+    The one definition of a loop closure: robust losses go on the loop closures,
+    GNC takes the odometry and the priors as known inliers, and the outlier
+    benchmark plants false ones.
+    """
+    return np.abs(np.asarray(key1, dtype=np.int64) - np.asarray(key2, dtype=np.int64)) != 1
+
+
+def prior_information(group: str) -> np.ndarray:
+    """(n, n): the information diag(1/σ²) of :data:`PRIOR_VARIANCES` for ``group``."""
+    return np.diag(1.0 / PRIOR_VARIANCES[group])
 
 
 @dataclass
@@ -12,12 +53,19 @@ class PoseGraph:
     """A pose graph as arrays, in GTSAM's conventions (what ``readG2o`` would build from a file).
 
     ``group``: Pose2, Pose3 or Similarity3 (m×m matrices, n-dimensional
-    tangent: 3×3/3, 4×4/6, 4×4/7).  ``keys`` (P,) int64: every pose id,
+    tangent: 3×3/3, 4×4/6, 4×4/7).  ``keys`` (P,) int64: every pose key,
     sorted.  ``edge_keys`` (E, 2) int64, ``measured`` (E, m, m) and
-    ``information`` (E, n, n): the pose–pose edges in file order (edge k of
-    the file is factor k of GTSAM's graph), information in GTSAM's tangent
-    order.  ``vertices`` (P, m, m): the file's pose vertices in key order, or
-    None if the file has no pose vertex.  ``lines`` (E,): the edges' line numbers.
+    ``information`` (E, n, n): the between factors, measured Z ≈ X₁⁻¹·X₂, error
+    Log(Z⁻¹·X₁⁻¹·X₂), information in GTSAM's tangent order (the noise model is
+    ``noiseModel.Gaussian.Information(information)``).  ``vertices`` (P, m, m):
+    the initial poses the source gives (a file's vertices) in key order, or None.
+    ``lines`` (E,): where each edge came from — its line in the file
+    (:func:`lie_factors.g2o.read_arrays`) or its factor index in the graph
+    (:meth:`from_gtsam`) — or None.
+
+    ``prior_keys`` (Q,), ``prior_measured`` (Q, m, m), ``prior_information``
+    (Q, n, n): prior factors, error Log(P⁻¹·X); none by default.  The factor
+    order of every graph made from a PoseGraph is the edges, then the priors.
     """
 
     group: str
@@ -26,8 +74,242 @@ class PoseGraph:
     measured: np.ndarray
     information: np.ndarray
     vertices: np.ndarray | None
-    lines: np.ndarray
+    lines: np.ndarray | None
+    prior_keys: np.ndarray | None = None
+    prior_measured: np.ndarray | None = None
+    prior_information: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.group not in GROUPS:
+            raise ValueError(f"group: a pose graph holds {', '.join(GROUPS)}, got {self.group!r}")
+        g = registry.group(self.group)
+        if self.prior_keys is None:
+            self.prior_keys = np.zeros(0, dtype=np.int64)
+            self.prior_measured = np.zeros((0, g.mat, g.mat))
+            self.prior_information = np.zeros((0, g.dim, g.dim))
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def info(self) -> registry.GroupInfo:
+        """The group's facts (tangent dimension ``dim``, matrix size ``mat``, ...)."""
+        return registry.group(self.group)
 
     @property
     def is3d(self) -> bool:
         return self.group != "Pose2"
+
+    def loop_closures(self) -> np.ndarray:
+        """Indices of the edges that are loop closures (:func:`is_loop_closure`)."""
+        k = np.asarray(self.edge_keys, dtype=np.int64).reshape(-1, 2)
+        return np.flatnonzero(is_loop_closure(k[:, 0], k[:, 1])).astype(np.int64)
+
+    def index(self, keys) -> np.ndarray:
+        """Positions of ``keys`` in :attr:`keys`; ``ValueError`` naming the first key not there."""
+        keys = np.asarray(keys, dtype=np.int64)
+        pos = np.searchsorted(self.keys, keys)
+        if len(self.keys):
+            bad = (pos >= len(self.keys)) | (self.keys[np.minimum(pos, len(self.keys) - 1)] != keys)
+        else:
+            bad = np.ones(keys.shape, dtype=bool)
+        if np.any(bad):
+            raise ValueError(f"key {int(keys[bad][0])} is not among the pose keys")
+        return pos
+
+    # ----------------------------------------------------------- new graphs
+    def with_prior(self, key: int, element: np.ndarray, information: np.ndarray) -> "PoseGraph":
+        """This graph with one more prior: on ``key``, element (m, m), information (n, n)."""
+        return dataclasses.replace(
+            self, prior_keys=np.append(self.prior_keys, np.int64(key)),
+            prior_measured=np.concatenate([self.prior_measured, np.asarray(element, dtype=np.float64)[None]]),
+            prior_information=np.concatenate([self.prior_information,
+                                              np.asarray(information, dtype=np.float64)[None]]))
+
+    def anchored(self) -> "PoseGraph":
+        """This graph, or, without any prior, with one at the identity on the smallest key.
+
+        GTSAM's initializers need a prior (else the orientation system is
+        singular); its examples put this one (:data:`PRIOR_VARIANCES`).
+        """
+        if len(self.prior_keys):
+            return self
+        return self.with_prior(int(self.keys[0]), np.eye(self.info.mat), prior_information(self.group))
+
+    def with_edges(self, edges) -> "PoseGraph":
+        """The same poses and priors with only the edges ``edges`` (indices or a mask)."""
+        e = np.arange(len(self.edge_keys))[edges]
+        return dataclasses.replace(self, edge_keys=self.edge_keys[e], measured=self.measured[e],
+                                   information=self.information[e],
+                                   lines=None if self.lines is None else self.lines[e])
+
+    def renumbered(self) -> "PoseGraph":
+        """The same graph with keys 0 … P−1 (pose k is the k-th smallest key)."""
+        return dataclasses.replace(self, keys=np.arange(len(self.keys), dtype=np.int64),
+                                   edge_keys=self.index(self.edge_keys.reshape(-1)).reshape(-1, 2),
+                                   prior_keys=self.index(self.prior_keys))
+
+    # ------------------------------------------------------------- checking
+    def validate(self) -> "PoseGraph":
+        """Raise ``ValueError`` unless the arrays are a well-formed pose graph; returns self.
+
+        Shapes; keys sorted and distinct; every factor's keys among them; no edge
+        from a pose to itself; measured, prior and vertex elements of the group
+        (rotation block orthonormal, last row); information symmetric positive
+        definite.
+        """
+        g = self.info
+        keys = np.asarray(self.keys)
+        if keys.ndim != 1 or not len(keys):
+            raise ValueError(f"keys: expected a non-empty (P,) array, got shape {keys.shape}")
+        if np.any(np.diff(keys) <= 0):
+            raise ValueError("keys: expected increasing (sorted, distinct) keys")
+        E = len(self.edge_keys)
+        if np.shape(self.edge_keys) != (E, 2):
+            raise ValueError(f"edge_keys: expected shape (E, 2), got {np.shape(self.edge_keys)}")
+        self.index(np.asarray(self.edge_keys).reshape(-1))
+        self.index(self.prior_keys)
+        if E and np.any(self.edge_keys[:, 0] == self.edge_keys[:, 1]):
+            k = int(np.argmax(self.edge_keys[:, 0] == self.edge_keys[:, 1]))
+            raise ValueError(f"edge_keys: edge {k} joins pose {int(self.edge_keys[k, 0])} to itself")
+        Q = len(self.prior_keys)
+        _elements(self.measured, E, g, "measured")
+        _elements(self.prior_measured, Q, g, "prior_measured")
+        if self.vertices is not None:
+            _elements(self.vertices, len(keys), g, "vertices")
+        _information(self.information, E, g.dim, "information")
+        _information(self.prior_information, Q, g.dim, "prior_information")
+        return self
+
+    # ----------------------------------------------------------------- GTSAM
+    @classmethod
+    def from_gtsam(cls, graph, group: str | None = None, keys=None) -> "PoseGraph":
+        """The pose graph of a ``gtsam.NonlinearFactorGraph`` of Between/Prior factors.
+
+        Factors on Pose2, Pose3 or Similarity3, GTSAM's own or
+        :mod:`lie_factors.factors`' (anything with two keys and ``measured()``,
+        or one key and ``prior()``); the information of a noise model is RᵀR of
+        its square root R, of a robust model's Gaussian part.  ``lines``: each
+        edge's factor index.  ``group``/``keys``: the group and the pose keys when
+        the graph may have no edge (keys must cover every factor's).  Raises
+        :class:`~lie_factors.errors.PoseGraphError` (one line) for any other
+        factor, a mix of groups, a noise model without finite information, or no
+        between factor where ``group`` is not given.
+        """
+        import gtsam
+
+        kinds = [(getattr(gtsam, name), name) for name in GROUPS]
+        edges, priors, seen = [], [], set()
+        for k in range(graph.size()):
+            f = graph.at(k)
+            if f is None:  # a removed factor leaves a null slot
+                continue
+            fkeys = list(f.keys())
+            value = (f.measured() if len(fkeys) == 2 and hasattr(f, "measured") else
+                     f.prior() if len(fkeys) == 1 and hasattr(f, "prior") else None)
+            kind = next((name for cls, name in kinds if isinstance(value, cls)), None)
+            if kind is None:
+                raise PoseGraphError(f"factor {k} ({type(f).__name__}) is not a Between or Prior factor on "
+                                     "Pose2/Pose3/Similarity3; a pose graph has no other")
+            model = f.noiseModel()
+            if isinstance(model, gtsam.noiseModel.Robust):
+                model = model.noise()  # least squares on the Gaussian part
+            R = model.R()
+            if not np.all(np.isfinite(R)):
+                raise PoseGraphError(f"factor {k}: its noise model has no finite information (constrained?)")
+            seen.add(kind)
+            (edges if len(fkeys) == 2 else priors).append((k, fkeys, value.matrix(), R.T @ R))
+        if len(seen) > 1:
+            raise PoseGraphError("the graph mixes " + " and ".join(sorted(seen)) + " factors")
+        if group is None:
+            if not edges:
+                raise PoseGraphError("the graph has no between factors on Pose2/Pose3/Similarity3")
+            group = seen.pop()
+        elif seen and seen != {group}:
+            raise PoseGraphError(f"the graph has {seen.pop()} factors, not {group}")
+        g = registry.group(group)
+        used = [key for _, fkeys, _, _ in edges + priors for key in fkeys]
+        all_keys = np.unique(np.asarray(used + ([] if keys is None else list(keys)), dtype=np.int64))
+        if keys is not None and len(all_keys) != len(np.unique(np.asarray(keys, dtype=np.int64))):
+            raise PoseGraphError("the graph has factors on keys not among the pose keys given")
+
+        def stack(items, nkeys):
+            if not items:
+                return (np.zeros(0, dtype=np.int64), np.zeros((0, nkeys), dtype=np.int64),
+                        np.zeros((0, g.mat, g.mat)), np.zeros((0, g.dim, g.dim)))
+            slots, fk, M, info = zip(*items)
+            return (np.array(slots, dtype=np.int64), np.array(fk, dtype=np.int64),
+                    np.array(M, dtype=np.float64), np.array(info, dtype=np.float64))
+
+        slots, edge_keys, measured, information = stack(edges, 2)
+        _, pkeys, pmeasured, pinfo = stack(priors, 1)
+        return cls(group, all_keys, edge_keys.reshape(-1, 2), measured, information, None, slots,
+                   pkeys.reshape(-1), pmeasured, pinfo)
+
+    def factor_graph(self, factors=None, robust=None, robust_all: bool = False):
+        """A ``gtsam.NonlinearFactorGraph``: one between factor per edge, then one prior factor per prior.
+
+        ``factors``: the namespace of the factor classes, ``gtsam`` (default) or
+        :mod:`lie_factors.factors` (both name them ``BetweenFactorPose3``, ...).
+        Noise models are ``noiseModel.Gaussian.Information`` (a Diagonal one where
+        the information is diagonal, as ``readG2o`` makes them); edges with equal
+        information share one model object (the factors' and the batch solver's
+        per-model caches then read it once).  ``robust``: an m-estimator
+        (``gtsam.noiseModel.mEstimator``) wrapped around the loop closures' models
+        (:meth:`loop_closures`; every edge's with ``robust_all``), one
+        ``noiseModel.Robust`` per shared Gaussian model.
+        """
+        import gtsam
+
+        from .kernels.elements import to_gtsam
+
+        F = gtsam if factors is None else factors
+        Between = getattr(F, f"BetweenFactor{self.group}")
+        Prior = getattr(F, f"PriorFactor{self.group}")
+        graph = gtsam.NonlinearFactorGraph()
+        E = len(self.edge_keys)
+        if E:
+            models = _shared_models(self.information)
+            if robust is not None:
+                wrap = np.ones(E, dtype=bool) if robust_all else np.isin(np.arange(E), self.loop_closures())
+                robust_of = {}
+                for k in np.flatnonzero(wrap).tolist():
+                    model = models[k]
+                    if id(model) not in robust_of:
+                        robust_of[id(model)] = gtsam.noiseModel.Robust.Create(robust, model)
+                    models[k] = robust_of[id(model)]
+            for (i, j), M, model in zip(self.edge_keys.tolist(), self.measured, models):
+                graph.add(Between(i, j, to_gtsam(self.group, M), model))
+        for key, M, info in zip(self.prior_keys.tolist(), self.prior_measured, self.prior_information):
+            graph.add(Prior(key, to_gtsam(self.group, M), gtsam.noiseModel.Gaussian.Information(info)))
+        return graph
+
+
+def _shared_models(information: np.ndarray) -> list:
+    """One ``noiseModel.Gaussian.Information`` per distinct information matrix, listed per edge."""
+    import gtsam
+
+    flat = np.ascontiguousarray(information.reshape(len(information), -1))
+    unique, first, inverse = np.unique(flat, axis=0, return_index=True, return_inverse=True)
+    made = [gtsam.noiseModel.Gaussian.Information(information[k]) for k in first.tolist()]
+    return [made[u] for u in inverse.reshape(-1).tolist()]
+
+
+def _elements(X, count: int, g: registry.GroupInfo, name: str) -> None:
+    arr = _validate.square(X, g.mat, name)
+    if arr.shape != (count, g.mat, g.mat):
+        raise ValueError(f"{name}: expected shape ({count}, {g.mat}, {g.mat}), got {arr.shape}")
+    _validate.rotation_block(arr, name, g.rot_dim)
+    last = "[" + ", ".join(["0"] * (g.mat - 1)) + (", s]" if g.corner == registry.POSITIVE else ", 1]")
+    _validate.bottom_row(arr, name, last, last_positive=g.corner == registry.POSITIVE)
+
+
+def _information(info, count: int, d: int, name: str) -> None:
+    arr = _validate.square(info, d, name)
+    if arr.shape != (count, d, d):
+        raise ValueError(f"{name}: expected shape ({count}, {d}, {d}), got {arr.shape}")
+    if count and np.max(np.abs(arr - np.swapaxes(arr, 1, 2))) > 1e-9 * max(1.0, float(np.max(np.abs(arr)))):
+        raise ValueError(f"{name}: information matrices must be symmetric")
+    if count:
+        try:
+            np.linalg.cholesky(arr)  # raises unless every one is positive definite (3× faster than eigvalsh)
+        except np.linalg.LinAlgError:
+            raise ValueError(f"{name}: information matrices must be positive definite") from None

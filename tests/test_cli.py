@@ -10,31 +10,12 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import assert_one_line_error, last_json, run_main
 from lie_factors.app import cli
-from lie_factors import factors  # noqa: F401  (the custom backend; a broken import must fail, not skip)
+from lie_factors import factors  # noqa: F401  (the dropin backend; a broken import must fail, not skip)
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = str(ROOT / "data" / "smallGrid3D.g2o")
-
-
-def run_main(capsys, *argv):
-    status = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
-def last_json(out: str) -> dict:
-    return json.loads(out.strip().splitlines()[-1])
-
-
-def assert_one_line_error(status, out, err, *fragments):
-    assert status == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("lie-factors: error: ")
-    assert "Traceback" not in err
-    for f in fragments:
-        assert f in lines[0], lines[0]
 
 
 # -------------------------------------------------------------------- demo
@@ -72,14 +53,14 @@ def test_demo_quiet_prints_only_json(tmp_path, capsys):
     assert len(out.strip().splitlines()) == 1
 
 
-def test_demo_custom_backend(tmp_path, capsys):
+def test_demo_dropin_backend(tmp_path, capsys):
     results = {}
-    for backend in ("native", "custom"):
+    for backend in ("native", "dropin"):
         status, out, _ = run_main(capsys, "demo", "--poses", "40", "--backend", backend, "--quiet",
                                   "--json", "--output", str(tmp_path / backend))
         assert status == 0
         results[backend] = last_json(out)
-    assert results["custom"]["final_error"] == pytest.approx(results["native"]["final_error"], rel=1e-6)
+    assert results["dropin"]["final_error"] == pytest.approx(results["native"]["final_error"], rel=1e-6)
 
 
 def test_demo_output_is_a_file(tmp_path, capsys):
@@ -114,13 +95,13 @@ def test_posegraph_gtsam_example_by_name(capsys):
     assert rec["poses"] == 2500 and rec["iterations"] == 1 and not rec["converged"]
 
 
-def test_posegraph_custom_matches_native(capsys):
+def test_posegraph_dropin_matches_native(capsys):
     recs = {}
-    for backend in ("native", "custom"):
+    for backend in ("native", "dropin"):
         status, out, _ = run_main(capsys, "posegraph", SMALL, "--backend", backend, "--quiet", "--json")
         assert status == 0
         recs[backend] = last_json(out)
-    assert recs["custom"]["final_error"] == pytest.approx(recs["native"]["final_error"], rel=1e-6)
+    assert recs["dropin"]["final_error"] == pytest.approx(recs["native"]["final_error"], rel=1e-6)
 
 
 def test_posegraph_batch_matches_native(tmp_path, capsys):
@@ -295,9 +276,18 @@ def test_help_imports_no_heavy_module():
 
 
 def test_backend_names_match_posegraph():
-    from lie_factors.app import run as posegraph
+    from lie_factors.app import backends
 
-    assert cli.BACKENDS == tuple(posegraph.BACKENDS)
+    assert cli.BACKENDS == tuple(backends.BACKENDS)
+    assert cli.BACKEND_ALIASES == backends.ALIASES
+
+
+def test_custom_is_the_dropin_backend_by_its_former_name(capsys):
+    status, out, _ = run_main(capsys, "posegraph", SMALL, "--backend", "custom", "--json", "--max-iterations", "2")
+    assert status == 0 and last_json(out)["backend"] == "dropin"
+    assert "backend dropin" in out
+    p = run_module("posegraph", "--help")
+    assert "dropin" in p.stdout and "custom, its former name" in " ".join(p.stdout.split())
 
 
 @pytest.mark.parametrize("argv, fragment", [
@@ -329,4 +319,4 @@ def test_largest_accepted_values_run(tmp_path, capsys):
                               "--max-iterations", str(cli.MAX_ITERATIONS), "--backend", "native",
                               "--quiet", "--json", "--output", str(tmp_path / "d"))
     assert status == 0
-    assert json.loads(out.strip().splitlines()[-1])["poses"] == 2
+    assert last_json(out)["poses"] == 2

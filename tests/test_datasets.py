@@ -1,22 +1,21 @@
 """Every file in the installed gtsam's Data/ directory and in the project's data/: it loads and optimizes
-(custom and batch agree with native), or it is refused for a reason that is checked here to be true.
+(dropin and batch agree with native), or it is refused for a reason that is checked here to be true.
 
 CI budget (the module must stay around a minute on a shared 2-core machine), so only the small
 graphs are optimized to the end; explicitly:
 * small graphs (factors × variables ≤ SMALL_WORK) are optimized to convergence by native and
-  custom LM: final errors within 1e-6 relative;
-* medium graphs (≤ MEDIUM_WORK; custom LM costs O(factors × variables) per iteration, since
+  dropin LM: final errors within 1e-6 relative;
+* medium graphs (≤ MEDIUM_WORK; dropin LM costs O(factors × variables) per iteration, since
   GTSAM's CustomFactor copies the whole Values on every call) are *checked, not fully optimized*:
-  native and batch (the same lie_factors kernels as custom, driven from Python) run
+  native and batch (the same lie_factors kernels as dropin, driven from Python) run
   BOUNDED_ITERATIONS LM iterations from the same start and must agree to 1e-6 relative;
 * large graphs: only loaded, and the initial error of the whole graph evaluated by batch (our
   kernels on every factor) must equal native's to 1e-9 relative;
-* medium and large: a sample of custom between factors is compared with GTSAM's, error by error.
+* medium and large: a sample of our between factors is compared with GTSAM's, error by error.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import gtsam
@@ -25,6 +24,8 @@ import pytest
 
 from lie_factors import factors, g2o
 from lie_factors.app import run as P
+from lie_factors.app.backends import build_graph
+from lie_factors.app.load import Dataset, load
 from lie_factors.errors import PoseGraphError
 
 GTSAM_DATA = Path(gtsam.findExampleDataFile("w20000.txt")).parent
@@ -115,7 +116,7 @@ def _refusal_is_true(path: Path, how: str) -> None:
     raise AssertionError(how)
 
 
-def _sampled_custom_agrees(pg: P.PoseGraph, rng: np.random.Generator) -> None:
+def _sampled_ours_agree(pg: Dataset, native: gtsam.NonlinearFactorGraph, rng: np.random.Generator) -> None:
     """Custom vs GTSAM between factors on a sample, error by error.
 
     (Jacobians are not compared with GTSAM's here: GTSAM's Pose2 Jacobians are
@@ -124,7 +125,7 @@ def _sampled_custom_agrees(pg: P.PoseGraph, rng: np.random.Generator) -> None:
     n = pg.edges
     Between = factors.BetweenFactorPose3 if pg.is3d else factors.BetweenFactorPose2
     for k in rng.choice(n, size=min(n, SAMPLED_FACTORS), replace=False):
-        f = pg.between.at(int(k))
+        f = native.at(int(k))
         i, j = f.keys()
         mine = Between(i, j, f.measured(), f.noiseModel())
         v = gtsam.Values()
@@ -139,18 +140,18 @@ def test_every_dataset_runs_or_is_refused_truthfully(path: Path):
     name = path.name
     if name.endswith(NOT_G2O_SUFFIXES) or path.suffix not in (".g2o", ".txt", ".graph"):
         with pytest.raises(PoseGraphError, match="unknown tag|expects|not a number|should be an integer"):
-            P.load(str(path))
+            load(str(path))
         return
     if name in REFUSED:
         fragment, how = REFUSED[name]
         with pytest.raises(PoseGraphError) as info:
-            P.load(str(path))
+            load(str(path))
         assert fragment in str(info.value)
         assert "\n" not in str(info.value)
         _refusal_is_true(path, how)
         return
     try:
-        pg = P.load(str(path))
+        pg = load(str(path))
     except PoseGraphError as exc:
         # A text file of GTSAM's that is not a pose graph (calibration, BA, VO, IMU logs...).
         assert "unknown tag" in str(exc), str(exc)
@@ -159,41 +160,42 @@ def test_every_dataset_runs_or_is_refused_truthfully(path: Path):
         assert first not in g2o.RECORDS
         return
 
-    graph_n = P.build_graph(pg, "native")
+    graph_n = build_graph(pg, "native")
     work = int(graph_n.size()) * int(pg.initial.size())
     if work <= SMALL_WORK:
         native, _, _ = P.run(pg, "native")
-        custom, _, _ = P.run(pg, "custom")
-        assert native.converged and custom.converged
-        assert custom.initial_error == pytest.approx(native.initial_error, rel=1e-9)
-        assert custom.final_error == pytest.approx(native.final_error, rel=REL, abs=1e-9)
+        dropin, _, _ = P.run(pg, "dropin")
+        assert native.converged and dropin.converged
+        assert dropin.initial_error == pytest.approx(native.initial_error, rel=1e-9)
+        assert dropin.final_error == pytest.approx(native.final_error, rel=REL, abs=1e-9)
         assert native.final_error <= native.initial_error
         return
-    _sampled_custom_agrees(pg, np.random.default_rng(len(name)))
+    _sampled_ours_agree(pg, graph_n, np.random.default_rng(len(name)))
     # Bounded runs start from the loaded values (the file's vertices or load()'s spanning
-    # tree): chordal/LAGO would cost seconds here and are tested elsewhere.
-    pg = dataclasses.replace(pg, initialized_from_edges=False)
+    # tree, which the spanning-tree initializer composes the same way): chordal/LAGO would cost
+    # seconds here and are tested elsewhere.
+    init = "spanning-tree" if pg.initialized_from_edges else "file"
     if work > MEDIUM_WORK:
-        native, _, _ = P.run(pg, "native", max_iterations=0, init="file")
-        batch, _, _ = P.run(pg, "batch", max_iterations=0, init="file")
+        native, _, _ = P.run(pg, "native", max_iterations=0, init=init)
+        batch, _, _ = P.run(pg, "batch", max_iterations=0, init=init)
         assert batch.initial_error == pytest.approx(native.initial_error, rel=1e-9)
         return
-    native, _, _ = P.run(pg, "native", max_iterations=BOUNDED_ITERATIONS, init="file")
-    batch, _, _ = P.run(pg, "batch", max_iterations=BOUNDED_ITERATIONS, init="file")
+    native, _, _ = P.run(pg, "native", max_iterations=BOUNDED_ITERATIONS, init=init)
+    batch, _, _ = P.run(pg, "batch", max_iterations=BOUNDED_ITERATIONS, init=init)
     assert batch.iterations == native.iterations
     assert batch.initial_error == pytest.approx(native.initial_error, rel=1e-9)
     assert batch.final_error == pytest.approx(native.final_error, rel=REL)
     assert native.final_error < native.initial_error
 
 
-@pytest.mark.parametrize("backend", ["native", "custom", "batch"])
+@pytest.mark.parametrize("backend", ["native", "dropin", "batch"])
 def test_landmark_graphs_in_every_backend(backend):
     """3-D point landmarks (EDGE_SE3_TRACKXYZ) and 2-D LANDMARK2, fully optimized, all backends."""
     for name in ("known_landmark_localization_20.g2o", "victoriaPark_reduced_1k.g2o"):
-        pg = P.load(name)
+        pg = load(name)
         assert pg.landmark_count > 0 and pg.observations > 0
         # custom LM on 1000 poses costs ~3 s per iteration (CustomFactor copies the Values): bounded.
-        iters = 100 if backend != "custom" or pg.poses < 100 else 2
+        iters = 100 if backend != "dropin" or pg.poses < 100 else 2
         native, _, _ = P.run(pg, "native", max_iterations=iters)
         rec, res, _ = P.run(pg, backend, max_iterations=iters)
         assert rec.landmarks == pg.landmark_count

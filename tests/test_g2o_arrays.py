@@ -1,5 +1,5 @@
 """g2o files straight into arrays (lie_factors.g2o.read_arrays), the batch Problem built from
-them (Problem.from_arrays), and the default command's run on them.
+them (Problem.from_pose_graph), and the default command's run on them.
 
 References: ``gtsam.readG2o`` for every record type GTSAM reads (its factors' measured
 matrices and noise models' information, its Values), our Sim(3) reader for the Sim(3)
@@ -19,8 +19,11 @@ import pytest
 
 from lie_factors import factors, g2o
 from lie_factors.app import run as P
+from lie_factors.app.backends import build_graph
+from lie_factors.app.load import load
 from lie_factors.batch import BatchLevenbergMarquardt, Problem
 from lie_factors.batch.graph import whitening
+from lie_factors.pose_graph import PoseGraph
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -162,23 +165,19 @@ def test_files_arrays_do_not_represent_are_read_by_gtsam(tmp_path, text):
     assert not g2o.arrays_supported(summary)
     with pytest.raises(ValueError, match="read_g2o"):
         g2o.read_arrays(summary)
-    pg = P.load(str(path))
-    assert pg.arrays is None and pg.between.size() + pg.landmarks.size() == 2
+    pg = load(str(path))
+    assert pg.edges + pg.observations == 2
 
 
 def _factor_problem(pg):
-    return Problem(P.build_graph(pg, "batch"), pg.initial)
+    return Problem(build_graph(pg, "batch"), pg.initial)
 
 
 @pytest.mark.parametrize("name", ["intel.g2o", "sphere2500.txt"])
-def test_problem_from_arrays_matches_the_factor_graph(name):
+def test_problem_from_pose_graph_matches_the_factor_graph(name):
     path = ROOT / "data" / name
-    pg = P.load(str(path) if path.exists() else name)
-    a = pg.arrays
-    X = (a.vertices if a.vertices is not None
-         else np.array([pg.initial.atPose3(int(k)).matrix() for k in a.keys]))
-    prior = (pg.first_key, P._first_element(pg), P.prior_noise(pg.is3d, pg.group).R())
-    arrays = Problem.from_arrays(pg.group, a.keys, X, a.edge_keys, a.measured, a.information, [prior])
+    pg = load(str(path) if path.exists() else name)
+    arrays = Problem.from_pose_graph(pg.posed(), pg.start_poses)
     ref = _factor_problem(pg)
     assert arrays.graph_size == ref.graph_size == pg.edges + 1
     assert arrays.error() == pytest.approx(ref.error(), rel=1e-12)
@@ -194,22 +193,26 @@ def test_problem_from_arrays_matches_the_factor_graph(name):
     assert ra.iterations == rr.iterations
     assert ra.final_error == pytest.approx(rr.final_error, rel=1e-9)
     va, vr = ra.values, rr.values
-    for k in list(a.keys)[:50]:
+    for k in list(pg.graph.keys)[:50]:
         get = getattr(va, f"at{pg.group}")
         np.testing.assert_allclose(get(int(k)).matrix(), getattr(vr, f"at{pg.group}")(int(k)).matrix(),
                                    atol=1e-8)
 
 
-def test_from_arrays_refuses_bad_input():
+def test_from_pose_graph_refuses_bad_input():
     M = np.eye(3)[None]
+
+    def problem(keys, edge_keys, measured, X):
+        return Problem.from_pose_graph(PoseGraph("Pose2", np.array(keys), np.array(edge_keys), measured,
+                                                 np.eye(3)[None], None, None), X)
+
     with pytest.raises(ValueError, match="itself"):
-        Problem.from_arrays("Pose2", np.array([0]), M, np.array([[0, 0]]), M, np.eye(3)[None])
+        problem([0], [[0, 0]], M, M)
     with pytest.raises(ValueError, match="no initial element"):
-        Problem.from_arrays("Pose2", np.array([0]), M, np.array([[0, 1]]), M, np.eye(3)[None])
+        problem([0], [[0, 1]], M, M)
     bad = np.eye(3)[None] * 1.01
     with pytest.raises(ValueError, match="measured 0: rotation block is not orthonormal"):
-        Problem.from_arrays("Pose2", np.array([0, 1]), np.stack([np.eye(3)] * 2), np.array([[0, 1]]),
-                            bad, np.eye(3)[None])
+        problem([0, 1], [[0, 1]], bad, np.stack([np.eye(3)] * 2))
 
 
 def test_default_run_builds_no_factor_object(monkeypatch, tmp_path):
@@ -225,10 +228,10 @@ def test_default_run_builds_no_factor_object(monkeypatch, tmp_path):
     monkeypatch.setattr(factors.PriorFactor, "__init__", refuse)
     job = P.PoseGraphRun(str(path), "batch", lazy_values=True)
     record = job.execute()
-    # Neither the GTSAM graph nor its Values were read: the arrays are the only copy.
-    assert job.pg.arrays is not None and not {"between", "initial", "landmarks"} & set(vars(job.pg))
+    # No GTSAM graph was read and no Values made of the file: the arrays are the only copy.
+    assert job.pg.landmarks is None and "initial" not in vars(job.pg)
     assert record.init == native.init == "chordal"
-    for k in job.pg.arrays.keys.tolist():  # the array initializer starts where GTSAM's does
+    for k in job.pg.graph.keys.tolist():  # the array initializer starts where GTSAM's does
         np.testing.assert_allclose(job.start_values().atPose3(k).matrix(),
                                    native_result.start.atPose3(k).matrix(), rtol=0, atol=1e-9)
     job = P.PoseGraphRun(str(path), "batch", output=str(tmp_path / "out.g2o"), lazy_values=True)
@@ -237,9 +240,9 @@ def test_default_run_builds_no_factor_object(monkeypatch, tmp_path):
     assert record.final_error == pytest.approx(native.final_error, rel=1e-9)
     assert set(record.timings) == set(P.TIMING_KEYS)
     # The Values built from the arrays' estimate (for the output file) have the same error.
-    assert P.build_graph(job.pg, "native").error(job.values()) == pytest.approx(record.final_error,
+    assert build_graph(job.pg, "native").error(job.values()) == pytest.approx(record.final_error,
                                                                               rel=1e-12)
-    assert P.load(str(tmp_path / "out.g2o")).poses == job.pg.poses
+    assert load(str(tmp_path / "out.g2o")).poses == job.pg.poses
 
 
 @pytest.mark.parametrize("diagonal", [True, False])
@@ -251,14 +254,14 @@ def test_2d_array_initialization_matches_gtsams(tmp_path, diagonal):
     native, native_result = gtsam_job.execute(), gtsam_job.result
     job = P.PoseGraphRun(str(path), "batch", max_iterations=0)
     job.execute()
-    assert "between" not in vars(job.pg)
+    assert "initial" not in vars(job.pg)
     assert job.start.method == native.init == ("lago" if diagonal else "chordal")
     assert job.start.skipped == gtsam_job.start.skipped
     assert len(job.start.skipped) == (0 if diagonal else 1)
     # 1e-9 relative : to the size of the graph, ~10 here
     scale = max(1.0, max(np.abs(native_result.start.atPose2(k).translation()).max()
-                         for k in job.pg.arrays.keys.tolist()))
-    for k in job.pg.arrays.keys.tolist():
+                         for k in job.pg.graph.keys.tolist()))
+    for k in job.pg.graph.keys.tolist():
         d = job.start_values().atPose2(k).localCoordinates(native_result.start.atPose2(k))
         assert np.abs(d).max() < 1e-9 * scale
     # From starts that agree to 1e-9, LM reaches the same optimum.

@@ -23,6 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lie_factors import g2o
+import lie_factors.app.load as loading
 from lie_factors.g2o import parse
 from lie_factors.app import run as P
 from lie_factors.errors import PoseGraphError
@@ -242,7 +243,7 @@ def test_file_vanishing_between_check_and_read(tmp_path, monkeypatch):
         os.unlink(p)
         return summary
 
-    monkeypatch.setattr(P, "check_g2o", check_then_delete)
+    monkeypatch.setattr(loading, "check_g2o", check_then_delete)
     with pytest.raises(PoseGraphError) as info:
         P.load(path)
     assert "\n" not in str(info.value)

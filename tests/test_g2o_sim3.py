@@ -182,7 +182,7 @@ def test_demo_file_round_trip(demo_file, tmp_path):
         assert np.max(np.abs(x1 - x2)) <= 1e-12 * max(1.0, np.max(np.abs(x1)))
 
 
-@pytest.mark.parametrize("backend", ["native", "custom", "batch"])
+@pytest.mark.parametrize("backend", ["native", "dropin", "batch"])
 def test_posegraph_cli_on_demo_file(demo_file, tmp_path, capsys, backend):
     out = tmp_path / f"{backend}.g2o"
     status = cli.main(["posegraph", str(demo_file), "--backend", backend, "--json", "--quiet",
@@ -198,16 +198,16 @@ def test_posegraph_cli_on_demo_file(demo_file, tmp_path, capsys, backend):
     g2o.check_g2o(str(out))
 
 
-def test_custom_and_native_reach_the_same_optimum_from_dead_reckoning(tmp_path):
+def test_dropin_and_native_reach_the_same_optimum_from_dead_reckoning(tmp_path):
     """A Sim(3) file whose vertices are the drifting dead-reckoned start: posegraph with our
     factors gets at least as low as GTSAM's own (whose Jacobians are inexact)."""
     problem = demo_sim3.simulate(40, 1)
     path = tmp_path / "start.g2o"
     g2o.write_g2o(str(path), demo_sim3.between_graph(problem), problem.initial)
-    records = {b: P.run(str(path), b, 100)[0] for b in ("native", "custom", "batch")}
-    assert records["custom"].final_error <= records["native"].final_error * (1 + 1e-9)
-    assert records["batch"].final_error == pytest.approx(records["custom"].final_error, rel=1e-9)
-    assert records["custom"].final_error < 1e-2 * records["custom"].initial_error
+    records = {b: P.run(str(path), b, 100)[0] for b in ("native", "dropin", "batch")}
+    assert records["dropin"].final_error <= records["native"].final_error * (1 + 1e-9)
+    assert records["batch"].final_error == pytest.approx(records["dropin"].final_error, rel=1e-9)
+    assert records["dropin"].final_error < 1e-2 * records["dropin"].initial_error
 
 
 def test_initialization_methods_on_a_sim3_file(tmp_path):
@@ -216,10 +216,10 @@ def test_initialization_methods_on_a_sim3_file(tmp_path):
     problem = demo_sim3.simulate(20, 3)
     path = tmp_path / "start.g2o"
     g2o.write_g2o(str(path), demo_sim3.between_graph(problem), problem.initial)
-    record, result, _ = P.run(str(path), "custom", 50, init="auto")
+    record, result, _ = P.run(str(path), "dropin", 50, init="auto")
     assert record.init == "file"
     assert ref.rel_err(result.start.atSimilarity3(19).matrix(), problem.initial.atSimilarity3(19).matrix()) <= 1e-13
-    record, result, _ = P.run(str(path), "custom", 50, init="spanning-tree")
+    record, result, _ = P.run(str(path), "dropin", 50, init="spanning-tree")
     assert record.init == "spanning-tree" and result.start.atSimilarity3(19).scale() > 0
     for method in ("chordal", "lago"):
         with pytest.raises(g2o.PoseGraphError, match="Similarity3"):

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import gtsam
 import numpy as np
 import pytest
 
+from cli_helpers import assert_one_line_error, last_json, run_main
 from lie_factors.app import cli, incremental
-from lie_factors.app import run as P
+from lie_factors.app.backends import build_graph
+from lie_factors.app.load import load
+from lie_factors.kernels.elements import to_gtsam
 from lie_factors.optimizers import ISAM2
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,24 +34,6 @@ EDGE_SE2 0 4 0.05 -0.02 0.01 {INFO2}
 """
 
 
-def run_main(capsys, *argv):
-    status = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
-def last_json(out: str) -> dict:
-    return json.loads(out.strip().splitlines()[-1])
-
-
-def assert_one_line_error(status, err, *fragments):
-    assert status == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("lie-factors: error: "), err
-    for f in fragments:
-        assert f in lines[0], lines[0]
-
-
 def write(tmp_path, text, name="g.g2o"):
     path = tmp_path / name
     path.write_text(text)
@@ -57,8 +41,8 @@ def write(tmp_path, text, name="g.g2o"):
 
 
 def test_schedule_and_initial_values_follow_the_rules(tmp_path):
-    pg = P.load(write(tmp_path, TINY2D))
-    graph = P.build_graph(pg, "custom")
+    pg = load(write(tmp_path, TINY2D))
+    graph = build_graph(pg, "dropin")
     steps = incremental.schedule(pg, graph)
     assert [s.key for s in steps] == [0, 1, 2, 3, 4]
     # every factor in the update of its later pose: prior (factor 6) first, edge 2-0 with pose 2,
@@ -73,11 +57,11 @@ def test_schedule_and_initial_values_follow_the_rules(tmp_path):
             after_update.append(self.calculateEstimate())
             return result
 
-    result = incremental.replay(pg, "custom", isam_class=Recording)
+    result = incremental.replay(pg, "dropin", isam_class=Recording)
     # new pose = previous pose's estimate composed with the odometry edge (inverted if stored backwards)
-    m01 = pg.between.at(0).measured()
+    m01 = to_gtsam("Pose2", pg.graph.measured[0])
     assert np.allclose(result.start.atPose2(1).matrix(), pg.initial.atPose2(0).compose(m01).matrix(), atol=1e-12)
-    m43 = pg.between.at(4).measured()
+    m43 = to_gtsam("Pose2", pg.graph.measured[4])
     expected4 = after_update[3].atPose2(3).compose(m43.inverse())
     assert np.allclose(result.start.atPose2(4).matrix(), expected4.matrix(), atol=1e-12)
     assert result.updates == 5 and len(result.times) == 5
@@ -85,9 +69,9 @@ def test_schedule_and_initial_values_follow_the_rules(tmp_path):
     assert result.final_error == pytest.approx(float(graph.error(result.values)), rel=1e-15)
 
 
-def test_cli_incremental_native_and_custom_on_small_grid(capsys):
+def test_cli_incremental_native_and_dropin_on_small_grid(capsys):
     records = {}
-    for backend in ("native", "custom", "batch"):
+    for backend in ("native", "dropin", "batch"):
         status, out, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--backend", backend, "--json")
         assert status == 0, err
         records[backend] = d = last_json(out)
@@ -96,8 +80,8 @@ def test_cli_incremental_native_and_custom_on_small_grid(capsys):
         assert d["relinearize_threshold"] == 0.1 and d["relinearize_skip"] == 10
         assert "125 updates" in out
     # GTSAM's Pose3 between factor and ours: the same error, Jacobians equal to rounding
-    assert records["custom"]["final_error"] == pytest.approx(records["native"]["final_error"], rel=1e-9)
-    assert records["custom"]["final_error"] == records["batch"]["final_error"]
+    assert records["dropin"]["final_error"] == pytest.approx(records["native"]["final_error"], rel=1e-9)
+    assert records["dropin"]["final_error"] == records["batch"]["final_error"]
     # the replay's estimate is close to the batch optimum (the same minimum, ISAM2 stops short of it)
     status, out, _ = run_main(capsys, "posegraph", SMALL, "--backend", "native", "--json", "--init", "file")
     assert records["native"]["final_error"] == pytest.approx(last_json(out)["final_error"], rel=1e-2)
@@ -111,7 +95,7 @@ def test_cli_incremental_options_output_and_plot(tmp_path, capsys):
     assert status == 0, err
     d = last_json(out)
     assert d["relinearize_threshold"] == 0.01 and d["relinearize_skip"] == 1 and d["dimension"] == 2
-    again = P.load(str(out_g2o))
+    again = load(str(out_g2o))
     assert again.poses == 5 and again.edges == 6
     assert png.stat().st_size > 0
 
@@ -119,19 +103,19 @@ def test_cli_incremental_options_output_and_plot(tmp_path, capsys):
 @pytest.mark.parametrize("name", ["pose3example-grid.txt", "noisyToyGraph.txt",
                                   "known_landmark_localization_20.g2o"])
 def test_cli_incremental_on_gtsam_example_files(capsys, name):
-    status, out, err = run_main(capsys, "posegraph", name, "--incremental", "--backend", "custom", "--json")
+    status, out, err = run_main(capsys, "posegraph", name, "--incremental", "--backend", "dropin", "--json")
     assert status == 0, err
     d = last_json(out)
-    pg = P.load(name)
+    pg = load(name)
     assert d["updates"] == pg.poses and d["landmarks"] == pg.landmark_count
     assert np.isfinite(d["final_error"])
 
 
 def test_cli_incremental_sim3(tmp_path, capsys):
-    status, _, err = run_main(capsys, "demo", "--scenario", "sim3", "--poses", "30", "--output",
+    status, out, err = run_main(capsys, "demo", "--scenario", "sim3", "--poses", "30", "--output",
                               str(tmp_path), "--quiet")
     assert status == 0, err
-    for backend in ("native", "custom"):
+    for backend in ("native", "dropin"):
         status, out, err = run_main(capsys, "posegraph", str(tmp_path / "optimized.g2o"), "--incremental",
                                     "--backend", backend, "--json", "--quiet")
         assert status == 0, err
@@ -147,12 +131,12 @@ def test_progress_line_every_1000_updates(capsys):
 
 
 def test_incremental_errors_are_one_line(tmp_path, capsys):
-    status, _, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--robust", "huber")
-    assert_one_line_error(status, err, "--robust does not apply to --incremental")
-    status, _, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--init", "chordal")
-    assert_one_line_error(status, err, "--init does not apply")
-    status, _, err = run_main(capsys, "posegraph", SMALL, "--relinearize-skip", "2")
-    assert_one_line_error(status, err, "apply to --incremental only")
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--robust", "huber")
+    assert_one_line_error(status, out, err, "--robust does not apply to --incremental")
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--incremental", "--init", "chordal")
+    assert_one_line_error(status, out, err, "--init does not apply")
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--relinearize-skip", "2")
+    assert_one_line_error(status, out, err, "apply to --incremental only")
     with pytest.raises(SystemExit) as info:
         cli.main(["posegraph", SMALL, "--incremental", "--relinearize-threshold", "0"])
     assert info.value.code == 2
@@ -160,11 +144,11 @@ def test_incremental_errors_are_one_line(tmp_path, capsys):
     # pose 1 has no edge to pose 0: it cannot be added online
     text = (f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\n"
             f"EDGE_SE2 0 2 2 0 0 {INFO2}\nEDGE_SE2 1 2 1 0 0 {INFO2}\n")
-    status, _, err = run_main(capsys, "posegraph", write(tmp_path, text), "--incremental")
-    assert_one_line_error(status, err, "pose 1 has no edge to an earlier pose")
+    status, out, err = run_main(capsys, "posegraph", write(tmp_path, text), "--incremental")
+    assert_one_line_error(status, out, err, "pose 1 has no edge to an earlier pose")
     # an ISAM2 failure (indeterminate system: pose 1 appears with one landmark measurement only)
     text = (f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 2 0 0\nLANDMARK2 1 5 3 4 10 0 10\n"
             f"EDGE_SE2 0 2 2 0 0 {INFO2}\nEDGE_SE2 1 2 1 0 0 {INFO2}\n")
-    status, _, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental",
+    status, out, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental",
                               "--backend", "native")
-    assert_one_line_error(status, err, "ISAM2 update 2 (pose 1) failed", "Indeterminate")
+    assert_one_line_error(status, out, err, "ISAM2 update 2 (pose 1) failed", "Indeterminate")

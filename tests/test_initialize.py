@@ -2,16 +2,23 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import gtsam
 import numpy as np
 import pytest
 
+from cli_helpers import last_json, run_main
 from lie_factors import factors as F
 from lie_factors import initialization as I
 from lie_factors.app import run as P
+from lie_factors.app.backends import build_graph, optimize
+from lie_factors.app.load import load
+from lie_factors.errors import PoseGraphError
+from lie_factors.initialization import chordal, lago
+from lie_factors.initialization.planar import planar_pose3
+from lie_factors.kernels.elements import matrices_from_values
+from lie_factors.pose_graph import PRIOR_VARIANCES, PoseGraph
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SMALL = DATA / "smallGrid3D.g2o"
@@ -39,7 +46,8 @@ def pose2_loop(n=12, radius=5.0, noise=0.0, seed=0, full_cov=False, prior=True, 
         Z = Z.retract(noise * rng.normal(size=3))
         graph.add(gtsam.BetweenFactorPose2(offset + i, offset + j, Z, model))
     if prior:
-        graph.add(gtsam.PriorFactorPose2(offset, truth.atPose2(offset), P.prior_noise(False)))
+        graph.add(gtsam.PriorFactorPose2(offset, truth.atPose2(offset),
+                                         gtsam.noiseModel.Diagonal.Variances(PRIOR_VARIANCES["Pose2"])))
     return graph, truth
 
 
@@ -67,8 +75,8 @@ def max_pose_diff(a: gtsam.Values, b: gtsam.Values, is3d: bool) -> float:
 
 
 def small3d():
-    pg = P.load(str(SMALL))
-    return pg, P.build_graph(pg, "native")
+    pg = load(str(SMALL))
+    return pg, build_graph(pg, "native")
 
 
 # ------------------------------------------------------------------ chordal
@@ -79,7 +87,7 @@ def test_chordal_3d_is_gtsams_initializer_for_native_and_custom_factors():
     for graph in (native, as_custom(native)):
         got = I.initialize(graph, "chordal")
         assert got.method == "chordal" and got.skipped == [] and got.seconds > 0
-        # Computed on arrays (lie_factors.initialization.relaxation): GTSAM's results up to rounding (7e-12 here);
+        # Ours (lie_factors.initialization.chordal): GTSAM's results up to rounding (7e-12 here);
         # the contract for a reimplementation is 1e-9.
         assert max_pose_diff(got.values, ref, True) < 1e-9
     # …and it is a much better start than the file's composed odometry.
@@ -92,7 +100,7 @@ def test_chordal_2d_recovers_noise_free_poses_and_stays_planar():
     assert max_pose_diff(got.values, truth, False) < 1e-9
     # The planar Pose3 graph handed to GTSAM comes back planar on a noisy graph too.
     noisy, _ = pose2_loop(noise=0.05, full_cov=True, seed=3)
-    values3 = gtsam.InitializePose3.initialize(I._native_graph(I._planar_pose3_graph(I._convert(noisy))))
+    values3 = gtsam.InitializePose3.initialize(planar_pose3(PoseGraph.from_gtsam(noisy)).factor_graph())
     for k in values3.keys():
         T = values3.atPose3(k)
         assert abs(T.z()) < 1e-9 and abs(T.rotation().roll()) < 1e-9 and abs(T.rotation().pitch()) < 1e-9
@@ -102,7 +110,7 @@ def test_chordal_2d_start_reaches_the_optimum():
     graph, truth = pose2_loop(noise=0.05, full_cov=True, seed=1)
     start = I.initialize(graph, "chordal").values
     ref = gtsam.LevenbergMarquardtOptimizer(graph, truth, gtsam.LevenbergMarquardtParams()).optimize()
-    res = P.optimize(graph, start)
+    res = optimize(graph, start)
     assert res.final_error == pytest.approx(graph.error(ref), rel=1e-8)
     assert graph.error(start) < graph.error(truth) * 10
 
@@ -115,7 +123,8 @@ def test_lago_is_gtsams_initializer_for_native_and_custom_factors():
     for g in (graph, as_custom(graph)):
         got = I.initialize(g, "lago")
         assert got.method == "lago"
-        # On arrays (lie_factors.initialization.relaxation): GTSAM's up to rounding (2e-12 here); the contract for a reimplementation is 1e-9.
+        # Ours (lie_factors.initialization.lago): GTSAM's up to rounding (2e-12 here); the contract for a
+        # reimplementation is 1e-9.
         assert max_pose_diff(got.values, ref, False) < 1e-9
     noise_free, truth = pose2_loop(noise=0.0)
     assert max_pose_diff(I.initialize(noise_free, "lago").values, truth, False) < 1e-9
@@ -196,11 +205,11 @@ def test_disconnected_graph_auto_falls_back_to_file_then_fails_without_it():
 def test_auto_without_initial_values_ends_with_spanning_tree(monkeypatch):
     graph, truth = pose2_loop(noise=0.0)
 
-    def cannot(pg):
+    def cannot(*args):
         raise I.InitializationError("not today")
 
-    monkeypatch.setitem(I._METHOD_FUNCS, "lago", I._graph_method(cannot))
-    monkeypatch.setitem(I._METHOD_FUNCS, "chordal", I._graph_method(cannot))
+    monkeypatch.setattr(lago, "initialize_pose2", cannot)
+    monkeypatch.setattr(chordal, "initialize", cannot)
     got = I.initialize(graph)
     assert got.method == "spanning-tree"
     assert got.skipped == [("lago", "not today"), ("chordal", "not today")]
@@ -285,42 +294,35 @@ def test_bad_graphs_are_refused():
         I.initialize(mixed)
     with pytest.raises(I.InitializationError, match="unknown initialization 'odometry'"):
         I.initialize(mixed, "odometry")
-    assert issubclass(I.InitializationError, P.PoseGraphError)
+    assert issubclass(I.InitializationError, PoseGraphError)
 
 
 # ------------------------------------------------------------ posegraph.run
 
 def test_every_backend_starts_from_the_same_values():
-    pg = P.load(str(SMALL))
-    records = {b: P.run(pg, b, max_iterations=1, init="chordal") for b in ("native", "custom", "batch")}
+    pg = load(str(SMALL))
+    records = {b: P.run(pg, b, max_iterations=1, init="chordal") for b in ("native", "dropin", "batch")}
     start = records["native"][1].start
     for backend, (record, result, _) in records.items():
         assert record.init == "chordal" and record.init_seconds > 0
-        # batch initializes on the file's arrays (lie_factors.initialization.relaxation: GTSAM's algorithm,
-        # its own arithmetic, agreeing to 1e-9); the others run GTSAM's.
+        # batch initializes with ours (GTSAM's algorithm, our arithmetic, agreeing to 1e-9);
+        # the others run GTSAM's own.
         tol = 1e-9 if backend == "batch" else 1e-12
         assert max_pose_diff(result.start, start, True) < tol
         assert record.initial_error == pytest.approx(records["native"][0].initial_error, rel=1e-9)
 
 
 def test_run_file_start_is_the_vertices_and_auto_is_no_worse():
-    pg = P.load(str(SMALL))
+    pg = load(str(SMALL))
     file_rec, file_res, _ = P.run(pg, "native", init="file")
-    assert file_rec.init == "file" and file_res.start is pg.initial
+    assert file_rec.init == "file"
+    assert np.array_equal(matrices_from_values(file_res.start, "Pose3", pg.graph.keys), pg.graph.vertices)
     auto_rec, _, _ = P.run(pg, "native")
     assert auto_rec.init == "chordal" and auto_rec.iterations < file_rec.iterations
     assert auto_rec.final_error <= file_rec.final_error * (1 + 1e-6)
 
 
 # ---------------------------------------------------------------------- CLI
-
-def cli_run(capsys, *argv):
-    from lie_factors.app import cli
-
-    status = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return status, out, err
-
 
 def write_graph(tmp_path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     path = str(tmp_path / "g.g2o")
@@ -333,17 +335,18 @@ def test_cli_init_choices_are_the_librarys():
 
     assert cli.INIT_METHODS == I.METHODS
     assert set(cli.INIT_DESCRIPTIONS) == set(I.METHODS) - {"auto"}
+    assert set(cli.ENGINE_NOTES) == set(I.ENGINES)
 
 
 def test_cli_auto_names_the_start_and_why_lago_was_skipped(tmp_path, capsys):
     graph, truth = pose2_loop(noise=0.03, full_cov=True, seed=5)
     path = write_graph(tmp_path, graph, truth)
-    status, out, err = cli_run(capsys, "posegraph", path, "--backend", "native", "--json")
+    status, out, err = run_main(capsys, "posegraph", path, "--backend", "native", "--json")
     assert status == 0
-    rec = json.loads(out.strip().splitlines()[-1])
+    rec = last_json(out)
     assert rec["init"] == "chordal" and rec["init_seconds"] > 0
     assert "init lago not applicable: LAGO needs diagonal noise models" in out
-    assert "initial guess: chordal relaxation (GTSAM's InitializePose3, on arrays)" in out
+    assert "initial guess: chordal relaxation (GTSAM's InitializePose3), GTSAM's own" in out
 
 
 def test_cli_each_method_runs(tmp_path, capsys):
@@ -351,25 +354,25 @@ def test_cli_each_method_runs(tmp_path, capsys):
     path = write_graph(tmp_path, graph, truth)
     finals = {}
     for method in I.METHODS:
-        status, out, _ = cli_run(capsys, "posegraph", path, "--backend", "native", "--init", method,
+        status, out, _ = run_main(capsys, "posegraph", path, "--backend", "native", "--init", method,
                                  "--quiet", "--json")
         assert status == 0
-        rec = json.loads(out.strip().splitlines()[-1])
+        rec = last_json(out)
         assert rec["init"] == ("lago" if method == "auto" else method)
         finals[method] = rec["final_error"]
     assert max(finals.values()) == pytest.approx(min(finals.values()), rel=1e-6)
 
 
 def test_cli_method_that_cannot_run_is_one_line(tmp_path, capsys):
-    status, out, err = cli_run(capsys, "posegraph", str(SMALL), "--init", "lago", "--quiet")
+    status, out, err = run_main(capsys, "posegraph", str(SMALL), "--init", "lago", "--quiet")
     assert status == 2 and err.count("\n") == 1
     assert err.startswith("lie-factors: error: lago: LAGO is for Pose2 graphs") and "Traceback" not in err
     edges_only = tmp_path / "e.g2o"
     edges_only.write_text("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
-    status, out, err = cli_run(capsys, "posegraph", str(edges_only), "--init", "file", "--quiet")
+    status, out, err = run_main(capsys, "posegraph", str(edges_only), "--init", "file", "--quiet")
     assert status == 2 and err == "lie-factors: error: file: no initial values given (the file has no vertices)\n"
     with pytest.raises(SystemExit) as exc:  # argparse's own usage error, status 2
-        cli_run(capsys, "posegraph", str(edges_only), "--init", "nope", "--quiet")
+        run_main(capsys, "posegraph", str(edges_only), "--init", "nope", "--quiet")
     assert exc.value.code == 2 and "invalid choice: 'nope'" in capsys.readouterr().err
 
 

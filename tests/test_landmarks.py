@@ -9,9 +9,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from lie_factors.app import cli
 from lie_factors import g2o
-from lie_factors.app import run as P
+from lie_factors.app import cli
+from lie_factors.app.load import load
 
 
 def _random_info(rng, n):
@@ -59,8 +59,8 @@ def test_landmark2_factor_error_is_the_cartesian_mahalanobis_to_first_order(tmp_
     path = tmp_path / "l2.g2o"
     path.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n"
                     "LANDMARK2 0 5 3 4 10 2 5\n")
-    pg = P.load(str(path))
-    f = pg.landmarks.at(0)
+    pg = load(str(path))
+    f = pg.landmarks.factors.at(0)
     L = np.array([[10.0, 2.0], [2.0, 5.0]])
     for dp in (np.array([1e-4, -2e-4]), np.array([-3e-4, 1e-4])):
         v = gtsam.Values()
@@ -70,11 +70,11 @@ def test_landmark2_factor_error_is_the_cartesian_mahalanobis_to_first_order(tmp_
 
 
 def test_landmark_files_from_gtsam_load_with_the_factors_gtsam_builds():
-    pg = P.load("victoria_park.txt")  # ODOMETRY + LANDMARK: GTSAM builds every factor
+    pg = load("victoria_park.txt")  # ODOMETRY + LANDMARK: GTSAM builds every factor
     graph, _ = gtsam.readG2o(gtsam.findExampleDataFile("victoria_park.txt"), False)
     assert pg.edges + pg.observations == graph.size()
-    assert isinstance(pg.landmarks.at(0), gtsam.BearingRangeFactor2D)
-    pg = P.load("cityTrees_reduced_1k.g2o")  # LANDMARK2: GTSAM skips them, we do not
+    assert isinstance(pg.landmarks.factors.at(0), gtsam.BearingRangeFactor2D)
+    pg = load("cityTrees_reduced_1k.g2o")  # LANDMARK2: GTSAM skips them, we do not
     assert pg.observations == 406 and pg.landmark_count == 66
 
 
@@ -86,7 +86,7 @@ def test_cli_plot_and_output_with_landmarks(tmp_path, capsys):
     assert png.read_bytes()[:4] == b"\x89PNG"
     text = out.read_text()
     assert text.count("EDGE_SE3_TRACKXYZ") == 80 and text.count("VERTEX_TRACKXYZ") == 4
-    again = P.load(str(out))
+    again = load(str(out))
     assert again.observations == 80 and again.landmark_count == 4
 
     out2 = tmp_path / "v.g2o"
@@ -95,4 +95,4 @@ def test_cli_plot_and_output_with_landmarks(tmp_path, capsys):
     assert status == 0
     text = out2.read_text()
     assert text.count("LANDMARK2") == 606 and text.count("VERTEX_XY") == 48
-    assert P.load(str(out2)).observations == 606
+    assert load(str(out2)).observations == 606

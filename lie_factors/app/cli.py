@@ -102,9 +102,12 @@ def _bounded_int(option: str, low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
-#: lie_factors.app.run.BACKENDS, spelled out so that building the parser does
-#: not import GTSAM (a test checks they agree).
-BACKENDS = ("native", "custom", "batch")
+#: lie_factors.app.backends.BACKENDS and ALIASES, spelled out so that building the parser
+#: does not import GTSAM (a test checks they agree).
+BACKENDS = ("native", "dropin", "batch")
+BACKEND_ALIASES = {"custom": "dropin"}
+_BACKEND_HELP = ("dropin = lie_factors factors in lie_factors.optimizers' drop-in of GTSAM's LM "
+                 "(custom, its former name, still works)")
 
 
 # --------------------------------------------------------------------------- #
@@ -116,11 +119,14 @@ BACKENDS = ("native", "custom", "batch")
 INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
 
 INIT_DESCRIPTIONS = {
-    "chordal": "chordal relaxation (GTSAM's InitializePose3, on arrays)",
-    "lago": "LAGO (GTSAM's lago, on arrays)",
+    "chordal": "chordal relaxation (GTSAM's InitializePose3)",
+    "lago": "LAGO (GTSAM's lago)",
     "spanning-tree": "measurements composed along a spanning tree",
     "file": "vertices in the file",
 }
+
+#: Whose chordal/LAGO initializer ran (lie_factors.initialization.ENGINES), after its description.
+ENGINE_NOTES = {"lie_factors": ", ours on arrays", "gtsam": ", GTSAM's own"}
 
 
 def _add_posegraph(p: argparse.ArgumentParser) -> None:
@@ -128,12 +134,12 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                    help="g2o file (2-D VERTEX_SE2/EDGE_SE2, 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
                         "EDGE3, or Sim(3) VERTEX_SIM3:EXPMAP/EDGE_SIM3:EXPMAP), or the name of a "
                         "file shipped with GTSAM, e.g. sphere2500.txt")
-    # batch is the default: it is the fast path (custom runs GTSAM's LM algorithm from Python,
+    # batch is the default: it is the fast path (dropin runs GTSAM's LM algorithm from Python,
     # lie_factors.optimizers, with GTSAM linearizing and eliminating; docs/benchmarks.md).
     p.add_argument("--backend", default="batch", metavar="NAME",
                    help=f"factor implementation: {' | '.join(BACKENDS)} (default: batch = lie_factors "
-                        "factors in the vectorized solver; custom = the same factors in "
-                        "lie_factors.optimizers' drop-in of GTSAM's LM; native = GTSAM's own factors, the reference)")
+                        f"factors in the vectorized solver; {_BACKEND_HELP}; native = GTSAM's own "
+                        "factors, the reference)")
     p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
                    default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")
@@ -156,7 +162,7 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                         "the JSON gains 'outliers' (rejected edges, 0-based file order)")
     p.add_argument("--incremental", action="store_true",
                    help="replay the file online through ISAM2 instead (poses in id order, one per "
-                        "update; native = GTSAM's factors in gtsam.ISAM2, custom/batch = ours in "
+                        "update; native = GTSAM's factors in gtsam.ISAM2, dropin/batch = ours in "
                         "lie_factors.optimizers.ISAM2); the JSON adds incremental, updates, "
                         "update_seconds, update_p50, update_p99")
     p.add_argument("--relinearize-threshold", type=_positive_float, default=0.1, metavar="T",
@@ -182,15 +188,23 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _refuse_batch_options(args) -> None:
+    for option, value, default in (("--robust", args.robust, None), ("--robust-all", args.robust_all, False),
+                                   ("--gnc", args.gnc, None), ("--init", args.init, "auto"),
+                                   ("--max-iterations", args.max_iterations, 100)):
+        if value != default:
+            raise CLIError(f"{option} does not apply to --incremental (ISAM2 replays the file "
+                           "online from its own estimates)")
+
+
 def _run_posegraph(args) -> int:
-    """Parse → :class:`lie_factors.app.run.PoseGraphRun` → print; the run owns every step."""
+    """Parse → :class:`lie_factors.app.run.PoseGraphRun` (or, with ``--incremental``, its ISAM2
+    replay) → print; the run owns every step."""
     import time
 
-    if args.incremental:  # the online replay (ISAM2) lives in its own module
-        from lie_factors.app import incremental
-
-        return incremental.main(args, _say, _emit_json)
-    if args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
+    if args.incremental:
+        _refuse_batch_options(args)
+    elif args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
         raise CLIError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
     t = time.perf_counter()
     from lie_factors.app import run as pgm
@@ -200,9 +214,13 @@ def _run_posegraph(args) -> int:
     class Printer(pgm.RunEvents):
         def loaded(self, run):
             pg = run.pg
+            if args.incremental:
+                _say(args, f"{pg.describe()}; incremental (ISAM2, relinearize threshold "
+                           f"{args.relinearize_threshold:g}, skip {args.relinearize_skip}), backend {run.backend}")
+                return
             _say(args, f"{pg.describe()}"
                        f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
-                       f"backend {args.backend}")
+                       f"backend {run.backend}")
             if run.robust is not None:
                 what = "every edge" if args.robust_all else "the loop closures"
                 _say(args, f"robust loss {run.robust} on {what}")
@@ -212,7 +230,8 @@ def _run_posegraph(args) -> int:
                 _say(args, f"init {method} not applicable: {reason}")
             only = (" of the odometry edges and the prior only (loop closures left out under "
                     f"{'--gnc' if args.gnc else '--robust'})" if start.inliers_only else "")
-            _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{only} ({start.seconds:.3f} s)")
+            _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{ENGINE_NOTES.get(start.engine, '')}"
+                       f"{only} ({start.seconds:.3f} s)")
 
         def iteration(self, info):
             if not args.quiet:
@@ -225,12 +244,22 @@ def _run_posegraph(args) -> int:
                 print(f"gnc iter {it + 1:3d}  lambda {lam:.3e}  weighted cost {cost:.6e}  "
                       f"({lm_iterations} LM iterations)", file=sys.stderr, flush=True)
 
+        def replayed(self, done, total, seconds):
+            if not args.quiet:
+                print(f"update {done}/{total}: {seconds:.3f} s", file=sys.stderr, flush=True)
+
         def optimized(self, run):
-            _report_compile(args)
             record = run.record
+            if args.incremental:
+                r = run.replay
+                _say(args, f"{r.updates} updates in {r.update_seconds:.3f} s (per update: median "
+                           f"{r.update_p50 * 1e3:.3f} ms, p99 {r.update_p99 * 1e3:.3f} ms); "
+                           f"final error {r.final_error:.6g}")
+                return
+            _report_compile(args)
             status = "converged" if record.converged else "stopped (not converged)"
             if args.gnc:
-                n_lc = len(pgm.loop_closures(run.pg))
+                n_lc = len(run.pg.graph.loop_closures())
                 _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop "
                            f"closures; error {record.initial_error:.6g} -> weighted "
                            f"{record.final_error:.6g} after {record.iterations} GNC iterations, "
@@ -243,9 +272,15 @@ def _run_posegraph(args) -> int:
         def wrote(self, path):
             _say(args, f"wrote {path}")
 
-    job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
-                           robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
-                           output=args.output, plot=args.plot, events=Printer(), lazy_values=True)
+    if args.incremental:  # the online replay (ISAM2)
+        from lie_factors.app.incremental import IncrementalRun
+
+        job = IncrementalRun(args.dataset, args.backend, args.relinearize_threshold, args.relinearize_skip,
+                             output=args.output, plot=args.plot, events=Printer())
+    else:
+        job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
+                               robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
+                               output=args.output, plot=args.plot, events=Printer(), lazy_values=True)
     job.timings["imports"] = imports  # GTSAM and numpy, loaded with lie_factors.app.run
     record = job.execute()
     if args.json:
@@ -276,8 +311,8 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output", default="lie-factors-demo", metavar="DIR",
                    help="directory for trajectory.png and optimized.g2o "
                         "(default: ./lie-factors-demo, created if missing)")
-    p.add_argument("--backend", default="custom", metavar="NAME",
-                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: custom; "
+    p.add_argument("--backend", default="dropin", metavar="NAME",
+                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: dropin; {_BACKEND_HELP}; "
                         "sim3 runs native beside it anyway)")
     p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
                    default=100, metavar="K",
@@ -287,38 +322,59 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress and no human-readable report")
 
 
-def _demo_output_dir(out_dir: str) -> None:
+def _demo_files(args) -> tuple[str, str]:
+    """The demo's (trajectory.png, optimized.g2o) in ``--output``, the directory created if missing,
+    the g2o path checked writable."""
+    from lie_factors import atomic
+
+    out_dir = args.output
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise CLIError(f"{out_dir}: exists and is not a directory")
     try:
         os.makedirs(out_dir, exist_ok=True)
     except OSError as exc:
         raise CLIError(f"{out_dir}: cannot create directory ({exc.strerror})") from None
+    files = os.path.join(out_dir, "trajectory.png"), os.path.join(out_dir, "optimized.g2o")
+    atomic.check_writable(files[1])
+    return files
+
+
+def _write_demo(args, files: tuple[str, str], between, values, trajectories: dict, title: str) -> None:
+    """The optimized graph (g2o) and the trajectories (png), each written atomically."""
+    from lie_factors import atomic, g2o
+    from lie_factors.app.plotting import plot_trajectories
+
+    png, g2o_path = files
+    g2o.write_g2o(g2o_path, between, values)
+    atomic.replace_atomically(png, lambda tmp: plot_trajectories(tmp, trajectories, title), suffix=".png")
+    _say(args, f"wrote {png} and {g2o_path}")
+
+
+def _demo_record(args, dataset: str, graph, result, ate0: float, ate1: float, scenario: str | None = None) -> dict:
+    """The ``--json`` record of a demo: its graph, ``result``'s figures and the ATE before and after."""
+    return {"backend": args.backend, **({"scenario": scenario} if scenario else {}), "dataset": dataset,
+            "dimension": 3, "poses": args.poses, "factors": int(graph.size()), "iterations": result.iterations,
+            "initial_error": result.initial_error, "final_error": result.final_error,
+            "seconds": result.seconds, "converged": result.converged, "ate_rmse_initial": ate0, "ate_rmse": ate1}
 
 
 def _run_demo(args) -> int:
-    from lie_factors import atomic, g2o
-    from lie_factors.app import demo
-    from lie_factors.app import run as pgm
+    from lie_factors.app import backends, demo
 
     if args.poses is None:
         args.poses = DEMO_SCENARIOS[args.scenario][0]
-    pgm.get_backend(args.backend)
+    args.backend = backends.backend_name(args.backend)
     if args.scenario == "sim3":
         return _run_demo_sim3(args)
-    out_dir = args.output
-    _demo_output_dir(out_dir)
-    png = os.path.join(out_dir, "trajectory.png")
-    g2o_path = os.path.join(out_dir, "optimized.g2o")
-    atomic.check_writable(g2o_path)
-    factors = pgm.load_factors(args.backend)
+    files = _demo_files(args)
+    factors = backends.load_factors(args.backend)
 
     problem = demo.simulate(args.poses, args.seed)
     graph = demo.build_graph(problem, factors)
     _say(args, f"demo: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
-    result = pgm.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
-                                                    _progress(args))
+    result = backends.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
+                                                         _progress(args))
     _report_compile(args)
     ate0 = demo.ate_rmse(problem.initial, problem.truth)
     ate1 = demo.ate_rmse(result.values, problem.truth)
@@ -327,51 +383,27 @@ def _run_demo(args) -> int:
                f"({result.iterations} iterations, {result.seconds:.3f} s, {status})")
     _say(args, f"ATE (RMSE)  {ate0:12.4f} m -> {ate1:.4f} m")
 
-    g2o.write_g2o(g2o_path, demo.between_graph(problem), result.values)
-    from lie_factors.app.plotting import plot_trajectories
+    from lie_factors.app.plotting import positions
 
-    truth = [T.translation() for T in problem.truth]
-    atomic.replace_atomically(png, lambda tmp: plot_trajectories(
-        tmp,
-        {"ground truth": truth,
-         "initial": pgm.positions(problem.initial, True),
-         "optimized": pgm.positions(result.values, True)},
-        f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m"),
-        suffix=".png")
-    _say(args, f"wrote {png} and {g2o_path}")
+    _write_demo(args, files, demo.between_graph(problem), result.values,
+                {"ground truth": [T.translation() for T in problem.truth],
+                 "initial": positions(problem.initial, True), "optimized": positions(result.values, True)},
+                f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m")
     if args.json:
-        _emit_json({
-            "backend": args.backend,
-            "dataset": f"demo(poses={args.poses}, seed={args.seed})",
-            "dimension": 3,
-            "poses": args.poses,
-            "factors": int(graph.size()),
-            "iterations": result.iterations,
-            "initial_error": result.initial_error,
-            "final_error": result.final_error,
-            "seconds": result.seconds,
-            "converged": result.converged,
-            "ate_rmse_initial": ate0,
-            "ate_rmse": ate1,
-        })
+        _emit_json(_demo_record(args, f"demo(poses={args.poses}, seed={args.seed})", graph, result, ate0, ate1))
     return 0
 
 
 def _run_demo_sim3(args) -> int:
     """The scale-drift scenario (:mod:`lie_factors.app.demo_sim3`): ours and GTSAM's native
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
-    from lie_factors import atomic, g2o
-    from lie_factors.app import demo_sim3
-    from lie_factors.app import run as pgm
+    from lie_factors.app import backends, demo_sim3
 
     if args.backend == "native":
         raise CLIError("--scenario sim3 always runs GTSAM's native factors beside ours; "
-                       "choose --backend custom or batch for ours")
-    _demo_output_dir(args.output)
-    png = os.path.join(args.output, "trajectory.png")
-    g2o_path = os.path.join(args.output, "optimized.g2o")
-    atomic.check_writable(g2o_path)
-    pgm.load_factors(args.backend)  # a clear error now if ours are unavailable
+                       "choose --backend dropin or batch for ours")
+    files = _demo_files(args)
+    backends.load_factors(args.backend)  # a clear error now if ours are unavailable
 
     problem = demo_sim3.simulate(args.poses, args.seed)
     _say(args, f"demo sim3: {args.poses} poses, {len(problem.odometry)} odometry edges, "
@@ -399,44 +431,20 @@ def _run_demo_sim3(args) -> int:
     _say(args, f"ours reached {verdict} (|g|/|g0| = {g_ours / g0:.2e}, target <= 1e-06); "
                f"native stopped at |g|/|g0| = {g_native / g0:.2e}")
 
-    g2o.write_g2o(g2o_path, demo_sim3.between_graph(problem), ours.values)
-    from lie_factors.app.plotting import plot_trajectories
-
     n = args.poses
-    truth = demo_sim3.true_centres(problem.truth)
-    atomic.replace_atomically(png, lambda tmp: plot_trajectories(
-        tmp,
-        {"ground truth": truth,
-         "initial": demo_sim3.camera_centres(problem.initial, n),
-         "ours": demo_sim3.camera_centres(ours.values, n),
-         "native": demo_sim3.camera_centres(native.values, n)},
-        f"Sim(3) scale drift: {n} poses, ATE {ate0:.2f} m -> ours {ate_ours:.3f} m, "
-        f"native {ate_native:.3f} m"),
-        suffix=".png")
-    _say(args, f"wrote {png} and {g2o_path}")
+    _write_demo(args, files, demo_sim3.between_graph(problem), ours.values,
+                {"ground truth": demo_sim3.true_centres(problem.truth),
+                 "initial": demo_sim3.camera_centres(problem.initial, n),
+                 "ours": demo_sim3.camera_centres(ours.values, n),
+                 "native": demo_sim3.camera_centres(native.values, n)},
+                f"Sim(3) scale drift: {n} poses, ATE {ate0:.2f} m -> ours {ate_ours:.3f} m, "
+                f"native {ate_native:.3f} m")
     if args.json:
-        _emit_json({
-            "backend": args.backend,
-            "scenario": "sim3",
-            "dataset": f"demo-sim3(poses={n}, seed={args.seed})",
-            "dimension": 3,
-            "poses": n,
-            "factors": int(graph.size()),
-            "iterations": ours.iterations,
-            "initial_error": ours.initial_error,
-            "final_error": ours.final_error,
-            "seconds": ours.seconds,
-            "converged": ours.converged,
-            "ate_rmse_initial": ate0,
-            "ate_rmse": ate_ours,
-            "native_ate_rmse": ate_native,
-            "native_final_error": native.final_error,
-            "native_iterations": native.iterations,
-            "native_converged": native.converged,
-            "gradient_norm_initial": g0,
-            "gradient_norm": g_ours,
-            "native_gradient_norm": g_native,
-        })
+        _emit_json({**_demo_record(args, f"demo-sim3(poses={n}, seed={args.seed})", graph, ours, ate0, ate_ours,
+                                   "sim3"),
+                    "native_ate_rmse": ate_native, "native_final_error": native.final_error,
+                    "native_iterations": native.iterations, "native_converged": native.converged,
+                    "gradient_norm_initial": g0, "gradient_norm": g_ours, "native_gradient_norm": g_native})
     return 0
 
 

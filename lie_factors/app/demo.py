@@ -62,16 +62,27 @@ def noisy(T: gtsam.Pose3, rng: np.random.Generator) -> gtsam.Pose3:
 
 @dataclass
 class Problem:
-    """Everything the demo optimizes.
+    """Everything a demo optimizes (this one's poses are Pose3, the Sim(3) demo's Similarity3).
 
-    ``truth``: n true poses; ``odometry``: n−1 measured T_{i,i+1};
-    ``closures``: list of (i, j, measured T_ij); ``initial``: Values by composing odometry.
+    ``truth``: n true poses; ``odometry``: n−1 measured Z_{i,i+1};
+    ``closures``: list of (i, j, measured Z_ij); ``initial``: Values by composing odometry.
     """
 
-    truth: list[gtsam.Pose3]
-    odometry: list[gtsam.Pose3]
-    closures: list[tuple[int, int, gtsam.Pose3]]
+    truth: list
+    odometry: list
+    closures: list
     initial: gtsam.Values
+
+
+def dead_reckoning(start, odometry: list) -> gtsam.Values:
+    """Pose 0 at ``start``, pose i + 1 = pose i · ``odometry[i]``: the drift the closures must remove."""
+    initial = gtsam.Values()
+    pose = start
+    initial.insert(0, pose)
+    for i, Z in enumerate(odometry):
+        pose = pose.compose(Z)
+        initial.insert(i + 1, pose)
+    return initial
 
 
 def simulate(n: int = 300, seed: int = 0) -> Problem:
@@ -82,26 +93,28 @@ def simulate(n: int = 300, seed: int = 0) -> Problem:
     truth = ground_truth(n)
     odometry = [noisy(truth[i].between(truth[i + 1]), rng) for i in range(n - 1)]
     closures = [(i, j, noisy(truth[i].between(truth[j]), rng)) for i, j in loop_closure_pairs(n)]
-    initial = gtsam.Values()
-    pose = truth[0]
-    initial.insert(0, pose)
-    for i, Z in enumerate(odometry):
-        pose = pose.compose(Z)  # dead reckoning: the drift the closures must remove
-        initial.insert(i + 1, pose)
-    return Problem(truth, odometry, closures, initial)
+    return Problem(truth, odometry, closures, dead_reckoning(truth[0], odometry))
+
+
+def chain_graph(problem: Problem, factors, group: str, prior_noise, odometry_noise,
+                closure_noise) -> gtsam.NonlinearFactorGraph:
+    """Prior on pose 0 (at its true value) + odometry + closures on ``group`` (GTSAM's type name),
+    built with ``factors``' constructors (``lie_factors.factors`` or ``gtsam``: both name them
+    like GTSAM)."""
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(getattr(factors, f"PriorFactor{group}")(0, problem.truth[0], prior_noise))
+    Between = getattr(factors, f"BetweenFactor{group}")
+    for i, Z in enumerate(problem.odometry):
+        graph.add(Between(i, i + 1, Z, odometry_noise))
+    for i, j, Z in problem.closures:
+        graph.add(Between(i, j, Z, closure_noise))
+    return graph
 
 
 def build_graph(problem: Problem, factors) -> gtsam.NonlinearFactorGraph:
-    """Prior on pose 0 + odometry + closures, built with ``factors``' constructors
-    (``lie_factors.factors`` or ``gtsam``: both name them like GTSAM)."""
+    """The demo's graph (:func:`chain_graph`), every edge with the noise model of :data:`SIGMAS`."""
     noise = gtsam.noiseModel.Diagonal.Sigmas(SIGMAS)
-    graph = gtsam.NonlinearFactorGraph()
-    graph.add(factors.PriorFactorPose3(0, problem.truth[0], gtsam.noiseModel.Diagonal.Sigmas(PRIOR_SIGMAS)))
-    for i, Z in enumerate(problem.odometry):
-        graph.add(factors.BetweenFactorPose3(i, i + 1, Z, noise))
-    for i, j, Z in problem.closures:
-        graph.add(factors.BetweenFactorPose3(i, j, Z, noise))
-    return graph
+    return chain_graph(problem, factors, "Pose3", gtsam.noiseModel.Diagonal.Sigmas(PRIOR_SIGMAS), noise, noise)
 
 
 def without_prior(full: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from .demo import without_prior
+from .demo import Problem, chain_graph, dead_reckoning, without_prior
 
 #: Odometry noise model, Similarity3 tangent order [ω (rad), u (m), λ].
 SIGMAS = np.array([0.003, 0.003, 0.003, 0.03, 0.03, 0.03, 0.01])
@@ -77,17 +77,6 @@ def loop_closure_pairs(n: int) -> list[tuple[int, int]]:
     return [(i - per_lap, i) for i in range(per_lap, n, stride)]
 
 
-@dataclass
-class Problem:
-    """``truth``: n true poses; ``odometry``: n−1 measured Z_{i,i+1} (drifting);
-    ``closures``: list of (i, j, measured Z_ij); ``initial``: Values by composing odometry."""
-
-    truth: list[gtsam.Similarity3]
-    odometry: list[gtsam.Similarity3]
-    closures: list[tuple[int, int, gtsam.Similarity3]]
-    initial: gtsam.Values
-
-
 def simulate(n: int = 150, seed: int = 0) -> Problem:
     """A seeded problem with ``n`` poses (same seed → same problem)."""
     if n < 2:
@@ -99,27 +88,16 @@ def simulate(n: int = 150, seed: int = 0) -> Problem:
                 for i in range(n - 1)]
     closures = [(i, j, truth[i].between(truth[j]).compose(S.Expmap(rng.normal(0.0, CLOSURE_SIGMAS))))
                 for i, j in loop_closure_pairs(n)]
-    initial = gtsam.Values()
-    pose = truth[0]
-    initial.insert(0, pose)
-    for i, Z in enumerate(odometry):
-        pose = pose.compose(Z)  # dead reckoning: scale and rotation drift accumulate
-        initial.insert(i + 1, pose)
-    return Problem(truth, odometry, closures, initial)
+    # Dead reckoning: scale and rotation drift accumulate.
+    return Problem(truth, odometry, closures, dead_reckoning(truth[0], odometry))
 
 
 def build_graph(problem: Problem, factors) -> gtsam.NonlinearFactorGraph:
-    """Prior on pose 0 + odometry + closures, built with ``factors``' constructors
-    (``lie_factors.factors`` or ``gtsam``: both name them like GTSAM)."""
-    odo = gtsam.noiseModel.Diagonal.Sigmas(SIGMAS)
-    closure = gtsam.noiseModel.Diagonal.Sigmas(CLOSURE_SIGMAS)
-    graph = gtsam.NonlinearFactorGraph()
-    graph.add(factors.PriorFactorSimilarity3(0, problem.truth[0], gtsam.noiseModel.Diagonal.Sigmas(PRIOR_SIGMAS)))
-    for i, Z in enumerate(problem.odometry):
-        graph.add(factors.BetweenFactorSimilarity3(i, i + 1, Z, odo))
-    for i, j, Z in problem.closures:
-        graph.add(factors.BetweenFactorSimilarity3(i, j, Z, closure))
-    return graph
+    """The demo's graph (:func:`lie_factors.app.demo.chain_graph`) on Similarity3: odometry with
+    :data:`SIGMAS`, closures with :data:`CLOSURE_SIGMAS`."""
+    Sigmas = gtsam.noiseModel.Diagonal.Sigmas
+    return chain_graph(problem, factors, "Similarity3", Sigmas(PRIOR_SIGMAS), Sigmas(SIGMAS),
+                       Sigmas(CLOSURE_SIGMAS))
 
 
 def between_graph(problem: Problem) -> gtsam.NonlinearFactorGraph:
@@ -190,20 +168,20 @@ class Comparison:
         return self.gradient_ours <= 1e-6 * self.gradient_initial
 
 
-def compare(problem: Problem, backend: str = "custom", max_iterations: int = 100,
+def compare(problem: Problem, backend: str = "dropin", max_iterations: int = 100,
             progress=None) -> Comparison:
-    """Optimize ``problem`` with our factors (``backend`` custom or batch, of
-    :mod:`lie_factors.app.run`) and with GTSAM's native ones, same start and
+    """Optimize ``problem`` with our factors (``backend`` dropin or batch, of
+    :mod:`lie_factors.app.backends`) and with GTSAM's native ones, same start and
     :func:`lm_params`; ``progress`` gets our iterations."""
     from .. import factors
-    from . import run as pgm
+    from . import backends
 
     graph = build_graph(problem, factors)
     native_graph = build_graph(problem, gtsam)
-    optimize = pgm.get_backend(backend).optimize
+    optimize = backends.get_backend(backend).optimize
     ours = optimize(graph, problem.initial, max_iterations=max_iterations, progress=progress,
                     params=lm_params(max_iterations))
-    native = pgm.optimize(native_graph, problem.initial, max_iterations, None, lm_params(max_iterations))
+    native = backends.optimize(native_graph, problem.initial, max_iterations, None, lm_params(max_iterations))
     return Comparison(
         problem, graph, ours, native,
         ate_rmse(problem.initial, problem.truth), ate_rmse(ours.values, problem.truth),

@@ -12,7 +12,7 @@ The file is replayed as a robot would have built it:
   measurement: at the file's vertex if it has one, else placed from that
   measurement at its pose's initial value.
 - Factors: backend ``native`` puts GTSAM's own factors in ``gtsam.ISAM2``;
-  ``custom`` and ``batch`` put lie_factors' factors in
+  ``dropin`` and ``batch`` put lie_factors' factors in
   :class:`lie_factors.optimizers.ISAM2` (GTSAM's ISAM2 whose callbacks receive
   its own linearization point instead of a copy of it).
 
@@ -25,8 +25,8 @@ final estimate.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -36,8 +36,12 @@ import numpy as np
 import gtsam
 
 from ..errors import PoseGraphError
-from .run import PoseGraph, build_graph, is_landmark_key, load, pose_keys
+from ..kernels.elements import to_gtsam
 from ..timing import Stopwatch, warm_up_factors
+from .backends import build_graph
+from .load import Dataset, is_landmark_key
+from .record import Record
+from .run import PoseGraphRun, RunEvents
 
 #: GTSAM's ISAM2Params defaults (relinearizeThreshold, relinearizeSkip).
 DEFAULT_RELINEARIZE_THRESHOLD = 0.1
@@ -57,10 +61,10 @@ class Step:
     odometry: tuple[int, bool] | None = None
 
 
-def schedule(pg: PoseGraph, graph: gtsam.NonlinearFactorGraph) -> list[Step]:
-    """The updates of the replay of ``graph`` (built by :func:`lie_factors.app.run.build_graph`
-    from ``pg``: file edge k is factor k, then the prior, then the landmark measurements)."""
-    order = pose_keys(pg.initial)
+def schedule(ds: Dataset, graph: gtsam.NonlinearFactorGraph) -> list[Step]:
+    """The updates of the replay of ``graph`` (built by :func:`lie_factors.app.backends.build_graph`
+    from ``ds``: file edge k is factor k, then the prior, then the landmark measurements)."""
+    order = ds.graph.keys.tolist()
     position = {k: n for n, k in enumerate(order)}
     steps = [Step(k, []) for k in order]
     seen_landmarks: set[int] = set()
@@ -75,8 +79,7 @@ def schedule(pg: PoseGraph, graph: gtsam.NonlinearFactorGraph) -> list[Step]:
             if is_landmark_key(key) and key not in seen_landmarks:
                 seen_landmarks.add(key)
                 step.landmarks.append(key)
-    for k in range(pg.between.size()):
-        i, j = (int(key) for key in pg.between.at(k).keys())
+    for k, (i, j) in enumerate(ds.graph.edge_keys.tolist()):
         a, b = position[i], position[j]
         if abs(a - b) == 1:
             step = steps[max(a, b)]
@@ -124,16 +127,13 @@ def isam2_class(backend: str) -> type:
     return ISAM2
 
 
-def _landmark_initial(pg: PoseGraph, graph, k: int, key: int, poses: gtsam.Values):
-    """A landmark's initial value: its file vertex, else its measurement ``k`` from its pose's
-    initial value (``poses``)."""
-    if key in pg.landmark_vertex_keys or pg.is3d:
-        return pg.initial.atPoint3(key) if pg.is3d else pg.initial.atPoint2(key)
-    f = graph.at(k)
-    pose_key = next(int(x) for x in f.keys() if not is_landmark_key(x))
-    br = f.measured()
-    theta, r = br.bearing().theta(), br.range()
-    return poses.atPose2(pose_key).transformFrom(np.array([r * math.cos(theta), r * math.sin(theta)]))
+def _landmark_initial(ds: Dataset, f, key: int, poses: gtsam.Values):
+    """A landmark's initial value: its file vertex, else where its measurement ``f`` puts it
+    from its pose's initial value (``poses``)."""
+    lm = ds.landmarks
+    if key in lm.with_vertex:
+        return lm.vertices.atPoint3(key) if ds.is3d else lm.vertices.atPoint2(key)
+    return lm.place(f, poses)
 
 
 def _first_sentence(exc: Exception) -> str:
@@ -147,12 +147,12 @@ def _first_sentence(exc: Exception) -> str:
     return text
 
 
-def replay(pg: PoseGraph, backend: str = "custom",
+def replay(ds: Dataset, backend: str = "dropin",
            params: gtsam.ISAM2Params | None = None,
            progress: Callable[[int, int, float], None] | None = None,
            graph: gtsam.NonlinearFactorGraph | None = None,
            isam_class: type | None = None, max_seconds: float | None = None) -> Replay:
-    """Replay ``pg`` online (module docstring) with ``backend``'s factors.
+    """Replay ``ds`` online (module docstring) with ``backend``'s factors.
 
     ``progress(done, total, seconds)`` is called every :data:`PROGRESS_EVERY`
     updates. ``graph``/``isam_class`` override the backend's graph and ISAM2
@@ -162,11 +162,11 @@ def replay(pg: PoseGraph, backend: str = "custom",
     counts the updates done and ``final_error`` is NaN.
     """
     if graph is None:
-        graph = build_graph(pg, backend)
+        graph = build_graph(ds, backend)
     if isam_class is None:
         isam_class = isam2_class(backend)
-    steps = schedule(pg, graph)
-    group = pg.group
+    steps = schedule(ds, graph)
+    group = ds.group
     estimate = getattr(isam_class, f"calculateEstimate{group}")
     at = getattr(gtsam.Values, f"at{group}")
     batches = []
@@ -184,16 +184,16 @@ def replay(pg: PoseGraph, backend: str = "custom",
     for n, (step, new_factors) in enumerate(zip(steps, batches)):
         if step.odometry is not None and previous is not None:
             k, forward = step.odometry
-            measured = pg.between.at(k).measured()
+            measured = to_gtsam(group, ds.graph.measured[k])
             guess = previous.compose(measured if forward else measured.inverse())
         else:
-            guess = at(pg.initial, step.key)
+            guess = at(ds.initial, step.key)
         new_theta = gtsam.Values()
         new_theta.insert(step.key, guess)
         start.insert(step.key, guess)
         for key in step.landmarks:
-            k = next(i for i in step.factors if key in graph.at(i).keys())
-            point = _landmark_initial(pg, graph, k, key, new_theta)
+            f = next(graph.at(i) for i in step.factors if key in graph.at(i).keys())
+            point = _landmark_initial(ds, f, key, new_theta)
             new_theta.insert(key, point)
             start.insert(key, point)
         t0 = time.perf_counter()
@@ -218,77 +218,62 @@ def replay(pg: PoseGraph, backend: str = "custom",
                   factors=int(graph.size()), times=times)
 
 
-# --------------------------------------------------------------------------- #
-# The CLI's --incremental (lie_factors.app.cli hands its parsed arguments over)
-# --------------------------------------------------------------------------- #
-
-def _refuse_batch_options(args) -> None:
-    for option, value, default in (("--robust", args.robust, None), ("--robust-all", args.robust_all, False),
-                                   ("--gnc", args.gnc, None), ("--init", args.init, "auto"),
-                                   ("--max-iterations", args.max_iterations, 100)):
-        if value != default:
-            raise PoseGraphError(f"{option} does not apply to --incremental (ISAM2 replays the file "
-                                 "online from its own estimates)")
+#: The figures of a :class:`Replay` its record reports.
+FIGURES = ("updates", "update_seconds", "update_p50", "update_p99", "seconds", "final_error")
 
 
-def main(args, say: Callable[[object, str], None], emit_json: Callable[[dict], None]) -> int:
-    """``lie-factors posegraph FILE --incremental``: load, replay, report (stdout via ``say``,
-    progress on stderr, JSON via ``emit_json``), write ``--output``/``--plot``."""
-    from .. import atomic, g2o
-    from .run import get_backend, load_factors, positions
+@dataclass
+class ReplayRecord(Record):
+    """What ``lie-factors posegraph --incremental --json`` prints (``to_dict``): :class:`Record`'s
+    fields, ``incremental``, the replay's :data:`FIGURES` (``seconds``: the whole replay) and
+    ISAM2's two parameters."""
 
-    get_backend(args.backend)
-    _refuse_batch_options(args)
-    for path in (args.output, args.plot):
-        if path:
-            atomic.check_writable(path)
-    load_factors(args.backend)
-    pg = load(args.dataset)
-    params = isam2_params(args.relinearize_threshold, args.relinearize_skip)
-    say(args, f"{pg.describe()}; incremental (ISAM2, "
-              f"relinearize threshold {args.relinearize_threshold:g}, skip {args.relinearize_skip}), "
-              f"backend {args.backend}")
+    replay: Replay
+    relinearize_threshold: float
+    relinearize_skip: int
 
-    def report(done, total, seconds):
-        if not args.quiet:
-            print(f"update {done}/{total}: {seconds:.3f} s", file=sys.stderr, flush=True)
+    def to_dict(self) -> dict:
+        return {**{f.name: getattr(self, f.name) for f in dataclasses.fields(Record)}, "incremental": True,
+                **{k: getattr(self.replay, k) for k in FIGURES},
+                "relinearize_threshold": float(self.relinearize_threshold),
+                "relinearize_skip": int(self.relinearize_skip)}
 
-    result = replay(pg, args.backend, params, report)
-    say(args, f"{result.updates} updates in {result.update_seconds:.3f} s (per update: median "
-              f"{result.update_p50 * 1e3:.3f} ms, p99 {result.update_p99 * 1e3:.3f} ms); "
-              f"final error {result.final_error:.6g}")
-    if args.output:
-        g2o.write_g2o(args.output, pg.native_graph(), result.values)
-        say(args, f"wrote {args.output}")
-    if args.plot:
-        from .plotting import plot_trajectories
-        from .run import landmark_positions
 
-        trajectories = {"initial (online guesses)": positions(result.start, pg.is3d, pg.group),
-                        "ISAM2 estimate": positions(result.values, pg.is3d, pg.group)}
-        points = ({"initial landmarks": landmark_positions(result.start, pg.is3d),
-                   "estimated landmarks": landmark_positions(result.values, pg.is3d)}
-                  if pg.landmark_count else None)
-        atomic.replace_atomically(args.plot, lambda tmp: plot_trajectories(
-            tmp, trajectories, f"{pg.name} ({args.backend}, incremental)", three_d=pg.is3d,
-            points=points), suffix=".png")
-        say(args, f"wrote {args.plot}")
-    if args.json:
-        emit_json({
-            "backend": args.backend,
-            "dataset": pg.name,
-            "dimension": 3 if pg.is3d else 2,
-            "poses": pg.poses,
-            "landmarks": pg.landmark_count,
-            "factors": result.factors,
-            "incremental": True,
-            "updates": result.updates,
-            "update_seconds": result.update_seconds,
-            "update_p50": result.update_p50,
-            "update_p99": result.update_p99,
-            "seconds": result.seconds,
-            "final_error": result.final_error,
-            "relinearize_threshold": float(args.relinearize_threshold),
-            "relinearize_skip": int(args.relinearize_skip),
-        })
-    return 0
+class IncrementalRun(PoseGraphRun):
+    """A :class:`~lie_factors.app.run.PoseGraphRun` whose start and optimization are the ISAM2
+    replay (:func:`replay`); ``events.replayed`` hears its progress.  After :meth:`execute`:
+    ``replay`` (:class:`Replay`) and ``record`` (:class:`ReplayRecord`)."""
+
+    def __init__(self, dataset, backend: str = "dropin",
+                 relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
+                 relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP, output: str | None = None,
+                 plot: str | None = None, events: RunEvents | None = None):
+        super().__init__(dataset, backend, output=output, plot=plot, events=events)
+        self.relinearize_threshold, self.relinearize_skip = relinearize_threshold, relinearize_skip
+        self.replay: Replay | None = None
+
+    @property
+    def uses_arrays(self) -> bool:
+        return False  # ISAM2 takes factor objects
+
+    def initialize(self):
+        """Nothing: the replay chooses each pose's start as it adds it."""
+        return None
+
+    def optimize(self) -> Replay:
+        params = isam2_params(self.relinearize_threshold, self.relinearize_skip)
+        self.replay = r = replay(self.pg, self.backend, params, self.events.replayed)
+        self.record = ReplayRecord(**Record.of(self.pg, self.backend, r.factors), replay=r,
+                                   relinearize_threshold=self.relinearize_threshold,
+                                   relinearize_skip=self.relinearize_skip)
+        return r
+
+    def values(self) -> gtsam.Values:
+        return self.replay.values
+
+    def start_values(self) -> gtsam.Values:
+        return self.replay.start
+
+    def plot_labels(self) -> tuple[str, str, str, str, str]:
+        return (f"{self.pg.name} ({self.backend}, incremental)", "initial (online guesses)", "ISAM2 estimate",
+                "initial landmarks", "estimated landmarks")

@@ -1,14 +1,15 @@
-"""Trajectory plots for the CLI (Agg only, no pyplot global state).
+"""Trajectory plots for the CLI (Agg only, no pyplot global state), and the positions they draw.
 
 We draw on a bare ``matplotlib.figure.Figure`` with an Agg canvas, so the CLI
-works headless and never changes the backend of a user's session.
+works headless and never changes the backend of a user's session.  matplotlib
+is imported by :func:`plot_trajectories` only.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
+
+from .load import landmark_keys, pose_keys
 
 _STYLES = {
     "ground truth": dict(color="black", lw=1.5, ls="--"),
@@ -29,6 +30,9 @@ def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str
     Left: top view (x, y).  Right (if ``three_d``): a 3-D view.  ``path`` is
     written as PNG whatever its suffix (callers write to a temporary name).
     """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(12, 5.5) if three_d else (7, 6))
     FigureCanvasAgg(fig)
     top = fig.add_subplot(1, 2 if three_d else 1, 1)
@@ -59,3 +63,33 @@ def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, format="png", dpi=100)
+
+
+def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.ndarray:
+    """Translations of the poses in ``values`` in key order, shape (N, 3) (z = 0 in 2-D).
+
+    Similarity3 (``group``): the image of the origin, s·t (GTSAM's action p ↦ s(Rp + t)).
+    """
+    keys = pose_keys(values)
+    if group == "Similarity3":
+        origin = np.zeros(3)
+        return np.array([values.atSimilarity3(k).transformFrom(origin) for k in keys]).reshape(-1, 3)
+    if is3d:
+        return np.array([values.atPose3(k).translation() for k in keys]).reshape(-1, 3)
+    out = np.zeros((len(keys), 3))
+    for n, k in enumerate(keys):
+        p = values.atPose2(k)
+        out[n, :2] = (p.x(), p.y())
+    return out
+
+
+def landmark_positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
+    """Landmark points of ``values`` in key order, shape (M, 3) (z = 0 in 2-D)."""
+    keys = landmark_keys(values)
+    out = np.zeros((len(keys), 3))
+    for n, k in enumerate(keys):
+        if is3d:
+            out[n] = values.atPoint3(k)
+        else:
+            out[n, :2] = values.atPoint2(k)
+    return out

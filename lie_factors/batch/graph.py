@@ -205,42 +205,38 @@ class Problem:
         self._number_variables(initial)
 
     @classmethod
-    def from_arrays(cls, group: str, keys: np.ndarray, X: np.ndarray, edge_keys: np.ndarray,
-                    measured: np.ndarray, information: np.ndarray,
-                    priors: list[tuple[int, np.ndarray, np.ndarray]] = ()) -> "Problem":
-        """A pose graph given as arrays, with no factor object: Between factors on ``group``, then priors.
+    def from_pose_graph(cls, pg, X: np.ndarray) -> "Problem":
+        """A :class:`lie_factors.pose_graph.PoseGraph`'s factors, with no factor object: its between
+        factors, then its priors, starting from the elements ``X`` (P, m, m) in ``pg.keys`` order.
 
-        ``group``: a :data:`lie_factors.factors.GROUPS` name (m×m elements,
-        n-dimensional tangent).  ``keys`` (P,) sorted pose keys with initial
-        elements ``X`` (P, m, m); ``edge_keys`` (E, 2), ``measured`` M (E, m, m)
-        and ``information`` Λ (E, n, n): factor k is Between(key1, key2, M_k)
-        with error Log(M⁻¹·X1⁻¹·X2) and whitening R = chol(Λ)ᵀ (RᵀR = Λ,
-        upper triangular, as ``noiseModel.Gaussian.Information``); ``priors``:
-        (key, prior element P (m, m), whitening R (n, n)), factors E, E+1, ...
-        The constants M⁻¹ and Ad(M⁻¹) come from ``factors.between_setup``, the
-        kernel a factor's construction runs (which also checks each M).
-        Every key of a factor must be in ``keys``; a self-loop edge is refused.
+        Factor k < E is Between(key1, key2, M_k) with error Log(M⁻¹·X1⁻¹·X2),
+        factor E + q the q-th prior; whitening R = chol(Λ)ᵀ (RᵀR = Λ, upper
+        triangular, as ``noiseModel.Gaussian.Information``).  The constants M⁻¹
+        and Ad(M⁻¹) come from ``factors.between_setup``, the kernel a factor's
+        construction runs (which also checks each M).  Every key of a factor
+        must be in ``pg.keys``; a self-loop edge is refused.
         """
-        spec = _factors.GROUPS[group]
+        spec = _factors.GROUPS[pg.group]
         self = cls.__new__(cls)
         self.graph = None
-        E = len(edge_keys)
-        self.graph_size = E + len(priors)
+        keys = np.asarray(pg.keys, dtype=np.int64)
+        E, Q = len(pg.edge_keys), len(pg.prior_keys)
+        self.graph_size = E + Q
         self.native, self.robust, self._group_robust = [], {}, False
         block = VarBlock(spec)
         self.blocks = {spec.name: block}
         self.groups = []
-        keys = np.asarray(keys, dtype=np.int64)
-        edge_keys = np.asarray(edge_keys, dtype=np.int64).reshape(E, 2)
+        edge_keys = np.asarray(pg.edge_keys, dtype=np.int64).reshape(E, 2)
         if E and (edge_keys[:, 0] == edge_keys[:, 1]).any():
-            raise BatchError("from_arrays: an edge connects a key to itself")
+            raise BatchError("from_pose_graph: an edge connects a key to itself")
+
         def constants(M, what):
             Minv, Ad, codes = block.loops.setup(M)
             bad = np.flatnonzero(codes != _factors.OK)
             if bad.size:
                 k = int(bad[0])
                 raise BatchError(str(_factors._element_error(spec, np.asarray(M[k]), int(codes[k]),
-                                                             f"{what} {k}", "from_arrays")))
+                                                             f"{what} {k}", "from_pose_graph")))
             return Minv, Ad
 
         if E:
@@ -249,17 +245,16 @@ class Problem:
             k1, k2 = edge_keys[:, 0].astype(np.uint64), edge_keys[:, 1].astype(np.uint64)
             block.use_keys(k1)
             block.use_keys(k2)
-            Minv, Ad = constants(measured, "measured")
-            g.columns = (np.arange(E), k1, k2, Minv, Ad, whitening(information))
+            Minv, Ad = constants(pg.measured, "measured")
+            g.columns = (np.arange(E), k1, k2, Minv, Ad, whitening(pg.information))
             self.groups.append(g)
-        if len(priors):
+        if Q:
             g = FactorGroup("prior", spec)
             g.rows = None
-            pk = np.array([k for k, _, _ in priors], dtype=np.uint64)
+            pk = np.asarray(pg.prior_keys, dtype=np.uint64)
             block.use_keys(pk)
-            Pinv, _ = constants(np.array([P for _, P, _ in priors], dtype=np.float64), "prior")
-            g.columns = (E + np.arange(len(priors)), pk, None, Pinv, None,
-                         np.array([R for _, _, R in priors], dtype=np.float64))
+            Pinv, _ = constants(np.asarray(pg.prior_measured, dtype=np.float64), "prior")
+            g.columns = (E + np.arange(Q), pk, None, Pinv, None, whitening(pg.prior_information))
             self.groups.append(g)
         block.number_keys()
         used = block._sorted.astype(np.int64)
@@ -488,7 +483,7 @@ class Problem:
         variable (vectorized on the kernels): ~5× faster than constructing
         every pose from Python, and exact to rounding (checked in the tests).
         """
-        if self._managed_initial is None:  # from_arrays: no initial Values to retract
+        if self._managed_initial is None:  # from_pose_graph: no initial Values to retract
             out = gtsam.Values()
             for b in self.blocks.values():
                 for k, M in zip(b.keys, b.X):

@@ -85,7 +85,7 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
                             f"got {type(self.params).__name__}")
         self.gauss_newton = isinstance(self.params, gtsam.GaussNewtonParams)
         self._lm_init(self.params, min_model_fidelity)
-        # A Problem (e.g. Problem.from_arrays) is used as it is; ``initial`` is then ignored.
+        # A Problem (e.g. Problem.from_pose_graph) is used as it is; ``initial`` is then ignored.
         self.problem = (graph if isinstance(graph, Problem)
                         else Problem(graph, initial, group_robust=self.group_robust))
         self.system = LinearSystem(self.problem)

@@ -20,7 +20,7 @@ import gtsam
 import numpy as np
 
 from .. import stack
-from ..initialization.relaxation import cholmod_available
+from .cholmod import available as cholmod_available
 from .graph import BatchError
 
 LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")

@@ -1,9 +1,10 @@
-"""False loop closures: which edges are loop closures, planting random wrong ones, scoring a classification.
+"""False loop closures: which factors are loop closures, planting random wrong ones, scoring a classification.
 
 A *loop closure* is an edge between poses whose ids are not consecutive
-(``|id1 − id2| ≠ 1``); the consecutive ones are odometry.  The robust CLI
-options and GNC's known inliers use this split; the outlier benchmark and the
-tests plant false loop closures with :func:`plant_false_loop_closures`.
+(:func:`lie_factors.pose_graph.is_loop_closure`); the consecutive ones are
+odometry.  The robust CLI options and GNC's known inliers use this split; the
+outlier benchmark and the tests plant false loop closures with
+:func:`plant_false_loop_closures`.
 """
 
 from __future__ import annotations
@@ -14,20 +15,17 @@ import numpy as np
 
 import gtsam
 
-__all__ = ["is_loop_closure", "loop_closure_mask", "plant_false_loop_closures", "Classification",
-           "classify"]
+from ..pose_graph import is_loop_closure
 
-
-def is_loop_closure(key1: int, key2: int) -> bool:
-    return abs(int(key1) - int(key2)) != 1
+__all__ = ["loop_closure_mask", "plant_false_loop_closures", "Classification", "classify"]
 
 
 def loop_closure_mask(graph: gtsam.NonlinearFactorGraph) -> np.ndarray:
-    """(size,) bool: True for two-key factors whose keys are not consecutive (unary factors: False)."""
+    """(size,) bool: True for the two-key factors that are loop closures (unary factors: False)."""
     mask = np.zeros(graph.size(), dtype=bool)
     for k in range(graph.size()):
         keys = graph.at(k).keys()
-        mask[k] = len(keys) == 2 and is_loop_closure(keys[0], keys[1])
+        mask[k] = len(keys) == 2 and bool(is_loop_closure(keys[0], keys[1]))
     return mask
 
 

@@ -1,0 +1,55 @@
+"""The relaxations' sparse normal equations: block triplets, per-node sums, and their solve.
+
+A symmetric matrix is given by the triplets (row, column, value) of its lower
+triangle, duplicates summed; :func:`solve` hands it to CHOLMOD
+(:func:`lie_factors.batch.cholmod.solve_spd`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..batch import cholmod
+from ..errors import InitializationError
+
+
+def solve(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """:func:`lie_factors.batch.cholmod.solve_spd`, its failure an :class:`InitializationError`."""
+    try:
+        return cholmod.solve_spd(n, rows, cols, vals, rhs)
+    except np.linalg.LinAlgError as exc:
+        raise InitializationError(str(exc)) from None
+
+
+def block_triplets(r: np.ndarray, c: np.ndarray, blocks: np.ndarray, d: int):
+    """Triplets of the d×d ``blocks`` (K, d, d) at block rows ``r`` and columns ``c`` (K,)."""
+    a = np.arange(d)
+    rows = (r[:, None, None] * d + a[None, :, None]) + np.zeros((1, 1, d), dtype=np.int64)
+    cols = (c[:, None, None] * d + a[None, None, :]) + np.zeros((1, d, 1), dtype=np.int64)
+    return rows.ravel(), cols.ravel(), blocks.ravel()
+
+
+def scatter_add(index: np.ndarray, values: np.ndarray, N: int) -> np.ndarray:
+    """out[k] = Σ values[e] over e with index[e] = k: (E, ...) → (N, ...) (bincount per entry; np.add.at is slow)."""
+    flat = values.reshape(values.shape[0], -1)
+    out = np.empty((N, flat.shape[1]))
+    for c in range(flat.shape[1]):
+        out[:, c] = np.bincount(index, weights=flat[:, c], minlength=N)
+    return out.reshape((N,) + values.shape[1:])
+
+
+def lower_block_triplets(i, j, Hij, d):
+    """Lower-triangle triplets of off-diagonal blocks H[i, j] = Hij (and H[j, i] = Hijᵀ)."""
+    swap = i < j  # store (max, min): the block at (j, i) is Hijᵀ
+    r = np.where(swap, j, i)
+    c = np.where(swap, i, j)
+    B = np.where(swap[:, None, None], np.swapaxes(Hij, 1, 2), Hij)
+    return block_triplets(r, c, B, d)
+
+
+def diag_lower_triplets(D: np.ndarray, d: int):
+    """Lower-triangle triplets of the diagonal blocks D (n, d, d)."""
+    n = D.shape[0]
+    a, b = np.tril_indices(d)
+    base = np.arange(n)[:, None] * d
+    return (base + a).ravel(), (base + b).ravel(), D[:, a, b].ravel()
