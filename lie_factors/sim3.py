@@ -1,6 +1,11 @@
-"""Sim(3), GTSAM's Similarity3: closed-form exp, log, adjoints and D_exp / D_log.
+"""Sim(3), GTSAM's Similarity3: tangent x = [ω, u, λ], elements 4×4 [[R, t], [0, 1/s]], s = e^λ.
 
-Tangent ordering and matrices (exactly GTSAM 4.3's, checked in tests/test_sim3.py)::
+Shapes: ``hat``, ``exp`` (..., 7) → (..., 4, 4); ``vee``, ``log`` (..., 4, 4) → (..., 7);
+``ad``, ``dexp``, ``dlog`` (..., 7) → (..., 7, 7); ``Ad`` (..., 4, 4) → (..., 7, 7);
+``inverse`` (..., 4, 4) → (..., 4, 4); ``compose`` (..., 4, 4) × (..., 4, 4) → (..., 4, 4).
+:mod:`lie_factors.kernels.public` builds these functions (validation, broadcasting, the
+single-element fast path) around the cores below, which the factors call directly.
+Tangent ordering and matrices are exactly GTSAM 4.3's (checked in tests/test_sim3.py)::
 
     x = [ω (3), u (3), λ]                                   shape (..., 7)
     hat(x) = [[ω×, u], [0, −λ]]                              shape (..., 4, 4)
@@ -43,8 +48,8 @@ spectral projectors of Ω (docs/sim3.md),
 and for f = g = 1/φ1 the divided differences need no subtraction:
 g[a, b] = −g(a) g(b) φ1[a, b].
 
-Evaluation (docs/sim3.md §6; Eade Eqs. 91–100 do the same for Sim(2): functions of
-the eigenvalues λ ± iθ over λ² + θ², Eq. 99). With E = e^λ, A = φ1(λ), I1 = φ1′(λ),
+Evaluation (docs/sim3.md §6; Eade, "Derivative of the Exponential Map", Eqs. 91–100 do
+the same for Sim(2): functions of the eigenvalues λ ± iθ over λ² + θ², Eq. 99). With E = e^λ, A = φ1(λ), I1 = φ1′(λ),
 a2 = φ2(λ), the SO(3) functions a, b, c, qa = b′/θ, qb = c′/θ of θ (Eade, Eqs. 50–52,
 64) and D = λ² + θ², the θ → 0 limits are taken analytically::
 
@@ -74,8 +79,8 @@ import math
 
 import numpy as np
 
-from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
 from lie_factors import so3 as _so3
+from lie_factors.kernels import public as _public, registry as _registry
 from lie_factors.kernels.coeffs import (
     _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR,
     QA_TAYLOR, QB_TAYLOR, _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, theta_dd,
@@ -83,8 +88,8 @@ from lie_factors.kernels.coeffs import (
 from lie_factors.kernels.jit import kernel
 from lie_factors.se3 import _lin9, _rod9
 
-DIM = 7
-MAT = 4
+_info = _registry.SIM3
+DIM, MAT = _info.dim, _info.mat
 
 #: |z|² = λ² + θ² < Z_BAND²: every coefficient from the power series of φ1, φ2 in z
 #: (real recurrences in λ and θ², see :func:`_zseries`); the closed forms in z divide by
@@ -832,239 +837,6 @@ def _inverse(X, out):
     out[3, 3] = ci
 
 
-# ---------------------------------------------------------------- one element, one numba call
-# The public functions below try these first: a float64 array of exactly the
-# element's shape is validated and computed in ONE numba call (through its entry
-# point, _jit.one_element) instead of the general path's numpy checks and
-# batching (see docs/benchmarks.md, "One element per call", for the cost).
-# Each returns True when ``out`` holds the result and False when the input must
-# take the general path, which raises the ValueError naming the problem
-# (_check.finite / element_ok make the same checks as the general path).
-# They are compiled for inputs of any memory order (GTSAM's ``.matrix()`` is
-# Fortran-ordered); ``np.ascontiguousarray`` copies the input (at most 16
-# numbers, ≈0.02 µs) so that the cores only ever see, and are only compiled
-# for, C-ordered arrays, as on the general path.
+# ---------------------------------------------------------------- public functions
 
-
-@kernel
-def _hat1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _hat(x, out)
-    return True
-
-
-@kernel
-def _vee1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.finite(X):
-        return False
-    _vee(X, out)
-    return True
-
-
-@kernel
-def _exp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _exp(x, out)
-    return True
-
-
-@kernel
-def _log1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.POSITIVE):
-        return False
-    _log(X, out)
-    return True
-
-
-@kernel
-def _ad1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _ad(x, out)
-    return True
-
-
-@kernel
-def _Ad1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.POSITIVE):
-        return False
-    _Ad(X, out)
-    return True
-
-
-@kernel
-def _dexp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _dexp(x, out)
-    return True
-
-
-@kernel
-def _dlog1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _dlog(x, out)
-    return True
-
-
-@kernel
-def _compose1(X, Y, out):
-    X = np.ascontiguousarray(X)
-    Y = np.ascontiguousarray(Y)
-    if not (_check.element_ok(X, 3, _check.POSITIVE) and _check.element_ok(Y, 3, _check.POSITIVE)):
-        return False
-    _compose(X, Y, out)
-    return True
-
-
-@kernel
-def _inverse1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.POSITIVE):
-        return False
-    _inverse(X, out)
-    return True
-
-
-# Python's handles on the wrappers above: their compiled entry points, bound on first use.
-_hat_one = _jit.one_element(_hat1, (1,), 2, globals(), "_hat_one")
-_vee_one = _jit.one_element(_vee1, (2,), 1, globals(), "_vee_one")
-_exp_one = _jit.one_element(_exp1, (1,), 2, globals(), "_exp_one")
-_log_one = _jit.one_element(_log1, (2,), 1, globals(), "_log_one")
-_ad_one = _jit.one_element(_ad1, (1,), 2, globals(), "_ad_one")
-_Ad_one = _jit.one_element(_Ad1, (2,), 2, globals(), "_Ad_one")
-_dexp_one = _jit.one_element(_dexp1, (1,), 2, globals(), "_dexp_one")
-_dlog_one = _jit.one_element(_dlog1, (1,), 2, globals(), "_dlog_one")
-_compose_one = _jit.one_element(_compose1, (2, 2), 2, globals(), "_compose_one")
-_inverse_one = _jit.one_element(_inverse1, (2,), 2, globals(), "_inverse_one")
-
-
-# ---------------------------------------------------------------- public API
-# Each public function first tries its one-element fast path (``_exp_one`` …): taken when
-# the input is an ndarray of exactly the element's shape and dtype float64 (any memory
-# order); batches, lists, other dtypes and refused inputs take the general path.
-# Both run the same cores.
-
-_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
-_V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
-
-_ROW = "[0, 0, 0, 1/s]"
-
-
-def _element(X, name="X"):
-    arr = _validate.square(X, MAT, name)
-    _validate.rotation_block(arr, name, 3)
-    _validate.bottom_row(arr, name, _ROW, last_positive=True)
-    return arr
-
-
-def hat(x):
-    """(..., 7) → (..., 4, 4): [[ω×, u], [0, −λ]] for x = [ω, u, λ]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_M)
-        if _hat_one(x, out):
-            return out
-    return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
-
-
-def vee(X):
-    """(..., 4, 4) → (..., 7): [X21, X02, X10, X03, X13, X23, −X33], the inverse of :func:`hat`."""
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_V)
-        if _vee_one(X, out):
-            return out
-    return _jit.apply(_vee, _validate.square(X, MAT), 2, (DIM,))
-
-
-def exp(x):
-    """(..., 7) → (..., 4, 4): [[R, e^{−λ} φ1(Ω + λI) u], [0, e^{−λ}]] = expm(hat x)."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_M)
-        if _exp_one(x, out):
-            return out
-    return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
-
-
-def log(X):
-    """(..., 4, 4) → (..., 7): [Log R, g(Ω + λI) t/X33, −ln X33] with |ω| ≤ π.
-
-    Raises ValueError unless the rotation block is a rotation and the last row is
-    [0, 0, 0, 1/s] with 1/s > 0.
-    """
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_V)
-        if _log_one(X, out):
-            return out
-    return _jit.apply(_log, _element(X), 2, (DIM,))
-
-
-def ad(x):
-    """(..., 7) → (..., 7, 7): [[Ω, 0, 0], [U, Ω + λI, −u], [0, 0, 0]]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _ad_one(x, out):
-            return out
-    return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def Ad(X):
-    """(..., 4, 4) → (..., 7, 7): [[R, 0, 0], [s t× R, s R, −s t], [0, 0, 1]], s = 1/X33.
-
-    X hat(y) X⁻¹ = hat(Ad(X) y); validates like :func:`log`.
-    """
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_J)
-        if _Ad_one(X, out):
-            return out
-    return _jit.apply(_Ad, _element(X), 2, (DIM, DIM))
-
-
-def dexp(x):
-    """(..., 7) → (..., 7, 7): left Jacobian φ1(ad_x) = [[J, 0, 0], [Q, W, −φ2(B) u], [0, 0, 1]]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _dexp_one(x, out):
-            return out
-    return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def dlog(x):
-    """(..., 7) → (..., 7, 7): D_exp(x)⁻¹ = g(ad_x) in closed form.
-
-    Singular where φ1(λ + iθ) = 0 or J is, i.e. θ = 2πk (k ≥ 1).
-    """
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _dlog_one(x, out):
-            return out
-    return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def compose(X, Y):
-    """(..., 4, 4) × (..., 4, 4) → (..., 4, 4): X·Y, batch axes broadcast."""
-    if (type(X) is _ND and type(Y) is _ND and X.shape == _M and Y.shape == _M
-            and X.dtype is _F64 and Y.dtype is _F64):
-        out = _empty(_M)
-        if _compose_one(X, Y, out):
-            return out
-    return _jit.apply2(_compose, _element(X, "X"), _element(Y, "Y"), (2, 2), (MAT, MAT))
-
-
-def inverse(X):
-    """(..., 4, 4) → (..., 4, 4): [[Rᵀ, −Rᵀ t/X33], [0, 1/X33]]."""
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_M)
-        if _inverse_one(X, out):
-            return out
-    return _jit.apply(_inverse, _element(X), 2, (MAT, MAT))
+hat, vee, exp, log, ad, Ad, dexp, dlog, compose, inverse = _public.functions(_info, globals())

@@ -14,7 +14,7 @@ import pytest
 from numba import njit
 from numba.core.errors import TypingError
 
-from lie_factors.kernels import dispatch as _dispatch
+from lie_factors.kernels import dispatch as _dispatch, registry
 from lie_factors import factors, se2, se3, sim2, sim3, so3
 
 GROUPS = [(_dispatch.SO3, so3, 3), (_dispatch.SE3, se3, 3), (_dispatch.SE2, se2, 2), (_dispatch.SIM2, sim2, 2),
@@ -58,7 +58,7 @@ def test_integer_group_id_is_a_typing_error():
 
 def test_registering_a_group_twice_is_refused():
     with pytest.raises(ValueError, match="already registered"):
-        _dispatch.register(se3)
+        _dispatch.register(registry.SE3)
 
 
 def test_factor_specs_use_the_registered_tags():

@@ -3,10 +3,10 @@
 Each closed form is written once, as a numba-compiled *core* that works on one
 element (``core(x, out)`` with ``x`` of shape ``(n,)`` and ``out`` preallocated).
 The factors call the cores directly (a sub-microsecond call); the public,
-broadcasting functions run the same cores over a flattened batch with
-:func:`apply`, or, given exactly one element, through a small kernel that
-checks it and calls the core (:func:`one_element`). There is therefore
-exactly one implementation of each formula.
+broadcasting functions (:mod:`lie_factors.kernels.public`) run the same cores
+over a flattened batch with :func:`apply`, or, given exactly one element,
+through the :func:`entry_point` of a small kernel that checks it and calls the
+core. There is therefore exactly one implementation of each formula.
 """
 
 from __future__ import annotations
@@ -104,35 +104,25 @@ def apply2(core, x: np.ndarray, y: np.ndarray, core_ndims: tuple, out_core_shape
 
 
 #: float64 arrays of any memory order (C, Fortran, strided) by number of axes; and C-ordered.
-_ANY = {n: types.Array(types.float64, n, "A") for n in (1, 2)}
-_C = {n: types.Array(types.float64, n, "C") for n in (1, 2)}
+ANY = {n: types.Array(types.float64, n, "A") for n in (1, 2)}
+C = {n: types.Array(types.float64, n, "C") for n in (1, 2)}
 
 
-def one_element(wrapper, in_ndims: tuple, out_ndim: int, namespace: dict, name: str):
-    """The compiled entry point of ``wrapper(*inputs, out)`` for one signature, bound lazily.
+def entry_point(wrapper, argtypes: tuple):
+    """numba's compiled entry point of ``wrapper`` for exactly the signature ``argtypes``.
 
-    ``wrapper`` is a kernel taking float64 inputs with ``in_ndims`` axes (any
-    memory order) and a C-ordered float64 ``out`` with ``out_ndim`` axes. Returns
-    a stub that, on its first call, compiles that single signature (or loads it
-    from the on-disk cache), rebinds ``namespace[name]`` to numba's compiled
-    entry point (what ``Dispatcher.compile`` returns, the function the
-    dispatcher itself ends up calling) and forwards the call.
+    Compiles that single signature (or loads it from the on-disk cache) and returns
+    what ``Dispatcher.compile`` returns, the function the dispatcher itself ends up
+    calling; ``None`` with ``NUMBA_DISABLE_JIT=1``.
 
     Why: calling the entry point skips the dispatcher's argument typing, ≈0.1 µs
-    of a ≈0.3 µs call on two arrays, and one signature serves every memory
-    order. The price is that nothing checks the arguments: callers pass
-    ndarrays of dtype float64 with exactly these numbers of axes (the public
-    functions check ``type``, ``shape`` and ``dtype`` first) and an ``out``
-    they allocated with ``np.empty``.
+    of a ≈0.3 µs call on two arrays, and one signature with arrays of any memory
+    order (:data:`ANY`) serves every layout. The price is that nothing checks the
+    arguments: callers pass exactly these types (the public functions check
+    ``type``, ``shape`` and ``dtype`` first, and pass ``out`` they allocated with
+    ``np.empty``). A tag argument (:mod:`lie_factors.kernels.dispatch`) is not even
+    looked at: its type is all it carries.
     """
-    if not hasattr(wrapper, "compile"):  # NUMBA_DISABLE_JIT=1: the wrapper is the Python function
-        return wrapper
-    sig = tuple(_ANY[n] for n in in_ndims) + (_C[out_ndim],)
-
-    def first_call(*args):
-        entry = wrapper.compile(sig)
-        namespace[name] = entry
-        return entry(*args)
-
-    first_call.__name__ = name
-    return first_call
+    if not hasattr(wrapper, "compile"):  # NUMBA_DISABLE_JIT=1: no compiled code
+        return None
+    return wrapper.compile(tuple(argtypes))
