@@ -36,6 +36,7 @@ import math
 
 import numpy as np
 
+from . import so3 as _so3
 from .kernels import jit as _jit, public as _public, registry as _registry
 
 _info = _registry.SE2
@@ -76,20 +77,27 @@ def _c(th):
     return (th - math.sin(th)) / (th * th * th)
 
 
+@_jit.kernel
+def _write(out, m00, m01, m02, m10, m11, m12, m22):
+    """out = [[m00, m01, m02], [m10, m11, m12], [0, 0, m22]]: the form of every 3×3 matrix of
+    SE(2) and Sim(2) (elements, algebra matrices, ad, Ad, D_exp, D_log)."""
+    out[0, 0] = m00
+    out[0, 1] = m01
+    out[0, 2] = m02
+    out[1, 0] = m10
+    out[1, 1] = m11
+    out[1, 2] = m12
+    out[2, 0] = 0.0
+    out[2, 1] = 0.0
+    out[2, 2] = m22
+
+
 # --- cores -----------------------------------------------------------------------------------
 
 
 @_jit.kernel
 def _hat(x, out):
-    out[0, 0] = 0.0
-    out[0, 1] = -x[2]
-    out[0, 2] = x[0]
-    out[1, 0] = x[2]
-    out[1, 1] = 0.0
-    out[1, 2] = x[1]
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = 0.0
+    _write(out, 0.0, -x[2], x[0], x[2], 0.0, x[1], 0.0)
 
 
 @_jit.kernel
@@ -105,15 +113,9 @@ def _exp(x, out):
     a, b = _ab(th)
     tb = th * b
     # translation V u with V = a I + θ b J, the same block as D_exp (Eade, Eq. 83)
-    out[0, 0] = math.cos(th)
-    out[0, 1] = -math.sin(th)
-    out[0, 2] = a * x[0] - tb * x[1]
-    out[1, 0] = math.sin(th)
-    out[1, 1] = math.cos(th)
-    out[1, 2] = tb * x[0] + a * x[1]
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = 1.0
+    c = math.cos(th)
+    s = math.sin(th)
+    _write(out, c, -s, a * x[0] - tb * x[1], s, c, tb * x[0] + a * x[1], 1.0)
 
 
 @_jit.kernel
@@ -133,30 +135,14 @@ def _log(X, out):
 
 @_jit.kernel
 def _ad(x, out):
-    # Eade, Eq. (78)
-    out[0, 0] = 0.0
-    out[0, 1] = -x[2]
-    out[0, 2] = x[1]
-    out[1, 0] = x[2]
-    out[1, 1] = 0.0
-    out[1, 2] = -x[0]
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = 0.0
+    # Eade, Eq. (78): [[θ J, −J u], [0, 0]]
+    _write(out, 0.0, -x[2], x[1], x[2], 0.0, -x[0], 0.0)
 
 
 @_jit.kernel
 def _Ad(X, out):
     # X hat(v, φ) X⁻¹ = hat(R v - φ J t, φ): Ad = [[R, -J t], [0, 1]], -J t = (t_y, -t_x)
-    out[0, 0] = X[0, 0]
-    out[0, 1] = X[0, 1]
-    out[0, 2] = X[1, 2]
-    out[1, 0] = X[1, 0]
-    out[1, 1] = X[1, 1]
-    out[1, 2] = -X[0, 2]
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = 1.0
+    _write(out, X[0, 0], X[0, 1], X[1, 2], X[1, 0], X[1, 1], -X[0, 2], 1.0)
 
 
 @_jit.kernel
@@ -167,60 +153,36 @@ def _dexp(x, out):
     tb = th * b
     # Eade, Eq. (83) corrected: third column (θ c x + b y, θ c y - b x); Eade
     # drops the factor θ on c (see docs/errata.md)
-    out[0, 0] = a
-    out[0, 1] = -tb
-    out[0, 2] = tc * x[0] + b * x[1]
-    out[1, 0] = tb
-    out[1, 1] = a
-    out[1, 2] = tc * x[1] - b * x[0]
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = 1.0
+    _write(out, a, -tb, tc * x[0] + b * x[1], tb, a, tc * x[1] - b * x[0], 1.0)
 
 
 @_jit.kernel
 def _dlog(x, out):
     th = x[2]
     a, b = _ab(th)
-    tc = th * _c(th)
     # Eade, Eqs. (84)-(85): D_log = [[A⁻¹, -A⁻¹ v], [0, 1]], with the 2×2 inverse
     # A⁻¹ = (a I - θ b J)/(a² + θ² b²) = α I - (θ/2) J since a² + θ² b² = 2 b
     al = a / (2.0 * b)
     h = 0.5 * th
+    tc = th * _c(th)
     v0 = tc * x[0] + b * x[1]
     v1 = tc * x[1] - b * x[0]
-    out[0, 0] = al
-    out[0, 1] = h
-    out[0, 2] = -(al * v0 + h * v1)
-    out[1, 0] = -h
-    out[1, 1] = al
-    out[1, 2] = h * v0 - al * v1
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = 1.0
+    _write(out, al, h, -(al * v0 + h * v1), -h, al, h * v0 - al * v1, 1.0)
 
 
-@_jit.kernel
-def _compose(X, Y, out):
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = X[i, 0] * Y[0, j] + X[i, 1] * Y[1, j] + X[i, 2] * Y[2, j]
+#: X·Y: the 3×3 matrix product.
+_compose = _so3._compose
 
 
 @_jit.kernel
 def _inverse(X, out):
-    # [[Rᵀ, -Rᵀ t], [0, 1]]
+    # [[Rᵀ, −Rᵀ t/s], [0, 1/s]] for X = [[R, t], [0, s]]: Sim(2)'s inverse too; for SE(2)
+    # s = 1 and the products with 1/s = 1 are exact
+    si = 1.0 / X[2, 2]
     tx = X[0, 2]
     ty = X[1, 2]
-    out[0, 0] = X[0, 0]
-    out[0, 1] = X[1, 0]
-    out[0, 2] = -(X[0, 0] * tx + X[1, 0] * ty)
-    out[1, 0] = X[0, 1]
-    out[1, 1] = X[1, 1]
-    out[1, 2] = -(X[0, 1] * tx + X[1, 1] * ty)
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = 1.0
+    _write(out, X[0, 0], X[1, 0], -(X[0, 0] * tx + X[1, 0] * ty) * si,
+           X[0, 1], X[1, 1], -(X[0, 1] * tx + X[1, 1] * ty) * si, si)
 
 
 # ---------------------------------------------------------------- public functions

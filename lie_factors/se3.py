@@ -108,30 +108,19 @@ def _write_block_lower(D, L, out):
 
 @kernel
 def _hat(x, out):
-    for j in range(4):
-        out[3, j] = 0.0
-    out[0, 0] = 0.0
-    out[0, 1] = -x[2]
-    out[0, 2] = x[1]
-    out[1, 0] = x[2]
-    out[1, 1] = 0.0
-    out[1, 2] = -x[0]
-    out[2, 0] = -x[1]
-    out[2, 1] = x[0]
-    out[2, 2] = 0.0
-    out[0, 3] = x[3]
-    out[1, 3] = x[4]
-    out[2, 3] = x[5]
+    # [[ω×, v], [0, 0]]
+    _so3._hat(x, out)
+    for i in range(3):
+        out[i, 3] = x[i + 3]
+        out[3, i] = 0.0
+    out[3, 3] = 0.0
 
 
 @kernel
 def _vee(X, out):
-    out[0] = X[2, 1]
-    out[1] = X[0, 2]
-    out[2] = X[1, 0]
-    out[3] = X[0, 3]
-    out[4] = X[1, 3]
-    out[5] = X[2, 3]
+    _so3._vee(X, out)
+    for i in range(3):
+        out[i + 3] = X[i, 3]
 
 
 @kernel
@@ -223,25 +212,15 @@ def _dlog(x, out):
     gf = g * f
     gd = -2.0 * e * g
     L = _lin9(w0, w1, w2, gd, 0.0, gf)
-    Ji = _rod9(w0, w1, w2, -0.5, e)
-    for i in range(3):
-        for j in range(3):
-            d = Ji[3 * i + j]
-            out[i, j] = d
-            out[i + 3, j + 3] = d
-            out[i, j + 3] = 0.0
-    out[3, 0] = L[0] + 2.0 * e * w0 * u0
-    out[4, 1] = L[4] + 2.0 * e * w1 * u1
-    out[5, 2] = L[8] + 2.0 * e * w2 * u2
     e01 = e * (w0 * u1 + u0 * w1)
     e02 = e * (w0 * u2 + u0 * w2)
     e12 = e * (w1 * u2 + u1 * w2)
-    out[3, 1] = L[1] + e01 + 0.5 * u2
-    out[4, 0] = L[3] + e01 - 0.5 * u2
-    out[3, 2] = L[2] + e02 - 0.5 * u1
-    out[5, 0] = L[6] + e02 + 0.5 * u1
-    out[4, 2] = L[5] + e12 + 0.5 * u0
-    out[5, 1] = L[7] + e12 - 0.5 * u0
+    L = (
+        L[0] + 2.0 * e * w0 * u0, L[1] + e01 + 0.5 * u2, L[2] + e02 - 0.5 * u1,
+        L[3] + e01 - 0.5 * u2, L[4] + 2.0 * e * w1 * u1, L[5] + e12 + 0.5 * u0,
+        L[6] + e02 + 0.5 * u1, L[7] + e12 - 0.5 * u0, L[8] + 2.0 * e * w2 * u2,
+    )
+    _write_block_lower(_rod9(w0, w1, w2, -0.5, e), L, out)
 
 
 @kernel

@@ -44,6 +44,7 @@ import math
 
 import numpy as np
 
+from . import se2 as _se2
 from .kernels import jit as _jit, public as _public, registry as _registry
 
 _info = _registry.SIM2
@@ -94,23 +95,26 @@ def _phi(lam, th):
 
 
 @_jit.kernel
+def _write4(out, upper, d):
+    """out = [[upper[0] … upper[3]], [upper[4] … upper[7]], [0, 0, d, 0], [0, 0, 0, d]]: the form of
+    ad (d = 0), Ad, D_exp and D_log (d = 1) (Eade, Eqs. 88, 100, 110)."""
+    for j in range(4):
+        out[0, j] = upper[j]
+        out[1, j] = upper[4 + j]
+        out[2, j] = 0.0
+        out[3, j] = 0.0
+    out[2, 2] = d
+    out[3, 3] = d
+
+
+@_jit.kernel
 def _hat(x, out):
-    out[0, 0] = 0.0
-    out[0, 1] = -x[2]
-    out[0, 2] = x[0]
-    out[1, 0] = x[2]
-    out[1, 1] = 0.0
-    out[1, 2] = x[1]
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = -x[3]
+    _se2._write(out, 0.0, -x[2], x[0], x[2], 0.0, x[1], -x[3])
 
 
 @_jit.kernel
 def _vee(X, out):
-    out[0] = X[0, 2]
-    out[1] = X[1, 2]
-    out[2] = X[1, 0]
+    _se2._vee(X, out)
     out[3] = -X[2, 2]
 
 
@@ -126,15 +130,7 @@ def _exp(x, out):
     wi = s * q
     c = math.cos(th)
     sn = math.sin(th)
-    out[0, 0] = c
-    out[0, 1] = -sn
-    out[0, 2] = wr * x[0] - wi * x[1]
-    out[1, 0] = sn
-    out[1, 1] = c
-    out[1, 2] = wi * x[0] + wr * x[1]
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = s
+    _se2._write(out, c, -sn, wr * x[0] - wi * x[1], sn, c, wi * x[0] + wr * x[1], s)
 
 
 @_jit.kernel
@@ -156,17 +152,7 @@ def _log(X, out):
 @_jit.kernel
 def _ad(x, out):
     # Eade, Eq. (88): [[Q, P], [0, 0]], Q = [[λ, -θ], [θ, λ]], P = [[y, -x], [-x, -y]]
-    for i in range(2, 4):
-        for j in range(4):
-            out[i, j] = 0.0
-    out[0, 0] = x[3]
-    out[0, 1] = -x[2]
-    out[0, 2] = x[1]
-    out[0, 3] = -x[0]
-    out[1, 0] = x[2]
-    out[1, 1] = x[3]
-    out[1, 2] = -x[0]
-    out[1, 3] = -x[1]
+    _write4(out, (x[3], -x[2], x[1], -x[0], x[2], x[3], -x[0], -x[1]), 0.0)
 
 
 @_jit.kernel
@@ -175,19 +161,8 @@ def _Ad(X, out):
     si = 1.0 / X[2, 2]
     tx = X[0, 2]
     ty = X[1, 2]
-    for i in range(2, 4):
-        for j in range(4):
-            out[i, j] = 0.0
-    out[2, 2] = 1.0
-    out[3, 3] = 1.0
-    out[0, 0] = X[0, 0] * si
-    out[0, 1] = X[0, 1] * si
-    out[1, 0] = X[1, 0] * si
-    out[1, 1] = X[1, 1] * si
-    out[0, 2] = ty * si
-    out[1, 2] = -tx * si
-    out[0, 3] = -tx * si
-    out[1, 3] = -ty * si
+    _write4(out, (X[0, 0] * si, X[0, 1] * si, ty * si, -tx * si,
+                  X[1, 0] * si, X[1, 1] * si, -tx * si, -ty * si), 1.0)
 
 
 @_jit.kernel
@@ -195,21 +170,10 @@ def _dexp(x, out):
     p, q, g, h = _phi(x[3], x[2])
     X0 = x[0]
     Y0 = x[1]
-    for i in range(2, 4):
-        for j in range(4):
-            out[i, j] = 0.0
-    # Eade, Eq. (100): [[φ1(Q), φ2(Q) P], [0, I]]
-    out[2, 2] = 1.0
-    out[3, 3] = 1.0
-    out[0, 0] = p
-    out[0, 1] = -q
-    out[1, 0] = q
-    out[1, 1] = p
-    # [[g, -h], [h, g]] · [[y, -x], [-x, -y]]
-    out[0, 2] = g * Y0 + h * X0
-    out[0, 3] = h * Y0 - g * X0
-    out[1, 2] = h * Y0 - g * X0
-    out[1, 3] = -(g * Y0 + h * X0)
+    # Eade, Eq. (100): [[φ1(Q), φ2(Q) P], [0, I]], with
+    # [[g, -h], [h, g]] · [[y, -x], [-x, -y]] the upper right block
+    _write4(out, (p, -q, g * Y0 + h * X0, h * Y0 - g * X0,
+                  q, p, h * Y0 - g * X0, -(g * Y0 + h * X0)), 1.0)
 
 
 @_jit.kernel
@@ -225,43 +189,13 @@ def _dlog(x, out):
     # A⁻¹ B = ψ(Q) P, ψ = φ2/φ1 (rotation-scale blocks commute)
     pr = ar * g - ai * h
     pi = ar * h + ai * g
-    for i in range(2, 4):
-        for j in range(4):
-            out[i, j] = 0.0
-    out[2, 2] = 1.0
-    out[3, 3] = 1.0
-    out[0, 0] = ar
-    out[0, 1] = -ai
-    out[1, 0] = ai
-    out[1, 1] = ar
-    out[0, 2] = -(pr * Y0 + pi * X0)
-    out[0, 3] = -(pi * Y0 - pr * X0)
-    out[1, 2] = -(pi * Y0 - pr * X0)
-    out[1, 3] = pr * Y0 + pi * X0
+    _write4(out, (ar, -ai, -(pr * Y0 + pi * X0), -(pi * Y0 - pr * X0),
+                  ai, ar, -(pi * Y0 - pr * X0), pr * Y0 + pi * X0), 1.0)
 
 
-@_jit.kernel
-def _compose(X, Y, out):
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = X[i, 0] * Y[0, j] + X[i, 1] * Y[1, j] + X[i, 2] * Y[2, j]
-
-
-@_jit.kernel
-def _inverse(X, out):
-    # [[Rᵀ, -Rᵀ t/s], [0, 1/s]]
-    si = 1.0 / X[2, 2]
-    tx = X[0, 2]
-    ty = X[1, 2]
-    out[0, 0] = X[0, 0]
-    out[0, 1] = X[1, 0]
-    out[0, 2] = -(X[0, 0] * tx + X[1, 0] * ty) * si
-    out[1, 0] = X[0, 1]
-    out[1, 1] = X[1, 1]
-    out[1, 2] = -(X[0, 1] * tx + X[1, 1] * ty) * si
-    out[2, 0] = 0.0
-    out[2, 1] = 0.0
-    out[2, 2] = si
+#: X·Y: the 3×3 matrix product; X⁻¹ = [[Rᵀ, −Rᵀ t/s], [0, 1/s]] (the kernel SE(2) uses too).
+_compose = _se2._compose
+_inverse = _se2._inverse
 
 
 # ---------------------------------------------------------------- public functions

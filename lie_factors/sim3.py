@@ -76,6 +76,7 @@ exp(x + ε) ≈ exp(dexp(x) ε)·exp(x); a GTSAM-style right Jacobian is dexp(�
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 
 import numpy as np
 
@@ -83,9 +84,10 @@ from lie_factors import so3 as _so3
 from lie_factors.kernels import public as _public, registry as _registry
 from lie_factors.kernels.coeffs import (
     _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR,
-    QA_TAYLOR, QB_TAYLOR, _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, theta_dd,
+    QA_TAYLOR, QB_TAYLOR, _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, rounded, theta_dd,
 )
 from lie_factors.kernels.jit import kernel
+from lie_factors import se3 as _se3
 from lie_factors.se3 import _lin9, _rod9
 
 _info = _registry.SIM3
@@ -119,53 +121,9 @@ assert SPECTRAL <= E_TAYLOR
 _TWO_PI_HI = 6.283185307179586
 _TWO_PI_LO = 2.4492935982947064e-16
 
-# φ1′(λ) = Σ λ^k/(k!(k+2))
-_DPHI1_SERIES = (
-    0.5,  # 1/2
-    0.3333333333333333,  # 1/3
-    0.125,  # 1/8
-    0.03333333333333333,  # 1/30
-    0.006944444444444444,  # 1/144
-    0.0011904761904761906,  # 1/840
-    0.00017361111111111112,  # 1/5760
-    2.2045855379188714e-05,  # 1/45360
-    2.48015873015873e-06,  # 1/403200
-    2.505210838544172e-07,  # 1/3991680
-    2.296443268665491e-08,  # 1/43545600
-    1.9270852604185937e-09,  # 1/518918400
-    1.4911969277048643e-10,  # 1/6706022400
-    1.0706029224547743e-11,  # 1/93405312000
-    7.169215998581078e-13,  # 1/1394852659200
-    4.498331606952833e-14,  # 1/22230464256000
-    2.6552651846596585e-15,  # 1/376610217984000
-    1.4797143443923793e-16,  # 1/6758061133824000
-)[:L_TERMS]
-# 1/(n+1)! for n = 0, 1, ...
-_INV_FACT = (
-    1.0,  # 1
-    0.5,  # 1/2
-    0.16666666666666666,  # 1/6
-    0.041666666666666664,  # 1/24
-    0.008333333333333333,  # 1/120
-    0.001388888888888889,  # 1/720
-    0.0001984126984126984,  # 1/5040
-    2.48015873015873e-05,  # 1/40320
-    2.7557319223985893e-06,  # 1/362880
-    2.755731922398589e-07,  # 1/3628800
-    2.505210838544172e-08,  # 1/39916800
-    2.08767569878681e-09,  # 1/479001600
-    1.6059043836821613e-10,  # 1/6227020800
-    1.1470745597729725e-11,  # 1/87178291200
-    7.647163731819816e-13,  # 1/1307674368000
-    4.779477332387385e-14,  # 1/20922789888000
-    2.8114572543455206e-15,  # 1/355687428096000
-    1.5619206968586225e-16,  # 1/6402373705728000
-    8.22063524662433e-18,  # 1/121645100408832000
-    4.110317623312165e-19,  # 1/2432902008176640000
-    1.9572941063391263e-20,  # 1/51090942171709440000
-    8.896791392450574e-22,  # 1/1124000727777607680000
-    3.868170170630684e-23,  # 1/25852016738884976640000
-)
+# φ1′(λ) = Σ λ^k/(k!(k+2)) and 1/(n+1)!, n = 0, 1, ...: exact rationals rounded once
+_DPHI1_SERIES = rounded(Fraction(1, math.factorial(k) * (k + 2)) for k in range(L_TERMS))
+_INV_FACT = rounded(Fraction(1, math.factorial(n + 1)) for n in range(Z_TERMS + 1))
 # the same as a frozen array: indexing a global tuple with the loop counter costs a branch
 # table per load inside the series loops (measured 41.7 → 38.7 ns per _zseries call)
 _INV_FACT_ARR = np.array(_INV_FACT)
@@ -175,40 +133,10 @@ _INV_FACT_ARR = np.array(_INV_FACT)
 
 
 @kernel
-def _theta5(th):
-    """(a, b, c, qa, qb) of the SO(3) coefficient functions at θ ≥ 0 (Eade, Eqs. 50–52, 64),
-    from one sine and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation),
-    c = (1 − a)/θ², qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² = c′(θ)/θ; Taylor bands of
-    :mod:`lie_factors.kernels.coeffs`."""
-    h = 0.5 * th
-    t = th * th
-    if th < A_TAYLOR:
-        a = _horner(_A_SERIES, t)
-        ah = _horner(_A_SERIES, h * h)
-    else:
-        sh = math.sin(h)
-        ch = math.cos(h)
-        a = sh * ch / h
-        ah = sh / h
-    b = 0.5 * ah * ah
-    if th < C_TAYLOR:
-        c = _horner(_C_SERIES, t)
-    else:
-        c = (1.0 - a) / t
-    if th < QA_TAYLOR:
-        qa = _horner(_QA_SERIES, t)
-    else:
-        qa = (a - 2.0 * b) / t
-    if th < QB_TAYLOR:
-        qb = _horner(_QB_SERIES, t)
-    else:
-        qb = (b - 3.0 * c) / t
-    return a, b, c, qa, qb
-
-
-@kernel
 def _theta_abc(th):
-    """(a, b, c) of :func:`_theta5` only (exp and log)."""
+    """(a, b, c) of the SO(3) coefficient functions at θ ≥ 0 (Eade, Eqs. 50–52) from one sine
+    and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation), c = (1 − a)/θ²;
+    Taylor bands of :mod:`lie_factors.kernels.coeffs`."""
     h = 0.5 * th
     t = th * th
     if th < A_TAYLOR:
@@ -228,6 +156,23 @@ def _theta_abc(th):
 
 
 @kernel
+def _theta5(th):
+    """(a, b, c, qa, qb): :func:`_theta_abc` and qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² =
+    c′(θ)/θ (Eade, Eq. 64)."""
+    a, b, c = _theta_abc(th)
+    t = th * th
+    if th < QA_TAYLOR:
+        qa = _horner(_QA_SERIES, t)
+    else:
+        qa = (a - 2.0 * b) / t
+    if th < QB_TAYLOR:
+        qb = _horner(_QB_SERIES, t)
+    else:
+        qb = (b - 3.0 * c) / t
+    return a, b, c, qa, qb
+
+
+@kernel
 def _lam3(lam):
     """(e^λ, φ1(λ), φ1′(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds (Taylor series for
     |λ| < L_TAYLOR, where that difference loses ~ε/|λ|)."""
@@ -242,8 +187,8 @@ def _lam3(lam):
 
 
 @kernel
-def _zseries(lam, T):
-    """(a1, b1, c1, d1, e1, a2, b2, c2) for small |z| (module docstring, "z band").
+def _zseries(lam, T, terms):
+    """(a1, b1, c1, d1, e1, a2, b2, c2) for small |z| (module docstring, "z band"), ``terms`` terms.
 
     With zⁿ = pₙ + iθ qₙ, rₙ = (λⁿ − pₙ)/θ², sₙ = (n pₙ₋₁ − qₙ)/θ², tₙ = (n qₙ₋₁ − 2 rₙ)/θ²
     (all polynomials in λ and T = θ², no division):
@@ -260,7 +205,7 @@ def _zseries(lam, T):
     lp = 1.0
     a1 = b1 = c1 = d1 = e1 = a2 = b2 = c2 = 0.0
     fn = 0.0  # n as a float, counted alongside (no int → float conversion per term)
-    for n in range(Z_TERMS):
+    for n in range(terms):
         f1 = _INV_FACT_ARR[n]
         f2 = _INV_FACT_ARR[n + 1]
         a1 += lp * f1
@@ -286,27 +231,6 @@ def _zseries(lam, T):
 
 
 @kernel
-def _zseries_w(lam, T):
-    """(a1, b1, c1) of :func:`_zseries` only, Z_TERMS_W terms (|z| < Z_BAND_W)."""
-    p = 1.0
-    q = 0.0
-    r = 0.0
-    lp = 1.0
-    a1 = b1 = c1 = 0.0
-    for n in range(Z_TERMS_W):
-        f1 = _INV_FACT_ARR[n]
-        a1 += lp * f1
-        b1 += q * f1
-        c1 += r * f1
-        pn = lam * p - T * q
-        r = lam * r + q
-        q = p + lam * q
-        p = pn
-        lp *= lam
-    return a1, b1, c1
-
-
-@kernel
 def _coefs(lam, th):
     """(a1, b1, c1, d1, e1, re1, a2, b2, c2): φ1(B) = a1 I + b1 Ω + c1 Ω², d1 = ∂b1/∂θ/θ,
     e1 = ∂c1/∂θ/θ, re1 = Re φ1(λ + iθ), φ2(B) = a2 I + b2 Ω + c2 Ω² (closed forms (C) of the
@@ -314,7 +238,7 @@ def _coefs(lam, th):
     T = th * th
     D = lam * lam + T
     if D < Z_BAND * Z_BAND:
-        a1, b1, c1, d1, e1, a2, b2, c2 = _zseries(lam, T)
+        a1, b1, c1, d1, e1, a2, b2, c2 = _zseries(lam, T, Z_TERMS)
         return a1, b1, c1, d1, e1, a1 - T * c1, a2, b2, c2
     E, A, I1 = _lam3(lam)
     # φ2(λ) = ∫(1 − s) e^{sλ} = φ1 − φ1′: no cancellation for small λ; (φ1 − 1)/λ for large
@@ -345,7 +269,7 @@ def _wcoefs(lam, th):
     T = th * th
     D = lam * lam + T
     if D < Z_BAND_W * Z_BAND_W:
-        a1, b1, c1 = _zseries_w(lam, T)
+        a1, b1, c1, _, _, _, _, _ = _zseries(lam, T, Z_TERMS_W)
         return math.exp(lam), a1, b1, c1, a, b
     E, A, I1 = _lam3(lam)
     Di = 1.0 / D
@@ -501,32 +425,14 @@ def _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2
 
 @kernel
 def _hat(x, out):
-    out[0, 0] = 0.0
-    out[0, 1] = -x[2]
-    out[0, 2] = x[1]
-    out[1, 0] = x[2]
-    out[1, 1] = 0.0
-    out[1, 2] = -x[0]
-    out[2, 0] = -x[1]
-    out[2, 1] = x[0]
-    out[2, 2] = 0.0
-    out[0, 3] = x[3]
-    out[1, 3] = x[4]
-    out[2, 3] = x[5]
-    out[3, 0] = 0.0
-    out[3, 1] = 0.0
-    out[3, 2] = 0.0
+    # [[ω×, u], [0, −λ]]
+    _se3._hat(x, out)
     out[3, 3] = -x[6]
 
 
 @kernel
 def _vee(X, out):
-    out[0] = X[2, 1]
-    out[1] = X[0, 2]
-    out[2] = X[1, 0]
-    out[3] = X[0, 3]
-    out[4] = X[1, 3]
-    out[5] = X[2, 3]
+    _se3._vee(X, out)
     out[6] = -X[3, 3]
 
 
@@ -598,31 +504,17 @@ def _ad(x, out):
 
 @kernel
 def _Ad(X, out):
-    # X hat(ω, u, λ) X⁻¹ = hat(R ω, s (t × R ω + R u − λ t), λ) with s = 1/X33
+    # X hat(ω, u, λ) X⁻¹ = hat(R ω, s (t × R ω + R u − λ t), λ) with s = 1/X33: SE(3)'s
+    # [[R, 0], [t× R, R]] with its lower rows times s, then the column −s t
+    _se3._Ad(X, out)
     s = 1.0 / X[3, 3]
-    t0, t1, t2 = X[0, 3], X[1, 3], X[2, 3]
-    for j in range(3):
-        r0, r1, r2 = X[0, j], X[1, j], X[2, j]
-        out[0, j] = r0
-        out[1, j] = r1
-        out[2, j] = r2
-        out[3, j + 3] = s * r0
-        out[4, j + 3] = s * r1
-        out[5, j + 3] = s * r2
-        out[0, j + 3] = 0.0
-        out[1, j + 3] = 0.0
-        out[2, j + 3] = 0.0
-        out[3, j] = s * (t1 * r2 - t2 * r1)
-        out[4, j] = s * (t2 * r0 - t0 * r2)
-        out[5, j] = s * (t0 * r1 - t1 * r0)
+    for i in range(3):
+        for j in range(6):
+            out[i + 3, j] = s * out[i + 3, j]
+        out[i, 6] = 0.0
+        out[i + 3, 6] = -s * X[i, 3]
+    for j in range(6):
         out[6, j] = 0.0
-        out[6, j + 3] = 0.0
-    out[0, 6] = 0.0
-    out[1, 6] = 0.0
-    out[2, 6] = 0.0
-    out[3, 6] = -s * t0
-    out[4, 6] = -s * t1
-    out[5, 6] = -s * t2
     out[6, 6] = 1.0
 
 
@@ -711,6 +603,12 @@ def _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2):
 
 
 @kernel
+def _parts(x):
+    """(ω0, ω1, ω2, u0, u1, u2, λ, θ = |ω|) of a tangent x."""
+    return x[0], x[1], x[2], x[3], x[4], x[5], x[6], norm3(x[0], x[1], x[2])
+
+
+@kernel
 def _fB(w0, w1, w2, th, fl, fz):
     """f(B) = f(λ) I + (Im f(z)/θ) Ω + ((f(λ) − Re f(z))/θ²) Ω², formula (F), as a 9-tuple."""
     return _lin9(w0, w1, w2, fl, fz.imag / th, (fl - fz.real) / (th * th))
@@ -718,10 +616,7 @@ def _fB(w0, w1, w2, th, fl, fz):
 
 @kernel
 def _dexp(x, out):
-    w0, w1, w2 = x[0], x[1], x[2]
-    u0, u1, u2 = x[3], x[4], x[5]
-    lam = x[6]
-    th = norm3(w0, w1, w2)
+    w0, w1, w2, u0, u1, u2, lam, th = _parts(x)
     if th < SPECTRAL:
         a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
         J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
@@ -757,10 +652,7 @@ def _dexp(x, out):
 
 @kernel
 def _dlog(x, out):
-    w0, w1, w2 = x[0], x[1], x[2]
-    u0, u1, u2 = x[3], x[4], x[5]
-    lam = x[6]
-    th = norm3(w0, w1, w2)
+    w0, w1, w2, u0, u1, u2, lam, th = _parts(x)
     if th < SPECTRAL:
         # θ < SPECTRAL < E_TAYLOR: e_θ is its Taylor band; the θ computed above (no second norm)
         ek = _horner4(_E_SERIES, th * th)

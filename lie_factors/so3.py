@@ -89,7 +89,8 @@ def _rodrigues(w0, w1, w2, p, q, out):
 
 @kernel
 def _exp(x, out):
-    # Rodrigues: exp(ω×) = I + a_θ ω× + b_θ ω×² (Jackson, eq:so3_exp).
+    """Rodrigues' formula exp(ω×) = I + a_θ ω× + b_θ ω×² (Jackson, eq:so3_exp), with
+    a_θ = sin θ/θ and b_θ = (1 − cos θ)/θ² from their Taylor bands near 0."""
     th = norm3(x[0], x[1], x[2])
     _rodrigues(x[0], x[1], x[2], a_theta(th), b_theta(th), out)
 
