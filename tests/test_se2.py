@@ -1,6 +1,6 @@
 """SE(2) closed forms against 50-digit references built from the definitions.
 
-error = max|ours - ref| / max(1, max|ref|) ≤ 1e-14 everywhere (CONVENTIONS.md).
+error = max|ours - ref| / max(1, max|ref|) ≤ 1e-14 everywhere (docs/conventions.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """SE(3) kernels, tangent [ω, v], against lie_factors.testing.reference (mpmath, 50 digits).
 
-Bound 1e-14 (CONVENTIONS.md error measure) over θ = 0, 1e-200, 1e-15…1, the
+Bound 1e-14 (docs/conventions.md error measure) over θ = 0, 1e-200, 1e-15…1, the
 coefficient thresholds straddled, up to π (exp/log) and 2π − 1e-3 (dexp/dlog),
 translations 1e-3…1e2 in random directions, nearly parallel and perpendicular to ω.
 """

@@ -1,6 +1,6 @@
 """Sim(3) kernels, tangent [ω, u, λ], against lie_factors.testing.reference (mpmath, 50 digits).
 
-error = max|ours − ref| / max(1, max|ref|) (CONVENTIONS.md) ≤ 1e-14 everywhere and ≤ 2e-15
+error = max|ours − ref| / max(1, max|ref|) (docs/conventions.md) ≤ 1e-14 everywhere and ≤ 2e-15
 where |λ| ≤ 5, on the 2-D grid θ ∈ {0, 1e-200, 1e-15, 1e-8, 1e-4, 1e-2, 0.3, 1, 2,
 3, π − 1e-12, π} (and π(1 + 1e-9), 4, 5, 6, 2π − 1e-3 for dexp and dlog) × λ ∈ {0, ±1e-200,
 ±1e-4, ±0.1, ±1, ±5, ±45, ±θ}: θ and λ → 0 apart (one of them 0 or 1e-200) and

@@ -1,6 +1,6 @@
 """SO(3) kernels and the shared coefficients of lie_factors.kernels.coeffs.
 
-Accuracy is measured as in CONVENTIONS.md against lie_factors.testing.reference
+Accuracy is measured as in docs/conventions.md against lie_factors.testing.reference
 (mpmath, 50 digits, from the definitions), bound 1e-14 everywhere.
 """
 
