@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 
 from lie_factors import quaternion as _quat
-from lie_factors.kernels import jit as _jit, public as _public, registry as _registry, validate as _validate
+from lie_factors.kernels import dispatch as _dispatch, public as _public, registry as _registry, validate as _validate
 from lie_factors.kernels.coeffs import a_theta, b_theta, c_theta, dot3, norm3
 from lie_factors.kernels.jit import kernel
 
@@ -122,6 +122,10 @@ def _inverse(q, out):
 exp, log, compose, inverse = _public.functions(_info, globals())
 
 
+#: The conversion's operation tag (its core: _to_matrix), for the batch loop.
+_TO_MATRIX = _dispatch.Op("to_matrix", True)
+
+
 def to_matrix(dq):
     """(..., 8) → (..., 4, 4): [[R(q_r), t], [0, 1]] with t = 2 vec(q_d ⊗ q_r*) (validated as :func:`log`)."""
-    return _jit.apply(_to_matrix, _validate.unit(dq, _info, "dq"), 1, (4, 4))
+    return _public.apply(_info, _TO_MATRIX, _validate.unit(dq, _info, "dq"), 1, (4, 4))

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-from lie_factors.kernels import jit as _jit, public as _public, registry as _registry, validate as _validate
+from lie_factors.kernels import dispatch as _dispatch, public as _public, registry as _registry, validate as _validate
 from lie_factors.kernels.coeffs import a_theta, norm3
 from lie_factors.kernels.jit import kernel
 
@@ -132,11 +132,15 @@ def _from_rotation(R, out):
 exp, log, compose, inverse = _public.functions(_info, globals())
 
 
+#: The conversions' operation tags (their cores: _to_rotation, _from_rotation), for the batch loop.
+_TO_ROTATION, _FROM_ROTATION = _dispatch.Op("to_rotation", True), _dispatch.Op("from_rotation", False)
+
+
 def to_rotation(q):
     """(..., 4) → (..., 3, 3): the rotation matrix of a unit quaternion (validated as :func:`log`)."""
-    return _jit.apply(_to_rotation, _validate.unit(q, _info, "q"), 1, (3, 3))
+    return _public.apply(_info, _TO_ROTATION, _validate.unit(q, _info, "q"), 1, (3, 3))
 
 
 def from_rotation(R):
     """(..., 3, 3) → (..., 4): the unit quaternion with w ≥ 0 (Shepperd's method) of rotations R."""
-    return _jit.apply(_from_rotation, _public.elements(R, _registry.SO3, "R"), 2, (4,))
+    return _public.apply(_info, _FROM_ROTATION, _public.elements(R, _registry.SO3, "R"), 2, (4,))

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import builtins
 import functools
+import sys
 import types
 from dataclasses import dataclass
 
@@ -113,6 +114,47 @@ def one_pair(g, op, x, y, out):
     return True
 
 
+@kernel
+def many(g, op, x, out):
+    """``op`` of group ``g`` on every element of the batch ``x`` (N, ...) into ``out`` (N, ...),
+    both C-ordered, ``x`` already validated: the general path's loop."""
+    for i in range(x.shape[0]):
+        _dispatch.call(g, op, x[i], out[i])
+
+
+@kernel
+def many_pairs(g, op, x, y, out):
+    """:func:`many` for an operation of two arguments."""
+    for i in range(x.shape[0]):
+        _dispatch.call2(g, op, x[i], y[i], out[i])
+
+
+def apply(g, op, x: np.ndarray, ndim: int, out_shape: tuple) -> np.ndarray:
+    """``op`` of group ``g`` on every element of ``x``, broadcasting leading axes.
+
+    ``x`` has shape ``batch + shape`` (``ndim`` trailing axes); the result has shape
+    ``batch + out_shape``. ``x`` must already be a validated float64 array. The loop
+    (:func:`many`) is cached on disk for each group and operation, like the cores.
+    """
+    batch = x.shape[: x.ndim - ndim]
+    flat = np.ascontiguousarray(x.reshape((-1,) + x.shape[x.ndim - ndim:]))
+    out = np.empty((flat.shape[0],) + out_shape)
+    if flat.shape[0]:
+        many(g, op, flat, out)
+    return out.reshape(batch + out_shape)
+
+
+def apply2(g, op, x: np.ndarray, y: np.ndarray, ndim: int, out_shape: tuple) -> np.ndarray:
+    """Two-argument version of :func:`apply`; the batch shapes of ``x`` and ``y`` broadcast."""
+    batch = np.broadcast_shapes(x.shape[: x.ndim - ndim], y.shape[: y.ndim - ndim])
+    fx, fy = (np.ascontiguousarray(np.broadcast_to(a, batch + a.shape[a.ndim - ndim:]).reshape(
+        (-1,) + a.shape[a.ndim - ndim:])) for a in (x, y))
+    out = np.empty((fx.shape[0],) + out_shape)
+    if fx.shape[0]:
+        many_pairs(g, op, fx, fy, out)
+    return out.reshape(batch + out_shape)
+
+
 _ND, _F64, _empty = np.ndarray, np.dtype(np.float64), np.empty
 
 
@@ -164,8 +206,7 @@ def _fast(info: GroupInfo, op: Operation):
     ndim = len(shape(op.args[0], info))
     argtypes = (info._numba_type_, op.tag._numba_type_) + (_jit.ANY[ndim],) * len(op.args)
     argtypes += (_jit.C[len(shape(op.result, info))],)
-    entry = _jit.entry_point(one if len(op.args) == 1 else one_pair, argtypes)
-    return entry if entry is not None else (lambda *args: False)
+    return _jit.entry_point(one if len(op.args) == 1 else one_pair, argtypes)
 
 
 def _doc(op: Operation, info: GroupInfo, names: tuple) -> str:
@@ -194,7 +235,7 @@ def _one_argument(x):
         out = _empty(OUT)
         if fast(G, OP, x, out):
             return out
-    return _jit.apply(CORE, CHECK(x, name=NAME[0]), NDIM, OUT)
+    return _public.apply(G, OP, CHECK(x, name=NAME[0]), NDIM, OUT)
 
 
 def _two_arguments(X, Y):
@@ -203,16 +244,16 @@ def _two_arguments(X, Y):
         out = _empty(OUT)
         if fast(G, OP, X, Y, out):
             return out
-    return _jit.apply2(CORE, CHECK(X, name=NAME[0]), CHECK(Y, name=NAME[1]), (NDIM, NDIM), OUT)
+    return _public.apply2(G, OP, CHECK(X, name=NAME[0]), CHECK(Y, name=NAME[1]), NDIM, OUT)
 
 
-def _function(info: GroupInfo, op: Operation, core):
+def _function(info: GroupInfo, op: Operation):
     names = _names(op, info)
     arg_shape = shape(op.args[0], info)
     namespace = {
-        "__builtins__": builtins, "_ND": _ND, "_F64": _F64, "_empty": _empty, "_jit": _jit,
+        "__builtins__": builtins, "_ND": _ND, "_F64": _F64, "_empty": _empty, "_public": sys.modules[__name__],
         "G": info, "OP": op.tag, "ARG": arg_shape, "OUT": shape(op.result, info), "NDIM": len(arg_shape),
-        "CORE": core, "CHECK": _validator(op.args[0], info), "NAME": names,
+        "CHECK": _validator(op.args[0], info), "NAME": names,
     }
 
     def compile_then_call(*args):
@@ -235,4 +276,7 @@ def functions(info: GroupInfo, namespace: dict) -> tuple:
     """The public functions of group ``info`` on the cores ``namespace["_<name>"]``, in the
     order of :data:`OPERATIONS` (for the unit quaternions: exp, log, compose, inverse)."""
     ops = [op for op in OPERATIONS if info.corner != UNIT or op.name in QUATERNION_OPERATIONS]
-    return tuple(_function(info, op, namespace["_" + op.name]) for op in ops)
+    missing = [op.name for op in ops if f"_{op.name}" not in namespace]
+    if missing:
+        raise AttributeError(f"{info.module} has no core _{', _'.join(missing)}")
+    return tuple(_function(info, op) for op in ops)
