@@ -5,10 +5,11 @@ forms are measured against.
 
 Everything here is written independently of the code under test (it reads only
 the groups' names and dimensions from :mod:`lie_factors.kernels.registry`):
-``hat`` follows GTSAM's tangent orders, ``ad`` is the matrix of ``y -> vee([hat x, hat y])``
-obtained by bracketing basis vectors, ``exp`` is the matrix exponential of
-``hat(x)`` and ``dexp`` is the power series sum_i ad^i/(i+1)! (Eade, Eq. 35),
-all at ``DPS`` significant digits with mpmath.
+``hat`` follows GTSAM's tangent orders, ``ad`` is the matrix of
+``y -> vee([hat x, hat y])`` obtained by bracketing basis vectors, ``exp`` is the
+matrix exponential of ``hat(x)`` and ``dexp`` is the power series
+sum_i ad^i/(i+1)! (Eade, "Derivative of the Exponential Map", Eq. 35), all at
+``DPS`` significant digits with mpmath.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from ..kernels import registry
 DPS = 50
 mp.mp.dps = DPS
 
-# --- hat/vee per group, from docs/conventions.md -------------------------------------------------
+# --- hat/vee per group (the tangent orders of docs/conventions.md) ---------------------------
 
 
 def _skew(w):
