@@ -47,22 +47,9 @@ def _mp(x):
 
 
 def _newton_log(X):
-    """vee(log X) at 50 digits: Newton on exp_ref(x) = X (exp_ref = mp.expm of hat).
-
-    mp.logm returns a complex, non-principal result near θ = π, so the log reference
-    there solves the definition exp(hat x) = X instead. Step: X exp(x)⁻¹ ≈ exp(D_exp(x) ε).
-    """
-    Xm = mp.matrix(np.asarray(X, dtype=float).tolist())
-    th = mp.atan2(Xm[1, 0], Xm[0, 0])
-    x = [Xm[0, 2], Xm[1, 2], th]
-    for _ in range(60):
-        E = ref.exp(G, x)
-        D = Xm * mp.inverse(E) - mp.eye(3)
-        d = ref.dlog(G, x) * mp.matrix(ref.vee_se2(D))
-        x = [x[i] + d[i] for i in range(3)]
-        if mp.norm(d) < mp.mpf(10) ** (-45):
-            return x
-    raise RuntimeError("Newton log reference did not converge")
+    """vee(log X) at 50 digits by Newton on exp(hat x) = X (:func:`reference.log_near`): mp.logm
+    returns a complex, non-principal result near θ = π."""
+    return ref.log_near(G, X, [X[0, 2], X[1, 2], math.atan2(X[1, 0], X[0, 0])])
 
 
 def _log_ref(X):

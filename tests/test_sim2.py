@@ -62,17 +62,9 @@ def _mp(x):
 
 
 def _newton_log(X):
-    """vee(log X) at 50 digits by Newton on exp_ref(x) = X (mp.logm fails near θ = π)."""
-    Xm = mp.matrix(np.asarray(X, dtype=float).tolist())
-    x = [Xm[0, 2], Xm[1, 2], mp.atan2(Xm[1, 0], Xm[0, 0]), -mp.log(Xm[2, 2])]
-    for _ in range(60):
-        E = ref.exp(G, x)
-        D = Xm * mp.inverse(E) - mp.eye(3)
-        d = ref.dlog(G, x) * mp.matrix(ref.vee_sim2(D))
-        x = [x[i] + d[i] for i in range(4)]
-        if mp.norm(d) < mp.mpf(10) ** (-45):
-            return x
-    raise RuntimeError("Newton log reference did not converge")
+    """vee(log X) at 50 digits by Newton on exp(hat x) = X (:func:`reference.log_near`): mp.logm
+    fails near θ = π."""
+    return ref.log_near(G, X, [X[0, 2], X[1, 2], math.atan2(X[1, 0], X[0, 0]), -math.log(X[2, 2])])
 
 
 def _log_ref(X):
