@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -102,3 +103,35 @@ def test_se3_graph_compiles_no_other_group(tmp_path):
     compiled = json.loads(out.stdout.strip().splitlines()[-1])
     assert compiled["se2"] == [] and compiled["sim2"] == [] and compiled["sim3"] == [], compiled
     assert {"_inverse", "_compose", "_log", "_dlog", "_Ad", "_exp"} <= set(compiled["se3"]), compiled
+
+
+_EXP_ONE_AND_BATCH = "import numpy as np; from lie_factors import so3; x = np.full(3, 0.1); print(so3.exp(x)[0, 0], so3.exp(x[None])[0, 0, 0])"
+
+
+def test_editing_a_core_recompiles_the_generic_kernels(tmp_path):
+    """Numba caches a generic kernel under its own file; the group tag's type names a digest of
+    the kernel sources, so after a core is edited the public functions (and the factors) run the
+    new code, not the specializations cached before (a copy of the package, its own cache)."""
+    package = tmp_path / "lie_factors"
+    shutil.copytree(os.path.dirname(factors.__file__), package,
+                    ignore=shutil.ignore_patterns("__pycache__", "app", "g2o", "batch", "optimizers", "initialization"))
+    env = dict(os.environ, PYTHONPATH=str(tmp_path))
+    env.pop("NUMBA_CACHE_DIR", None)
+
+    def run():
+        out = subprocess.run([sys.executable, "-c", _EXP_ONE_AND_BATCH], env=env, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr
+        return [float(v) for v in out.stdout.split()]
+
+    before = run()
+    assert before[0] == before[1] != 42.0
+    so3_file = package / "so3.py"
+    source = so3_file.read_text()
+    edited = source.replace("    _rodrigues(x[0], x[1], x[2], a_theta(th), b_theta(th), out)\n",
+                            "    _rodrigues(x[0], x[1], x[2], a_theta(th), b_theta(th), out)\n    out[0, 0] = 42.0\n", 1)
+    assert edited != source
+    so3_file.write_text(edited)
+    assert run() == [42.0, 42.0]
+    so3_file.write_text(source)
+    assert run() == before

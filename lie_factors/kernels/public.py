@@ -22,15 +22,21 @@ A function first tries its *single-element fast path*: an ndarray of exactly
 one argument's shape and dtype float64 (any memory order; GTSAM's ``.matrix()``
 is Fortran-ordered) is checked and computed in ONE numba call, the entry point
 (:func:`lie_factors.kernels.jit.entry_point`) of :func:`one` or :func:`one_pair`
-specialized for the group and the operation, instead of the general path's
-numpy checks and batching. That kernel returns False when the input must take
-the general path, whose numpy checks raise the ValueError naming the problem
-(:mod:`lie_factors.kernels.checks` makes the same tests, never accepting what
-they reject). Batches, lists, other dtypes and refused inputs take the general
-path; both run the same cores, so a single element gives the batch path's result
-bit for bit. ``np.ascontiguousarray`` copies the input (at most 16 numbers,
-≈0.02 µs) so that the cores only ever see, and are only compiled for, C-ordered
-arrays, as on the general path.
+specialized for the group and the operation. That kernel returns False when the
+input must take the general path, whose checks (:mod:`lie_factors.kernels.validate`,
+:func:`elements`) raise the ValueError naming the problem (the fast path's checks,
+:mod:`lie_factors.kernels.checks`, are the same tests, never accepting what they
+reject). Batches, lists, other dtypes and refused inputs take the general path:
+validation, then :func:`many` over the flattened batch. Both paths run the same
+cores, so a single element gives the batch path's result bit for bit.
+``np.ascontiguousarray`` copies the input (at most 16 numbers, ≈0.02 µs) so that
+the cores only ever see, and are only compiled for, C-ordered arrays.
+
+:func:`one`, :func:`one_pair`, :func:`many` and :func:`many_pairs` are generic in
+the group and the operation (their tags, :mod:`lie_factors.kernels.dispatch`), so
+each (group, operation) is one specialization, cached on disk like any kernel
+(and compiled afresh when a core changes: the group tag's type says which sources
+it was compiled from).
 """
 
 from __future__ import annotations
