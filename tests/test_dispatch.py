@@ -33,6 +33,24 @@ def _exp_log(g, x, X, y):
     _dispatch.log(g, X, y)
 
 
+@njit
+def _algebra(g, x, H, y, A, D):
+    _dispatch.hat(g, x, H)
+    _dispatch.vee(g, H, y)
+    _dispatch.ad(g, x, A)
+    _dispatch.dexp(g, x, D)
+
+
+@pytest.mark.parametrize("tag, module, rot", GROUPS, ids=lambda v: getattr(v, "name", None))
+def test_tag_reaches_every_core_of_its_group(tag, module, rot):
+    x = np.linspace(0.1, 0.4, module.DIM)
+    H, y = np.empty((module.MAT, module.MAT)), np.empty(module.DIM)
+    A, D = np.empty((module.DIM, module.DIM)), np.empty((module.DIM, module.DIM))
+    _algebra(tag, x, H, y, A, D)
+    assert np.array_equal(H, module.hat(x)) and np.array_equal(y, x)
+    assert np.array_equal(A, module.ad(x)) and np.array_equal(D, module.dexp(x))
+
+
 @pytest.mark.parametrize("tag, module, rot", GROUPS, ids=lambda v: getattr(v, "name", None))
 def test_tag_reaches_its_own_group(tag, module, rot):
     assert _constants(tag) == (module.DIM, module.MAT, rot, tag.corner)
@@ -42,6 +60,12 @@ def test_tag_reaches_its_own_group(tag, module, rot):
     _exp_log(tag, x, X, y)
     np.testing.assert_allclose(X, module.exp(x), rtol=0, atol=1e-15)
     np.testing.assert_allclose(y, x, rtol=0, atol=1e-14)
+
+
+def test_the_tags_are_the_registry_entries():
+    assert [_dispatch.SO3, _dispatch.SE3, _dispatch.SE2, _dispatch.SIM2, _dispatch.SIM3] == list(registry.GROUPS.values())
+    assert set(_dispatch.GROUPS) == set(registry.GROUPS) | set(registry.QUATERNIONS)
+    assert all(_dispatch.SOURCES in str(tag._numba_type_) for tag in _dispatch.GROUPS.values())
 
 
 def test_tags_are_distinct_types_and_pickle_by_name():

@@ -253,8 +253,12 @@ def accepts(typingctx, g, op, x):
 dim = _constant("dim", "dim(g): tangent dimension n of group g.")
 mat = _constant("mat", "mat(g): matrix size m of group g.")
 rot_dim = _constant("rot_dim", "rot_dim(g): size of the rotation block of g's matrices.")
-corner = _constant("corner", "corner(g): NO_CORNER, ONE or POSITIVE, the bottom-right entry of g's matrices.")
+corner = _constant("corner", "corner(g): NO_CORNER, ONE, POSITIVE or UNIT: what makes an element of g valid.")
 
+hat = _core("_hat", "hat(g, x, out): out = hat(x) (m, m).")
+vee = _core("_vee", "vee(g, X, out): out = vee(X) (n,).")
+ad = _core("_ad", "ad(g, x, out): out = ad_x (n, n).")
+dexp = _core("_dexp", "dexp(g, x, out): out = D_exp(x) (n, n), the left Jacobian.")
 inverse = _core("_inverse", "inverse(g, X, out): out = X⁻¹ (m, m).")
 compose = _core("_compose", "compose(g, X, Y, out): out = X·Y (m, m).")
 log = _core("_log", "log(g, X, out): out = Log(X) (n,).")
