@@ -198,28 +198,22 @@ def warm_up_constructed() -> None:
 
 @dataclass(frozen=True)
 class GroupSpec:
-    """A group of :mod:`lie_factors.kernels.registry` as GTSAM holds it."""
+    """A group of :mod:`lie_factors.kernels.registry` as GTSAM holds it; its facts (``dim``,
+    ``mat``, ``rot_dim`` …) are read through from ``group``."""
 
     name: str  # GTSAM class name, e.g. "Pose3"
     cls: type  # gtsam.Pose3
     group: GroupInfo  # the group's facts and kernel tag, e.g. registry.SE3
     at: str  # Values accessor, e.g. "atPose3"
 
+    def __getattr__(self, fact):
+        if fact == "group":  # not set yet (copy, unpickling): no facts to read through
+            raise AttributeError(fact)
+        return getattr(self.group, fact)
+
     @property
     def kernels(self) -> ModuleType:
         return importlib.import_module(self.group.module)
-
-    @property
-    def dim(self) -> int:
-        return self.group.dim
-
-    @property
-    def mat(self) -> int:
-        return self.group.mat
-
-    @property
-    def rot_dim(self) -> int:
-        return self.group.rot_dim
 
     def matrix(self, value) -> np.ndarray:
         return np.asarray(value.matrix(), dtype=np.float64)
