@@ -39,7 +39,8 @@ import gtsam
 import numpy as np
 
 from lie_factors.app import crosscheck
-from lie_factors import se2, se3, sim2, sim3, so3
+from lie_factors import se3, sim3
+from lie_factors.kernels import elements, registry
 
 #: The clock of every timing (set by --clock): the thread's CPU time or wall time.
 clock = time.thread_time
@@ -55,20 +56,19 @@ def _tangents(group: str, n: int, rng) -> np.ndarray:
     w = rng.normal(size=(n, r.stop - r.start))
     w *= (rng.uniform(0, np.pi, size=n) / np.linalg.norm(w, axis=1))[:, None]
     x[:, r] = w
-    if group in ("sim2", "sim3"):
+    if registry.group(group).corner == registry.POSITIVE:  # λ of Sim(2), Sim(3)
         x[:, -1] = rng.uniform(-2.0, 2.0, size=n)
     return x
 
 
 def _gtsam_object(group: str, X: np.ndarray):
-    return crosscheck._gtsam_element(group, X)
+    return elements.to_gtsam(group, X)
 
 
 def _percall_rows(group: str, rng):
     """(label, our call, our argument, GTSAM label, GTSAM call, GTSAM argument) for each kernel."""
     K = crosscheck.KERNELS[group]
-    cls = {"so3": gtsam.Rot3, "se3": gtsam.Pose3, "se2": gtsam.Pose2,
-           "sim2": gtsam.Similarity2, "sim3": gtsam.Similarity3}[group]
+    cls = getattr(gtsam, registry.group(group).gtsam)
     c = cls.__name__
     x = _tangents(group, 2, rng)
     x[:, crosscheck.rotation_slice(group)] *= 0.5  # well inside the principal branch

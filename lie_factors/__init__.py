@@ -1,6 +1,6 @@
 """lie-factors: closed-form Lie-group kernels and GTSAM factors built on them.
 
-Modules (tangent orderings are GTSAM's, see CONVENTIONS):
+Modules (tangent orderings are GTSAM's, see docs/conventions.md):
 
 - :mod:`lie_factors.so3` (Rot3, [ω]), :mod:`lie_factors.se3` (Pose3, [ω, v]),
   :mod:`lie_factors.se2` (Pose2, [x, y, θ]), :mod:`lie_factors.sim2`

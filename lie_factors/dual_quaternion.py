@@ -1,29 +1,35 @@
 """Unit dual quaternions for SE(3): dq = [q_r (4), q_d (4)], q_d = ½ (0, t) ⊗ q_r.
 
 Tangent xi = [ω, v] exactly as :mod:`lie_factors.se3` (rotation first), and
-``to_matrix(exp(xi)) == se3.exp(xi)``: the seed's dual exponential
-exp(ω + ε v) (Jackson, "Closed-Form Exponential for DS³", half-angle
-convention) is the transform [[R, V v], [0, 1]] of se3.exp with this very
-ordering — verified against the mpmath definition in the tests.
+``to_matrix(exp(xi)) == se3.exp(xi)``: the dual exponential exp(ω + ε v) of
+Jackson, "Part 6: Computing the Matrix Exponential" (eq:dual_quat_exp_1 and the
+boxed DS³ exp and log, half-angle convention) is the transform [[R, V v], [0, 1]]
+of se3.exp with this very ordering — verified against the mpmath definition in the
+tests.
 
 Shapes: ``exp`` (..., 6) → (..., 8); ``log`` (..., 8) → (..., 6) with |ω| ≤ π;
-``to_matrix`` (..., 8) → (..., 4, 4); ``compose``/``inverse`` on (..., 8).
-dq and −dq are the same transform; ``log`` takes the one with q_r0 ≥ 0.
+``to_matrix`` (..., 8) → (..., 4, 4); ``compose`` (the product p q, transform p
+after q) and ``inverse`` (the conjugate [q_r*, q_d*]) on (..., 8). dq and −dq are
+the same transform; ``log`` takes the one with q_r0 ≥ 0. Every function taking dual
+quaternions rejects those with |‖q_r‖ − 1| or |q_r · q_d| / max(1, ‖q_d‖) above
+``UNIT_TOL`` (1e-9). :mod:`lie_factors.kernels.public` builds exp, log, compose and
+inverse (validation, broadcasting, the single-element fast path).
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
 from lie_factors import quaternion as _quat
+from lie_factors.kernels import dispatch as _dispatch, public as _public, registry as _registry, validate as _validate
 from lie_factors.kernels.coeffs import a_theta, b_theta, c_theta, dot3, norm3
 from lie_factors.kernels.jit import kernel
 
-#: Largest accepted |‖q_r‖ − 1| and |q_r · q_d| / max(1, ‖q_d‖).
-UNIT_TOL = 1e-9
+_info = _registry.DUAL_QUATERNION
+
+#: Largest accepted |‖q_r‖ − 1| and |q_r · q_d| / max(1, ‖q_d‖) (the unit rule of
+#: :mod:`lie_factors.kernels.validate`).
+UNIT_TOL = _validate.UNIT_TOL
 
 
 @kernel
@@ -52,7 +58,7 @@ def _exp(x, out):
 def _log(q, out):
     # Jackson, boxed dual-quaternion logarithm, with φ = atan2(|r|, r0) the half angle:
     #   ω = 2 A r,  v = 2 (A d + (γ G − d0) r),  A = φ/|r|,  G = (r0 − A)/|r|²,  γ = rᵀd.
-    # The seed's small-angle form of G is wrong (it substitutes r0 = cos(|r|/2); in fact
+    # Jackson's small-angle form of G is wrong (it substitutes r0 = cos(|r|/2); in fact
     # |r| = sin φ, r0 = cos φ). Stable: G = (sin φ cos φ − φ)/sin³φ = −4 c(2φ)/a(φ)³.
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if q[0] < 0.0:
@@ -111,89 +117,15 @@ def _inverse(q, out):
         out[i] = -q[i]
 
 
-# One element in one numba call, as in so3 (see the comment above so3._hat1): True when
-# ``out`` holds the result, False to hand the input to the general path (which raises).
+# ---------------------------------------------------------------- public functions
+
+exp, log, compose, inverse = _public.functions(_info, globals())
 
 
-@kernel
-def _exp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _exp(x, out)
-    return True
-
-
-@kernel
-def _log1(q, out):
-    q = np.ascontiguousarray(q)
-    if not _check.finite(q):
-        return False
-    # _unit's two checks, each stricter by 1e-15 so that rounding never accepts what it rejects
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    scale = max(1.0, abs(q[4]), abs(q[5]), abs(q[6]), abs(q[7]))
-    u0, u1, u2, u3 = q[4] / scale, q[5] / scale, q[6] / scale, q[7] / scale
-    nu = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3)
-    orth = abs(q[0] * u0 + q[1] * u1 + q[2] * u2 + q[3] * u3) / max(1.0, nu)
-    if not (abs(n - 1.0) <= UNIT_TOL - 1e-15 and orth <= UNIT_TOL - 1e-15):
-        return False
-    _log(q, out)
-    return True
-
-
-_exp_one = _jit.one_element(_exp1, (1,), 1, globals(), "_exp_one")
-_log_one = _jit.one_element(_log1, (1,), 1, globals(), "_log_one")
-_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
-_6, _8 = (6,), (8,)
-
-
-def _unit(dq, name="dq"):
-    dq = _validate.tangent(dq, 8, name)
-    if dq.size:
-        qr, qd = dq[..., :4], dq[..., 4:]
-        dev = np.abs(np.linalg.norm(qr, axis=-1) - 1.0)
-        # |q_r·q_d| / max(1, ‖q_d‖), computed on u = q_d / max(1, max|q_d|): the
-        # same ratio, but ‖q_d‖² cannot overflow (translations up to ~1e308).
-        u = qd / np.maximum(1.0, np.max(np.abs(qd), axis=-1, keepdims=True))
-        orth = np.abs(np.sum(qr * u, axis=-1)) / np.maximum(1.0, np.linalg.norm(u, axis=-1))
-        if max(np.max(dev), np.max(orth)) > UNIT_TOL:
-            raise ValueError(
-                f"{name}: expected unit dual quaternions of shape (..., 8) "
-                f"(| |q_r| - 1 | = {np.max(dev):.3g}, |q_r . q_d| = {np.max(orth):.3g})"
-            )
-    return dq
-
-
-def exp(xi):
-    """(..., 6) → (..., 8): [q_r, q_d] of se3.exp(xi), xi = [ω, v] (Jackson)."""
-    if type(xi) is _ND and xi.shape == _6 and xi.dtype is _F64:
-        out = _empty(_8)
-        if _exp_one(xi, out):
-            return out
-    return _jit.apply(_exp, _validate.tangent(xi, 6, "xi"), 1, (8,))
-
-
-def log(dq):
-    """(..., 8) → (..., 6): xi = [ω, v] with |ω| ≤ π, the inverse of :func:`exp` (Jackson, corrected)."""
-    if type(dq) is _ND and dq.shape == _8 and dq.dtype is _F64:
-        out = _empty(_6)
-        if _log_one(dq, out):
-            return out
-    return _jit.apply(_log, _unit(dq), 1, (6,))
+#: The conversion's operation tag (its core: _to_matrix), for the batch loop.
+_TO_MATRIX = _dispatch.Op("to_matrix", True)
 
 
 def to_matrix(dq):
-    """(..., 8) → (..., 4, 4): [[R(q_r), t], [0, 1]] with t = 2 vec(q_d ⊗ q_r*)."""
-    return _jit.apply(_to_matrix, _unit(dq), 1, (4, 4))
-
-
-def compose(p, q):
-    """(..., 8) × (..., 8) → (..., 8): the product p q (transform p after q)."""
-    p = _validate.tangent(p, 8, "p")
-    q = _validate.tangent(q, 8, "q")
-    return _jit.apply2(_compose, p, q, (1, 1), (8,))
-
-
-def inverse(dq):
-    """(..., 8) → (..., 8): the conjugate [q_r*, q_d*] (inverse of a unit dual quaternion)."""
-    return _jit.apply(_inverse, _validate.tangent(dq, 8, "dq"), 1, (8,))
+    """(..., 8) → (..., 4, 4): [[R(q_r), t], [0, 1]] with t = 2 vec(q_d ⊗ q_r*) (validated as :func:`log`)."""
+    return _public.apply(_info, _TO_MATRIX, _validate.unit(dq, _info, "dq"), 1, (4, 4))

@@ -12,7 +12,7 @@ GaussNewton, Dogleg, ISAM2, Marginals).
 Errors are GTSAM's definitions: ``Log(measured⁻¹ · X1⁻¹ · X2)`` for Between and
 ``Log(prior⁻¹ · X)`` for Prior. Jacobians are with respect to GTSAM's right
 retraction ``X · Exp(δ)``. With ``dlog(x) = D_exp(x)⁻¹`` the inverse *left*
-Jacobian (Eade, Eq. 40) and ``J_r(x) = D_exp(−x)``:
+Jacobian (Eade, "Derivative of the Exponential Map", Eq. 40) and ``J_r(x) = D_exp(−x)``:
 
 * ``X2 → X2·Exp(δ)``: ``E → E·Exp(δ)`` so ``e → e + J_r(e)⁻¹ δ``:
   ``H2 = dlog(−e)``.
@@ -21,6 +21,9 @@ Jacobian (Eade, Eq. 40) and ``J_r(x) = D_exp(−x)``:
   ``H1 = −dlog(e) · Ad(M⁻¹)``, where ``Ad(M⁻¹)`` is constant per factor and
   computed once at construction.
 * Prior: ``H = dlog(−e)`` (the X2 case with ``M = prior``, ``X1 = I``).
+
+GTSAM's own ``BetweenFactorSimilarity3`` has H1 = −Ad((X1⁻¹X2)⁻¹), H2 = I (no
+Logmap derivative); these are exact.
 
 The numerical work of one evaluation (inverse, compose, log, dlog and the
 product with ``Ad(M⁻¹)``) is a single call of :func:`between` / :func:`prior`,
@@ -35,19 +38,20 @@ object, return their rows (used by :mod:`lie_factors.optimizers`).
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 from types import ModuleType
 
 import gtsam
 import numpy as np
 
-from .kernels import dispatch as _dispatch
-from .kernels import checks as _check
-from .kernels.validate import ORTHONORMAL_TOL
-# Codes of check_element (defined with the check in _check); _ELEMENT_ERRORS turns them into messages.
-from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION
-from .kernels.jit import kernel
+from .kernels import checks as _check, dispatch as _dispatch, registry as _registry, validate as _validate
+# The codes of check_element (validate.defect words them).
+from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION  # noqa: F401
 from .kernels.elements import pose3_from_rows
+from .kernels.jit import kernel
+from .kernels.registry import GroupInfo
+from .kernels.checks import ORTHONORMAL_TOL
 
 __all__ = [
     "BetweenFactorRot3",
@@ -169,7 +173,7 @@ _constructed: set = set()
 
 #: Identity of each group, Fortran-ordered like the matrices GTSAM hands out (so
 #: a Prior factor's call of :func:`between` has the Between factors' signature).
-_IDENTITY = {name: np.asfortranarray(np.eye(g.mat)) for name, g in _dispatch.GROUPS.items()}
+_IDENTITY = {name: np.asfortranarray(np.eye(g.mat)) for name, g in _registry.GROUPS.items()}
 
 
 def warm_up(group) -> None:
@@ -194,52 +198,35 @@ def warm_up_constructed() -> None:
 
 @dataclass(frozen=True)
 class GroupSpec:
-    """How one GTSAM type maps onto a kernel module."""
+    """A group of :mod:`lie_factors.kernels.registry` as GTSAM holds it; its facts (``dim``,
+    ``mat``, ``rot_dim`` …) are read through from ``group``."""
 
     name: str  # GTSAM class name, e.g. "Pose3"
     cls: type  # gtsam.Pose3
-    group: _dispatch.Group  # the kernels' group tag, e.g. _dispatch.SE3
+    group: GroupInfo  # the group's facts and kernel tag, e.g. registry.SE3
     at: str  # Values accessor, e.g. "atPose3"
+
+    def __getattr__(self, fact):
+        if fact == "group":  # not set yet (copy, unpickling): no facts to read through
+            raise AttributeError(fact)
+        return getattr(self.group, fact)
 
     @property
     def kernels(self) -> ModuleType:
-        return self.group.module
-
-    @property
-    def dim(self) -> int:
-        return self.group.dim
-
-    @property
-    def rot_dim(self) -> int:
-        return self.group.rot_dim
+        return importlib.import_module(self.group.module)
 
     def matrix(self, value) -> np.ndarray:
         return np.asarray(value.matrix(), dtype=np.float64)
 
 
-GROUPS = {
-    "Rot3": GroupSpec("Rot3", gtsam.Rot3, _dispatch.SO3, "atRot3"),
-    "Pose3": GroupSpec("Pose3", gtsam.Pose3, _dispatch.SE3, "atPose3"),
-    "Pose2": GroupSpec("Pose2", gtsam.Pose2, _dispatch.SE2, "atPose2"),
-    "Similarity2": GroupSpec("Similarity2", gtsam.Similarity2, _dispatch.SIM2, "atSimilarity2"),
-    "Similarity3": GroupSpec("Similarity3", gtsam.Similarity3, _dispatch.SIM3, "atSimilarity3"),
-}
+#: GTSAM type name → its :class:`GroupSpec`, for every matrix group of the registry.
+GROUPS = {info.gtsam: GroupSpec(info.gtsam, getattr(gtsam, info.gtsam), info, f"at{info.gtsam}")
+          for info in _registry.GROUPS.values()}
 
 
 def _element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: str) -> ValueError:
-    where = f"{factor}: {what}"
-    if code == NOT_FINITE:
-        return ValueError(f"{where}: contains NaN or inf")
-    if code == NOT_ORTHONORMAL:
-        d = spec.rot_dim
-        B = X[:d, :d]
-        dev = float(np.max(np.abs(B.T @ B - np.eye(d))))
-        return ValueError(f"{where}: rotation block is not orthonormal (max|RᵀR - I| = {dev:.3g})")
-    if code == REFLECTION:
-        return ValueError(f"{where}: rotation block has determinant -1 (a reflection)")
-    if code == BAD_SCALE:
-        return ValueError(f"{where} has non-positive scale")
-    return ValueError(f"{where}: expected last row [0 ... 0 1]")
+    """The error for a failed :func:`check_element` ``code`` of ``what`` (``X``) in ``factor``."""
+    return ValueError(f"{factor}: {what}: {_validate.defect(code, spec.group, np.asarray(X))}")
 
 
 def _check_type(spec: GroupSpec, value, what: str, factor: str) -> None:
@@ -254,14 +241,6 @@ _noise_checked: dict = {}
 
 
 def _checked_noise(spec: GroupSpec, noise_model, factor: str):
-    if _noise_checked.get(spec.group.dim) is noise_model:
-        return noise_model
-    _check_noise(spec, noise_model, factor)
-    _noise_checked[spec.group.dim] = noise_model
-    return noise_model
-
-
-def _check_noise(spec: GroupSpec, noise_model, factor: str) -> None:
     if not isinstance(noise_model, gtsam.noiseModel.Base):
         raise TypeError(f"{factor}: noise_model must be a gtsam.noiseModel, got {type(noise_model).__name__}")
     if noise_model.dim() != spec.dim:
@@ -269,6 +248,8 @@ def _check_noise(spec: GroupSpec, noise_model, factor: str) -> None:
             f"{factor}: noise model has dimension {noise_model.dim()}, "
             f"but {spec.name} has dimension {spec.dim}"
         )
+    _noise_checked[spec.dim] = noise_model
+    return noise_model
 
 
 def _checked_key(key, factor: str) -> int:
@@ -289,71 +270,81 @@ def _fetch(values, key: int, spec: GroupSpec, factor: str) -> np.ndarray:
     return spec.matrix(value)
 
 
-class BetweenFactor(gtsam.CustomFactor):
-    """Between factor on ``spec``: error Log(measured⁻¹·X1⁻¹·X2), analytic Jacobians.
-
-    Use the named constructors (``BetweenFactorPose3`` ...). Jacobians: see the
-    module docstring (H1 = −dlog(e)·Ad(measured⁻¹), H2 = dlog(−e)).
-    """
+class _Factor(gtsam.CustomFactor):
+    """A Between factor, or a Prior factor as the Between factor from the identity
+    (``_key1`` None): error Log(M⁻¹·X1⁻¹·X2), Jacobians H1 = −dlog(e)·Ad(M⁻¹), H2 = dlog(−e)."""
 
     spec: GroupSpec
 
-    def __init__(self, key1, key2, measured, noise_model):
+    def _setup(self, key1, key2, value, what: str, noise_model) -> None:
         # Graphs of 1e5 factors are built in Python loops: the common case (int
         # keys, the exact GTSAM type, a noise model already checked) runs with
         # no helper call; anything else goes through the checking helpers.
         spec = self.spec
         group = spec.group
-        if type(key1) is not int or type(key2) is not int or key1 < 0 or key2 < 0:
-            key1 = _checked_key(key1, type(self).__name__)
-            key2 = _checked_key(key2, type(self).__name__)
-        if type(measured) is not spec.cls:
-            _check_type(spec, measured, "measured", type(self).__name__)
+        if type(value) is not spec.cls:
+            _check_type(spec, value, what, type(self).__name__)
         if _noise_checked.get(group.dim) is not noise_model:
             _checked_noise(spec, noise_model, type(self).__name__)
-        M = measured.matrix()
+        M = value.matrix()
         Minv = np.empty((group.mat, group.mat))
         AdMinv = np.empty((group.dim, group.dim))
         code = between_setup(group, M, Minv, AdMinv)
         if code != OK:
-            raise _element_error(spec, M, code, "measured", type(self).__name__)
+            raise _element_error(spec, M, code, what, type(self).__name__)
         _constructed.add(group)
-        gtsam.CustomFactor.__init__(self, noise_model, [key1, key2], self._evaluate)
-        self._measured = measured
+        gtsam.CustomFactor.__init__(self, noise_model, [key2] if key1 is None else [key1, key2], self._evaluate)
         self._noise = noise_model  # the batch solver reads it without a C++ round trip
         self._key1 = key1
         self._key2 = key2
         self._Minv = Minv
         self._AdMinv = AdMinv
 
+    def _evaluate(self, this, values, H):
+        plan = _prepared
+        slot = plan.slots.get(self) if plan is not None and plan.values is values else None
+        if slot is not None:  # computed for this very Values: (e, H1, H2), views of this factor's rows
+            e, H1, H2 = slot
+        else:
+            spec = self.spec
+            group = spec.group
+            key1 = self._key1
+            X1 = _IDENTITY[group.name] if key1 is None else _fetch(values, key1, spec, type(self).__name__)
+            X2 = _fetch(values, self._key2, spec, type(self).__name__)
+            n = group.dim
+            e = np.empty(n)
+            H1 = np.empty((n, n))
+            H2 = np.empty((n, n))
+            between(group, self._Minv, self._AdMinv, X1, X2, e, H1, H2)
+        if H is not None:
+            if self._key1 is None:
+                H[0] = H2
+            else:
+                H[0] = H1
+                H[1] = H2
+        return e
+
+
+class BetweenFactor(_Factor):
+    """Between factor on ``spec``: error Log(measured⁻¹·X1⁻¹·X2), analytic Jacobians.
+
+    Use the named constructors (``BetweenFactorPose3`` ...). Jacobians: see the
+    module docstring (H1 = −dlog(e)·Ad(measured⁻¹), H2 = dlog(−e)).
+    """
+
+    def __init__(self, key1, key2, measured, noise_model):
+        if type(key1) is not int or type(key2) is not int or key1 < 0 or key2 < 0:
+            key1 = _checked_key(key1, type(self).__name__)
+            key2 = _checked_key(key2, type(self).__name__)
+        self._setup(key1, key2, measured, "measured", noise_model)
+        self._measured = measured
+
     def measured(self):
         """The measured relative transform, as the GTSAM object given."""
         return self._measured
 
-    def _evaluate(self, this, values, H):
-        plan = _prepared
-        if plan is not None and plan.values is values:  # computed for this very Values
-            slot = plan.slots.get(self)
-            if slot is not None:  # (e, H1, H2): views of this factor's rows
-                if H is not None:
-                    H[0] = slot[1]
-                    H[1] = slot[2]
-                return slot[0]
-        spec = self.spec
-        X1 = _fetch(values, self._key1, spec, type(self).__name__)
-        X2 = _fetch(values, self._key2, spec, type(self).__name__)
-        n = spec.group.dim
-        e = np.empty(n)
-        H1 = np.empty((n, n))
-        H2 = np.empty((n, n))
-        between(spec.group, self._Minv, self._AdMinv, X1, X2, e, H1, H2)
-        if H is not None:
-            H[0] = H1
-            H[1] = H2
-        return e
 
-
-class PriorFactor(gtsam.CustomFactor):
+class PriorFactor(_Factor):
     """Prior factor on ``spec``: error Log(prior⁻¹·X), Jacobian dlog(−e).
 
     Evaluated as the Between factor from the identity, Log(prior⁻¹·I⁻¹·X) (the
@@ -361,117 +352,40 @@ class PriorFactor(gtsam.CustomFactor):
     between factors compiles one kernel, not two.
     """
 
-    spec: GroupSpec
-
     def __init__(self, key, prior, noise_model):
-        spec = self.spec
-        group = spec.group
         if type(key) is not int or key < 0:
             key = _checked_key(key, type(self).__name__)
-        if type(prior) is not spec.cls:
-            _check_type(spec, prior, "prior", type(self).__name__)
-        if _noise_checked.get(group.dim) is not noise_model:
-            _checked_noise(spec, noise_model, type(self).__name__)
-        P = prior.matrix()
-        Pinv = np.empty((group.mat, group.mat))
-        AdPinv = np.empty((group.dim, group.dim))
-        code = between_setup(group, P, Pinv, AdPinv)
-        if code != OK:
-            raise _element_error(spec, P, code, "prior", type(self).__name__)
-        _constructed.add(group)
-        gtsam.CustomFactor.__init__(self, noise_model, [key], self._evaluate)
+        self._setup(None, key, prior, "prior", noise_model)
         self._prior = prior
-        self._noise = noise_model
-        self._key = key
-        self._Pinv = Pinv
-        self._AdPinv = AdPinv
 
     def prior(self):
         """The prior value, as the GTSAM object given."""
         return self._prior
 
-    def _evaluate(self, this, values, H):
-        plan = _prepared
-        if plan is not None and plan.values is values:  # computed for this very Values
-            slot = plan.slots.get(self)
-            if slot is not None:  # (e, H1, H2): views of this factor's rows
-                if H is not None:
-                    H[0] = slot[2]
-                return slot[0]
-        spec = self.spec
-        X = _fetch(values, self._key, spec, type(self).__name__)
-        group = spec.group
-        n = group.dim
-        e = np.empty(n)
-        H1 = np.empty((n, n))
-        J = np.empty((n, n))
-        between(group, self._Pinv, self._AdPinv, _IDENTITY[group.name], X, e, H1, J)
-        if H is not None:
-            H[0] = J
-        return e
+    @property
+    def _key(self) -> int:
+        """The key of the variable (the Between factor's second)."""
+        return self._key2
 
 
-class BetweenFactorRot3(BetweenFactor):
-    """``BetweenFactorRot3(key1, key2, measured: gtsam.Rot3, noise_model)`` (3-dim)."""
-
-    spec = GROUPS["Rot3"]
-
-
-class BetweenFactorPose3(BetweenFactor):
-    """``BetweenFactorPose3(key1, key2, measured: gtsam.Pose3, noise_model)`` (6-dim, [ω, v])."""
-
-    spec = GROUPS["Pose3"]
-
-
-class BetweenFactorPose2(BetweenFactor):
-    """``BetweenFactorPose2(key1, key2, measured: gtsam.Pose2, noise_model)`` (3-dim, [x, y, θ])."""
-
-    spec = GROUPS["Pose2"]
+def _named(gtsam_name: str) -> tuple[type, type]:
+    """``BetweenFactor<gtsam_name>`` and ``PriorFactor<gtsam_name>``, GTSAM's names and arguments."""
+    spec = GROUPS[gtsam_name]
+    facts = f"({spec.dim}-dim, tangent {spec.group.tangent})"
+    between = type(f"BetweenFactor{gtsam_name}", (BetweenFactor,), {
+        "spec": spec, "__module__": __name__,
+        "__doc__": f"``BetweenFactor{gtsam_name}(key1, key2, measured: gtsam.{gtsam_name}, noise_model)`` {facts}."})
+    prior = type(f"PriorFactor{gtsam_name}", (PriorFactor,), {
+        "spec": spec, "__module__": __name__,
+        "__doc__": f"``PriorFactor{gtsam_name}(key, prior: gtsam.{gtsam_name}, noise_model)`` {facts}."})
+    return between, prior
 
 
-class BetweenFactorSimilarity2(BetweenFactor):
-    """``BetweenFactorSimilarity2(key1, key2, measured: gtsam.Similarity2, noise_model)`` (4-dim)."""
-
-    spec = GROUPS["Similarity2"]
-
-
-class BetweenFactorSimilarity3(BetweenFactor):
-    """``BetweenFactorSimilarity3(key1, key2, measured: gtsam.Similarity3, noise_model)``
-    (7-dim, [ω, u, λ]).  GTSAM's own has H1 = −Ad((X1⁻¹X2)⁻¹), H2 = I (no Logmap
-    derivative); these are exact."""
-
-    spec = GROUPS["Similarity3"]
-
-
-class PriorFactorRot3(PriorFactor):
-    """``PriorFactorRot3(key, prior: gtsam.Rot3, noise_model)``."""
-
-    spec = GROUPS["Rot3"]
-
-
-class PriorFactorPose3(PriorFactor):
-    """``PriorFactorPose3(key, prior: gtsam.Pose3, noise_model)``."""
-
-    spec = GROUPS["Pose3"]
-
-
-class PriorFactorPose2(PriorFactor):
-    """``PriorFactorPose2(key, prior: gtsam.Pose2, noise_model)``."""
-
-    spec = GROUPS["Pose2"]
-
-
-class PriorFactorSimilarity2(PriorFactor):
-    """``PriorFactorSimilarity2(key, prior: gtsam.Similarity2, noise_model)``."""
-
-    spec = GROUPS["Similarity2"]
-
-
-class PriorFactorSimilarity3(PriorFactor):
-    """``PriorFactorSimilarity3(key, prior: gtsam.Similarity3, noise_model)``."""
-
-    spec = GROUPS["Similarity3"]
-
+BetweenFactorRot3, PriorFactorRot3 = _named("Rot3")
+BetweenFactorPose3, PriorFactorPose3 = _named("Pose3")
+BetweenFactorPose2, PriorFactorPose2 = _named("Pose2")
+BetweenFactorSimilarity2, PriorFactorSimilarity2 = _named("Similarity2")
+BetweenFactorSimilarity3, PriorFactorSimilarity3 = _named("Similarity3")
 
 
 # --------------------------------------------------------------------------- #
@@ -494,14 +408,10 @@ class _GroupEvaluation:
         self.at = getattr(gtsam.Values, spec.at)
         n, m = spec.group.dim, spec.group.mat
         count = len(members)
-        between = [isinstance(f, BetweenFactor) for f in members]
-        self.Minv = np.array([f._Minv if b else f._Pinv for f, b in zip(members, between)]).reshape(count, m, m)
-        self.AdMinv = np.array([f._AdMinv if b else f._AdPinv for f, b in zip(members, between)]
-                               ).reshape(count, n, n)
-        self.i1 = np.array([index[f._key1] if b else identity for f, b in zip(members, between)],
-                           dtype=np.int64)
-        self.i2 = np.array([index[f._key2] if b else index[f._key] for f, b in zip(members, between)],
-                           dtype=np.int64)
+        self.Minv = np.array([f._Minv for f in members]).reshape(count, m, m)
+        self.AdMinv = np.array([f._AdMinv for f in members]).reshape(count, n, n)
+        self.i1 = np.array([identity if f._key1 is None else index[f._key1] for f in members], dtype=np.int64)
+        self.i2 = np.array([index[f._key2] for f in members], dtype=np.int64)
         self.X = np.empty((len(keys) + 1, m, m))
         self.X[identity] = np.eye(m)
         self.rows = None  # Pose3: rows of extractPose3's output for self.keys

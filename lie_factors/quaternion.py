@@ -1,27 +1,33 @@
 """Unit quaternions q = [w, x, y, z] (Hamilton product) for SO(3), tangent ω = [ω1, ω2, ω3].
 
-Half-angle convention (Jackson, boxed "exp(ω)"):
+Half-angle convention (Jackson, "Part 6: Computing the Matrix Exponential", eq:quat_exp
+and the boxed S³ exp and log)::
 
-    exp(ω) = [cos(θ/2), sin(θ/2) ω/θ],  θ = |ω|       (..., 3) → (..., 4)
-    log(q) = 2 atan2(|q⃗|, w) q⃗/|q⃗|  with w ≥ 0       (..., 4) → (..., 3), |ω| ≤ π
+    exp(ω)        = [cos(θ/2), sin(θ/2) ω/θ],  θ = |ω|     (..., 3) → (..., 4)
+    log(q)        = 2 atan2(|q⃗|, w) q⃗/|q⃗|  with w ≥ 0     (..., 4) → (..., 3), |ω| ≤ π
+    compose(p, q) = p ⊗ q (rotation p after q)               (..., 4) × (..., 4) → (..., 4)
+    inverse(q)    = [w, −x, −y, −z]                          (..., 4) → (..., 4)
+    to_rotation(q) (..., 4) → (..., 3, 3),  from_rotation(R) (..., 3, 3) → (..., 4)
 
 so that ``to_rotation(exp(ω)) == so3.exp(ω)``. q and −q are the same rotation;
 ``log`` returns the shorter of the two logarithms (it flips q to w ≥ 0 first).
-``log`` rejects inputs with |‖q‖ − 1| > 1e-9 and normalises the rest.
+Every function taking quaternions rejects those with |‖q‖ − 1| > ``UNIT_TOL`` (1e-9);
+``log`` normalises the rest. :mod:`lie_factors.kernels.public` builds exp, log,
+compose and inverse (validation, broadcasting, the single-element fast path).
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
+from lie_factors.kernels import dispatch as _dispatch, public as _public, registry as _registry, validate as _validate
 from lie_factors.kernels.coeffs import a_theta, norm3
 from lie_factors.kernels.jit import kernel
 
-#: Largest accepted |‖q‖ − 1| for log / to_rotation.
-UNIT_TOL = 1e-9
+_info = _registry.QUATERNION
+
+#: Largest accepted |‖q‖ − 1| (the unit rule of :mod:`lie_factors.kernels.validate`).
+UNIT_TOL = _validate.UNIT_TOL
 
 
 @kernel
@@ -121,84 +127,20 @@ def _from_rotation(R, out):
             out[i] = -out[i]
 
 
-# One element in one numba call, as in so3 (see the comment above so3._hat1): True when
-# ``out`` holds the result, False to hand the input to the general path (which raises).
+# ---------------------------------------------------------------- public functions
+
+exp, log, compose, inverse = _public.functions(_info, globals())
 
 
-@kernel
-def _exp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _exp(x, out)
-    return True
-
-
-@kernel
-def _log1(q, out):
-    q = np.ascontiguousarray(q)
-    if not _check.finite(q):
-        return False
-    # _unit's check; stricter by 1e-15 so that rounding never accepts what it rejects
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if not abs(n - 1.0) <= UNIT_TOL - 1e-15:
-        return False
-    _log(q, out)
-    return True
-
-
-_exp_one = _jit.one_element(_exp1, (1,), 1, globals(), "_exp_one")
-_log_one = _jit.one_element(_log1, (1,), 1, globals(), "_log_one")
-_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
-_3, _4 = (3,), (4,)
-
-
-def _unit(q, name="q"):
-    q = _validate.tangent(q, 4, name)
-    if q.size:
-        dev = np.abs(np.linalg.norm(q, axis=-1) - 1.0)
-        if np.max(dev) > UNIT_TOL:
-            raise ValueError(f"{name}: expected unit quaternions of shape (..., 4) (max | |q| - 1 | = {np.max(dev):.3g})")
-    return q
-
-
-def exp(x):
-    """(..., 3) → (..., 4): [cos(θ/2), sin(θ/2) ω/θ] (Jackson)."""
-    if type(x) is _ND and x.shape == _3 and x.dtype is _F64:
-        out = _empty(_4)
-        if _exp_one(x, out):
-            return out
-    return _jit.apply(_exp, _validate.tangent(x, 3), 1, (4,))
-
-
-def log(q):
-    """(..., 4) → (..., 3): shortest ω (|ω| ≤ π) with exp(ω) = ±q. Unit norm checked (1e-9)."""
-    if type(q) is _ND and q.shape == _4 and q.dtype is _F64:
-        out = _empty(_3)
-        if _log_one(q, out):
-            return out
-    return _jit.apply(_log, _unit(q), 1, (3,))
-
-
-def compose(p, q):
-    """(..., 4) × (..., 4) → (..., 4): Hamilton product p ⊗ q (rotation p after q)."""
-    p = _validate.tangent(p, 4, "p")
-    q = _validate.tangent(q, 4, "q")
-    return _jit.apply2(_compose, p, q, (1, 1), (4,))
-
-
-def inverse(q):
-    """(..., 4) → (..., 4): the conjugate [w, −x, −y, −z]."""
-    return _jit.apply(_inverse, _validate.tangent(q, 4), 1, (4,))
+#: The conversions' operation tags (their cores: _to_rotation, _from_rotation), for the batch loop.
+_TO_ROTATION, _FROM_ROTATION = _dispatch.Op("to_rotation", True), _dispatch.Op("from_rotation", False)
 
 
 def to_rotation(q):
-    """(..., 4) → (..., 3, 3): the rotation matrix of a unit quaternion."""
-    return _jit.apply(_to_rotation, _unit(q), 1, (3, 3))
+    """(..., 4) → (..., 3, 3): the rotation matrix of a unit quaternion (validated as :func:`log`)."""
+    return _public.apply(_info, _TO_ROTATION, _validate.unit(q, _info, "q"), 1, (3, 3))
 
 
 def from_rotation(R):
-    """(..., 3, 3) → (..., 4): the unit quaternion with w ≥ 0 (Shepperd's method)."""
-    R = _validate.square(R, 3, "R")
-    _validate.rotation_block(R, "R", 3)
-    return _jit.apply(_from_rotation, R, 2, (4,))
+    """(..., 3, 3) → (..., 4): the unit quaternion with w ≥ 0 (Shepperd's method) of rotations R."""
+    return _public.apply(_info, _FROM_ROTATION, _public.elements(R, _registry.SO3, "R"), 2, (4,))

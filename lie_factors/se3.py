@@ -1,34 +1,42 @@
 """SE(3), GTSAM's Pose3: tangent x = [ω, v] (ROTATION FIRST), elements 4×4 [[R, t], [0, 1]].
 
-hat(x) = [[ω×, v], [0, 0]]. Shapes: ``hat``/``exp`` (..., 6) → (..., 4, 4);
-``log`` (..., 4, 4) → (..., 6) with |ω| ≤ π; ``ad``/``dexp``/``dlog``
-(..., 6) → (..., 6, 6); ``Ad`` (..., 4, 4) → (..., 6, 6).
+Shapes: ``hat``, ``exp`` (..., 6) → (..., 4, 4); ``vee``, ``log`` (..., 4, 4) → (..., 6);
+``ad``, ``dexp``, ``dlog`` (..., 6) → (..., 6, 6); ``Ad`` (..., 4, 4) → (..., 6, 6);
+``inverse`` (..., 4, 4) → (..., 4, 4); ``compose`` (..., 4, 4) × (..., 4, 4) → (..., 4, 4).
+:mod:`lie_factors.kernels.public` builds these functions (validation, broadcasting, the
+single-element fast path) around the cores below, which the factors call directly.
 
-Eade (§5.2) writes the tangent as [u, ω] (translation first), so its block
-matrices appear transposed here: its upper-right block B is our lower-left one.
-In our ordering
+Eade, "Derivative of the Exponential Map" (§5.2) writes the tangent as [u, ω]
+(translation first), so its block matrices appear transposed here: its upper-right
+block is our lower-left one. In our ordering, with θ = |ω|, J = D_exp(ω) of SO(3) and
+the coefficients a_θ, b_θ, c_θ, e_θ of :mod:`lie_factors.kernels.coeffs`::
 
-    ad_x     = [[ω×, 0], [v×, ω×]]
-    D_exp(x) = [[J, 0], [B, J]]                  J = D_exp(ω) of SO(3)
-    D_exp⁻¹  = [[J⁻¹, 0], [−J⁻¹ B J⁻¹, J⁻¹]]
+    hat(x)  = [[ω×, v], [0, 0]];   vee(X) = [X21, X02, X10, X03, X13, X23]
+    exp(x)  = [[R, V v], [0, 1]],  R = I + a_θ ω× + b_θ ω×²,  V = J = I + b_θ ω× + c_θ ω×²
+              (Jackson, "Part 6: Computing the Matrix Exponential", boxed SE(3) exp)
+    log(X)  = [ω, V⁻¹ t],  ω = Log R (SO(3)),  V⁻¹ = I − ½ ω× + e_θ ω×²  (Jackson's boxed
+              SE(3) log; = Eade, Eq. 55), |ω| ≤ π
+    ad(x)   = [[ω×, 0], [v×, ω×]]                  (Eade, Eq. 61, blocks swapped)
+    Ad(X)   = [[R, 0], [t× R, R]]
+    dexp(x) = [[J, 0], [B, J]]                     (Eade, Eqs. 70–71 transposed; B: Eq. 74)
+    dlog(x) = [[J⁻¹, 0], [−J⁻¹ B J⁻¹, J⁻¹]]        (Eade, Eqs. 73–75), |ω| < 2π
+    compose(X, Y) = X Y,   inverse(X) = [[Rᵀ, −Rᵀ t], [0, 1]]
 
-``dexp(x)`` is the LEFT Jacobian (Eade, Eq. 35): exp(x + ε) ≈
-exp(dexp(x) ε) · exp(x); GTSAM's ``Pose3.ExpmapDerivative(x) == dexp(-x)``.
+``dexp(x)`` is the LEFT Jacobian (Eade, Eq. 35): exp(x + ε) ≈ exp(dexp(x) ε) · exp(x);
+GTSAM's ``Pose3.ExpmapDerivative(x) == dexp(-x)`` (``LogmapDerivative(x) == dlog(-x)``).
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
 from lie_factors import so3 as _so3
+from lie_factors.kernels import public as _public, registry as _registry
 from lie_factors.kernels.coeffs import (
     a_theta, b_theta, c_theta, dot3, e_omega, ef_omega, norm3, qa_theta, qb_theta,
 )
 from lie_factors.kernels.jit import kernel
 
-DIM = 6
-MAT = 4
+_info = _registry.SE3
+DIM, MAT = _info.dim, _info.mat
 
 
 # ---------------------------------------------------------------- 3×3 helpers on 9-tuples
@@ -100,30 +108,19 @@ def _write_block_lower(D, L, out):
 
 @kernel
 def _hat(x, out):
-    for j in range(4):
-        out[3, j] = 0.0
-    out[0, 0] = 0.0
-    out[0, 1] = -x[2]
-    out[0, 2] = x[1]
-    out[1, 0] = x[2]
-    out[1, 1] = 0.0
-    out[1, 2] = -x[0]
-    out[2, 0] = -x[1]
-    out[2, 1] = x[0]
-    out[2, 2] = 0.0
-    out[0, 3] = x[3]
-    out[1, 3] = x[4]
-    out[2, 3] = x[5]
+    # [[ω×, v], [0, 0]]
+    _so3._hat(x, out)
+    for i in range(3):
+        out[i, 3] = x[i + 3]
+        out[3, i] = 0.0
+    out[3, 3] = 0.0
 
 
 @kernel
 def _vee(X, out):
-    out[0] = X[2, 1]
-    out[1] = X[0, 2]
-    out[2] = X[1, 0]
-    out[3] = X[0, 3]
-    out[4] = X[1, 3]
-    out[5] = X[2, 3]
+    _so3._vee(X, out)
+    for i in range(3):
+        out[i + 3] = X[i, 3]
 
 
 @kernel
@@ -215,25 +212,15 @@ def _dlog(x, out):
     gf = g * f
     gd = -2.0 * e * g
     L = _lin9(w0, w1, w2, gd, 0.0, gf)
-    Ji = _rod9(w0, w1, w2, -0.5, e)
-    for i in range(3):
-        for j in range(3):
-            d = Ji[3 * i + j]
-            out[i, j] = d
-            out[i + 3, j + 3] = d
-            out[i, j + 3] = 0.0
-    out[3, 0] = L[0] + 2.0 * e * w0 * u0
-    out[4, 1] = L[4] + 2.0 * e * w1 * u1
-    out[5, 2] = L[8] + 2.0 * e * w2 * u2
     e01 = e * (w0 * u1 + u0 * w1)
     e02 = e * (w0 * u2 + u0 * w2)
     e12 = e * (w1 * u2 + u1 * w2)
-    out[3, 1] = L[1] + e01 + 0.5 * u2
-    out[4, 0] = L[3] + e01 - 0.5 * u2
-    out[3, 2] = L[2] + e02 - 0.5 * u1
-    out[5, 0] = L[6] + e02 + 0.5 * u1
-    out[4, 2] = L[5] + e12 + 0.5 * u0
-    out[5, 1] = L[7] + e12 - 0.5 * u0
+    L = (
+        L[0] + 2.0 * e * w0 * u0, L[1] + e01 + 0.5 * u2, L[2] + e02 - 0.5 * u1,
+        L[3] + e01 - 0.5 * u2, L[4] + 2.0 * e * w1 * u1, L[5] + e12 + 0.5 * u0,
+        L[6] + e02 + 0.5 * u1, L[7] + e12 - 0.5 * u0, L[8] + 2.0 * e * w2 * u2,
+    )
+    _write_block_lower(_rod9(w0, w1, w2, -0.5, e), L, out)
 
 
 @kernel
@@ -256,232 +243,6 @@ def _inverse(X, out):
     out[3, 3] = 1.0
 
 
-# ---------------------------------------------------------------- one element, one numba call
-# The public functions below try these first: a float64 array of exactly the
-# element's shape is validated and computed in ONE numba call (through its entry
-# point, _jit.one_element) instead of the general path's numpy checks and
-# batching (see docs/benchmarks.md, "One element per call", for the cost).
-# Each returns True when ``out`` holds the result and False when the input must
-# take the general path, which raises the ValueError naming the problem
-# (_check.finite / element_ok make the same checks as the general path).
-# They are compiled for inputs of any memory order (GTSAM's ``.matrix()`` is
-# Fortran-ordered); ``np.ascontiguousarray`` copies the input (at most 16
-# numbers, ≈0.02 µs) so that the cores only ever see, and are only compiled
-# for, C-ordered arrays, as on the general path.
+# ---------------------------------------------------------------- public functions
 
-
-@kernel
-def _hat1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _hat(x, out)
-    return True
-
-
-@kernel
-def _vee1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.finite(X):
-        return False
-    _vee(X, out)
-    return True
-
-
-@kernel
-def _exp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _exp(x, out)
-    return True
-
-
-@kernel
-def _log1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.ONE):
-        return False
-    _log(X, out)
-    return True
-
-
-@kernel
-def _ad1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _ad(x, out)
-    return True
-
-
-@kernel
-def _Ad1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.ONE):
-        return False
-    _Ad(X, out)
-    return True
-
-
-@kernel
-def _dexp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _dexp(x, out)
-    return True
-
-
-@kernel
-def _dlog1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _dlog(x, out)
-    return True
-
-
-@kernel
-def _compose1(X, Y, out):
-    X = np.ascontiguousarray(X)
-    Y = np.ascontiguousarray(Y)
-    if not (_check.finite(X) and _check.finite(Y)):
-        return False
-    _compose(X, Y, out)
-    return True
-
-
-@kernel
-def _inverse1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.ONE):
-        return False
-    _inverse(X, out)
-    return True
-
-
-# Python's handles on the wrappers above: their compiled entry points, bound on first use.
-_hat_one = _jit.one_element(_hat1, (1,), 2, globals(), "_hat_one")
-_vee_one = _jit.one_element(_vee1, (2,), 1, globals(), "_vee_one")
-_exp_one = _jit.one_element(_exp1, (1,), 2, globals(), "_exp_one")
-_log_one = _jit.one_element(_log1, (2,), 1, globals(), "_log_one")
-_ad_one = _jit.one_element(_ad1, (1,), 2, globals(), "_ad_one")
-_Ad_one = _jit.one_element(_Ad1, (2,), 2, globals(), "_Ad_one")
-_dexp_one = _jit.one_element(_dexp1, (1,), 2, globals(), "_dexp_one")
-_dlog_one = _jit.one_element(_dlog1, (1,), 2, globals(), "_dlog_one")
-_compose_one = _jit.one_element(_compose1, (2, 2), 2, globals(), "_compose_one")
-_inverse_one = _jit.one_element(_inverse1, (2,), 2, globals(), "_inverse_one")
-
-
-# ---------------------------------------------------------------- public API
-# Each public function first tries its one-element fast path (``_exp_one`` …): taken when
-# the input is an ndarray of exactly the element's shape and dtype float64 (any memory
-# order); batches, lists, other dtypes and refused inputs take the general path.
-# Both run the same cores.
-
-_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
-_V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
-
-
-def _poses(X, name="X"):
-    X = _validate.square(X, MAT, name)
-    _validate.bottom_row(X, name, "[0, 0, 0, 1]")
-    _validate.rotation_block(X, name, 3)
-    return X
-
-
-def hat(x):
-    """(..., 6) → (..., 4, 4): [[ω×, v], [0, 0]] for x = [ω, v]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_M)
-        if _hat_one(x, out):
-            return out
-    return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
-
-
-def vee(X):
-    """(..., 4, 4) → (..., 6): [ω, v], the inverse of :func:`hat`."""
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_V)
-        if _vee_one(X, out):
-            return out
-    return _jit.apply(_vee, _validate.square(X, MAT), 2, (DIM,))
-
-
-def exp(x):
-    """(..., 6) → (..., 4, 4): [[R, V v], [0, 1]] (Jackson), x = [ω, v]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_M)
-        if _exp_one(x, out):
-            return out
-    return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
-
-
-def log(X):
-    """(..., 4, 4) → (..., 6): [ω, V⁻¹ t] with |ω| ≤ π.
-
-    Raises ValueError unless the rotation block is a rotation and the last row is [0, 0, 0, 1].
-    """
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_V)
-        if _log_one(X, out):
-            return out
-    return _jit.apply(_log, _poses(X), 2, (DIM,))
-
-
-def ad(x):
-    """(..., 6) → (..., 6, 6): [[ω×, 0], [v×, ω×]]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _ad_one(x, out):
-            return out
-    return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def Ad(X):
-    """(..., 4, 4) → (..., 6, 6): [[R, 0], [t× R, R]]. Validates like :func:`log`."""
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_J)
-        if _Ad_one(X, out):
-            return out
-    return _jit.apply(_Ad, _poses(X), 2, (DIM, DIM))
-
-
-def dexp(x):
-    """(..., 6) → (..., 6, 6): left Jacobian D_exp (Eade Eqs. 35, 70–71; [ω, v] order)."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _dexp_one(x, out):
-            return out
-    return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def dlog(x):
-    """(..., 6) → (..., 6, 6): D_exp⁻¹ in closed form (Eade Eqs. 55, 73–75), |ω| < 2π."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _dlog_one(x, out):
-            return out
-    return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def compose(X, Y):
-    """(..., 4, 4) × (..., 4, 4) → (..., 4, 4): X·Y, batch axes broadcast."""
-    if (type(X) is _ND and type(Y) is _ND and X.shape == _M and Y.shape == _M
-            and X.dtype is _F64 and Y.dtype is _F64):
-        out = _empty(_M)
-        if _compose_one(X, Y, out):
-            return out
-    X = _validate.square(X, MAT, "X")
-    Y = _validate.square(Y, MAT, "Y")
-    return _jit.apply2(_compose, X, Y, (2, 2), (MAT, MAT))
-
-
-def inverse(X):
-    """(..., 4, 4) → (..., 4, 4): [[Rᵀ, −Rᵀ t], [0, 1]]. Validates like :func:`log`."""
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_M)
-        if _inverse_one(X, out):
-            return out
-    return _jit.apply(_inverse, _poses(X), 2, (MAT, MAT))
+hat, vee, exp, log, ad, Ad, dexp, dlog, compose, inverse = _public.functions(_info, globals())

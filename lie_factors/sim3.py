@@ -1,6 +1,11 @@
-"""Sim(3), GTSAM's Similarity3: closed-form exp, log, adjoints and D_exp / D_log.
+"""Sim(3), GTSAM's Similarity3: tangent x = [ω, u, λ], elements 4×4 [[R, t], [0, 1/s]], s = e^λ.
 
-Tangent ordering and matrices (exactly GTSAM 4.3's, checked in tests/test_sim3.py)::
+Shapes: ``hat``, ``exp`` (..., 7) → (..., 4, 4); ``vee``, ``log`` (..., 4, 4) → (..., 7);
+``ad``, ``dexp``, ``dlog`` (..., 7) → (..., 7, 7); ``Ad`` (..., 4, 4) → (..., 7, 7);
+``inverse`` (..., 4, 4) → (..., 4, 4); ``compose`` (..., 4, 4) × (..., 4, 4) → (..., 4, 4).
+:mod:`lie_factors.kernels.public` builds these functions (validation, broadcasting, the
+single-element fast path) around the cores below, which the factors call directly.
+Tangent ordering and matrices are exactly GTSAM 4.3's (checked in tests/test_sim3.py)::
 
     x = [ω (3), u (3), λ]                                   shape (..., 7)
     hat(x) = [[ω×, u], [0, −λ]]                              shape (..., 4, 4)
@@ -43,8 +48,8 @@ spectral projectors of Ω (docs/sim3.md),
 and for f = g = 1/φ1 the divided differences need no subtraction:
 g[a, b] = −g(a) g(b) φ1[a, b].
 
-Evaluation (docs/sim3.md §6; Eade Eqs. 91–100 do the same for Sim(2): functions of
-the eigenvalues λ ± iθ over λ² + θ², Eq. 99). With E = e^λ, A = φ1(λ), I1 = φ1′(λ),
+Evaluation (docs/sim3.md §6; Eade, "Derivative of the Exponential Map", Eqs. 91–100 do
+the same for Sim(2): functions of the eigenvalues λ ± iθ over λ² + θ², Eq. 99). With E = e^λ, A = φ1(λ), I1 = φ1′(λ),
 a2 = φ2(λ), the SO(3) functions a, b, c, qa = b′/θ, qb = c′/θ of θ (Eade, Eqs. 50–52,
 64) and D = λ² + θ², the θ → 0 limits are taken analytically::
 
@@ -71,20 +76,22 @@ exp(x + ε) ≈ exp(dexp(x) ε)·exp(x); a GTSAM-style right Jacobian is dexp(�
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 
 import numpy as np
 
-from lie_factors.kernels import checks as _check, jit as _jit, validate as _validate
 from lie_factors import so3 as _so3
+from lie_factors.kernels import public as _public, registry as _registry
 from lie_factors.kernels.coeffs import (
     _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR,
-    QA_TAYLOR, QB_TAYLOR, _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, theta_dd,
+    QA_TAYLOR, QB_TAYLOR, _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, rounded, theta_dd,
 )
 from lie_factors.kernels.jit import kernel
+from lie_factors import se3 as _se3
 from lie_factors.se3 import _lin9, _rod9
 
-DIM = 7
-MAT = 4
+_info = _registry.SIM3
+DIM, MAT = _info.dim, _info.mat
 
 #: |z|² = λ² + θ² < Z_BAND²: every coefficient from the power series of φ1, φ2 in z
 #: (real recurrences in λ and θ², see :func:`_zseries`); the closed forms in z divide by
@@ -114,53 +121,9 @@ assert SPECTRAL <= E_TAYLOR
 _TWO_PI_HI = 6.283185307179586
 _TWO_PI_LO = 2.4492935982947064e-16
 
-# φ1′(λ) = Σ λ^k/(k!(k+2))
-_DPHI1_SERIES = (
-    0.5,  # 1/2
-    0.3333333333333333,  # 1/3
-    0.125,  # 1/8
-    0.03333333333333333,  # 1/30
-    0.006944444444444444,  # 1/144
-    0.0011904761904761906,  # 1/840
-    0.00017361111111111112,  # 1/5760
-    2.2045855379188714e-05,  # 1/45360
-    2.48015873015873e-06,  # 1/403200
-    2.505210838544172e-07,  # 1/3991680
-    2.296443268665491e-08,  # 1/43545600
-    1.9270852604185937e-09,  # 1/518918400
-    1.4911969277048643e-10,  # 1/6706022400
-    1.0706029224547743e-11,  # 1/93405312000
-    7.169215998581078e-13,  # 1/1394852659200
-    4.498331606952833e-14,  # 1/22230464256000
-    2.6552651846596585e-15,  # 1/376610217984000
-    1.4797143443923793e-16,  # 1/6758061133824000
-)[:L_TERMS]
-# 1/(n+1)! for n = 0, 1, ...
-_INV_FACT = (
-    1.0,  # 1
-    0.5,  # 1/2
-    0.16666666666666666,  # 1/6
-    0.041666666666666664,  # 1/24
-    0.008333333333333333,  # 1/120
-    0.001388888888888889,  # 1/720
-    0.0001984126984126984,  # 1/5040
-    2.48015873015873e-05,  # 1/40320
-    2.7557319223985893e-06,  # 1/362880
-    2.755731922398589e-07,  # 1/3628800
-    2.505210838544172e-08,  # 1/39916800
-    2.08767569878681e-09,  # 1/479001600
-    1.6059043836821613e-10,  # 1/6227020800
-    1.1470745597729725e-11,  # 1/87178291200
-    7.647163731819816e-13,  # 1/1307674368000
-    4.779477332387385e-14,  # 1/20922789888000
-    2.8114572543455206e-15,  # 1/355687428096000
-    1.5619206968586225e-16,  # 1/6402373705728000
-    8.22063524662433e-18,  # 1/121645100408832000
-    4.110317623312165e-19,  # 1/2432902008176640000
-    1.9572941063391263e-20,  # 1/51090942171709440000
-    8.896791392450574e-22,  # 1/1124000727777607680000
-    3.868170170630684e-23,  # 1/25852016738884976640000
-)
+# φ1′(λ) = Σ λ^k/(k!(k+2)) and 1/(n+1)!, n = 0, 1, ...: exact rationals rounded once
+_DPHI1_SERIES = rounded(Fraction(1, math.factorial(k) * (k + 2)) for k in range(L_TERMS))
+_INV_FACT = rounded(Fraction(1, math.factorial(n + 1)) for n in range(Z_TERMS + 1))
 # the same as a frozen array: indexing a global tuple with the loop counter costs a branch
 # table per load inside the series loops (measured 41.7 → 38.7 ns per _zseries call)
 _INV_FACT_ARR = np.array(_INV_FACT)
@@ -170,40 +133,10 @@ _INV_FACT_ARR = np.array(_INV_FACT)
 
 
 @kernel
-def _theta5(th):
-    """(a, b, c, qa, qb) of the SO(3) coefficient functions at θ ≥ 0 (Eade, Eqs. 50–52, 64),
-    from one sine and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation),
-    c = (1 − a)/θ², qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² = c′(θ)/θ; Taylor bands of
-    :mod:`lie_factors.kernels.coeffs`."""
-    h = 0.5 * th
-    t = th * th
-    if th < A_TAYLOR:
-        a = _horner(_A_SERIES, t)
-        ah = _horner(_A_SERIES, h * h)
-    else:
-        sh = math.sin(h)
-        ch = math.cos(h)
-        a = sh * ch / h
-        ah = sh / h
-    b = 0.5 * ah * ah
-    if th < C_TAYLOR:
-        c = _horner(_C_SERIES, t)
-    else:
-        c = (1.0 - a) / t
-    if th < QA_TAYLOR:
-        qa = _horner(_QA_SERIES, t)
-    else:
-        qa = (a - 2.0 * b) / t
-    if th < QB_TAYLOR:
-        qb = _horner(_QB_SERIES, t)
-    else:
-        qb = (b - 3.0 * c) / t
-    return a, b, c, qa, qb
-
-
-@kernel
 def _theta_abc(th):
-    """(a, b, c) of :func:`_theta5` only (exp and log)."""
+    """(a, b, c) of the SO(3) coefficient functions at θ ≥ 0 (Eade, Eqs. 50–52) from one sine
+    and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation), c = (1 − a)/θ²;
+    Taylor bands of :mod:`lie_factors.kernels.coeffs`."""
     h = 0.5 * th
     t = th * th
     if th < A_TAYLOR:
@@ -223,6 +156,23 @@ def _theta_abc(th):
 
 
 @kernel
+def _theta5(th):
+    """(a, b, c, qa, qb): :func:`_theta_abc` and qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² =
+    c′(θ)/θ (Eade, Eq. 64)."""
+    a, b, c = _theta_abc(th)
+    t = th * th
+    if th < QA_TAYLOR:
+        qa = _horner(_QA_SERIES, t)
+    else:
+        qa = (a - 2.0 * b) / t
+    if th < QB_TAYLOR:
+        qb = _horner(_QB_SERIES, t)
+    else:
+        qb = (b - 3.0 * c) / t
+    return a, b, c, qa, qb
+
+
+@kernel
 def _lam3(lam):
     """(e^λ, φ1(λ), φ1′(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds (Taylor series for
     |λ| < L_TAYLOR, where that difference loses ~ε/|λ|)."""
@@ -237,8 +187,8 @@ def _lam3(lam):
 
 
 @kernel
-def _zseries(lam, T):
-    """(a1, b1, c1, d1, e1, a2, b2, c2) for small |z| (module docstring, "z band").
+def _zseries(lam, T, terms):
+    """(a1, b1, c1, d1, e1, a2, b2, c2) for small |z| (module docstring, "z band"), ``terms`` terms.
 
     With zⁿ = pₙ + iθ qₙ, rₙ = (λⁿ − pₙ)/θ², sₙ = (n pₙ₋₁ − qₙ)/θ², tₙ = (n qₙ₋₁ − 2 rₙ)/θ²
     (all polynomials in λ and T = θ², no division):
@@ -255,7 +205,7 @@ def _zseries(lam, T):
     lp = 1.0
     a1 = b1 = c1 = d1 = e1 = a2 = b2 = c2 = 0.0
     fn = 0.0  # n as a float, counted alongside (no int → float conversion per term)
-    for n in range(Z_TERMS):
+    for n in range(terms):
         f1 = _INV_FACT_ARR[n]
         f2 = _INV_FACT_ARR[n + 1]
         a1 += lp * f1
@@ -281,27 +231,6 @@ def _zseries(lam, T):
 
 
 @kernel
-def _zseries_w(lam, T):
-    """(a1, b1, c1) of :func:`_zseries` only, Z_TERMS_W terms (|z| < Z_BAND_W)."""
-    p = 1.0
-    q = 0.0
-    r = 0.0
-    lp = 1.0
-    a1 = b1 = c1 = 0.0
-    for n in range(Z_TERMS_W):
-        f1 = _INV_FACT_ARR[n]
-        a1 += lp * f1
-        b1 += q * f1
-        c1 += r * f1
-        pn = lam * p - T * q
-        r = lam * r + q
-        q = p + lam * q
-        p = pn
-        lp *= lam
-    return a1, b1, c1
-
-
-@kernel
 def _coefs(lam, th):
     """(a1, b1, c1, d1, e1, re1, a2, b2, c2): φ1(B) = a1 I + b1 Ω + c1 Ω², d1 = ∂b1/∂θ/θ,
     e1 = ∂c1/∂θ/θ, re1 = Re φ1(λ + iθ), φ2(B) = a2 I + b2 Ω + c2 Ω² (closed forms (C) of the
@@ -309,7 +238,7 @@ def _coefs(lam, th):
     T = th * th
     D = lam * lam + T
     if D < Z_BAND * Z_BAND:
-        a1, b1, c1, d1, e1, a2, b2, c2 = _zseries(lam, T)
+        a1, b1, c1, d1, e1, a2, b2, c2 = _zseries(lam, T, Z_TERMS)
         return a1, b1, c1, d1, e1, a1 - T * c1, a2, b2, c2
     E, A, I1 = _lam3(lam)
     # φ2(λ) = ∫(1 − s) e^{sλ} = φ1 − φ1′: no cancellation for small λ; (φ1 − 1)/λ for large
@@ -340,7 +269,7 @@ def _wcoefs(lam, th):
     T = th * th
     D = lam * lam + T
     if D < Z_BAND_W * Z_BAND_W:
-        a1, b1, c1 = _zseries_w(lam, T)
+        a1, b1, c1, _, _, _, _, _ = _zseries(lam, T, Z_TERMS_W)
         return math.exp(lam), a1, b1, c1, a, b
     E, A, I1 = _lam3(lam)
     Di = 1.0 / D
@@ -496,32 +425,14 @@ def _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2
 
 @kernel
 def _hat(x, out):
-    out[0, 0] = 0.0
-    out[0, 1] = -x[2]
-    out[0, 2] = x[1]
-    out[1, 0] = x[2]
-    out[1, 1] = 0.0
-    out[1, 2] = -x[0]
-    out[2, 0] = -x[1]
-    out[2, 1] = x[0]
-    out[2, 2] = 0.0
-    out[0, 3] = x[3]
-    out[1, 3] = x[4]
-    out[2, 3] = x[5]
-    out[3, 0] = 0.0
-    out[3, 1] = 0.0
-    out[3, 2] = 0.0
+    # [[ω×, u], [0, −λ]]
+    _se3._hat(x, out)
     out[3, 3] = -x[6]
 
 
 @kernel
 def _vee(X, out):
-    out[0] = X[2, 1]
-    out[1] = X[0, 2]
-    out[2] = X[1, 0]
-    out[3] = X[0, 3]
-    out[4] = X[1, 3]
-    out[5] = X[2, 3]
+    _se3._vee(X, out)
     out[6] = -X[3, 3]
 
 
@@ -593,31 +504,17 @@ def _ad(x, out):
 
 @kernel
 def _Ad(X, out):
-    # X hat(ω, u, λ) X⁻¹ = hat(R ω, s (t × R ω + R u − λ t), λ) with s = 1/X33
+    # X hat(ω, u, λ) X⁻¹ = hat(R ω, s (t × R ω + R u − λ t), λ) with s = 1/X33: SE(3)'s
+    # [[R, 0], [t× R, R]] with its lower rows times s, then the column −s t
+    _se3._Ad(X, out)
     s = 1.0 / X[3, 3]
-    t0, t1, t2 = X[0, 3], X[1, 3], X[2, 3]
-    for j in range(3):
-        r0, r1, r2 = X[0, j], X[1, j], X[2, j]
-        out[0, j] = r0
-        out[1, j] = r1
-        out[2, j] = r2
-        out[3, j + 3] = s * r0
-        out[4, j + 3] = s * r1
-        out[5, j + 3] = s * r2
-        out[0, j + 3] = 0.0
-        out[1, j + 3] = 0.0
-        out[2, j + 3] = 0.0
-        out[3, j] = s * (t1 * r2 - t2 * r1)
-        out[4, j] = s * (t2 * r0 - t0 * r2)
-        out[5, j] = s * (t0 * r1 - t1 * r0)
+    for i in range(3):
+        for j in range(6):
+            out[i + 3, j] = s * out[i + 3, j]
+        out[i, 6] = 0.0
+        out[i + 3, 6] = -s * X[i, 3]
+    for j in range(6):
         out[6, j] = 0.0
-        out[6, j + 3] = 0.0
-    out[0, 6] = 0.0
-    out[1, 6] = 0.0
-    out[2, 6] = 0.0
-    out[3, 6] = -s * t0
-    out[4, 6] = -s * t1
-    out[5, 6] = -s * t2
     out[6, 6] = 1.0
 
 
@@ -706,6 +603,12 @@ def _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2):
 
 
 @kernel
+def _parts(x):
+    """(ω0, ω1, ω2, u0, u1, u2, λ, θ = |ω|) of a tangent x."""
+    return x[0], x[1], x[2], x[3], x[4], x[5], x[6], norm3(x[0], x[1], x[2])
+
+
+@kernel
 def _fB(w0, w1, w2, th, fl, fz):
     """f(B) = f(λ) I + (Im f(z)/θ) Ω + ((f(λ) − Re f(z))/θ²) Ω², formula (F), as a 9-tuple."""
     return _lin9(w0, w1, w2, fl, fz.imag / th, (fl - fz.real) / (th * th))
@@ -713,10 +616,7 @@ def _fB(w0, w1, w2, th, fl, fz):
 
 @kernel
 def _dexp(x, out):
-    w0, w1, w2 = x[0], x[1], x[2]
-    u0, u1, u2 = x[3], x[4], x[5]
-    lam = x[6]
-    th = norm3(w0, w1, w2)
+    w0, w1, w2, u0, u1, u2, lam, th = _parts(x)
     if th < SPECTRAL:
         a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
         J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
@@ -752,10 +652,7 @@ def _dexp(x, out):
 
 @kernel
 def _dlog(x, out):
-    w0, w1, w2 = x[0], x[1], x[2]
-    u0, u1, u2 = x[3], x[4], x[5]
-    lam = x[6]
-    th = norm3(w0, w1, w2)
+    w0, w1, w2, u0, u1, u2, lam, th = _parts(x)
     if th < SPECTRAL:
         # θ < SPECTRAL < E_TAYLOR: e_θ is its Taylor band; the θ computed above (no second norm)
         ek = _horner4(_E_SERIES, th * th)
@@ -832,239 +729,6 @@ def _inverse(X, out):
     out[3, 3] = ci
 
 
-# ---------------------------------------------------------------- one element, one numba call
-# The public functions below try these first: a float64 array of exactly the
-# element's shape is validated and computed in ONE numba call (through its entry
-# point, _jit.one_element) instead of the general path's numpy checks and
-# batching (see docs/benchmarks.md, "One element per call", for the cost).
-# Each returns True when ``out`` holds the result and False when the input must
-# take the general path, which raises the ValueError naming the problem
-# (_check.finite / element_ok make the same checks as the general path).
-# They are compiled for inputs of any memory order (GTSAM's ``.matrix()`` is
-# Fortran-ordered); ``np.ascontiguousarray`` copies the input (at most 16
-# numbers, ≈0.02 µs) so that the cores only ever see, and are only compiled
-# for, C-ordered arrays, as on the general path.
+# ---------------------------------------------------------------- public functions
 
-
-@kernel
-def _hat1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _hat(x, out)
-    return True
-
-
-@kernel
-def _vee1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.finite(X):
-        return False
-    _vee(X, out)
-    return True
-
-
-@kernel
-def _exp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _exp(x, out)
-    return True
-
-
-@kernel
-def _log1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.POSITIVE):
-        return False
-    _log(X, out)
-    return True
-
-
-@kernel
-def _ad1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _ad(x, out)
-    return True
-
-
-@kernel
-def _Ad1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.POSITIVE):
-        return False
-    _Ad(X, out)
-    return True
-
-
-@kernel
-def _dexp1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _dexp(x, out)
-    return True
-
-
-@kernel
-def _dlog1(x, out):
-    x = np.ascontiguousarray(x)
-    if not _check.finite(x):
-        return False
-    _dlog(x, out)
-    return True
-
-
-@kernel
-def _compose1(X, Y, out):
-    X = np.ascontiguousarray(X)
-    Y = np.ascontiguousarray(Y)
-    if not (_check.element_ok(X, 3, _check.POSITIVE) and _check.element_ok(Y, 3, _check.POSITIVE)):
-        return False
-    _compose(X, Y, out)
-    return True
-
-
-@kernel
-def _inverse1(X, out):
-    X = np.ascontiguousarray(X)
-    if not _check.element_ok(X, 3, _check.POSITIVE):
-        return False
-    _inverse(X, out)
-    return True
-
-
-# Python's handles on the wrappers above: their compiled entry points, bound on first use.
-_hat_one = _jit.one_element(_hat1, (1,), 2, globals(), "_hat_one")
-_vee_one = _jit.one_element(_vee1, (2,), 1, globals(), "_vee_one")
-_exp_one = _jit.one_element(_exp1, (1,), 2, globals(), "_exp_one")
-_log_one = _jit.one_element(_log1, (2,), 1, globals(), "_log_one")
-_ad_one = _jit.one_element(_ad1, (1,), 2, globals(), "_ad_one")
-_Ad_one = _jit.one_element(_Ad1, (2,), 2, globals(), "_Ad_one")
-_dexp_one = _jit.one_element(_dexp1, (1,), 2, globals(), "_dexp_one")
-_dlog_one = _jit.one_element(_dlog1, (1,), 2, globals(), "_dlog_one")
-_compose_one = _jit.one_element(_compose1, (2, 2), 2, globals(), "_compose_one")
-_inverse_one = _jit.one_element(_inverse1, (2,), 2, globals(), "_inverse_one")
-
-
-# ---------------------------------------------------------------- public API
-# Each public function first tries its one-element fast path (``_exp_one`` …): taken when
-# the input is an ndarray of exactly the element's shape and dtype float64 (any memory
-# order); batches, lists, other dtypes and refused inputs take the general path.
-# Both run the same cores.
-
-_ND, _F64, _empty = _check.NDARRAY, _check.F64, np.empty
-_V, _M, _J = (DIM,), (MAT, MAT), (DIM, DIM)
-
-_ROW = "[0, 0, 0, 1/s]"
-
-
-def _element(X, name="X"):
-    arr = _validate.square(X, MAT, name)
-    _validate.rotation_block(arr, name, 3)
-    _validate.bottom_row(arr, name, _ROW, last_positive=True)
-    return arr
-
-
-def hat(x):
-    """(..., 7) → (..., 4, 4): [[ω×, u], [0, −λ]] for x = [ω, u, λ]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_M)
-        if _hat_one(x, out):
-            return out
-    return _jit.apply(_hat, _validate.tangent(x, DIM), 1, (MAT, MAT))
-
-
-def vee(X):
-    """(..., 4, 4) → (..., 7): [X21, X02, X10, X03, X13, X23, −X33], the inverse of :func:`hat`."""
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_V)
-        if _vee_one(X, out):
-            return out
-    return _jit.apply(_vee, _validate.square(X, MAT), 2, (DIM,))
-
-
-def exp(x):
-    """(..., 7) → (..., 4, 4): [[R, e^{−λ} φ1(Ω + λI) u], [0, e^{−λ}]] = expm(hat x)."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_M)
-        if _exp_one(x, out):
-            return out
-    return _jit.apply(_exp, _validate.tangent(x, DIM), 1, (MAT, MAT))
-
-
-def log(X):
-    """(..., 4, 4) → (..., 7): [Log R, g(Ω + λI) t/X33, −ln X33] with |ω| ≤ π.
-
-    Raises ValueError unless the rotation block is a rotation and the last row is
-    [0, 0, 0, 1/s] with 1/s > 0.
-    """
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_V)
-        if _log_one(X, out):
-            return out
-    return _jit.apply(_log, _element(X), 2, (DIM,))
-
-
-def ad(x):
-    """(..., 7) → (..., 7, 7): [[Ω, 0, 0], [U, Ω + λI, −u], [0, 0, 0]]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _ad_one(x, out):
-            return out
-    return _jit.apply(_ad, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def Ad(X):
-    """(..., 4, 4) → (..., 7, 7): [[R, 0, 0], [s t× R, s R, −s t], [0, 0, 1]], s = 1/X33.
-
-    X hat(y) X⁻¹ = hat(Ad(X) y); validates like :func:`log`.
-    """
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_J)
-        if _Ad_one(X, out):
-            return out
-    return _jit.apply(_Ad, _element(X), 2, (DIM, DIM))
-
-
-def dexp(x):
-    """(..., 7) → (..., 7, 7): left Jacobian φ1(ad_x) = [[J, 0, 0], [Q, W, −φ2(B) u], [0, 0, 1]]."""
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _dexp_one(x, out):
-            return out
-    return _jit.apply(_dexp, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def dlog(x):
-    """(..., 7) → (..., 7, 7): D_exp(x)⁻¹ = g(ad_x) in closed form.
-
-    Singular where φ1(λ + iθ) = 0 or J is, i.e. θ = 2πk (k ≥ 1).
-    """
-    if type(x) is _ND and x.shape == _V and x.dtype is _F64:
-        out = _empty(_J)
-        if _dlog_one(x, out):
-            return out
-    return _jit.apply(_dlog, _validate.tangent(x, DIM), 1, (DIM, DIM))
-
-
-def compose(X, Y):
-    """(..., 4, 4) × (..., 4, 4) → (..., 4, 4): X·Y, batch axes broadcast."""
-    if (type(X) is _ND and type(Y) is _ND and X.shape == _M and Y.shape == _M
-            and X.dtype is _F64 and Y.dtype is _F64):
-        out = _empty(_M)
-        if _compose_one(X, Y, out):
-            return out
-    return _jit.apply2(_compose, _element(X, "X"), _element(Y, "Y"), (2, 2), (MAT, MAT))
-
-
-def inverse(X):
-    """(..., 4, 4) → (..., 4, 4): [[Rᵀ, −Rᵀ t/X33], [0, 1/X33]]."""
-    if type(X) is _ND and X.shape == _M and X.dtype is _F64:
-        out = _empty(_M)
-        if _inverse_one(X, out):
-            return out
-    return _jit.apply(_inverse, _element(X), 2, (MAT, MAT))
+hat, vee, exp, log, ad, Ad, dexp, dlog, compose, inverse = _public.functions(_info, globals())

@@ -5,7 +5,7 @@ Run as ``lie-factors crosscheck``.
 For every function and every band of rotation angles θ, the table gives the
 worst error of lie_factors and of GTSAM against a 50-digit reference computed
 from the definitions (:mod:`lie_factors.testing.reference`), with the error measure of
-CONVENTIONS.md: max|A − R| / max(1, max|R|).
+docs/conventions.md: max|A − R| / max(1, max|R|).
 
 GTSAM's ExpmapDerivative/LogmapDerivative are right Jacobians, so they are
 compared with the reference at −x (J_r(x) = D_exp(−x)); ours is evaluated the
@@ -18,6 +18,7 @@ rows show "—" in the GTSAM column); the Similarity3 rows compare GTSAM's
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 from dataclasses import dataclass
@@ -26,13 +27,15 @@ from typing import Callable
 import gtsam
 import numpy as np
 
+from ..kernels import elements, registry
 from ..testing import reference as ref
-from .. import se2, se3, sim2, sim3, so3
 
-KERNELS = {"so3": so3, "se3": se3, "se2": se2, "sim2": sim2, "sim3": sim3}
+#: Every group of the registry and its kernel module.
+KERNELS = {name: importlib.import_module(info.module) for name, info in registry.GROUPS.items()}
 GROUPS = tuple(KERNELS)
 #: GTSAM types without Expmap/Logmap derivatives (no GTSAM column for dexp/dlog).
-NO_GTSAM_DERIVATIVE = ("Similarity2 (sim2)", "Similarity3 (sim3)")
+NO_GTSAM_DERIVATIVE = tuple(f"{info.gtsam} ({name})" for name, info in registry.GROUPS.items()
+                            if not hasattr(getattr(gtsam, info.gtsam), "ExpmapDerivative"))
 
 #: (label, lowest θ, highest θ); degenerate bands are single points.
 BANDS = [
@@ -67,7 +70,7 @@ def _angles(lo: float, hi: float, k: int, rng) -> list[float]:
 
 def rotation_slice(group: str) -> slice:
     """Where the rotation angle sits in the group's tangent vector."""
-    return {"so3": slice(0, 3), "se3": slice(0, 3), "se2": slice(2, 3), "sim2": slice(2, 3), "sim3": slice(0, 3)}[group]
+    return registry.group(group).rotation_slice
 
 
 def _tangent(group: str, theta: float, rng) -> np.ndarray:
@@ -95,30 +98,15 @@ def _tangent(group: str, theta: float, rng) -> np.ndarray:
 def _gtsam_functions() -> dict[tuple[str, str], Callable]:
     """GTSAM's version of each (group, function), expressed in our conventions."""
     f: dict[tuple[str, str], Callable] = {}
-    classes = (
-        ("so3", gtsam.Rot3), ("se3", gtsam.Pose3), ("se2", gtsam.Pose2),
-        ("sim2", gtsam.Similarity2), ("sim3", gtsam.Similarity3),
-    )
-    for group, cls in classes:
+    for group, info in registry.GROUPS.items():
+        cls = getattr(gtsam, info.gtsam)
         f[(group, "exp")] = lambda x, cls=cls: np.asarray(cls.Expmap(x).matrix())
-        f[(group, "log")] = lambda X, cls=cls, group=group: np.asarray(cls.Logmap(_gtsam_element(group, X)))
+        f[(group, "log")] = lambda X, cls=cls, group=group: np.asarray(cls.Logmap(elements.to_gtsam(group, X)))
         if hasattr(cls, "ExpmapDerivative"):
             # GTSAM's derivatives are right Jacobians: ExpmapDerivative(x) = D_exp(-x)
             f[(group, "dexp")] = lambda x, cls=cls: np.asarray(cls.ExpmapDerivative(x))
             f[(group, "dlog")] = lambda x, cls=cls: np.asarray(cls.LogmapDerivative(x))
     return f
-
-
-def _gtsam_element(group: str, X: np.ndarray):
-    if group == "so3":
-        return gtsam.Rot3(X)
-    if group == "se3":
-        return gtsam.Pose3(X)
-    if group == "se2":
-        return gtsam.Pose2(X[0, 2], X[1, 2], math.atan2(X[1, 0], X[0, 0]))
-    if group == "sim3":
-        return gtsam.Similarity3(X)
-    return gtsam.Similarity2(gtsam.Rot2(math.atan2(X[1, 0], X[0, 0])), X[:2, 2] / 1.0, 1.0 / X[2, 2])
 
 
 def run(samples: int = 3, seed: int = 0, groups=GROUPS) -> list[Row]:

@@ -129,7 +129,7 @@ class FactorGroup:
         self.loops = block.loops
         self.fidx = np.asarray(fidx, dtype=np.int64)
         self.i1 = block.local(k1)
-        m = self.spec.kernels.MAT
+        m = self.spec.mat
         # asarray: the array reader's columns are used as they are (no second copy)
         self.C = np.ascontiguousarray(C, dtype=np.float64).reshape(E, m, m)
         self.R = np.ascontiguousarray(R, dtype=np.float64).reshape(E, n, n)
@@ -343,7 +343,7 @@ class Problem:
             if kind == "between":
                 rows.append((i, f._key1, f._key2, f._Minv, f._AdMinv, R))
             else:
-                rows.append((i, f._key, None, f._Pinv, None, R))
+                rows.append((i, f._key2, None, f._Minv, None, R))
         for g in self.groups:
             g.close_rows(self.blocks[g.spec.name])
         for block in self.blocks.values():

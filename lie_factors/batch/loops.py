@@ -19,6 +19,8 @@ only its own outputs, so there are no races.
 
 from __future__ import annotations
 
+import functools
+
 import numba
 import numpy as np
 from numba import njit, prange
@@ -32,6 +34,9 @@ parallel_kernel = njit(cache=True, nogil=True, error_model="numpy", parallel=Tru
 
 #: Factors per parallel chunk: large enough that thread start-up and scratch allocation vanish.
 CHUNK = 256
+
+#: ``i1`` of a group of priors: no first variable.
+_NO_INDEX = np.zeros(0, dtype=np.int64)
 
 
 @kernel
@@ -89,27 +94,20 @@ def _prior_lin(g, X, i1, Pinv, R, A1, b, sq):
 
 
 @parallel_kernel
-def _between_err(g, X, i1, i2, Minv, R, sq):
-    """sq[f] = ‖R·Log(M⁻¹·X1⁻¹·X2)‖² (no Jacobians)."""
+def _errors(g, X, i1, i2, Minv, R, sq):
+    """sq[f] = ‖R·e‖² (no Jacobians), e = Log(M⁻¹·X1⁻¹·X2) with X1 = X[i1[f]], X2 = X[i2[f]]; for
+    priors (``i1`` empty) e = Log(P⁻¹·X2), P⁻¹ = Minv[f]."""
     n = R.shape[2]
-    F = i1.shape[0]
+    F = i2.shape[0]
+    prior = i1.shape[0] == 0
     for c in prange((F + CHUNK - 1) // CHUNK):
         e = np.empty(n)
         scratch = np.empty(R.shape[1])
         for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
-            _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
-            sq[f] = _whiten_residual(R[f], e, scratch)
-
-
-@parallel_kernel
-def _prior_err(g, X, i1, Pinv, R, sq):
-    n = R.shape[2]
-    F = i1.shape[0]
-    for c in prange((F + CHUNK - 1) // CHUNK):
-        e = np.empty(n)
-        scratch = np.empty(R.shape[1])
-        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
-            _factors.prior_error(g, Pinv[f], X[i1[f]], e)
+            if prior:
+                _factors.prior_error(g, Minv[f], X[i2[f]], e)
+            else:
+                _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
             sq[f] = _whiten_residual(R[f], e, scratch)
 
 
@@ -154,28 +152,20 @@ def _setup(g, M, Minv, AdMinv, codes):
 
 
 class GroupLoops:
-    """The loops above bound to one group (``spec.group``, a :mod:`lie_factors.kernels.dispatch` tag)."""
+    """The loops above bound to one group (``spec.group``, a :mod:`lie_factors.kernels.dispatch` tag):
+    ``between_lin(*a)`` is ``_between_lin(g, *a)``, and so on; ``between_err`` and ``prior_err``
+    are :func:`_errors`."""
 
     def __init__(self, spec):
         self.g = spec.group
+        for name in ("between_lin", "prior_lin", "retract", "relative_log"):
+            setattr(self, name, functools.partial(globals()[f"_{name}"], self.g))
 
-    def between_lin(self, *a):
-        _between_lin(self.g, *a)
+    def between_err(self, X, i1, i2, Minv, R, sq):
+        _errors(self.g, X, i1, i2, Minv, R, sq)
 
-    def prior_lin(self, *a):
-        _prior_lin(self.g, *a)
-
-    def between_err(self, *a):
-        _between_err(self.g, *a)
-
-    def prior_err(self, *a):
-        _prior_err(self.g, *a)
-
-    def retract(self, *a):
-        _retract(self.g, *a)
-
-    def relative_log(self, *a):
-        _relative_log(self.g, *a)
+    def prior_err(self, X, i1, Pinv, R, sq):
+        _errors(self.g, X, _NO_INDEX, i1, Pinv, R, sq)
 
     def setup(self, M):
         """(M⁻¹ (N, m, m), Ad(M⁻¹) (N, n, n), check codes (N,)) of elements ``M`` (N, m, m)."""

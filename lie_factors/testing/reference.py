@@ -3,11 +3,13 @@
 Used by the tests and by ``lie-factors crosscheck`` as the oracle the closed
 forms are measured against.
 
-Everything here is written independently of ``lie_factors``: ``hat`` follows the
-table in CONVENTIONS.md, ``ad`` is the matrix of ``y -> vee([hat x, hat y])``
-obtained by bracketing basis vectors, ``exp`` is the matrix exponential of
-``hat(x)`` and ``dexp`` is the power series sum_i ad^i/(i+1)! (Eade, Eq. 35),
-all at ``DPS`` significant digits with mpmath.
+Everything here is written independently of the code under test (it reads only
+the groups' names and dimensions from :mod:`lie_factors.kernels.registry`):
+``hat`` follows GTSAM's tangent orders, ``ad`` is the matrix of
+``y -> vee([hat x, hat y])`` obtained by bracketing basis vectors, ``exp`` is the
+matrix exponential of ``hat(x)`` and ``dexp`` is the power series
+sum_i ad^i/(i+1)! (Eade, "Derivative of the Exponential Map", Eq. 35), all at
+``DPS`` significant digits with mpmath.
 """
 
 from __future__ import annotations
@@ -15,10 +17,12 @@ from __future__ import annotations
 import mpmath as mp
 import numpy as np
 
+from ..kernels import registry
+
 DPS = 50
 mp.mp.dps = DPS
 
-# --- hat/vee per group, from CONVENTIONS.md -------------------------------------------------
+# --- hat/vee per group (the tangent orders of docs/conventions.md) ---------------------------
 
 
 def _skew(w):
@@ -69,13 +73,9 @@ def vee_sim3(M):
     return [M[2, 1], M[0, 2], M[1, 0], M[0, 3], M[1, 3], M[2, 3], -M[3, 3]]
 
 
-GROUPS = {
-    "so3": (3, hat_so3, vee_so3),
-    "se3": (6, hat_se3, vee_se3),
-    "se2": (3, hat_se2, vee_se2),
-    "sim2": (4, hat_sim2, vee_sim2),
-    "sim3": (7, hat_sim3, vee_sim3),
-}
+#: name → (tangent dimension n from the registry, hat, vee) of every matrix group.
+GROUPS = {name: (registry.group(name).dim, globals()[f"hat_{name}"], globals()[f"vee_{name}"])
+          for name in registry.GROUPS}
 
 
 def mpf_vec(x):
@@ -206,7 +206,7 @@ def quat_to_rotation(q):
 
 
 def rel_err(ours, ref) -> float:
-    """CONVENTIONS.md accuracy: max|A - R| / max(1, max|R|), computed in mpmath.
+    """docs/conventions.md accuracy: max|A - R| / max(1, max|R|), computed in mpmath.
 
     ``ref`` is an mpmath matrix or a (nested) list of mpf; ``ours`` anything
     numpy can convert, with the same number of entries.

@@ -1,8 +1,8 @@
 """D_exp from its power series, for any algebra adjoint matrix: the test oracle.
 
-``dexp(ad_x) = sum_{i>=0} ad_x^i / (i+1)!`` (Eade, Eq. 35). Nothing here
-knows about a particular group, so it shares no code with the closed forms in
-:mod:`so3`, :mod:`se3`, :mod:`se2` and :mod:`sim2` and can check them.
+``dexp(ad_x) = sum_{i>=0} ad_x^i / (i+1)!`` (Eade, "Derivative of the
+Exponential Map", Eq. 35). Nothing here knows about a particular group, so it
+shares no code with the closed forms of the group modules and can check them.
 
 The series is summed on the augmented matrix ``M = [[A, I], [0, 0]]``, whose
 power series is ``exp(M) = [[exp(A), dexp(A)], [0, I]]``. Summing it directly
