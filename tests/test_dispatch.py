@@ -118,6 +118,7 @@ _SE3_ONLY = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_se3_graph_compiles_no_other_group(tmp_path):
     """Fresh numba cache: factors + batch solver on an SE(3) graph compile SE(3) cores only."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
@@ -132,6 +133,7 @@ def test_se3_graph_compiles_no_other_group(tmp_path):
 _EXP_ONE_AND_BATCH = "import numpy as np; from lie_factors import so3; x = np.full(3, 0.1); print(so3.exp(x)[0, 0], so3.exp(x[None])[0, 0, 0])"
 
 
+@pytest.mark.slow
 def test_editing_a_core_recompiles_the_generic_kernels(tmp_path):
     """Numba caches a generic kernel under its own file; the group tag's type names a digest of
     the kernel sources, so after a core is edited the public functions (and the factors) run the

@@ -508,6 +508,7 @@ def _rss_bytes() -> int:
         return int(fh.read().split()[1]) * 4096
 
 
+@pytest.mark.slow
 def test_rss_flat_over_create_drop_cycles():
     """1 000 drop-ins created, iterated once and dropped: no Values (100 poses) left behind."""
     graph, initial = load(False, True)

@@ -89,6 +89,7 @@ def test_dlog_accuracy():
     assert worst <= TOL, (worst, at)
 
 
+@pytest.mark.slow
 def test_log_accuracy():
     worst, at = 0.0, None
     for x in _points([t for t in THETAS if t < math.pi]):

@@ -97,6 +97,7 @@ def test_ad_hat_accuracy():
     _check(se3.hat, lambda x: ref.hat_se3(ref.mpf_vec(x)), pts)
 
 
+@pytest.mark.slow
 def test_log_against_mp_logm():
     worst = 0.0
     for x in _points([t for t in ANGLES_TO_PI if t <= 3.0], seed=6, combos=2):

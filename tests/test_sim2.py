@@ -104,6 +104,7 @@ def test_dexp_dlog_accuracy():
     assert worst["dlog"][0] <= TOL, worst
 
 
+@pytest.mark.slow
 def test_log_accuracy():
     worst, at = 0.0, None
     for x in _points([(th, lam) for th, lam in PAIRS if abs(th) < math.pi]):

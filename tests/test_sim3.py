@@ -132,6 +132,7 @@ def test_exp_accuracy():
     assert not _over(errs), _over(errs)
 
 
+@pytest.mark.slow
 def test_dexp_dlog_accuracy():
     errs = {"dexp": [], "dlog": []}
     for x in _points(PAIRS_2PI, seed=1):
@@ -171,6 +172,7 @@ def test_log_reference_agrees_with_logm():
     assert ref.rel_err(np.array(ref.log(G, X), dtype=float), _log_ref(X, x)) < 1e-15
 
 
+@pytest.mark.slow
 def test_log_accuracy():
     # θ ≥ 3 needs the Newton reference (a 50-digit D_log per step): every third pair there
     pairs = [(th, lam) for k, (th, lam) in enumerate(PAIRS) if th < 3.0 or (th < PI and k % 3 == 0)]

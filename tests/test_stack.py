@@ -78,6 +78,7 @@ def chain100k(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["native", "batch"])
 def test_100k_pose_chain_completes(chain100k, backend):
     """Used to die with SIGSEGV in GTSAM's InitializePose3 and LM (elimination recursing over the chain)."""
