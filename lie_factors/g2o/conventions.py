@@ -103,11 +103,13 @@ def _rot2(theta: np.ndarray) -> np.ndarray:
 def _rot3_quaternion(q: np.ndarray) -> np.ndarray:
     """Rot3::Quaternion(qw, qx, qy, qz) of rows ``q`` = (qx, qy, qz, qw), shape (N, 3, 3).
 
-    Eigen's ``normalized().toRotationMatrix()``: q / ‖q‖, then the
-    products 2x·w, 2x·x, ... (checked against ``readG2o`` in the tests).
+    ``readG2o``'s normalization, f = 1 / √(w² + x² + y² + z²) summed in that order and
+    each component times f, then Eigen's ``toRotationMatrix`` products 2x·w, 2x·x, ...:
+    the same operations in the same order, so the same bits as ``readG2o`` (tested).
     """
-    q = q / np.sqrt(np.einsum("ij,ij->i", q, q))[:, None]
     x, y, z, w = q.T
+    f = 1.0 / np.sqrt(w * w + x * x + y * y + z * z)
+    x, y, z, w = x * f, y * f, z * f, w * f
     tx, ty, tz = 2 * x, 2 * y, 2 * z
     twx, twy, twz = tx * w, ty * w, tz * w
     txx, txy, txz = tx * x, ty * x, tz * x

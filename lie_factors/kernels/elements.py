@@ -11,8 +11,6 @@ module (``"se3"``), as :func:`lie_factors.kernels.registry.group` reads them.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .registry import group as _group
@@ -42,14 +40,17 @@ def to_gtsam(group: str, M: np.ndarray):
     """The GTSAM object of the element matrix ``M`` (m, m) of ``group``.
 
     Pose2 and Similarity2 have no constructor from a matrix in GTSAM's Python
-    wrapper: they are built from their angle atan2(R10, R00), translation and
-    scale 1/M[2, 2].
+    wrapper: they are built from ``Rot2.atan2(R10, R00)``, which keeps cos and sin
+    exactly as given (a unit pair is not renormalized), so the matrix of
+    ``Pose2(x, y, θ)`` converts back to that pose bit for bit; going through the
+    angle θ would not (atan2 then cos/sin is off by an ulp for about 2 % of
+    angles).  Then the translation, and for Similarity2 the scale 1/M[2, 2].
     """
     import gtsam
 
     name = _group(group).gtsam
     if name == "Pose2":
-        return gtsam.Pose2(M[0, 2], M[1, 2], math.atan2(M[1, 0], M[0, 0]))
+        return gtsam.Pose2(gtsam.Rot2.atan2(M[1, 0], M[0, 0]), np.array([M[0, 2], M[1, 2]]))
     if name == "Similarity2":
         return gtsam.Similarity2(gtsam.Rot2.atan2(M[1, 0], M[0, 0]), np.array([M[0, 2], M[1, 2]]),
                                  1.0 / M[2, 2])
