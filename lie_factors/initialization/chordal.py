@@ -36,7 +36,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..batch.graph import Problem
-from ..batch.solvers import CholmodSolver, NotPositiveDefinite
 from ..batch.system import LinearSystem
 from ..errors import InitializationError
 from ..kernels.elements import pose2_matrices
@@ -99,7 +98,7 @@ def _pose_step(group: str, n, ii, jj, Z, info, X) -> np.ndarray:
 
     The between factors are :mod:`lie_factors.factors`' (error Log(Z⁻¹ X_i⁻¹ X_j)
     and its exact Jacobians: GTSAM's ``between`` times ``LogmapDerivative``),
-    linearized, assembled and solved by the batch solver's loops and CHOLMOD;
+    linearized and assembled by the batch solver's loops, solved by CHOLMOD;
     X_i ← X_i Exp(δ_i).
     """
     m, d = X.shape[1], 6 if group == "Pose3" else 3
@@ -109,10 +108,11 @@ def _pose_step(group: str, n, ii, jj, Z, info, X) -> np.ndarray:
     problem.linearize()
     system = LinearSystem(problem)
     system.assemble()
-    try:
-        delta = CholmodSolver(system).solve(None)
-    except NotPositiveDefinite as exc:
-        raise InitializationError(str(exc)) from None
+    # One solve: CHOLMOD's one-shot analysis and factorization, cheaper than keeping the
+    # symbolic analysis the batch solver reuses across iterations.
+    p = system.pattern
+    cols = np.repeat(np.arange(p.n, dtype=np.int64), np.diff(p.colptr))
+    delta = sparse.solve(p.n, p.rowind, cols, system.data, system.rhs)
     return problem.retract(delta)[0][group]
 
 
