@@ -8,7 +8,7 @@ Timings use the calling thread's CPU time by default (``time.thread_time``): on
 this shared 2-core machine wall time mostly measures the other jobs, while a
 kernel call's CPU time is its cost (``--clock wall`` for wall time).
 
-percall: one element per call, steady state (warmed up first), the best of ``--repeat``
+percall: one element per call (every group, then the unit and dual quaternions), steady state (warmed up first), the best of ``--repeat``
 rounds of ``--calls`` calls, ours and GTSAM's nearest call alternated round by round
 in the same process. Our inputs are what a user's factor holds: float64 arrays, the
 tangent of shape (n,), the element a C-ordered (m, m) matrix (one row also times the
@@ -108,6 +108,23 @@ def _percall_rows(group: str, rng):
     return rows
 
 
+def _quaternion_rows(rng):
+    """The unit and dual quaternion modules' exp and log, against GTSAM's SO(3)/SE(3) calls
+    (GTSAM has no quaternion exponential of its own)."""
+    from lie_factors import dual_quaternion, quaternion
+
+    w = 0.5 * rng.normal(size=3)
+    x = np.concatenate([w, rng.normal(size=3)])
+    q, d = quaternion.exp(w), dual_quaternion.exp(x)
+    R, P = gtsam.Rot3.Expmap(w), gtsam.Pose3.Expmap(x)
+    return [
+        ("quaternion.exp(x)", quaternion.exp, (w,), "Rot3.Expmap(x)", gtsam.Rot3.Expmap, (w,)),
+        ("quaternion.log(q)", quaternion.log, (q,), "Rot3.Logmap(P)", gtsam.Rot3.Logmap, (R,)),
+        ("dual_quaternion.exp(x)", dual_quaternion.exp, (x,), "Pose3.Expmap(x)", gtsam.Pose3.Expmap, (x,)),
+        ("dual_quaternion.log(q)", dual_quaternion.log, (d,), "Pose3.Logmap(P)", gtsam.Pose3.Logmap, (P,)),
+    ]
+
+
 def _per_call(f, args, calls: int) -> float:
     loop = itertools.repeat(None, calls)
     if len(args) == 1:
@@ -127,14 +144,14 @@ def percall(groups, calls: int, repeat: int):
     """Rows (ours, µs, GTSAM's, µs, ratio), each pair timed alternately, best of ``repeat``."""
     rng = np.random.default_rng(1)
     out = []
-    for group in groups:
-        for label, f, a, glabel, g, ga in _percall_rows(group, rng):
-            f(*a), g(*ga)  # compile / load from cache outside the timing
-            ours, theirs = math.inf, math.inf
-            for _ in range(repeat):
-                ours = min(ours, _per_call(f, a, calls))
-                theirs = min(theirs, _per_call(g, ga, calls))
-            out.append((label, ours * 1e6, glabel, theirs * 1e6, ours / theirs))
+    rows = [row for group in groups for row in _percall_rows(group, rng)] + _quaternion_rows(rng)
+    for label, f, a, glabel, g, ga in rows:
+        f(*a), g(*ga)  # compile / load from cache outside the timing
+        ours, theirs = math.inf, math.inf
+        for _ in range(repeat):
+            ours = min(ours, _per_call(f, a, calls))
+            theirs = min(theirs, _per_call(g, ga, calls))
+        out.append((label, ours * 1e6, glabel, theirs * 1e6, ours / theirs))
     return out
 
 
