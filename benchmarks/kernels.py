@@ -1,6 +1,6 @@
 """Kernel cost per call against GTSAM's, batched throughput, and accuracy (the crosscheck table).
 
-    python benchmarks/kernels.py [--only percall|ratios|batched|accuracy] [--calls 20000] [--repeat 5]
+    python benchmarks/kernels.py [--only percall|breakdown|ratios|batched|accuracy] [--calls 20000] [--repeat 5]
                                  [--n 100000] [--ratio-n 200000] [--samples 5] [--groups so3,se3,...]
                                  [--clock cpu|wall]
 
@@ -14,6 +14,9 @@ in the same process. Our inputs are what a user's factor holds: float64 arrays, 
 tangent of shape (n,), the element a C-ordered (m, m) matrix (one row also times the
 Fortran-ordered matrix that GTSAM's ``.matrix()`` returns). GTSAM's inputs are its own
 objects (``Pose3`` …) where its call takes one, built once outside the loop.
+
+breakdown: where one ``se3.Ad(X)`` call goes: the whole call, its compiled part called
+directly and through numba's dispatcher, the output's allocation, the fast path's type test.
 
 ratios: Sim(3) against SE(3) on ``--ratio-n`` elements (exp, log, dexp, dlog), the
 median of 7 calls each, the two alternated.
@@ -155,6 +158,38 @@ def percall(groups, calls: int, repeat: int):
     return out
 
 
+def breakdown(calls: int, repeat: int = 15):
+    """Where one call of ``se3.Ad(X)`` goes: (part, µs) rows, each the best of ``repeat`` × ``calls``."""
+    from lie_factors.kernels import public
+
+    X = se3.exp(np.array([0.1, -0.2, 0.3, 1.0, 2.0, 3.0]))
+    se3.Ad(X)  # binds the fast path's compiled entry point into the function's globals
+    g = se3.Ad.__globals__
+    G, OP, fast = g["G"], g["OP"], g["fast"]
+    out = np.empty((6, 6))
+    nd, f64 = np.ndarray, np.dtype(np.float64)
+    parts = [
+        ("`se3.Ad(X)`, the whole call (in a lambda)", lambda: se3.Ad(X)),
+        ("the compiled call: check of X + core", lambda: fast(G, OP, X, out)),
+        ("the same through numba's dispatcher", lambda: public.one(G, OP, X, out)),
+        ("`np.empty((6, 6))` for the result", lambda: np.empty((6, 6))),
+        ("`type(X) is ndarray and X.shape == (4, 4) and X.dtype is float64`",
+         lambda: type(X) is nd and X.shape == (4, 4) and X.dtype is f64),
+        ("an empty lambda (the loop's own cost)", lambda: None),
+    ]
+    rows = []
+    for label, f in parts:
+        f()
+        best = math.inf
+        for _ in range(repeat):
+            t = clock()
+            for _ in itertools.repeat(None, calls):
+                f()
+            best = min(best, (clock() - t) / calls)
+        rows.append((label, best * 1e6))
+    return rows
+
+
 def _median_time(f, x, k: int = 7) -> float:
     samples = []
     for _ in range(k):
@@ -213,7 +248,7 @@ def ratios(n: int, rounds: int = 7):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", choices=("percall", "ratios", "batched", "accuracy"), action="append",
+    ap.add_argument("--only", choices=("percall", "breakdown", "ratios", "batched", "accuracy"), action="append",
                     help="run only these sections (repeatable; default: all)")
     ap.add_argument("--calls", type=int, default=20_000)
     ap.add_argument("--repeat", type=int, default=5)
@@ -230,13 +265,19 @@ def main(argv=None):
     unknown = [g for g in groups if g not in crosscheck.KERNELS]
     if unknown:
         ap.error(f"unknown group(s) {', '.join(unknown)}; choose from {', '.join(crosscheck.GROUPS)}")
-    only = set(args.only or ("percall", "ratios", "batched", "accuracy"))
+    only = set(args.only or ("percall", "breakdown", "ratios", "batched", "accuracy"))
     print(f"load average before: {os.getloadavg()[0]:.2f}; clock: {args.clock}\n")
     if "percall" in only:
         print(f"## One element per call (µs, best of {args.repeat} × {args.calls} calls, alternated)\n")
         print("| ours | µs | GTSAM's nearest | µs | ratio |\n|---|---|---|---|---|")
         for label, o, glabel, g, r in percall(groups, args.calls, args.repeat):
             print(f"| `{label}` | {o:.2f} | `{glabel}` | {g:.2f} | {r:.2f}× |")
+        print()
+    if "breakdown" in only:
+        print(f"## Where one call goes (µs, best of 15 × {args.calls} calls)\n")
+        print("| part | µs |\n|---|---|")
+        for label, us in breakdown(args.calls):
+            print(f"| {label} | {us:.2f} |")
         print()
     if "ratios" in only:
         print(f"## Sim(3) / SE(3), batched on {args.ratio_n} elements (median of 7, alternated)\n")
