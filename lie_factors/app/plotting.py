@@ -1,8 +1,8 @@
 """Trajectory plots for the CLI (Agg only, no pyplot global state), and the positions they draw.
 
 We draw on a bare ``matplotlib.figure.Figure`` with an Agg canvas, so the CLI
-works headless and never changes the backend of a user's session.  matplotlib
-is imported by :func:`plot_trajectories` only.
+works headless and never changes the matplotlib backend a user has chosen.
+matplotlib is imported by :func:`plot_trajectories` only.
 """
 
 from __future__ import annotations
