@@ -3,7 +3,7 @@
     python benchmarks/posegraph_e2e.py [--repeats 2] [--datasets sphere2500,intel,...]
         [--init auto] [--output FILE.md]
 
-Each run is a fresh process (``python -c 'from lie_factors.app import cli; cli.main(...)'``,
+Each run is a fresh process (``python -c 'from lie_factors.app import cli; cli.entry()'``,
 what the ``lie-factors`` script runs), timed from outside (wall seconds from
 spawning to exit, so Python's start-up and every import count), with its peak
 RSS read from ``/proc/self/status`` (``VmHWM``: ``ru_maxrss`` would carry this
@@ -41,7 +41,7 @@ GENERATED = os.environ.get("LIE_FACTORS_TMP", "/tmp")
 DEFAULT = "sphere2500,torus3D,city10000,intel,kitti_00,parking-garage,w20000,helix20k,helix100k"
 SPLIT = ("imports", "read", "init", "setup", "iterations")
 
-CODE = ("import sys; from lie_factors.app import cli; rc = cli.main(sys.argv[1:]); "
+CODE = ("import sys; from lie_factors.app import cli; rc = cli.entry(); "
         "hwm = [l for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]; "
         "print('VmHWM', hwm.split()[1], file=sys.stderr); sys.exit(rc)")
 

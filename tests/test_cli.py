@@ -320,3 +320,25 @@ def test_largest_accepted_values_run(tmp_path, capsys):
                               "--quiet", "--json", "--output", str(tmp_path / "d"))
     assert status == 0
     assert last_json(out)["poses"] == 2
+
+
+def test_console_script_is_main_then_gc_freeze(monkeypatch):
+    """The installed ``lie-factors`` runs ``cli.entry``: ``main``'s status, then ``gc.freeze()``
+    so that the interpreter's exit skips its sweep of every object."""
+    import gc
+    import re
+
+    scripts = (ROOT / "pyproject.toml").read_text()
+    assert re.search(r'^lie-factors = "lie_factors\.app\.cli:entry"$', scripts, re.M)
+    calls = []
+    monkeypatch.setattr(gc, "freeze", lambda: calls.append("freeze"))
+    monkeypatch.setattr(cli, "main", lambda argv=None: calls.append("main") or 7)
+    assert cli.entry() == 7 and calls == ["main", "freeze"]
+
+
+def test_main_called_from_python_leaves_the_collector_alone(capsys):
+    import gc
+
+    frozen = gc.get_freeze_count()
+    assert run_main(capsys, "posegraph", SMALL, "--backend", "native", "--max-iterations", "1")[0] == 0
+    assert gc.get_freeze_count() == frozen
