@@ -72,7 +72,7 @@ class CholmodSolver:
         self.system = system
         p = system.pattern
         n = p.n
-        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(p.colptr))
+        cols = p.colind()
         # cvxopt stores the values in (column, row) order: ours already is, checked below.
         self._V = matrix(np.ones(p.nnz))
         self._S = spmatrix(self._V, matrix(p.rowind), matrix(cols), (n, n))
@@ -129,7 +129,7 @@ class PardisoSolver:
         self.system = system
         p = system.pattern
         n = p.n
-        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(p.colptr))
+        cols = p.colind()
         # PARDISO wants the upper triangle in CSR = our lower CSC without the diagonal blocks' upper halves.
         self._keep = np.nonzero(p.rowind >= cols)[0]
         indptr = np.zeros(n + 1, dtype=np.int64)

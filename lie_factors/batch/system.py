@@ -62,6 +62,10 @@ class Pattern:
         self.stride_of_column = L
         self.colptr, self.rowind, self.diagpos = _csc(dims, self.offsets, first, brow, L, colstart)
 
+    def colind(self) -> np.ndarray:
+        """The column of every stored entry (nnz,): with ``rowind``, the pattern as triplets."""
+        return np.repeat(np.arange(self.n, dtype=np.int64), np.diff(self.colptr))
+
     def lookup(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(base, stride, a_is_row) of the blocks {a, b} (arrays of variable indices)."""
         a = np.asarray(a, dtype=np.int64)
@@ -292,7 +296,7 @@ class LinearSystem:
         """The full symmetric H (or H with ``values``) as a dense (n, n) array, for checks on small graphs."""
         p = self.pattern
         v = self.data if values is None else values
-        cols = np.repeat(np.arange(p.n), np.diff(p.colptr))
+        cols = p.colind()
         keep = p.rowind >= cols
         L = np.zeros((p.n, p.n))
         np.add.at(L, (p.rowind[keep], cols[keep]), v[keep])

@@ -111,8 +111,7 @@ def _pose_step(group: str, n, ii, jj, Z, info, X) -> np.ndarray:
     # One solve: CHOLMOD's one-shot analysis and factorization, cheaper than keeping the
     # symbolic analysis the batch solver reuses across iterations.
     p = system.pattern
-    cols = np.repeat(np.arange(p.n, dtype=np.int64), np.diff(p.colptr))
-    delta = sparse.solve(p.n, p.rowind, cols, system.data, system.rhs)
+    delta = sparse.solve(p.n, p.rowind, p.colind(), system.data, system.rhs)
     return problem.retract(delta)[0][group]
 
 
