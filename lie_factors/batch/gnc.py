@@ -93,6 +93,9 @@ class GncParams:
     inlier_probability: float = 0.99
     inlier_thresholds: object = None
     lm_params: object = None
+    #: The first solve uses the known inliers only (GTSAM's weighs every factor 1), so that it
+    #: starts from a map no unknown factor has bent.  Ours only: ``to_gtsam`` refuses it.
+    first_solve_known_inliers: bool = False
 
     def __post_init__(self):
         self.loss = self.loss.lower()
@@ -110,6 +113,9 @@ class GncParams:
     def to_gtsam(self):
         """The equivalent ``gtsam.GncLMParams`` (thresholds are set on the optimizer, not here)."""
         import gtsam
+
+        if self.first_solve_known_inliers:
+            raise ValueError("GTSAM's GncOptimizer has no first_solve_known_inliers")
 
         lm = self.lm_params if self.lm_params is not None else gtsam.LevenbergMarquardtParams()
         p = gtsam.GncLMParams(lm)
@@ -316,6 +322,8 @@ def gnc_optimize(inner: InnerSolver, params: GncParams | None = None,
 
     weights = np.ones(F)
     weights[types == _OUTLIER] = 0.0
+    if p.first_solve_known_inliers:
+        weights[types == _NORMAL] = 0.0
     result, inner_its = inner.optimize(weights)
     lam = _initialize_lambda(loss, inner.factor_errors(inner.initial), thresholds)
     prev_cost = float(np.dot(weights, inner.factor_errors(result)))
@@ -534,6 +542,22 @@ class BatchInner:
 
     def factor_errors(self, state) -> np.ndarray:
         return self.lm.factor_errors(state.Xs, state.other)
+
+    def state(self, values) -> "_BatchState":
+        """An estimate of this problem read from ``gtsam.Values`` (every variable of the graph)."""
+        from .graph import matrices_of
+
+        import gtsam
+
+        P = self.lm.problem
+        Xs = {name: matrices_of(values, name, b.keys) for name, b in P.blocks.items()}
+        other = gtsam.Values()
+        if P.other.size():
+            other = gtsam.Values(values)
+            for b in P.blocks.values():
+                for k in b.keys:
+                    other.erase(int(k))
+        return _BatchState(self.lm, Xs, other)
 
     def optimize(self, weights: np.ndarray):
         self.lm.restart(weights)
