@@ -50,6 +50,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import gtsam  # noqa: E402
 
@@ -71,7 +72,18 @@ STARTS = ("auto", "file", "chordal")
 
 
 def load_graph(name: str) -> Dataset:
-    """A dataset of data/ by name, or ``chainN``: the demo's SE(3) trajectory with N poses."""
+    """A dataset of data/ by name, ``chainN``: the demo's SE(3) trajectory with N poses, or
+    ``helixN``: ``generate_posegraph.py``'s SE(3) helix with N poses (written to the temp dir)."""
+    if name.startswith("helix"):
+        import tempfile
+
+        import generate_posegraph
+
+        n = int(name[5:])
+        path = os.path.join(tempfile.gettempdir(), f"lie_factors_outliers_helix{n}.g2o")
+        if not os.path.exists(path):
+            generate_posegraph.write_g2o(path, *generate_posegraph.generate(n, lap=500))
+        return load(path)
     if name.startswith("chain"):
         n = int(name[5:])
         prob = demo.simulate(n, seed=0)
@@ -131,18 +143,18 @@ def run_gnc(pg, backend):
     return values, res.iterations, seconds, res.outliers, res.cost
 
 
-def _native_gnc_child(name, fraction, seed, start, conn):
-    pg, planted, _, _ = prepare(name, fraction, seed, reference=False, start=start)
+def _native_gnc_child(name, fraction, seed, start, conn, kind="uniform"):
+    pg, planted, _, _ = prepare(name, fraction, seed, reference=False, start=start, kind=kind)
     values, its, seconds, rejected, cost = run_gnc(pg, "native")
     conn.send((positions(values, pg), its, seconds, rejected.tolist(), cost))
     conn.close()
 
 
-def run_native_gnc_with_timeout(name, fraction, seed, start, timeout):
+def run_native_gnc_with_timeout(name, fraction, seed, start, timeout, kind="uniform"):
     """Native GNC in a child process (GTSAM's C++ loop cannot be interrupted); None if it times out."""
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_native_gnc_child, args=(name, fraction, seed, start, child))
+    proc = ctx.Process(target=_native_gnc_child, args=(name, fraction, seed, start, child, kind))
     proc.start()
     if parent.poll(timeout):
         out = parent.recv()
@@ -171,16 +183,27 @@ def start_values(pg, how: str):
     return s.values, s.method + (" of the odometry and the prior" if s.inliers_only else " of every edge")
 
 
-def prepare(name, fraction, seed, reference=True, start="file"):
-    pg = load_graph(name)
-    ref = None
-    if reference:
-        graph = build_graph(pg, "native")
-        ref = positions(gtsam.LevenbergMarquardtOptimizer(graph, pg.initial, lm_params()).optimize(), pg)
+def reference_positions(pg) -> np.ndarray:
+    """The outlier-free optimum's positions: the default command's solver (chordal start, batch LM)."""
+    from lie_factors.app.run import run
+
+    _, result, _ = run(pg, backend="batch")
+    return positions(result.values, pg)
+
+
+def plant(pg, fraction, seed, kind="uniform"):
+    """``pg``'s between graph with false loop closures (``kind``: uniform or clustered) and their slots."""
     n_lc = len(pg.graph.loop_closures())
     count = int(round(fraction * n_lc))
-    between, planted = outliers.plant_false_loop_closures(pg.graph.factor_graph(), pg.graph.keys.tolist(), count,
-                                                          seed, pg.is3d)
+    planter = (outliers.plant_false_loop_closures if kind == "uniform"
+               else outliers.plant_clustered_false_loop_closures)
+    return planter(pg.graph.factor_graph(), pg.graph.keys.tolist(), count, seed, pg.is3d)
+
+
+def prepare(name, fraction, seed, reference=True, start="file", kind="uniform"):
+    pg = load_graph(name)
+    ref = reference_positions(pg) if reference else None
+    between, planted = plant(pg, fraction, seed, kind)
     planted_pg = with_edges(pg, between)
     planted_pg.initial, label = start_values(planted_pg, start)
     return planted_pg, planted, ref, label
@@ -188,6 +211,75 @@ def prepare(name, fraction, seed, reference=True, start="file"):
 
 def rmse(P, ref) -> float:
     return float(np.sqrt(np.mean(np.sum((P - ref) ** 2, axis=1))))
+
+
+# --------------------------------------------------------------------------- #
+# The suite: lie-factors' --gnc (consistency stage, GNC, final check) against GTSAM's GncOptimizer
+# --------------------------------------------------------------------------- #
+
+SUITE_GRAPHS = ("intel", "manhattan", "CSAIL", "city10000", "sphere2500", "parking-garage", "helix10000")
+
+
+def run_ours(planted_pg):
+    """What ``lie-factors posegraph FILE --gnc tls`` runs (batch backend, consistency stage on):
+    (positions, seconds, rejected edges, rejected_by)."""
+    from lie_factors.app.run import run
+
+    record, result, _ = run(planted_pg, backend="batch", gnc="tls")
+    return positions(result.values, planted_pg), record.seconds, record.outliers, record.rejected_by
+
+
+def suite(args) -> int:
+    fractions = args.fractions or [0.2, 0.5]
+    print(f"# outliers suite: seeds {args.seeds}, best of {args.repeat} (ours and GTSAM's GncOptimizer "
+          f"alternated), GTSAM abandoned after {args.native_timeout:.0f} s")
+    print("| graph | false | kind | seed | method | precision | recall | map error / diag | seconds | "
+          "rejected by |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.graphs:
+        base = load_graph(name)
+        ref = reference_positions(base)
+        diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
+        for fraction in fractions:
+            for kind in args.kinds:
+                for seed in args.seeds:
+                    between, planted = plant(base, fraction, seed, kind)
+                    pg = with_edges(base, between)
+                    pg.initial, _ = start_values(pg, "auto")
+                    best = {"ours": None, "gtsam": None}
+                    for _ in range(args.repeat):
+                        P, sec, rejected, by = run_ours(pg)
+                        if best["ours"] is None or sec < best["ours"][1]:
+                            best["ours"] = (P, sec, rejected, by)
+                        if not args.no_native and best["gtsam"] != "timeout":
+                            out = run_native_gnc_with_timeout(name, fraction, seed, "auto", args.native_timeout,
+                                                              kind)
+                            if out is None:
+                                best["gtsam"] = "timeout"
+                            elif best["gtsam"] is None or out[2] < best["gtsam"][1]:
+                                best["gtsam"] = (out[0], out[2], out[3], None)
+                    label = f"{base.name} | {fraction:.0%} ({len(planted)}) | {kind} | {seed}"
+                    for method in ("gtsam", "ours"):
+                        b = best[method]
+                        if b is None:
+                            continue
+                        if b == "timeout":
+                            print(f"| {label} | GTSAM GNC | – | – | – | > {args.native_timeout:.0f} | – |",
+                                  flush=True)
+                            continue
+                        P, sec, rejected, by = b
+                        c = outliers.classify(rejected, planted)
+                        stages = "–"
+                        if by is not None:
+                            counts = {}
+                            for v in by.values():
+                                counts[v] = counts.get(v, 0) + 1
+                            stages = ", ".join(f"{k} {counts[k]}" for k in ("gate", "clique", "gnc", "final")
+                                               if k in counts)
+                        print(f"| {label} | {'GTSAM GNC' if method == 'gtsam' else 'lie-factors'} | "
+                              f"{c.precision:.3f} | {c.recall:.3f} | {100 * rmse(P, ref) / diag:.3g} % | "
+                              f"{sec:.2f} | {stages} |", flush=True)
+    return 0
 
 
 def main(argv=None) -> int:
@@ -205,7 +297,18 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="timing: best of this many runs (default 1)")
     ap.add_argument("--native-timeout", type=float, default=600.0,
                     help="seconds after which native GNC is abandoned (default 600)")
+    ap.add_argument("--suite", action="store_true",
+                    help="the consistency suite: lie-factors' --gnc tls against GTSAM's GncOptimizer on "
+                         f"every graph (default {' '.join(SUITE_GRAPHS)}), at --fractions, --kinds, --seeds")
+    ap.add_argument("--fractions", nargs="+", type=float, help="with --suite (default 0.2 0.5)")
+    ap.add_argument("--kinds", nargs="+", default=["uniform", "clustered"], choices=["uniform", "clustered"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    ap.add_argument("--no-native", action="store_true", help="with --suite: skip GTSAM's GncOptimizer")
     args = ap.parse_args(argv)
+    if args.suite:
+        if args.graphs == list(GRAPHS):
+            args.graphs = list(SUITE_GRAPHS)
+        return suite(args)
 
     print(f"# outliers: {args.fraction:.0%} false loop closures (relative to the true ones), "
           f"seed {args.seed}, best of {args.repeat}")

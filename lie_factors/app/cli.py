@@ -160,7 +160,13 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gnc", metavar="{tls,gm}",
                    help="graduated non-convexity (GTSAM's GncOptimizer semantics) with truncated "
                         "least squares or Geman-McClure; odometry edges are known inliers; "
-                        "the JSON gains 'outliers' (rejected edges, 0-based file order)")
+                        "the JSON gains 'outliers' (rejected edges, 0-based file order); the loop "
+                        "closures first pass a consistency stage (odometry gate, pairwise consistency) "
+                        "and a final chi-square check after, and 'rejected_by' names the stage that "
+                        "rejected each edge (gate, clique, gnc, final)")
+    p.add_argument("--no-consistency", action="store_true",
+                   help="with --gnc: skip the consistency stage and the final check (plain GNC, as "
+                        "GTSAM's GncOptimizer)")
     p.add_argument("--incremental", action="store_true",
                    help="replay the file online through ISAM2 instead (poses in id order, one per "
                         "update; native = GTSAM's factors in gtsam.ISAM2, dropin/batch = ours in "
@@ -207,6 +213,8 @@ def _run_posegraph(args) -> int:
         _refuse_batch_options(args)
     elif args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
         raise CLIError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
+    if args.no_consistency and not args.gnc:
+        raise CLIError("--no-consistency applies to --gnc only")
     t = time.perf_counter()
     from lie_factors.app import run as pgm
 
@@ -261,8 +269,15 @@ def _run_posegraph(args) -> int:
             status = "converged" if record.converged else "stopped (not converged)"
             if args.gnc:
                 n_lc = len(run.pg.graph.loop_closures())
+                stages = ""
+                if record.rejected_by is not None:
+                    counts = {}
+                    for stage in record.rejected_by.values():
+                        counts[stage] = counts.get(stage, 0) + 1
+                    stages = " (" + ", ".join(f"{counts.get(k, 0)} by {k}" for k in
+                                              ("gate", "clique", "gnc", "final")) + ")"
                 _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop "
-                           f"closures; error {record.initial_error:.6g} -> weighted "
+                           f"closures{stages}; error {record.initial_error:.6g} -> weighted "
                            f"{record.final_error:.6g} after {record.iterations} GNC iterations, "
                            f"{record.seconds:.3f} s (+ {record.init_seconds:.3f} s initialization), {status}")
             else:
@@ -281,7 +296,8 @@ def _run_posegraph(args) -> int:
     else:
         job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
                                robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
-                               output=args.output, plot=args.plot, events=Printer(), lazy_values=True)
+                               output=args.output, plot=args.plot, events=Printer(), lazy_values=True,
+                               consistency=not args.no_consistency)
     job.timings["imports"] = imports  # GTSAM and numpy, loaded with lie_factors.app.run
     record = job.execute()
     if args.json:

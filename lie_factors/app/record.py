@@ -47,8 +47,11 @@ class RunRecord(Record):
     ``init_inliers_only`` (robust and GNC runs): whether the start was built
     from the odometry edges and the prior alone.  With
     GNC, ``iterations`` counts GNC's outer iterations, ``final_error`` is GNC's
-    weighted cost Σ w_k·½‖R_k e_k‖², and ``outliers`` lists the rejected edges
-    (0-based, in the file's edge order).
+    weighted cost Σ w_k·½‖R_k e_k‖², ``outliers`` lists the rejected edges
+    (0-based, in the file's edge order) and ``rejected_by`` maps each of them
+    (as a string) to the stage that rejected it: ``gate``, ``clique``, ``gnc``
+    or ``final`` (:mod:`lie_factors.batch.rejection`; absent with
+    ``--no-consistency``).
     """
 
     iterations: int
@@ -61,14 +64,15 @@ class RunRecord(Record):
     robust: str | None = None
     gnc: str | None = None
     outliers: list[int] | None = None
+    rejected_by: dict | None = None
     init_inliers_only: bool | None = None
     #: seconds of each step of a PoseGraphRun (see PoseGraphRun.timings)
     timings: dict | None = None
 
     def to_dict(self) -> dict:
         d = super().to_dict()
-        # robust / gnc / outliers / init_inliers_only appear only in runs that use them.
-        for key in ("robust", "gnc", "outliers", "init_inliers_only", "timings"):
+        # robust / gnc / outliers / rejected_by / init_inliers_only appear only in runs that use them.
+        for key in ("robust", "gnc", "outliers", "rejected_by", "init_inliers_only", "timings"):
             if d[key] is None:
                 del d[key]
         return d

@@ -120,7 +120,8 @@ class PoseGraphRun:
     def __init__(self, dataset, backend: str = "batch", max_iterations: int = 100, init: str = "auto",
                  robust=None, robust_all: bool = False, gnc: str | None = None,
                  output: str | None = None, plot: str | None = None, events: RunEvents | None = None,
-                 lazy_values: bool = False):
+                 lazy_values: bool = False, consistency: bool = True):
+        self.consistency = consistency
         self.dataset, self.backend, self.max_iterations, self.init = dataset, backend, max_iterations, init
         self.robust_text = robust
         self.robust = None  # the parsed loss (check)
@@ -212,7 +213,7 @@ class PoseGraphRun:
         start = self.start_values()
         if self.gnc is not None:
             self.record, self.result = _run_gnc(pg, graph, self.start, start, backend, self.max_iterations,
-                                                self.gnc, self.events.gnc_iteration)
+                                                self.gnc, self.events.gnc_iteration, self.consistency)
             self.timings["iterations"] = self.result.seconds
             return self.result
         opt = get_backend(backend).optimize or optimize
@@ -377,33 +378,66 @@ def _record(pg: Dataset, backend: str, factors: int, start: Initialization, resu
 
 
 def _run_gnc(pg: Dataset, graph, start: Initialization, values: gtsam.Values, backend: str,
-             max_iterations: int, loss: str, gnc_progress: Callable | None) -> tuple[RunRecord, OptimizeResult]:
+             max_iterations: int, loss: str, gnc_progress: Callable | None,
+             consistency: bool = True) -> tuple[RunRecord, OptimizeResult]:
     """GNC per backend: native = gtsam.GncLMOptimizer; dropin = our outer loop over GTSAM's LM
     with lie_factors factors (GTSAM's GncOptimizer cannot clone CustomFactors); batch = our
-    outer loop over the batch solver.  The odometry and the prior are known inliers."""
+    outer loop over the batch solver.  The odometry and the prior are known inliers.  With
+    ``consistency``, the loop closures go through the consistency stage first and the final
+    χ² check after (:func:`lie_factors.batch.rejection.reject_false_closures`)."""
     from lie_factors.batch import gnc as gncm
+    from lie_factors.batch.rejection import reject_false_closures
 
     known = np.setdiff1d(np.arange(graph.size()), pg.graph.loop_closures())
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(int(max_iterations))
-    params = gncm.GncParams(loss=loss, known_inliers=known.tolist(), lm_params=lm)
-    try:
+    params = gncm.GncParams(loss=loss, known_inliers=known.tolist(), lm_params=lm,
+                            first_solve_known_inliers=consistency and backend != "native")
+    Inner = gncm.BatchInner if backend == "batch" else gncm.GtsamInner
+
+    def run_gnc(p):
         if backend == "native":
-            res = gncm.gtsam_gnc(graph, values, params)
-        elif backend == "batch":
-            res = gncm.gnc_optimize(gncm.BatchInner(graph, values, lm), params, gnc_progress)
+            return gncm.gtsam_gnc(graph, values, p)
+        res = gncm.gnc_optimize(Inner(graph, values, lm), p, gnc_progress)
+        if not isinstance(res.values, gtsam.Values):
+            res.values = res.values.to_values()
+        return res
+
+    scorer = gncm.BatchInner(graph, values, lm) if backend == "batch" else None
+
+    def errors(v):
+        if scorer is not None:
+            return scorer.factor_errors(scorer.state(v))
+        return np.array([graph.at(k).error(v) for k in range(graph.size())])
+
+    def refine(v, weights):
+        out = Inner(graph, v, lm).optimize(weights)[0]
+        return out if isinstance(out, gtsam.Values) else out.to_values()
+
+    def poses(v):
+        from lie_factors.kernels.elements import matrices_from_values
+
+        return matrices_from_values(v, pg.group, pg.graph.keys)
+
+    try:
+        if consistency:
+            rejection = reject_false_closures(pg.posed(), run_gnc, errors, refine, poses, params)
+            res, rejected_by = rejection.gnc, rejection.rejected_by
+            seconds = rejection.seconds
         else:
-            res = gncm.gnc_optimize(gncm.GtsamInner(graph, values, lm), params, gnc_progress)
+            res = run_gnc(params)
+            rejected_by, seconds = None, res.seconds
     except RuntimeError as exc:
         raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
-    result_values = res.values
-    if not isinstance(result_values, gtsam.Values):
-        result_values = result_values.to_values()
     initial_error = float(graph.error(values))
-    result = OptimizeResult(result_values, res.iterations, [initial_error, res.cost], [], res.seconds,
+    result = OptimizeResult(res.values, res.iterations, [initial_error, res.cost], [], seconds,
                             res.stop != "maxIterations")
     result.start = values
-    outliers = [int(k) for k in res.outliers if k < pg.edges]
+    if rejected_by is None:
+        outliers = [int(k) for k in res.outliers if k < pg.edges]
+    else:
+        outliers = sorted(int(k) for k in rejected_by)
+        rejected_by = {str(k): v for k, v in rejected_by.items()}
     record = _record(pg, backend, graph.size(), start, result, gnc=loss, outliers=outliers,
-                     init_inliers_only=start.inliers_only)
+                     rejected_by=rejected_by, init_inliers_only=start.inliers_only)
     return record, result

@@ -17,7 +17,8 @@ import gtsam
 
 from ..pose_graph import is_loop_closure
 
-__all__ = ["loop_closure_mask", "plant_false_loop_closures", "Classification", "classify"]
+__all__ = ["loop_closure_mask", "plant_false_loop_closures", "plant_clustered_false_loop_closures",
+           "Classification", "classify"]
 
 
 def loop_closure_mask(graph: gtsam.NonlinearFactorGraph) -> np.ndarray:
@@ -77,6 +78,81 @@ def plant_false_loop_closures(between: gtsam.NonlinearFactorGraph, keys: list[in
         noise = pool[rng.integers(len(pool))]
         graph.add(Between(i, j, _random_pose(rng, is3d, translation_scale), noise))
         slots.append(graph.size() - 1)
+    return graph, np.array(slots, dtype=np.int64)
+
+
+def _odometry_chain(between: gtsam.NonlinearFactorGraph, keys: list[int]) -> dict:
+    """key → measured pose of the odometry edge from ``key`` to the next key (either direction)."""
+    odo = {}
+    for k in range(between.size()):
+        f = between.at(k)
+        i, j = f.keys()
+        if j == i + 1:
+            odo.setdefault(i, f.measured())
+        elif i == j + 1:
+            odo.setdefault(j, f.measured().inverse())
+    return odo
+
+
+def plant_clustered_false_loop_closures(between: gtsam.NonlinearFactorGraph, keys: list[int], count: int,
+                                        seed: int, is3d: bool, size: tuple[int, int] = (3, 10),
+                                        translation_scale: float = 10.0):
+    """A copy of ``between`` with ``count`` false loop closures appended in clusters that agree
+    with one another, as perceptual aliasing makes them.
+
+    Each cluster takes two random stretches of the odometry chain, i, i+1, …, i+s−1 and j, …,
+    j+s−1 (s uniform in ``size``, the stretches at least s ids apart), and one wrong relative
+    pose M drawn as in :func:`plant_false_loop_closures`; its closures are
+    i+k → j+k with measurement O_{i,i+k}⁻¹ · M · O_{j,j+k}, O the odometry measurements
+    composed.  Two closures of a cluster and the odometry between their ends close a cycle
+    exactly: pairwise they are consistent, and only the odometry between the stretches (or
+    the true closures) can tell them false.  Noise models as in
+    :func:`plant_false_loop_closures`.  Returns ``(graph, outlier_slots)``.
+    """
+    rng = np.random.default_rng(seed)
+    graph = gtsam.NonlinearFactorGraph()
+    existing, lc, pool = set(), [], []
+    for k in range(between.size()):
+        f = between.at(k)
+        graph.add(f)
+        i, j = f.keys()
+        existing.add((min(i, j), max(i, j)))
+        pool.append(f.noiseModel())
+        if is_loop_closure(i, j):
+            lc.append(f.noiseModel())
+    pool = lc or pool
+    odo = _odometry_chain(between, keys)
+    Between = gtsam.BetweenFactorPose3 if is3d else gtsam.BetweenFactorPose2
+    Identity = gtsam.Pose3 if is3d else gtsam.Pose2
+    keyset = set(keys)
+    slots = []
+    attempts = 0
+    while len(slots) < count:
+        attempts += 1
+        if attempts > 100 * (count + 10):
+            raise ValueError("could not place the clusters: too few odometry stretches")
+        s = int(rng.integers(size[0], size[1] + 1))
+        s = min(s, count - len(slots))
+        i, j = (int(x) for x in rng.choice(keys, size=2, replace=False))
+        if abs(i - j) < 2 * s:
+            continue
+        if not all(k in odo for k in range(i, i + s - 1)) or not all(k in odo for k in range(j, j + s - 1)):
+            continue
+        if not all((i + k) in keyset and (j + k) in keyset for k in range(s)):
+            continue
+        pairs = [(min(i + k, j + k), max(i + k, j + k)) for k in range(s)]
+        if any(p in existing for p in pairs):
+            continue
+        M = _random_pose(rng, is3d, translation_scale)
+        noise = pool[rng.integers(len(pool))]
+        Oi, Oj = Identity(), Identity()
+        for k in range(s):
+            if k:
+                Oi = Oi.compose(odo[i + k - 1])
+                Oj = Oj.compose(odo[j + k - 1])
+            existing.add(pairs[k])
+            graph.add(Between(i + k, j + k, Oi.inverse().compose(M).compose(Oj), noise))
+            slots.append(graph.size() - 1)
     return graph, np.array(slots, dtype=np.int64)
 
 

@@ -1,0 +1,385 @@
+"""The consistency stage before GNC and the final check after it.
+
+References that share no code with what they test: the cycle χ² against a
+numerical linearization built from GTSAM's own Pose2/Pose3 (Expmap, compose);
+the clique solver against brute force; the leave-group-out statistic against a
+dense inverse of GTSAM's own linearization.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import gtsam
+import numpy as np
+import pytest
+
+from lie_factors.app import cli, demo
+from lie_factors.app.load import Dataset
+from lie_factors.app.run import run
+from lie_factors.batch import clique, consistency
+from lie_factors.batch.leave_out import leave_out_chi2
+from lie_factors.batch.rejection import closure_groups
+from lie_factors.batch.screening import CLIQUE, GATE, KEPT, screen_closures
+from lie_factors.kernels import registry
+from lie_factors.pose_graph import PoseGraph
+from lie_factors.testing import outliers
+
+# --------------------------------------------------------------------------- #
+# The cycle χ² against a numerical linearization with GTSAM's poses
+# --------------------------------------------------------------------------- #
+
+GROUPS = {"Pose2": (gtsam.Pose2, 3), "Pose3": (gtsam.Pose3, 6)}
+
+
+def _random_pose(rng, name, scale=1.0):
+    Pose, n = GROUPS[name]
+    return Pose.Expmap(rng.normal(scale=scale, size=n))
+
+
+def _random_cov(rng, n, scale):
+    B = rng.normal(size=(n, n))
+    return scale * (B @ B.T / n + 0.2 * np.eye(n))
+
+
+def _reference_chi2(name, odo, odo_cov, a, b, Z1, S1, c, d, Z2, S2):
+    """χ² of L = Z1⁻¹·T_ac·Z2·T_db, every measurement perturbed on the right by its own noise,
+    Log(L) linearized by central differences in all the noises at once."""
+    Pose, n = GROUPS[name]
+    N = len(odo) + 1
+
+    def relative(x, y, xi):
+        # T_xy from the odometry, edge m perturbed by xi[m]
+        T = Pose()
+        if x <= y:
+            for m in range(x, y):
+                T = T.compose(odo[m].compose(Pose.Expmap(xi[m])))
+            return T
+        return relative(y, x, xi).inverse()
+
+    def log_L(noise):
+        xi = noise[: (N - 1) * n].reshape(N - 1, n)
+        z1 = noise[(N - 1) * n:(N - 1) * n + n]
+        z2 = noise[(N - 1) * n + n:]
+        L = (Z1.compose(Pose.Expmap(z1))).inverse().compose(relative(a, c, xi)) \
+            .compose(Z2.compose(Pose.Expmap(z2))).compose(relative(d, b, xi))
+        return Pose.Logmap(L)
+
+    dim = (N - 1) * n + 2 * n
+    r = log_L(np.zeros(dim))
+    J = np.zeros((n, dim))
+    h = 1e-6
+    for k in range(dim):
+        e = np.zeros(dim)
+        e[k] = h
+        J[:, k] = (log_L(e) - log_L(-e)) / (2 * h)
+    S = np.zeros((dim, dim))
+    for m in range(N - 1):
+        S[m * n:(m + 1) * n, m * n:(m + 1) * n] = odo_cov[m]
+    S[(N - 1) * n:(N - 1) * n + n, (N - 1) * n:(N - 1) * n + n] = S1
+    S[(N - 1) * n + n:, (N - 1) * n + n:] = S2
+    Sig = J @ S @ J.T
+    return float(r @ np.linalg.solve(Sig, r))
+
+
+def _chain(rng, name, N, backwards=()):
+    Pose, n = GROUPS[name]
+    odo = [_random_pose(rng, name, 0.3) for _ in range(N - 1)]
+    cov = [_random_cov(rng, n, 1e-2) for _ in range(N - 1)]
+    g = registry.group(name)
+    frm = np.arange(N - 1)
+    to = frm + 1
+    Z = np.array([p.matrix() for p in odo])
+    S = np.array(cov)
+    # some edges given backwards (k+1 → k): the chain must turn them around
+    for k in backwards:
+        frm[k], to[k] = to[k], frm[k]
+        Z[k] = odo[k].inverse().matrix()
+        Ad = odo[k].AdjointMap()
+        S[k] = Ad @ cov[k] @ Ad.T
+    return odo, cov, consistency.chain(g, N, frm, to, Z, S)
+
+
+@pytest.mark.parametrize("name", ["Pose2", "Pose3"])
+@pytest.mark.parametrize("ends", [(0, 7, 1, 6), (1, 6, 0, 7), (2, 5, 4, 7), (5, 1, 6, 3), (0, 3, 4, 7),
+                                  (6, 2, 1, 5), (3, 3, 3, 3)])
+def test_pair_chi2_equals_a_numerical_linearization(name, ends):
+    rng = np.random.default_rng(hash(ends) % 2**32)
+    Pose, n = GROUPS[name]
+    odo, cov, ch = _chain(rng, name, 8, backwards=(2, 5))
+    a, b, c, d = ends
+    Z1, Z2 = _random_pose(rng, name, 0.5), _random_pose(rng, name, 0.5)
+    S1, S2 = _random_cov(rng, n, 1e-2), _random_cov(rng, n, 3e-3)
+    ours = consistency.pair_chi2(ch, np.array([a, c]), np.array([b, d]), np.array([Z1.matrix(), Z2.matrix()]),
+                                 np.array([S1, S2]), np.array([0]), np.array([1]))[0]
+    ref = _reference_chi2(name, odo, cov, a, b, Z1, S1, c, d, Z2, S2)
+    assert ours == pytest.approx(ref, rel=1e-6)
+
+
+@pytest.mark.parametrize("name", ["Pose2", "Pose3"])
+def test_gate_chi2_is_the_cycle_with_the_odometry_alone(name):
+    rng = np.random.default_rng(3)
+    Pose, n = GROUPS[name]
+    odo, cov, ch = _chain(rng, name, 9, backwards=(0, 4))
+    a = np.array([0, 7, 3, 8])
+    b = np.array([8, 2, 4, 0])
+    Z = [_random_pose(rng, name, 0.5) for _ in a]
+    S = [_random_cov(rng, n, 1e-2) for _ in a]
+    ours = consistency.gate_chi2(ch, a, b, np.array([z.matrix() for z in Z]), np.array(S))
+    for k in range(len(a)):
+        ref = _reference_chi2(name, odo, cov, a[k], b[k], Z[k], S[k], b[k], b[k], Pose(), np.zeros((n, n)))
+        assert ours[k] == pytest.approx(ref, rel=1e-6)
+
+
+def test_gate_is_nan_across_segments_and_the_chain_restarts_there():
+    rng = np.random.default_rng(4)
+    g = registry.group("Pose2")
+    Z = np.array([_random_pose(rng, "Pose2").matrix() for _ in range(3)])
+    S = np.array([np.eye(3) * 1e-2] * 3)
+    ch = consistency.chain(g, 5, np.array([0, 1, 3]), np.array([1, 2, 4]), Z, S)  # no edge 2 → 3
+    np.testing.assert_array_equal(ch.segment, [0, 0, 0, 1, 1])
+    np.testing.assert_array_equal(ch.T[3], np.eye(3))
+    x = consistency.gate_chi2(ch, np.array([0, 3]), np.array([4, 4]), np.array([np.eye(3)] * 2),
+                              np.array([np.eye(3)] * 2))
+    assert np.isnan(x[0]) and np.isfinite(x[1])
+
+
+def test_reverse_turns_an_edge_around():
+    rng = np.random.default_rng(5)
+    g = registry.group("Pose3")
+    P = _random_pose(rng, "Pose3")
+    S = _random_cov(rng, 6, 1.0)
+    Z = np.array([P.matrix(), P.matrix()])
+    C = np.array([S, S])
+    consistency.reverse(g, Z, C, np.array([True, False]))
+    np.testing.assert_allclose(Z[0], P.inverse().matrix(), atol=1e-14)
+    np.testing.assert_allclose(C[0], P.AdjointMap() @ S @ P.AdjointMap().T, rtol=1e-13)
+    np.testing.assert_array_equal(Z[1], P.matrix())
+    np.testing.assert_array_equal(C[1], S)
+
+
+def test_near_pairs_are_exactly_the_pairs_within_the_window():
+    rng = np.random.default_rng(6)
+    a = rng.integers(0, 300, 200)
+    b = a + rng.integers(2, 300, 200)
+    for w in (1, 5, 40):
+        f, s = consistency.near_pairs(a, b, w)
+        got = {(min(i, j), max(i, j)) for i, j in zip(f.tolist(), s.tolist())}
+        assert len(got) == len(f)
+        want = {(i, j) for i in range(200) for j in range(i + 1, 200)
+                if abs(a[i] - a[j]) <= w and abs(b[i] - b[j]) <= w}
+        assert got == want
+
+
+# --------------------------------------------------------------------------- #
+# Maximum clique / minimum vertex cover against brute force
+# --------------------------------------------------------------------------- #
+
+def _brute_cover(n, edges):
+    for k in range(n + 1):
+        for S in itertools.combinations(range(n), k):
+            s = set(S)
+            if all(i in s or j in s for i, j in edges):
+                return k
+    return n
+
+
+def test_vertex_cover_is_minimum_on_random_graphs():
+    rng = np.random.default_rng(7)
+    for _ in range(250):
+        n = int(rng.integers(1, 14))
+        p = rng.uniform(0.05, 0.8)
+        edges = np.array([(i, j) for i in range(n) for j in range(i + 1, n) if rng.random() < p],
+                         dtype=np.int64).reshape(-1, 2)
+        res = clique.minimum_vertex_cover(n, edges)
+        cover = set(res.cover.tolist())
+        assert all(i in cover or j in cover for i, j in edges)
+        assert res.exact
+        assert len(cover) == _brute_cover(n, edges.tolist())
+
+
+def test_the_kept_set_is_a_maximum_clique_of_the_consistency_graph():
+    rng = np.random.default_rng(8)
+    for _ in range(100):
+        n = int(rng.integers(2, 12))
+        bad = np.array([(i, j) for i in range(n) for j in range(i + 1, n) if rng.random() < 0.3],
+                       dtype=np.int64).reshape(-1, 2)
+        kept, res = clique.maximum_clique_complement(n, bad)
+        k = set(kept.tolist())
+        assert not any(i in k and j in k for i, j in bad)  # a clique: no inconsistent pair inside
+        best = max(len(S) for r in range(n + 1) for S in itertools.combinations(range(n), r)
+                   if not any(i in S and j in S for i, j in bad.tolist()))
+        assert len(kept) == best
+
+
+def test_an_exhausted_search_still_returns_a_cover_and_says_it_is_not_exact():
+    rng = np.random.default_rng(9)
+    n = 400
+    edges = rng.integers(0, n, size=(1200, 2))
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    res = clique.minimum_vertex_cover(n, edges, budget=50)
+    cover = set(res.cover.tolist())
+    assert all(i in cover or j in cover for i, j in edges.tolist())
+    assert not res.exact
+
+
+def test_vertex_cover_refuses_bad_edges():
+    with pytest.raises(ValueError, match="self-loop"):
+        clique.minimum_vertex_cover(3, np.array([[1, 1]]))
+    with pytest.raises(ValueError, match="vertices 0..2"):
+        clique.minimum_vertex_cover(3, np.array([[0, 3]]))
+
+
+# --------------------------------------------------------------------------- #
+# The stage on graphs
+# --------------------------------------------------------------------------- #
+
+def _chain_graph(n=150, seed=1):
+    prob = demo.simulate(n, seed=seed)
+    between = demo.between_graph(prob)
+    return prob, between
+
+
+def _dataset(between, keys, vertices, name="test") -> Dataset:
+    pg = PoseGraph.from_gtsam(between, "Pose3", np.asarray(keys))
+    import dataclasses
+
+    return Dataset("", name, dataclasses.replace(pg, vertices=vertices))
+
+
+def test_clustered_false_closures_agree_with_one_another_exactly():
+    prob, between = _chain_graph(120)
+    graph, slots = outliers.plant_clustered_false_loop_closures(between, list(range(120)), 8, 3, True,
+                                                                size=(4, 4))
+    f = [graph.at(int(k)) for k in slots]
+    odo = {i: prob.odometry[i] for i in range(119)}
+    for x, y in zip(f[:3], f[1:4]):  # one cluster: i+k → j+k
+        (i, j), (i2, j2) = x.keys(), y.keys()
+        assert (i2, j2) == (i + 1, j + 1)
+        cycle = x.measured().inverse().compose(odo[i]).compose(y.measured()).compose(odo[j].inverse())
+        assert np.max(np.abs(gtsam.Pose3.Logmap(cycle))) < 1e-9
+
+
+def test_screening_rejects_planted_closures_and_keeps_the_true_ones():
+    prob, between = _chain_graph(200, seed=2)
+    lc = int(outliers.loop_closure_mask(between).sum())
+    graph, planted = outliers.plant_false_loop_closures(between, list(range(200)), lc // 3, 2, True)
+    pg = PoseGraph.from_gtsam(graph, "Pose3", np.arange(200))
+    s = screen_closures(pg)
+    rejected = set(s.rejected.tolist())
+    assert rejected <= set(planted.tolist())       # no true closure set aside
+    assert len(rejected) >= 0.9 * len(planted)     # and most false ones are
+    assert set(np.unique(s.stage).tolist()) <= {KEPT, GATE, CLIQUE}
+    assert s.exact
+    # every kept pair that was tested is consistent (the kept set is a clique)
+    np.testing.assert_array_equal(s.closures, pg.loop_closures())
+
+
+def test_leave_out_chi2_equals_a_dense_reference():
+    prob, between = _chain_graph(40, seed=4)
+    graph, planted = outliers.plant_false_loop_closures(between, list(range(40)), 3, 4, True)
+    pg = PoseGraph.from_gtsam(graph, "Pose3", np.arange(40))
+    pg = pg.with_prior(0, prob.truth[0].matrix(), np.diag(1.0 / demo.PRIOR_SIGMAS ** 2))
+    X = np.array([prob.initial.atPose3(k).matrix() for k in range(40)])
+    E = len(pg.edge_keys)
+    w = np.ones(E + 1)
+    lc = pg.loop_closures()
+    w[planted] = 0.0
+    inside = [lc[~np.isin(lc, planted)][:1], lc[~np.isin(lc, planted)][1:4]]
+    outside = [planted[:1], planted[1:]]
+    T = leave_out_chi2(pg, X, w, inside + outside)
+    # dense: GTSAM linearizes the weighted graph (weight 0 = left out)
+    native = pg.factor_graph()
+    values = gtsam.Values()
+    for k in range(40):
+        values.insert(k, gtsam.Pose3(X[k]))
+    kept = gtsam.NonlinearFactorGraph()
+    for k in range(native.size()):
+        if w[k]:
+            kept.add(native.at(k))
+    ordering = gtsam.Ordering()
+    for k in range(40):
+        ordering.push_back(k)
+    A, _ = kept.linearize(values).jacobian(ordering)
+    Hinv = np.linalg.inv(A.T @ A)
+    col = {k: k for k in range(40)}
+    for t, G, sign in zip(T, inside + outside, (-1, -1, 1, 1)):
+        rows, res = [], []
+        for e in G:
+            f = native.at(int(e))
+            J = f.linearize(values)
+            Ag = np.zeros((6, A.shape[1]))
+            Aj, bj = J.jacobian()  # columns in the factor's key order
+            for i, key in enumerate(f.keys()):
+                Ag[:, 6 * col[key]:6 * col[key] + 6] = Aj[:, 6 * i:6 * i + 6]
+            rows.append(Ag)
+            res.append(bj)
+        Ag, b = np.vstack(rows), np.concatenate(res)
+        M = np.eye(len(b)) + sign * Ag @ Hinv @ Ag.T
+        assert t == pytest.approx(float(b @ np.linalg.solve(M, b)), rel=1e-8)
+
+
+def test_closure_groups_join_runs_of_closures_between_the_same_places():
+    prob, between = _chain_graph(200, seed=5)
+    graph, slots = outliers.plant_clustered_false_loop_closures(between, list(range(200)), 6, 6, True,
+                                                                size=(6, 6))
+    pg = PoseGraph.from_gtsam(graph, "Pose3", np.arange(200))
+    groups = closure_groups(pg, slots)
+    assert sorted(len(g) for g in groups) == [6]
+    assert sorted(np.concatenate(groups).tolist()) == sorted(slots.tolist())
+
+
+# --------------------------------------------------------------------------- #
+# The whole --gnc pipeline
+# --------------------------------------------------------------------------- #
+
+def _planted_dataset(n, seed, kind, fraction):
+    prob, between = _chain_graph(n, seed=seed)
+    lc = int(outliers.loop_closure_mask(between).sum())
+    plant = (outliers.plant_false_loop_closures if kind == "uniform"
+             else outliers.plant_clustered_false_loop_closures)
+    graph, planted = plant(between, list(range(n)), max(3, int(fraction * lc)), seed, True)
+    X = np.array([prob.initial.atPose3(k).matrix() for k in range(n)])
+    return _dataset(graph, np.arange(n), X), planted, prob
+
+
+@pytest.mark.parametrize("kind", ["uniform", "clustered"])
+def test_gnc_with_the_consistency_stage_rejects_uniform_and_clustered_false_closures(kind):
+    ds, planted, _ = _planted_dataset(200, 11, kind, 0.3)
+    record, _, _ = run(ds, backend="batch", gnc="tls")
+    assert set(record.outliers) == set(planted.tolist())
+    assert set(record.rejected_by) == {str(k) for k in planted.tolist()}
+    assert set(record.rejected_by.values()) <= {"gate", "clique", "gnc", "final"}
+
+
+def test_on_a_clean_graph_the_result_is_the_plain_optimum_and_nothing_is_rejected():
+    prob, between = _chain_graph(200, seed=12)
+    X = np.array([prob.initial.atPose3(k).matrix() for k in range(200)])
+    ds = _dataset(between, np.arange(200), X)
+    record, result, _ = run(ds, backend="batch", gnc="tls")
+    assert record.outliers == [] and record.rejected_by == {}
+    plain_record, plain, _ = run(_dataset(between, np.arange(200), X), backend="batch")
+    # the same optimum: the error to 1e-6; the poses as close as LM's stopping rule (relative
+    # decrease 1e-5) brings two runs from different starts
+    graph = demo.build_graph(prob, gtsam)
+    assert graph.error(result.values) == pytest.approx(graph.error(plain.values), rel=1e-6)
+    for k in range(200):
+        d = plain.values.atPose3(k).localCoordinates(result.values.atPose3(k))
+        assert np.max(np.abs(d)) < 1e-4
+
+
+def test_cli_reports_the_stage_of_each_rejected_closure(tmp_path, capsys):
+    ds, planted, prob = _planted_dataset(120, 13, "uniform", 0.3)
+    path = tmp_path / "g.g2o"
+    from lie_factors.g2o import write_g2o
+
+    write_g2o(str(path), ds.graph.factor_graph(), prob.initial)
+    assert cli.main(["posegraph", str(path), "--gnc", "tls", "--json", "--quiet"]) == 0
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert sorted(map(int, d["rejected_by"])) == d["outliers"] == sorted(planted.tolist())
+    assert cli.main(["posegraph", str(path), "--gnc", "tls", "--json", "--quiet", "--no-consistency"]) == 0
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert "rejected_by" not in d
+    assert cli.main(["posegraph", str(path), "--no-consistency"]) == 2
+    assert "--no-consistency applies to --gnc only" in capsys.readouterr().err
