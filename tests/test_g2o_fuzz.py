@@ -12,6 +12,7 @@ Properties checked on every generated file:
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -212,6 +213,18 @@ def test_fast_and_slow_paths_agree_on_clean_files(tmp_path):
         for tag in slow[0]:
             np.testing.assert_array_equal(fast[0][tag].ids, slow[0][tag].ids)
             np.testing.assert_array_equal(fast[0][tag].values, slow[0][tag].values)
+
+
+def test_ids_at_the_56_bit_limit_fast_and_slow_agree():
+    """2^56 − 1 is the largest id; 2^56 and the next integers (2^56 as floats) are refused by both parses."""
+    ok = b"VERTEX_SE2 72057594037927935 0 0 0\n"
+    assert parse.fast_parse("x", ok)[0]["VERTEX_SE2"].ids.tolist() == [[2 ** 56 - 1]]
+    for i in (2 ** 56, 2 ** 56 + 1, 2 ** 56 + 4, 2 ** 56 + 8, 2 ** 57 - 1, 2 ** 57):
+        data = b"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 %d 0 0 0\n" % i
+        message = f"x:2: field 2: id {i} is larger than 2^56 - 1"
+        for fn in (parse.fast_parse, parse.slow_parse):
+            with pytest.raises(PoseGraphError, match=re.escape(message)):
+                fn("x", data)
 
 
 def test_fragile_vertex_value_does_not_cost_edges(tmp_path):

@@ -238,10 +238,14 @@ def _parse_group(rec: Record, data: bytes, lines: np.ndarray, starts, ends) -> R
         ids_f = table[:, :nids].astype(np.float64)
     except ValueError:
         return None
-    if not np.isfinite(values).all() or (ids_f > MAX_ID).any():
+    # Ids are compared with MAX_ID as integers: as floats, 2^56 − 1 and the next few
+    # integers all round to 2^56.  From 2^57 on, a float says "too large" surely.
+    if not np.isfinite(values).all() or (ids_f >= 2.0**57).any():
         return None
     if (ids_f >= 2.0**53).any():  # beyond exact floats: integers from the text
         ids = np.array([[int(t) for t in row] for row in table[:, :nids].tolist()], dtype=np.int64)
+        if (ids > MAX_ID).any():
+            return None
     else:
         ids = ids_f.astype(np.int64)
     rows = Rows(rec.tag, ids.reshape(n, nids), np.ascontiguousarray(values), lines + 1)
