@@ -5,7 +5,8 @@ the CLI in a subprocess (exit status 2, one stderr line, no traceback, no partly
 Properties checked on every generated file:
 * ``load`` either succeeds or raises PoseGraphError with a one-line message (nothing else escapes:
   no traceback, no crash inside GTSAM — GTSAM only ever sees checked files);
-* the vectorized parse and the exact line-by-line parse agree (same rows, or the same error);
+* the vectorized parse and the exact line-by-line parse agree (same rows, or the same error), and the
+  numba scan reads the same rows or gives up;
 * a successful load has exactly the factors and variables the file's lines describe.
 """
 
@@ -115,6 +116,14 @@ def _check_one(tmp_path: Path, content: bytes) -> None:
                          for t, r in fast[0].items()}
             assert fast_rows == slow_rows
             assert fast[1] == slow[1] and fast[2] == slow[2]  # comments, fragile lines
+    # 1b. the numba scan takes only files the exact parse accepts, and reads the same rows.
+    scanned = parse.scan_parse(content)
+    if scanned is not None:
+        assert slow_err is None, slow_err
+        scan_rows = {t: (r.ids.tolist(), r.values.tolist(), r.lines.tolist())
+                     for t, r in scanned[0].items()}
+        assert scan_rows == slow_rows
+        assert scanned[1] == slow[1] and scanned[2] == slow[2]
     # 2. load: success with the right sizes, or one clear line.
     try:
         pg = P.load(path)

@@ -3,7 +3,8 @@
 :func:`check_g2o` is our own check of every line, so a bad file gives
 ``file:line: what was expected`` instead of GTSAM silently skipping lines or
 reading garbage.  It returns a :class:`G2oSummary` (the parsed rows) that the
-readers take.  No numba here: the check runs before any kernel is needed.
+readers take.  No numba here: the parse imports its numba scan only for files
+where it pays (:func:`lie_factors.g2o.parse.parse`).
 """
 
 from __future__ import annotations
@@ -17,8 +18,7 @@ import gtsam
 
 from ..errors import PoseGraphError
 from ..topology import components
-from .dataset import read_bytes
-from .parse import parse
+from .parse import parse_file
 from .records import RECORDS, Rows, first_true
 
 
@@ -120,7 +120,7 @@ def check_g2o(path: str) -> G2oSummary:
     component would have no prior: its gauge is free and the system singular).
     """
     name = os.path.basename(path)
-    rows, comments, fragile = parse(name, read_bytes(path))
+    rows, comments, fragile = parse_file(path)
     if not rows:
         raise PoseGraphError(f"{name}: empty graph (no vertices and no edges)")
     is3d = RECORDS[next(iter(rows))].dim == 3
