@@ -98,12 +98,18 @@ class G2oSummary:
             parts.append(r.ids[:, :2].ravel())
         for r in self.of_kind("observation"):
             parts.append(r.ids[:, 0])
-        return np.unique(np.concatenate(parts)).tolist()
+        return _sorted_unique(np.concatenate(parts)).tolist()
 
     @property
     def landmark_ids(self) -> list[int]:
         parts = [self.landmark_vertex_ids] + [r.ids[:, 1] for r in self.of_kind("observation")]
-        return np.unique(np.concatenate(parts)).tolist()
+        return _sorted_unique(np.concatenate(parts)).tolist()
+
+
+def _sorted_unique(ids: np.ndarray) -> np.ndarray:
+    """np.unique of an int64 array by a sort (numpy 2's hashing np.unique is ≈5× slower on ids)."""
+    ids = np.sort(ids)
+    return ids[np.concatenate(([True], ids[1:] != ids[:-1]))] if len(ids) else ids
 
 
 def check_g2o(path: str) -> G2oSummary:

@@ -168,10 +168,9 @@ def elements(rows: Rows) -> np.ndarray:
 def information(rows: Rows) -> np.ndarray:
     """Information matrices of a record's rows in GTSAM's tangent order, (N, n, n)."""
     rec = RECORDS[rows.tag]
-    info = upper_to_symmetric(rows.values[:, len(rec.values):], rec.info_dim)
-    if rec.tag == "EDGE_SE3:QUAT":  # readG2o's permutation [t, R] → [ω, v]
-        info = info[:, _SE3_INFO_ORDER][:, :, _SE3_INFO_ORDER]
-    return info
+    # readG2o permutes EDGE_SE3:QUAT information [t, R] → [ω, v]
+    order = _SE3_INFO_ORDER if rec.tag == "EDGE_SE3:QUAT" else None
+    return upper_to_symmetric(rows.values[:, len(rec.values):], rec.info_dim, order)
 
 
 # --------------------------------------------------------------------------- #
