@@ -40,10 +40,10 @@ So a vertex becomes ``Similarity3(sim3.exp(v))`` and is written as
 ``sim3.log(X.matrix())``; we use the exact exp/log of :mod:`lie_factors.sim3`
 (g2o's own ``Sim3(Vector7)`` treats |σ| < 1e-5 as σ = 0 in W, which moves t by
 up to |σ|/2 relative).  :mod:`lie_factors.sim3` is numba code: it is imported
-only when a Sim(3) record is converted, so the input check of a small file stays free of numba.
-The vertex's four camera values (focal lengths and principal point, unused by
-pose graphs) are checked for being numbers and dropped; we write g2o's
-defaults ``1 1 0 0``.
+only when a Sim(3) record is converted, so the input check of a small file
+stays free of numba.  The vertex's four camera values (focal lengths and
+principal point, unused by pose graphs) are checked for being numbers and
+dropped; we write g2o's defaults ``1 1 0 0``.
 """
 
 from __future__ import annotations

@@ -14,6 +14,13 @@ def _is_a_directory(path: str) -> PoseGraphError:
     return PoseGraphError(f"{path}: is a directory, expected a g2o file")
 
 
+def _unreadable(path: str, exc: OSError) -> PoseGraphError:
+    """The one-line error of a file that cannot be opened or read."""
+    if isinstance(exc, IsADirectoryError):
+        return _is_a_directory(path)
+    return PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})")
+
+
 def resolve_dataset(name: str) -> str:
     """Return a readable file path for ``name``: an existing path, else a GTSAM example.
 
@@ -42,10 +49,8 @@ def read_bytes(path: str) -> bytes:
     try:
         with open(path, "rb") as fh:
             return fh.read()
-    except IsADirectoryError:
-        raise _is_a_directory(path) from None
     except OSError as exc:
-        raise PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        raise _unreadable(path, exc) from None
 
 
 def map_bytes(path: str) -> mmap.mmap | bytes:
@@ -59,10 +64,8 @@ def map_bytes(path: str) -> mmap.mmap | bytes:
         with open(path, "rb") as fh:
             try:
                 return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-            except (ValueError, OSError):
+            except (ValueError, OSError):  # empty, or not a mappable file
                 pass
-    except IsADirectoryError:
-        raise _is_a_directory(path) from None
     except OSError as exc:
-        raise PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        raise _unreadable(path, exc) from None
     return read_bytes(path)
