@@ -5,13 +5,15 @@ the CLI in a subprocess (exit status 2, one stderr line, no traceback, no partly
 Properties checked on every generated file:
 * ``load`` either succeeds or raises PoseGraphError with a one-line message (nothing else escapes:
   no traceback, no crash inside GTSAM — GTSAM only ever sees checked files);
-* the vectorized parse and the exact line-by-line parse agree (same rows, or the same error);
+* the vectorized parse and the exact line-by-line parse agree (same rows, or the same error), and the
+  numba scan reads the same rows or gives up;
 * a successful load has exactly the factors and variables the file's lines describe.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -114,6 +116,14 @@ def _check_one(tmp_path: Path, content: bytes) -> None:
                          for t, r in fast[0].items()}
             assert fast_rows == slow_rows
             assert fast[1] == slow[1] and fast[2] == slow[2]  # comments, fragile lines
+    # 1b. the numba scan takes only files the exact parse accepts, and reads the same rows.
+    scanned = parse.scan_parse(content)
+    if scanned is not None:
+        assert slow_err is None, slow_err
+        scan_rows = {t: (r.ids.tolist(), r.values.tolist(), r.lines.tolist())
+                     for t, r in scanned[0].items()}
+        assert scan_rows == slow_rows
+        assert scanned[1] == slow[1] and scanned[2] == slow[2]
     # 2. load: success with the right sizes, or one clear line.
     try:
         pg = P.load(path)
@@ -212,6 +222,18 @@ def test_fast_and_slow_paths_agree_on_clean_files(tmp_path):
         for tag in slow[0]:
             np.testing.assert_array_equal(fast[0][tag].ids, slow[0][tag].ids)
             np.testing.assert_array_equal(fast[0][tag].values, slow[0][tag].values)
+
+
+def test_ids_at_the_56_bit_limit_fast_and_slow_agree():
+    """2^56 − 1 is the largest id; 2^56 and the next integers (2^56 as floats) are refused by both parses."""
+    ok = b"VERTEX_SE2 72057594037927935 0 0 0\n"
+    assert parse.fast_parse("x", ok)[0]["VERTEX_SE2"].ids.tolist() == [[2 ** 56 - 1]]
+    for i in (2 ** 56, 2 ** 56 + 1, 2 ** 56 + 4, 2 ** 56 + 8, 2 ** 57 - 1, 2 ** 57):
+        data = b"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 %d 0 0 0\n" % i
+        message = f"x:2: field 2: id {i} is larger than 2^56 - 1"
+        for fn in (parse.fast_parse, parse.slow_parse):
+            with pytest.raises(PoseGraphError, match=re.escape(message)):
+                fn("x", data)
 
 
 def test_fragile_vertex_value_does_not_cost_edges(tmp_path):

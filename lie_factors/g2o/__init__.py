@@ -4,8 +4,9 @@
   (:mod:`.dataset`);
 * :func:`check_g2o` — our own check of every line, so a bad file gives
   ``file:line: what was expected`` instead of GTSAM silently skipping lines or
-  reading garbage; vectorized (lines grouped by tag, numbers parsed by numpy)
-  (:mod:`.check`, parsing in :mod:`.parse`);
+  reading garbage (:mod:`.check`); the bytes become typed arrays by a numba
+  scan (:mod:`.scan`, numbers by :mod:`.strtod`) or, for small files in a
+  process without numba, by numpy (lines grouped by tag) (:mod:`.parse`);
 * :func:`read_g2o` — ``gtsam.readG2o`` on a checked file, plus the records
   GTSAM's reader skips (``LANDMARK2``, Sim(3)) as GTSAM-native factors;
   :func:`read_arrays` — a pose graph as arrays, no GTSAM object (:mod:`.read`);
@@ -18,10 +19,12 @@ check of its rows.  How a record's numbers become GTSAM's elements,
 information matrices and keys (and the Sim(3) derivation) is
 :mod:`.conventions`.
 
-Imports inside the package point one way: ``records`` → ``parse`` → ``check``
-(with ``dataset``) → ``read``; ``records`` → ``conventions`` → ``read``,
-``write``.  Nothing on the check's path imports numba: :mod:`lie_factors.sim3`
-is imported only when a Sim(3) record is converted.
+Imports inside the package point one way: ``records`` → ``strtod`` → ``scan``
+→ ``parse`` (with ``dataset``) → ``check`` → ``read``; ``records`` →
+``conventions`` → ``read``, ``write``.  The check of a file under
+:data:`~lie_factors.g2o.parse.SCAN_MIN_BYTES` in a process that has not loaded
+numba imports no numba (the scan is imported only where it pays), and
+:mod:`lie_factors.sim3` is imported only when a Sim(3) record is converted.
 """
 
 from __future__ import annotations

@@ -40,10 +40,10 @@ So a vertex becomes ``Similarity3(sim3.exp(v))`` and is written as
 ``sim3.log(X.matrix())``; we use the exact exp/log of :mod:`lie_factors.sim3`
 (g2o's own ``Sim3(Vector7)`` treats |σ| < 1e-5 as σ = 0 in W, which moves t by
 up to |σ|/2 relative).  :mod:`lie_factors.sim3` is numba code: it is imported
-only when a Sim(3) record is converted, so the input check stays free of numba.
-The vertex's four camera values (focal lengths and principal point, unused by
-pose graphs) are checked for being numbers and dropped; we write g2o's
-defaults ``1 1 0 0``.
+only when a Sim(3) record is converted, so the input check of a small file
+stays free of numba.  The vertex's four camera values (focal lengths and
+principal point, unused by pose graphs) are checked for being numbers and
+dropped; we write g2o's defaults ``1 1 0 0``.
 """
 
 from __future__ import annotations
@@ -168,10 +168,9 @@ def elements(rows: Rows) -> np.ndarray:
 def information(rows: Rows) -> np.ndarray:
     """Information matrices of a record's rows in GTSAM's tangent order, (N, n, n)."""
     rec = RECORDS[rows.tag]
-    info = upper_to_symmetric(rows.values[:, len(rec.values):], rec.info_dim)
-    if rec.tag == "EDGE_SE3:QUAT":  # readG2o's permutation [t, R] → [ω, v]
-        info = info[:, _SE3_INFO_ORDER][:, :, _SE3_INFO_ORDER]
-    return info
+    # readG2o permutes EDGE_SE3:QUAT information [t, R] → [ω, v]
+    order = _SE3_INFO_ORDER if rec.tag == "EDGE_SE3:QUAT" else None
+    return upper_to_symmetric(rows.values[:, len(rec.values):], rec.info_dim, order)
 
 
 # --------------------------------------------------------------------------- #

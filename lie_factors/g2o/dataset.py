@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mmap
 import os
 
 import gtsam
@@ -11,6 +12,13 @@ from ..errors import PoseGraphError
 
 def _is_a_directory(path: str) -> PoseGraphError:
     return PoseGraphError(f"{path}: is a directory, expected a g2o file")
+
+
+def _unreadable(path: str, exc: OSError) -> PoseGraphError:
+    """The one-line error of a file that cannot be opened or read."""
+    if isinstance(exc, IsADirectoryError):
+        return _is_a_directory(path)
+    return PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})")
 
 
 def resolve_dataset(name: str) -> str:
@@ -41,7 +49,23 @@ def read_bytes(path: str) -> bytes:
     try:
         with open(path, "rb") as fh:
             return fh.read()
-    except IsADirectoryError:
-        raise _is_a_directory(path) from None
     except OSError as exc:
-        raise PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        raise _unreadable(path, exc) from None
+
+
+def map_bytes(path: str) -> mmap.mmap | bytes:
+    """The whole file as a read-only memory map: its pages are the page cache's, read in place.
+
+    No copy of the file is made (reading it would allocate and fill as many
+    bytes again).  A file that cannot be mapped (empty, a pipe, ...) is read:
+    :func:`read_bytes`.  :class:`PoseGraphError` (one line) if it cannot be opened.
+    """
+    try:
+        with open(path, "rb") as fh:
+            try:
+                return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+            except (ValueError, OSError):  # empty, or not a mappable file
+                pass
+    except OSError as exc:
+        raise _unreadable(path, exc) from None
+    return read_bytes(path)

@@ -102,14 +102,20 @@ def first_true(mask: np.ndarray) -> int | None:
     return int(idx[0]) if idx.size else None
 
 
-def upper_to_symmetric(values: np.ndarray, n: int) -> np.ndarray:
-    """Row-major upper triangles, shape (..., n(n+1)/2) → symmetric (..., n, n)."""
-    values = np.asarray(values, dtype=float)
-    M = np.zeros(values.shape[:-1] + (n, n))
+def upper_to_symmetric(values: np.ndarray, n: int, order: np.ndarray | None = None) -> np.ndarray:
+    """Row-major upper triangles, shape (..., n(n+1)/2) → symmetric (..., n, n).
+
+    ``order`` (n,): rows and columns taken in that order (M[order][:, order]).
+    One gather of whole rows: writing the n² entries one strided pass each
+    streams the (..., n, n) array through memory n² times.
+    """
+    index = np.zeros((n, n), dtype=np.intp)
     iu = np.triu_indices(n)
-    M[..., iu[0], iu[1]] = values
-    M[..., iu[1], iu[0]] = values
-    return M
+    index[iu] = np.arange(len(iu[0]))
+    index[iu[1], iu[0]] = index[iu]
+    if order is not None:
+        index = index[np.ix_(order, order)]
+    return np.take(np.asarray(values, dtype=float), index, axis=-1)
 
 
 # --------------------------------------------------------------------------- #
@@ -126,9 +132,9 @@ def _check_info(first: int, n: int, what: str = "information matrix") -> RowChec
     m = n * (n + 1) // 2
 
     def check(rows: Rows):
-        M = upper_to_symmetric(rows.values[:, first:first + m], n)
-        eig_min = np.linalg.eigvalsh(M)[:, 0]
-        scale = np.abs(M).reshape(len(M), -1).max(axis=1)
+        upper = rows.values[:, first:first + m]
+        eig_min = np.linalg.eigvalsh(upper_to_symmetric(upper, n))[:, 0]
+        scale = np.abs(upper).max(axis=1)  # the largest |entry| of M: its upper triangle holds them all
         bad = first_true(~(eig_min > INFO_REL_EIG * scale))
         if bad is not None:
             yield bad, (f"{what} is not positive definite "
