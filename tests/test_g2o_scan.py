@@ -19,7 +19,7 @@ import pytest
 
 from lie_factors import g2o
 from lie_factors.errors import PoseGraphError
-from lie_factors.g2o import dataset, parse
+from lie_factors.g2o import parse
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATOR = ROOT / "benchmarks" / "generate_posegraph.py"
@@ -251,16 +251,16 @@ def test_every_refusal_names_the_same_line(base, monkeypatch):
 
 # --------------------------------------------------------------------------- files on disk
 
-def test_parse_file_maps_large_files(tmp_path, monkeypatch):
-    """Files of SCAN_MIN_BYTES and more are memory-mapped and scanned; a refusal is worded as before."""
-    mapped = []
-    real = dataset.map_bytes
+def test_parse_file_scans_large_files(tmp_path, monkeypatch):
+    """Files of SCAN_MIN_BYTES and more are scanned; a refusal is worded as before."""
+    scanned = []
+    real = parse.scan_parse
 
-    def spy(path):
-        mapped.append(path)
-        return real(path)
+    def spy(data):
+        scanned.append(len(data))
+        return real(data)
 
-    monkeypatch.setattr(parse, "map_bytes", spy)
+    monkeypatch.setattr(parse, "scan_parse", spy)
     monkeypatch.setattr(parse, "SCAN_MIN_BYTES", 64)
     good = tmp_path / "good.g2o"
     text = "\n".join(_bases()["3d"]) + "\n"
@@ -272,20 +272,17 @@ def test_parse_file_maps_large_files(tmp_path, monkeypatch):
         parse.parse_file(str(bad))
     assert str(info.value) == _outcome(parse.slow_parse, "bad.g2o", bad.read_bytes())[1]
     assert "bad.g2o:4: field 4 ('1e400') is not finite" in str(info.value)
-    small = tmp_path / "small.g2o"
-    small.write_text("VERTEX_SE2 0 0 0 0\n")
-    parse.parse_file(str(small))
-    assert mapped == [str(good), str(bad)]
+    assert scanned == [len(text), len(bad.read_bytes())]
 
 
-def test_map_bytes_of_an_empty_file_and_a_directory(tmp_path):
+def test_parse_file_of_an_empty_file_a_directory_and_a_missing_file(tmp_path):
     empty = tmp_path / "empty.g2o"
     empty.write_bytes(b"")
-    assert dataset.map_bytes(str(empty)) == b""
+    parse.parse_file(str(empty))
     with pytest.raises(PoseGraphError, match="is a directory"):
-        dataset.map_bytes(str(tmp_path))
+        parse.parse_file(str(tmp_path))
     with pytest.raises(PoseGraphError, match="cannot read"):
-        dataset.map_bytes(str(tmp_path / "missing.g2o"))
+        parse.parse_file(str(tmp_path / "missing.g2o"))
 
 
 def test_large_file_check_scans_small_file_check_stays_numpy(tmp_path):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import mmap
 import os
 
 import gtsam
@@ -51,21 +50,3 @@ def read_bytes(path: str) -> bytes:
             return fh.read()
     except OSError as exc:
         raise _unreadable(path, exc) from None
-
-
-def map_bytes(path: str) -> mmap.mmap | bytes:
-    """The whole file as a read-only memory map: its pages are the page cache's, read in place.
-
-    No copy of the file is made (reading it would allocate and fill as many
-    bytes again).  A file that cannot be mapped (empty, a pipe, ...) is read:
-    :func:`read_bytes`.  :class:`PoseGraphError` (one line) if it cannot be opened.
-    """
-    try:
-        with open(path, "rb") as fh:
-            try:
-                return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-            except (ValueError, OSError):  # empty, or not a mappable file
-                pass
-    except OSError as exc:
-        raise _unreadable(path, exc) from None
-    return read_bytes(path)

@@ -37,7 +37,7 @@ import sys
 import numpy as np
 
 from ..errors import PoseGraphError
-from .dataset import map_bytes, read_bytes
+from .dataset import read_bytes
 from .records import MAX_ID, RECORDS, Record, Rows
 
 _NUMBER_CHARS = b"0123456789+-.eE"
@@ -425,7 +425,7 @@ SCAN_MIN_BYTES = 8 << 20
 def parse(name: str, data) -> tuple[dict[str, Rows], list[int], list[int]]:
     """(rows by tag, comment lines, fragile 2-D lines) of ``data``; ``name`` heads the error messages.
 
-    ``data``: the file's bytes, or a memory map of them (:func:`parse_file`).
+    ``data``: the file's bytes.
     The numba scan when it pays (numba already loaded, or at least
     :data:`SCAN_MIN_BYTES`: smaller files are checked without importing
     numba); else, or where it gives up, the vectorized parse, or the exact one
@@ -437,7 +437,6 @@ def parse(name: str, data) -> tuple[dict[str, Rows], list[int], list[int]]:
     if (len(data) >= SCAN_MIN_BYTES or "numba" in sys.modules) and sys.byteorder == "little":
         parsed = scan_parse(data)
     if parsed is None:
-        data = bytes(data)  # the numpy and exact parses split bytes (a copy of a memory map)
         parsed = fast_parse(name, data)
         if parsed is None:
             parsed = slow_parse(name, data)
@@ -445,10 +444,9 @@ def parse(name: str, data) -> tuple[dict[str, Rows], list[int], list[int]]:
 
 
 def parse_file(path: str) -> tuple[dict[str, Rows], list[int], list[int]]:
-    """:func:`parse` of the file at ``path``; a file the scan reads surely is memory-mapped, not copied."""
-    try:
-        size = os.stat(path).st_size
-    except OSError:
-        size = 0  # read_bytes words the problem
-    data = map_bytes(path) if size >= SCAN_MIN_BYTES else read_bytes(path)
-    return parse(os.path.basename(path), data)
+    """:func:`parse` of the file at ``path``, read whole into memory once.
+
+    (Not memory-mapped: a file truncated by another process while mapped would
+    kill this one with SIGBUS; a read costs the same resident memory.)
+    """
+    return parse(os.path.basename(path), read_bytes(path))
