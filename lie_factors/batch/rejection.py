@@ -1,29 +1,34 @@
-"""False loop closures rejected in three stages: consistency, GNC, and a final χ² check.
+"""False loop closures rejected in three stages: consistency, GNC, and a final check.
 
 1. **Consistency** (:func:`lie_factors.batch.screening.screen_closures`): the
    odometry gate and pairwise consistency set aside the closures that
-   contradict the odometry or the other closures; they enter GNC as known
-   outliers.
+   contradict the odometry or the other closures on short cycles; they enter
+   GNC as known outliers.
 2. **GNC** (:func:`lie_factors.batch.gnc.gnc_optimize`, or GTSAM's own): the
-   odometry and the priors are known inliers; GNC weighs the closures the first
-   stage kept.
-3. **Final check**, at GNC's solution:
+   odometry and the priors are known inliers, and the first solve uses them
+   alone (``first_solve_known_inliers``), so GNC does not start from a map the
+   remaining false closures have bent.
+3. **Final check**, at GNC's solution, on groups of closures whose ends lie
+   within :data:`GROUP_WINDOW` poses of each other (a run of closures between
+   the same two places), all at χ² probability ``group_probability``:
 
-   * every loop closure is tested against its own inlier threshold
-     c̄ = ½·χ²_n(0.99) (GNC's).  A rejected closure whose error passes is
-     re-admitted (the first stage judges on first-order cycle covariances, and
-     can be wrong where the odometry's noise model is far from its real noise);
-     an accepted one whose error fails is dropped;
-   * the accepted closures, in groups of closures whose ends lie within
-     :data:`GROUP_WINDOW` poses of each other (a run of closures between the
-     same two places), get the leave-group-out test
-     (:func:`lie_factors.batch.leave_out.leave_out_chi2`) at ``probability``: a
-     group that the rest of the graph contradicts is dropped, even if it bent
-     the map until its own residuals looked small — the case GNC misses.
+   * an accepted closure whose own residual exceeds ½·χ²_n(``final_probability``)
+     is dropped;
+   * an accepted group the rest of the graph contradicts is dropped: the
+     leave-group-out test (:func:`lie_factors.batch.leave_out.leave_out_chi2`),
+     which sees a group that bent the map until its own residuals looked small
+     — the case GNC misses;
+   * a group GNC rejected comes back if it passes the innovation test at the
+     solution, or, failing that, the likelihood-ratio test: LM re-solves with
+     it and the whole cost may rise by no more than the χ² quantile (at most
+     :data:`MAX_TRIALS` groups).  GNC restarts every solve from the initial
+     values, and on a graph with much drift it can end where a stretch of true
+     closures does not fit.  Closures the first stage rejected are not
+     reconsidered: a short cycle is stronger evidence than these tests have
+     where the noise models are loose.
 
-   If anything changed, LM re-solves from the solution with the new inlier set
-   and the check runs again (at most :data:`MAX_ROUNDS` times).  A group
-   dropped by the second test is not re-admitted by the first.
+   After each change LM re-solves from the solution and the check runs again
+   (at most :data:`MAX_ROUNDS` times).  A dropped group is never re-admitted.
 
 Each rejected closure is reported with the stage that decided it.
 """
@@ -151,7 +156,7 @@ def reject_false_closures(graph: PoseGraph, run_gnc: Callable[[GncParams], GncRe
             drop = lc[accepted & (f > c)]
             final.update(drop.tolist())
             if drop.size == 0:
-                drop, back = _group_tests(graph, poses(values), weights, lc, final, group_probability)
+                drop, back = _group_tests(graph, poses(values), weights, lc, final, stage, group_probability)
                 final.update(drop.tolist())
             if back.size == 0 and drop.size == 0:
                 return
@@ -197,11 +202,11 @@ def reject_false_closures(graph: PoseGraph, run_gnc: Callable[[GncParams], GncRe
 
 def _trial_groups(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, stage: dict,
                   probability: float) -> list:
-    """Groups of closures rejected by the clique or by GNC, most plausible first (innovation χ²
-    over its threshold), at most :data:`MAX_TRIALS`, none more than :data:`TRIAL_RATIO` over."""
+    """Groups of closures GNC rejected, most plausible first (innovation χ² over its threshold),
+    at most :data:`MAX_TRIALS`, none more than :data:`TRIAL_RATIO` over."""
     from .leave_out import leave_out_chi2
 
-    candidates = np.array(sorted(e for e, s in stage.items() if s in ("clique", "gnc") and weights[e] < 0.5),
+    candidates = np.array(sorted(e for e, s in stage.items() if s == "gnc" and weights[e] < 0.5),
                           dtype=np.int64)
     groups = closure_groups(graph, candidates)
     if not groups:
@@ -214,13 +219,16 @@ def _trial_groups(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, stage: d
 
 
 def _group_tests(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, lc: np.ndarray, final: set,
-                 probability: float) -> tuple[np.ndarray, np.ndarray]:
+                 stage: dict, probability: float) -> tuple[np.ndarray, np.ndarray]:
     """(drop, back): the accepted closures whose group fails the leave-group-out test, and the
-    rejected ones (except those in ``final``) whose group passes the innovation test."""
+    closures GNC rejected (except those in ``final``) whose group passes the innovation test."""
     from .leave_out import leave_out_chi2
 
     accepted = lc[weights[lc] >= 0.5]
-    rejected = lc[(weights[lc] < 0.5) & ~np.isin(lc, list(final))]
+    # Only GNC's rejections are reconsidered: the first stage rejects on short cycles, stronger
+    # evidence than this test has where the noise models are loose.
+    rejected = np.array([e for e in lc[weights[lc] < 0.5].tolist() if stage.get(e) == "gnc" and e not in final],
+                        dtype=np.int64)
     inside = closure_groups(graph, accepted)
     outside = closure_groups(graph, rejected)
     groups = inside + outside
