@@ -39,6 +39,22 @@ def _random_pose(rng, is3d: bool, translation_scale: float):
     return gtsam.Pose2(t[0], t[1], rng.uniform(-np.pi, np.pi))
 
 
+def _copy(between: gtsam.NonlinearFactorGraph):
+    """(a copy of ``between``, its edges as sorted key pairs, the noise models a planted closure
+    draws from: the loop closures', or every edge's if there is none)."""
+    graph = gtsam.NonlinearFactorGraph()
+    existing, lc, every = set(), [], []
+    for k in range(between.size()):
+        f = between.at(k)
+        graph.add(f)
+        i, j = f.keys()
+        existing.add((min(i, j), max(i, j)))
+        every.append(f.noiseModel())
+        if is_loop_closure(i, j):
+            lc.append(f.noiseModel())
+    return graph, existing, lc or every
+
+
 def plant_false_loop_closures(between: gtsam.NonlinearFactorGraph, keys: list[int], count: int,
                               seed: int, is3d: bool, translation_scale: float = 10.0):
     """A copy of ``between`` with ``count`` random false loop closures appended.
@@ -50,19 +66,7 @@ def plant_false_loop_closures(between: gtsam.NonlinearFactorGraph, keys: list[in
     a real one.  Returns ``(graph, outlier_slots)`` with the new edges' indices.
     """
     rng = np.random.default_rng(seed)
-    graph = gtsam.NonlinearFactorGraph()
-    existing = set()
-    noise_pool = []
-    lc = []
-    for k in range(between.size()):
-        f = between.at(k)
-        graph.add(f)
-        i, j = f.keys()
-        existing.add((min(i, j), max(i, j)))
-        noise_pool.append(f.noiseModel())
-        if is_loop_closure(i, j):
-            lc.append(f.noiseModel())
-    pool = lc or noise_pool
+    graph, existing, pool = _copy(between)
     Between = gtsam.BetweenFactorPose3 if is3d else gtsam.BetweenFactorPose2
     keys = list(keys)
     if len(keys) < 3 and count:
@@ -110,17 +114,7 @@ def plant_clustered_false_loop_closures(between: gtsam.NonlinearFactorGraph, key
     :func:`plant_false_loop_closures`.  Returns ``(graph, outlier_slots)``.
     """
     rng = np.random.default_rng(seed)
-    graph = gtsam.NonlinearFactorGraph()
-    existing, lc, pool = set(), [], []
-    for k in range(between.size()):
-        f = between.at(k)
-        graph.add(f)
-        i, j = f.keys()
-        existing.add((min(i, j), max(i, j)))
-        pool.append(f.noiseModel())
-        if is_loop_closure(i, j):
-            lc.append(f.noiseModel())
-    pool = lc or pool
+    graph, existing, pool = _copy(between)
     odo = _odometry_chain(between, keys)
     Between = gtsam.BetweenFactorPose3 if is3d else gtsam.BetweenFactorPose2
     Identity = gtsam.Pose3 if is3d else gtsam.Pose2
