@@ -62,9 +62,14 @@ TRIAL_RATIO = 4.0
 GROUP_WINDOW = 10
 
 
+#: At most this many closures per group (clusters of aliased closures are 3–10 long).
+GROUP_MAX = 10
+
+
 def closure_groups(graph: PoseGraph, closures: np.ndarray, window: int = GROUP_WINDOW) -> list:
     """``closures`` (edge indices) split into groups: connected components of the pairs whose
-    corresponding ends (oriented low → high id) are each within ``window`` poses."""
+    corresponding ends (oriented low → high id) are each within ``window`` poses, cut into
+    pieces of at most :data:`GROUP_MAX` along the chain."""
     from .consistency import near_pairs
 
     closures = np.asarray(closures, dtype=np.int64)
@@ -85,9 +90,14 @@ def closure_groups(graph: PoseGraph, closures: np.ndarray, window: int = GROUP_W
         if ri != rj:
             parent[max(ri, rj)] = min(ri, rj)
     roots = np.array([root(i) for i in range(closures.size)])
-    order = np.argsort(roots, kind="stable")
+    order = np.lexsort((ends.min(axis=1), roots))  # by component, then along the chain
     cuts = np.flatnonzero(np.diff(roots[order])) + 1
-    return [closures[g] for g in np.split(order, cuts)]
+    groups = []
+    for g in np.split(order, cuts):
+        # a long run (many passes over one place) in pieces of GROUP_MAX along the chain: the
+        # statistic's cost grows with the square of a group's size
+        groups += [closures[g[k:k + GROUP_MAX]] for k in range(0, g.size, GROUP_MAX)]
+    return groups
 
 
 @dataclass
