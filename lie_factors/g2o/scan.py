@@ -94,6 +94,28 @@ def _match_tag(buf, i, n, tags, tag_len, guess):
     return -1, j
 
 
+#: What a line is, for :func:`_line_start`.
+_BLANK, _COMMENT, _RECORD = 0, 1, 2
+
+
+@kernel
+def _line_start(buf, i, n):
+    """(kind, j, indented) of the line starting at ``buf[i]``: ``_BLANK`` (empty or whitespace
+    only; j is the next line's start), ``_COMMENT`` or ``_RECORD`` (j is its first non-blank
+    byte); ``indented``: it starts with whitespace.  Both passes walk lines with it."""
+    if buf[i] == 10:
+        return _BLANK, i + 1, False
+    indented = False
+    if _is_space(buf[i]):
+        indented = True
+        i = _skip_space(buf, i, n)
+        if i == n or buf[i] == 10:
+            return _BLANK, i + 1, True
+    if buf[i] == 35:  # '#'
+        return _COMMENT, i, indented
+    return _RECORD, i, indented
+
+
 @kernel
 def count_records(buf, tags, tag_len, family):
     """(status, lines per tag (T,), first line of each tag (T,), comment lines, indented) of ``buf``.
@@ -113,16 +135,11 @@ def count_records(buf, tags, tag_len, family):
     i = 0
     while i < n:
         lineno += 1
-        if buf[i] == 10:
-            i += 1
+        kind, i, ind = _line_start(buf, i, n)
+        indented = indented or ind
+        if kind == _BLANK:
             continue
-        if _is_space(buf[i]):
-            indented = True
-            i = _skip_space(buf, i, n)
-            if i == n or buf[i] == 10:
-                i += 1
-                continue
-        if buf[i] == 35:  # '#'
+        if kind == _COMMENT:
             comments += 1
             i = _line_end(buf, i, n) + 1
             continue
@@ -185,15 +202,10 @@ def fill_records(buf, tags, tag_len, nids, nvals, fragile_tag, ids, values, line
     i = 0
     while i < n:
         lineno += 1
-        if buf[i] == 10:
-            i += 1
+        kind, i, _ = _line_start(buf, i, n)
+        if kind == _BLANK:
             continue
-        if _is_space(buf[i]):
-            i = _skip_space(buf, i, n)
-            if i == n or buf[i] == 10:
-                i += 1
-                continue
-        if buf[i] == 35:
+        if kind == _COMMENT:
             comments[n_comments] = lineno
             n_comments += 1
             i = _line_end(buf, i, n) + 1
