@@ -25,6 +25,7 @@ import gtsam
 import numpy as np
 
 from .. import factors as _factors
+from ..arrays import sorted_unique
 from ..kernels import elements
 from ..kernels.jit import kernel
 from .loops import GroupLoops
@@ -139,7 +140,7 @@ class VarBlock:
 
     def number_keys(self) -> None:
         """``keys`` (sorted) and ``index`` (key → local element index) of every key a factor uses."""
-        ks = (np.unique(np.concatenate(self._key_arrays)) if self._key_arrays
+        ks = (sorted_unique(np.concatenate(self._key_arrays)) if self._key_arrays
               else np.zeros(0, dtype=np.uint64))
         self._sorted = ks
         self.keys = ks.tolist()

@@ -16,6 +16,7 @@ import numpy as np
 
 import gtsam
 
+from ..arrays import sorted_unique
 from ..errors import PoseGraphError
 from ..topology import components
 from .parse import parse_file
@@ -98,18 +99,12 @@ class G2oSummary:
             parts.append(r.ids[:, :2].ravel())
         for r in self.of_kind("observation"):
             parts.append(r.ids[:, 0])
-        return _sorted_unique(np.concatenate(parts)).tolist()
+        return sorted_unique(np.concatenate(parts)).tolist()
 
     @property
     def landmark_ids(self) -> list[int]:
         parts = [self.landmark_vertex_ids] + [r.ids[:, 1] for r in self.of_kind("observation")]
-        return _sorted_unique(np.concatenate(parts)).tolist()
-
-
-def _sorted_unique(ids: np.ndarray) -> np.ndarray:
-    """np.unique of an int64 array by a sort (numpy 2's hashing np.unique is ≈5× slower on ids)."""
-    ids = np.sort(ids)
-    return ids[np.concatenate(([True], ids[1:] != ids[:-1]))] if len(ids) else ids
+        return sorted_unique(np.concatenate(parts)).tolist()
 
 
 def check_g2o(path: str) -> G2oSummary:
