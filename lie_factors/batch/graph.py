@@ -69,8 +69,10 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(table (U, k), index (N,)): rows of ``a`` (N, k) float64 with ``a == table[index]`` bit
     for bit, equal rows sharing one entry (graphs with one information matrix for every edge
     keep one).  Rows are told apart by a hash of their bits, then compared."""
-    a = np.ascontiguousarray(a, dtype=np.float64)
     N = a.shape[0]
+    if N and a.strides[0] == 0:  # one row broadcast (the reader shares a matrix every edge states)
+        return np.array(a[:1], dtype=np.float64), np.zeros(N, dtype=np.int64)
+    a = np.ascontiguousarray(a, dtype=np.float64)
     if N == 0:
         return a[:0].copy(), np.zeros(0, dtype=np.int64)
     if np.array_equal(a.view(np.uint64), np.broadcast_to(a[:1].view(np.uint64), a.shape)):
