@@ -13,7 +13,7 @@ minimum over ``--repeats`` runs in which native, batch with 2 numba threads
 and batch with 1 numba thread alternate.  The numba JIT is warmed up first.
 
 Also printed: where the batch time goes per iteration (linearize / assemble /
-factorize + solve / retract / error), time per iteration per factor on
+factorize / solve / retract / error), time per iteration per factor on
 generated SE(3) chains of 1k … 100k factors, and (``--rss``) the peak RSS of
 ``lie-factors posegraph torus3D.g2o`` with ``--backend native`` and ``batch``.
 """

@@ -75,8 +75,9 @@ def run_once(path: str, backend: str, init: str, root: str = ROOT) -> tuple[floa
     env = dict(os.environ, PYTHONPATH=root)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
+    # cwd: `python -c` puts the working directory first on sys.path, before PYTHONPATH
     p = subprocess.run([sys.executable, "-c", CODE, "posegraph", path, "--backend", backend, "--init", init,
-                        "--json", "--quiet"], capture_output=True, text=True, env=env)
+                        "--json", "--quiet"], capture_output=True, text=True, env=env, cwd=root)
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)

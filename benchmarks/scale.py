@@ -32,7 +32,7 @@ error), the peak RSS of each stage, the sizes of H and of its factor, and the fl
 numeric factorization at CHOLMOD's own flop rate on this machine (a dense SPD matrix
 factored through the same code), the triangular solves at the machine's read bandwidth (two
 passes over L), and the per-factor steps at their cost on the ``--split-reference`` graph
-(small enough to stay in cache).
+(small enough to stay in cache), both on all numba threads.
 """
 
 from __future__ import annotations
@@ -117,7 +117,8 @@ def run_once(side: str, path: str) -> dict:
     load = load_average()
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    p = subprocess.run(argv, capture_output=True, text=True, env=env, preexec_fn=pre)
+    # cwd: `python -c` puts the working directory first on sys.path, before PYTHONPATH
+    p = subprocess.run(argv, capture_output=True, text=True, env=env, preexec_fn=pre, cwd=ROOT)
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
@@ -130,32 +131,32 @@ def run_once(side: str, path: str) -> dict:
             "timings": {k: record["timings"].get(k, 0.0) for k in ("imports",) + STAGES}}
 
 
-def measure(poses: int, repeats: int, settle_load: float) -> dict:
+def measure(poses: int, repeats: int, settle_load: float, sides: tuple = SIDES) -> dict:
     path = graph_path(poses)
     best: dict = {}
-    loads = [load_average()]
+    starts = []  # the load at the start of each run
     for r in range(repeats):
-        order = SIDES[r % 3:] + SIDES[:r % 3]
+        order = sides[r % len(sides):] + sides[:r % len(sides)]
         for side in order:
             settle(settle_load)
             run = run_once(side, path)
+            starts.append(run["load"])
             print(f"  {poses} {side}: {run['wall']:.2f} s, {run['rss']:.0f} MiB (load {run['load']:.2f})",
                   file=sys.stderr, flush=True)
             if side not in best or run["wall"] < best[side]["wall"]:
                 best[side] = run
-    loads.append(load_average())
     return {"poses": poses, "file_mb": os.path.getsize(path) / 1e6, "repeats": repeats, "best": best,
-            "load": loads}
+            "load": [min(starts), max(starts)]}
 
 
 def table(rows: list[dict]) -> str:
     out = ["| poses | factors | side | whole command s | CPU s | peak RSS MiB | read / init / setup / iterations s "
            "| iterations | s per iteration | µs per factor and iteration | final error | vs GTSAM script: wall, RSS "
-           "| runs | load |",
+           "| runs | load at the runs' starts |",
            "|---:|---:|---|---:|---:|---:|---|---:|---:|---:|---:|---|---:|---|"]
     for row in rows:
-        g = row["best"]["gtsam"]
-        for side in SIDES:
+        g = row["best"].get("gtsam")
+        for side in (s for s in SIDES if s in row["best"]):
             b = row["best"][side]
             t = b["timings"]
             per_it = t["iterations"] / max(b["iterations"], 1)
@@ -163,8 +164,9 @@ def table(rows: list[dict]) -> str:
                 f"| {row['poses']} | {b['factors']} | {side} | {b['wall']:.2f} | {b['cpu']:.2f} | {b['rss']:.0f} | "
                 + " / ".join(f"{t[k]:.2f}" for k in STAGES)
                 + f" | {b['iterations']} | {per_it:.3f} | {per_it / b['factors'] * 1e6:.2f} | {b['final_error']:.9g} | "
-                f"{b['wall'] / g['wall']:.2f}×, {b['rss'] / g['rss']:.2f}× | {row['repeats']} | "
-                f"{row['load'][0]:.2f} → {row['load'][1]:.2f} |")
+                + (f"{b['wall'] / g['wall']:.2f}×, {b['rss'] / g['rss']:.2f}×" if g else "–")
+                + f" | {row['repeats']} | "
+                f"{row['load'][0]:.2f}–{row['load'][1]:.2f} |")
     return "\n".join(out)
 
 
@@ -217,9 +219,11 @@ def split(poses: int) -> dict:
     import gtsam
 
     from lie_factors import memory
+    from lie_factors.app import run
     from lie_factors.app.run import PoseGraphRun
     from lie_factors.batch.cholmod import reuse_factor_memory
 
+    run.PARALLEL_MIN_WORK = 0  # every size on all numba threads, so that per-factor costs compare
     path = graph_path(poses)
     job = PoseGraphRun(path, "batch", 100, "auto", lazy_values=True)
     stages = {}
@@ -290,6 +294,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="10000,100000,1000000")
     ap.add_argument("--repeats", default="3,3,1", help="repeats per size (one number for all)")
+    ap.add_argument("--sides", default=",".join(SIDES), help="which of default, native, gtsam")
     ap.add_argument("--settle", type=float, default=0.0, help="wait before each run until the load is at most this")
     ap.add_argument("--split", type=int, default=0, metavar="N", help="the per-iteration split at N poses instead")
     ap.add_argument("--split-reference", type=int, default=10000, metavar="N")
@@ -311,9 +316,10 @@ def main(argv=None) -> int:
         reps = reps * len(sizes) if len(reps) == 1 else reps
         rows = []
         for poses, repeats in zip(sizes, reps):
-            rows.append(measure(poses, repeats, a.settle))
+            rows.append(measure(poses, repeats, a.settle, tuple(a.sides.split(","))))
             print(table(rows[-1:]), flush=True)
-        text = (f"python benchmarks/scale.py --sizes {a.sizes} --repeats {a.repeats} --settle {a.settle}\n\n"
+        text = (f"python benchmarks/scale.py --sizes {a.sizes} --repeats {a.repeats} --sides {a.sides} "
+                f"--settle {a.settle}\n\n"
                 + table(rows) + "\n")
         result = rows
     print(text)

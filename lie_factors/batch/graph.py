@@ -341,7 +341,10 @@ class Problem:
             missing = used[(pos >= len(keys)) | (keys[np.minimum(pos, len(keys) - 1)] != used)][0]
             raise BatchError(f"key {key_name(missing)} is used by a {spec.name} factor "
                              "but has no initial element")
-        block.X = np.ascontiguousarray(np.asarray(X, dtype=np.float64)[pos])
+        X = np.asarray(X, dtype=np.float64)
+        # every key used, in order: the start itself (never written in place), else its rows
+        block.X = X if len(pos) == len(X) and X.flags.c_contiguous and np.array_equal(pos, np.arange(len(X))) \
+            else np.ascontiguousarray(X[pos])
         for g in self.groups:
             g.finalize(block)
         self.managed = dict.fromkeys(block.keys, spec.name)
