@@ -1,7 +1,7 @@
 """The whole command, as a user runs it: ``lie-factors posegraph FILE --json``, default backend vs native.
 
     python benchmarks/posegraph_e2e.py [--repeats 2] [--datasets sphere2500,intel,...]
-        [--init auto] [--output FILE.md]
+        [--init auto] [--output FILE.md] [--reference DIR]
 
 Each run is a fresh process (``python -c 'from lie_factors.app import cli; cli.entry()'``,
 what the ``lie-factors`` script runs), timed from outside (wall seconds from
@@ -18,6 +18,10 @@ Graphs: the datasets in ``$LIE_FACTORS_DATA`` (default data/),
 ``w20000`` (GTSAM's ``w20000.txt``), and seeded SE(3) helix graphs with loop
 closures written by ``benchmarks/generate_posegraph.py`` (``helix20k``,
 ``helix100k``: 20 000 / 100 000 poses, a closure every 10th pose).
+
+``--reference DIR`` adds a third side, the default command of another checkout of the
+library (``PYTHONPATH=DIR``, e.g. ``git archive main | tar -x -C DIR``), alternated with the
+other two, and a second table: that checkout's default command against this one's.
 
 The targets checked per row: whole command ≤ native's (≥ 10k
 factors) or ≤ native's + 0.5 s (smaller graphs); optimization ≤ 0.7×
@@ -62,17 +66,18 @@ def dataset_path(name: str) -> str:
     return os.path.join(DATA, name + ".g2o")
 
 
-def run_once(path: str, backend: str, init: str) -> tuple[float, float, dict]:
+def run_once(path: str, backend: str, init: str, root: str = ROOT) -> tuple[float, float, dict]:
     """(wall seconds, peak RSS MiB, --json record) of one fresh ``lie-factors posegraph`` process.
 
     The record gains ``cpu``: the process's user + system CPU seconds (all its
     threads), a figure the machine's other users disturb less than wall time.
     """
-    env = dict(os.environ, PYTHONPATH=ROOT)
+    env = dict(os.environ, PYTHONPATH=root)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
+    # cwd: `python -c` puts the working directory first on sys.path, before PYTHONPATH
     p = subprocess.run([sys.executable, "-c", CODE, "posegraph", path, "--backend", backend, "--init", init,
-                        "--json", "--quiet"], capture_output=True, text=True, env=env)
+                        "--json", "--quiet"], capture_output=True, text=True, env=env, cwd=root)
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -89,16 +94,20 @@ def load_average() -> str:
         return " ".join(fh.read().split()[:3])
 
 
-def measure(name: str, repeats: int, init: str) -> dict:
+def measure(name: str, repeats: int, init: str, reference: str = "") -> dict:
     path = dataset_path(name)
     best: dict = {}
     loads = [load_average()]
+    sides = ("native", "batch", "reference") if reference else ("native", "batch")
     for r in range(repeats):
-        order = ("native", "batch") if r % 2 == 0 else ("batch", "native")
-        for backend in order:
-            wall, rss, rec = run_once(path, backend, init)
-            if backend not in best or wall < best[backend][0]:
-                best[backend] = (wall, rss, rec)
+        order = sides[r % len(sides):] + sides[:r % len(sides)]
+        for side in order:
+            if side == "reference":
+                wall, rss, rec = run_once(path, "batch", init, reference)
+            else:
+                wall, rss, rec = run_once(path, side, init)
+            if side not in best or wall < best[side][0]:
+                best[side] = (wall, rss, rec)
     loads.append(load_average())
     return {"name": name, "best": best, "load": loads}
 
@@ -135,20 +144,38 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def reference_table(rows: list[dict]) -> str:
+    """The default command of the reference checkout against this one's (best runs)."""
+    out = ["| graph | whole command, reference → this (s) | ratio | CPU (s) | optimization (s) | peak RSS (MiB) "
+           "| final error | load |",
+           "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        (wr, rr, r), (wb, rb, b) = row["best"]["reference"], row["best"]["batch"]
+        out.append(f"| {row['name']} | {wr:.2f} → {wb:.2f} | {wb / wr:.3f} | {r['cpu']:.2f} → {b['cpu']:.2f} | "
+                   f"{r['seconds']:.3f} → {b['seconds']:.3f} | {rr:.0f} → {rb:.0f} | "
+                   f"{r['final_error']:.9g} / {b['final_error']:.9g} | {row['load'][0]} → {row['load'][1]} |")
+    return "\n".join(out)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--datasets", default=DEFAULT)
     ap.add_argument("--init", default="auto")
     ap.add_argument("--output", default="", help="also write the table to this markdown file")
+    ap.add_argument("--reference", default="", metavar="DIR",
+                    help="another checkout whose default command runs alongside (PYTHONPATH=DIR)")
     args = ap.parse_args(argv)
     rows = []
     for name in args.datasets.split(","):
-        row = measure(name, args.repeats, args.init)
+        row = measure(name, args.repeats, args.init, args.reference)
         rows.append(row)
         print(table([row]).splitlines()[-1], flush=True)
     text = (f"python benchmarks/posegraph_e2e.py --repeats {args.repeats} --init {args.init} "
-            f"--datasets {args.datasets}\n\n" + table(rows) + "\n")
+            f"--datasets {args.datasets}" + (f" --reference {args.reference}" if args.reference else "")
+            + "\n\n" + table(rows) + "\n")
+    if args.reference:
+        text += "\n" + reference_table(rows) + "\n"
     print(text)
     if args.output:
         with open(args.output, "w") as fh:

@@ -287,6 +287,9 @@ def _shared_models(information: np.ndarray) -> list:
     """One ``noiseModel.Gaussian.Information`` per distinct information matrix, listed per edge."""
     import gtsam
 
+    if len(information) > 1 and information.strides[0] == 0:  # one matrix broadcast to every edge
+        model = gtsam.noiseModel.Gaussian.Information(information[0])
+        return [model] * len(information)
     flat = np.ascontiguousarray(information.reshape(len(information), -1))
     unique, first, inverse = np.unique(flat, axis=0, return_index=True, return_inverse=True)
     made = [gtsam.noiseModel.Gaussian.Information(information[k]) for k in first.tolist()]
@@ -303,6 +306,9 @@ def _elements(X, count: int, g: registry.GroupInfo, name: str) -> None:
 
 
 def _information(info, count: int, d: int, name: str) -> None:
+    if isinstance(info, np.ndarray) and info.ndim == 3 and len(info) > 1 and info.strides[0] == 0:
+        info = info[:1]  # one matrix broadcast to every edge: check it once
+        count = 1
     arr = _validate.square(info, d, name)
     if arr.shape != (count, d, d):
         raise ValueError(f"{name}: expected shape ({count}, {d}, {d}), got {arr.shape}")

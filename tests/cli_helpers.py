@@ -21,11 +21,14 @@ def last_json(out: str) -> dict:
 
 
 def assert_one_line_error(status, out, err, *fragments):
-    """A user error: status 2 and one line ``lie-factors: error: …`` holding every fragment, no traceback."""
+    """A user error: status 2 and one line ``lie-factors: error: …`` holding every fragment, no
+    traceback; before it stderr holds at most the progress lines of the stages done
+    (``[elapsed, memory] stage``)."""
     assert status == 2
     lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("lie-factors: error: ")
+    assert lines and all(line.startswith("[") and "] " in line for line in lines[:-1]), err
+    error = lines[-1]
+    assert error.startswith("lie-factors: error: ")
     assert "Traceback" not in err
     for f in fragments:
-        assert f in lines[0], lines[0]
+        assert f in error, error

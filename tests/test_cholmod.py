@@ -156,3 +156,43 @@ def test_an_unexpected_library_layout_is_not_called_directly():
     assert cholmod._check_layout(common)
     lib.cholmod_finish(common)
     assert not cholmod._check_layout(ctypes.create_string_buffer(cholmod._COMMON_BYTES))
+
+
+def test_supernodal_values_are_ours_and_reused_within_the_scope():
+    """A supernodal factor's entries live in an array this module owns; inside
+    ``reuse_factor_memory`` the next factor that fits takes the released one (its pages are
+    touched once), outside it does not; the solutions are unaffected."""
+    if not cholmod.direct_available():
+        pytest.fail("CHOLMOD is not called directly here")
+    big = _lower(_random_spd(300, 0.01, seed=3, dense_rows=30))
+    small = _lower(_random_spd(200, 0.01, seed=4, dense_rows=20))
+
+    def factor(csc):
+        f = cholmod.Cholesky(csc[0], csc[1])
+        assert f.supernodal and f._L.contents.x == f._x.ctypes.data
+        f.factorize(csc[2])
+        return f
+
+    first = factor(big)
+    address = first._x.ctypes.data
+    first.free()
+    assert cholmod._Spare.array is None  # outside the scope: freed
+    with cholmod.reuse_factor_memory():
+        first = factor(big)
+        address = first._x.ctypes.data
+        first.free()
+        second = factor(small)  # fits in the released array
+        assert second._x.ctypes.data == address
+        n = len(small[0]) - 1
+        b = np.arange(1.0, n + 1.0)
+        A = np.zeros((n, n))
+        cols = np.repeat(np.arange(n), np.diff(small[0]))
+        A[small[1], cols] = small[2]
+        A = A + np.tril(A, -1).T
+        np.testing.assert_allclose(second.solve(b), np.linalg.solve(A, b), rtol=1e-10)
+        second.free()
+        spare = cholmod._Spare.array.size
+        third = factor(_lower(_random_spd(400, 0.01, seed=5, dense_rows=40)))  # too large: a new array
+        assert cholmod._Spare.array is None and third._x.size == third._L.contents.xsize > spare
+        third.free()
+    assert cholmod._Spare.array is None

@@ -95,6 +95,27 @@ def test_posegraph_gtsam_example_by_name(capsys):
     assert rec["poses"] == 2500 and rec["iterations"] == 1 and not rec["converged"]
 
 
+@pytest.mark.parametrize("backend", ["batch", "native"])
+def test_posegraph_progress_lines_per_stage_and_iteration(backend, tmp_path, capsys):
+    """Every stage and every iteration says on stderr how long the command has run and its memory."""
+    import re
+
+    out_file = tmp_path / "out.g2o"
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--backend", backend, "--output", str(out_file),
+                                "--json")
+    assert status == 0
+    stamp = r"\[ *(\d+\.\d\d) s, RSS \d+(?:\.\d\d)? [MG]iB, peak \d+(?:\.\d\d)? [MG]iB\]"
+    stages = [(m.group(2), float(m.group(1))) for m in re.finditer(stamp + r" (\w+(?: \w+)*)", err)]
+    assert [name for name, _ in stages] == ["read and checked", "initialized", "set up", "optimized", "wrote"]
+    iterations = [line for line in err.splitlines() if line.startswith("iter ")]
+    assert iterations and all(re.search(stamp + "$", line) for line in iterations)
+    elapsed = [t for _, t in stages]
+    assert elapsed == sorted(elapsed)
+    assert last_json(out)["iterations"] == len(iterations)
+    status, out, err = run_main(capsys, "posegraph", SMALL, "--backend", backend, "--quiet", "--json")
+    assert status == 0 and err == ""
+
+
 def test_posegraph_dropin_matches_native(capsys):
     recs = {}
     for backend in ("native", "dropin"):

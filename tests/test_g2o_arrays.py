@@ -121,6 +121,34 @@ def test_records_match_readg2o(tmp_path, is3d, seed):
         np.testing.assert_array_equal(a.vertices[n], at(int(key)).matrix())
 
 
+@pytest.mark.parametrize("is3d", [False, True], ids=["2d", "3d"])
+def test_one_information_matrix_for_every_edge_is_shared(tmp_path, is3d):
+    """Edges that all state one information matrix share it (a read-only broadcast), with readG2o's
+    numbers; the graph runs from it as from separate copies, and a second matrix on one edge
+    gives every edge its own again."""
+    rng = np.random.default_rng(4)
+    tag, dim = ("EDGE_SE3:QUAT", 6) if is3d else ("EDGE_SE2", 3)
+    info = _upper(_spd(rng, dim))
+    lines = []
+    for i in range(6):
+        lines.append(f"VERTEX_SE3:QUAT {i} {_nums(rng.normal(size=3))} {_nums(_quat(rng))}" if is3d
+                     else f"VERTEX_SE2 {i} {_nums(rng.normal(size=3))}")
+    for i, j in [(i, i + 1) for i in range(5)] + [(0, 3), (1, 5)]:
+        motion = f"{_nums(rng.normal(size=3))} {_nums(_quat(rng))}" if is3d else _nums(rng.normal(size=3))
+        lines.append(f"{tag} {i} {j} {motion} {info}")
+    path = tmp_path / "g.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    a, _ = _compare_with_readg2o(path, is3d)
+    assert a.information.strides[0] == 0 and not a.information.flags.writeable
+    shared = P.run(str(path), backend="batch")[0]
+    other = load(str(path))
+    other.graph.information = np.array(other.graph.information)  # separate copies
+    assert P.run(other, backend="batch")[0].final_error == shared.final_error
+    lines[-1] = lines[-1].rsplit(" ", 1)[0] + " 1e4"
+    path.write_text("\n".join(lines) + "\n")
+    assert g2o.read_arrays(g2o.check_g2o(str(path))).information.strides[0] != 0
+
+
 def test_edge_only_file(tmp_path):
     path = tmp_path / "g.g2o"
     path.write_text(_file_3d(np.random.default_rng(5), vertices=False))

@@ -298,3 +298,66 @@ def test_large_file_check_scans_small_file_check_stays_numpy(tmp_path):
     seen = [subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, env=env,
                            timeout=600, check=True).stdout.strip() for p in (big, small)]
     assert seen == ["True", "False"]
+
+
+# --------------------------------------------------------------------------- the check's refusals
+
+def _whole_file_refusals():
+    """Files every record of which parses, refused by a check of its records or of the graph."""
+    b = _bases()
+    se2 = "1 0 0 1 0 1"
+    se3 = " ".join(" ".join(["1"] + ["0"] * (5 - r)) for r in range(6))
+    v2 = ["VERTEX_SE2 0 0 0 0", "VERTEX_SE2 1 1 0 0"]
+    v3 = ["VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1", "VERTEX_SE3:QUAT 1 1 0 0 0 0 0 1"]
+    e3 = "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 " + se3
+    return {
+        "duplicate vertex": v2 + ["VERTEX_SE2 0 2 0 0", "EDGE_SE2 0 1 1 0 0 " + se2],
+        "duplicate landmark vertex": b["2d"] + ["VERTEX_XY 7 1 1"],
+        "duplicate offset": b["3d"] + ["PARAMS_SE3OFFSET 0 0 0 0 0 0 0 1"],
+        "self-loop": v2 + ["EDGE_SE2 1 1 1 0 0 " + se2],
+        "information 2-D": v2 + ["EDGE_SE2 0 1 1 0 0 1 0 0 -1 0 1"],
+        "information TORO order": v2 + ["EDGE_SE2 0 1 1 0 0 1 0 1 1 0 0"],
+        "information 3-D": v3 + ["EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 " + se3.replace("1", "-1", 1)],
+        "information Sim(3)": b["sim3"][:2] + ["EDGE_SIM3:EXPMAP 0 1 0 0 0 1 0 0 0 " + " ".join(["0"] * 28)],
+        "quaternion": ["VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0", v3[1], e3],
+        "landmark range": v2 + ["EDGE_SE2 0 1 1 0 0 " + se2, "LANDMARK 1 9 0 0 0.4 0 0.4"],
+        "bearing-range range": v2 + ["EDGE_SE2 0 1 1 0 0 " + se2, "BR 1 8 0.3 -2.0 0.05 0.1"],
+        "bearing-range deviation": v2 + ["EDGE_SE2 0 1 1 0 0 " + se2, "BR 1 8 0.3 2.0 0 0.1"],
+        "landmark covariance": v2 + ["EDGE_SE2 0 1 1 0 0 " + se2, "LANDMARK 1 9 1.5 -1 0.4 0 0.9"],
+        "log-scale": ["VERTEX_SIM3:EXPMAP 0 0 0 0 0 0 0 800 1 1 0 0"] + b["sim3"][1:],
+        "edge to a pose without vertex": v3 + ["EDGE_SE3:QUAT 0 2 1 0 0 0 0 0 1 " + se3],
+        "track without landmark vertex": v3 + [e3, "PARAMS_SE3OFFSET 0 0 0 0 0 0 0 1",
+                                               "EDGE_SE3_TRACKXYZ 0 3 0 4 1 2 1 0 0 1 0 1"],
+        "missing offset": v3 + [e3, "VERTEX_TRACKXYZ 3 4 1 2", "EDGE_SE3_TRACKXYZ 0 3 5 4 1 2 1 0 0 1 0 1"],
+        "offset not the identity": v3 + [e3, "VERTEX_TRACKXYZ 3 4 1 2", "PARAMS_SE3OFFSET 0 1 0 0 0 0 0 1",
+                                         "EDGE_SE3_TRACKXYZ 0 3 0 4 1 2 1 0 0 1 0 1"],
+        "not connected": v2 + ["VERTEX_SE2 2 0 0 0", "VERTEX_SE2 3 0 0 0", "EDGE_SE2 0 1 1 0 0 " + se2,
+                               "EDGE_SE2 2 3 1 0 0 " + se2],
+        "no edges": v2,
+        "empty": ["# nothing but a comment"],
+    }
+
+
+@pytest.mark.parametrize("case", sorted(_whole_file_refusals()))
+def test_every_check_refusal_is_the_same_with_the_scan(case, tmp_path, monkeypatch):
+    """check_g2o on files the scan reads: refused with the same line and words as when the numpy
+    or the exact parse reads them."""
+    path = tmp_path / "f.g2o"
+    path.write_text("\n".join(_whole_file_refusals()[case]) + "\n")
+    scanned = []
+    real = parse.scan_parse
+
+    def spy(data):
+        scanned.append(real(data))
+        return scanned[-1]
+
+    monkeypatch.setattr(parse, "SCAN_MIN_BYTES", 0)
+    monkeypatch.setattr(parse, "scan_parse", spy)
+    with pytest.raises(PoseGraphError) as now:
+        g2o.check_g2o(str(path))
+    assert scanned and scanned[-1] is not None  # the scan read the file
+    monkeypatch.setattr(parse, "scan_parse", lambda data: None)
+    with pytest.raises(PoseGraphError) as before:
+        g2o.check_g2o(str(path))
+    assert str(now.value) == str(before.value)
+    assert str(now.value).startswith("f.g2o")

@@ -220,8 +220,16 @@ def _run_posegraph(args) -> int:
 
     imports = time.perf_counter() - t
 
+    def progress_line(text: str) -> None:
+        """A progress line on stderr: elapsed seconds, memory, what is done."""
+        if not args.quiet:
+            from lie_factors import memory
+
+            print(f"[{time.perf_counter() - t:8.2f} s, {memory.describe()}] {text}", file=sys.stderr, flush=True)
+
     class Printer(pgm.RunEvents):
         def loaded(self, run):
+            progress_line(f"read and checked ({run.timings['read']:.2f} s)")
             pg = run.pg
             if args.incremental:
                 _say(args, f"{pg.describe()}; incremental (ISAM2, relinearize threshold "
@@ -235,6 +243,7 @@ def _run_posegraph(args) -> int:
                 _say(args, f"robust loss {run.robust} on {what}")
 
         def started(self, start):
+            progress_line(f"initialized: {start.method} ({start.seconds:.2f} s)")
             for method, reason in start.skipped:
                 _say(args, f"init {method} not applicable: {reason}")
             only = (" of the odometry edges and the prior only (loop closures left out under "
@@ -242,11 +251,16 @@ def _run_posegraph(args) -> int:
             _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{ENGINE_NOTES.get(start.engine, '')}"
                        f"{only} ({start.seconds:.3f} s)")
 
+        def set_up(self, run):
+            progress_line(f"set up ({run.timings['setup']:.2f} s)")
+
         def iteration(self, info):
             if not args.quiet:
+                from lie_factors import memory
                 from lie_factors.lm import format_iteration
 
-                print(format_iteration(info), file=sys.stderr, flush=True)
+                print(f"{format_iteration(info)}  [{time.perf_counter() - t:8.2f} s, {memory.describe()}]",
+                      file=sys.stderr, flush=True)
 
         def gnc_iteration(self, it, lam, cost, lm_iterations):
             if not args.quiet:
@@ -258,6 +272,8 @@ def _run_posegraph(args) -> int:
                 print(f"update {done}/{total}: {seconds:.3f} s", file=sys.stderr, flush=True)
 
         def optimized(self, run):
+            if not args.incremental:
+                progress_line(f"optimized ({run.timings.get('iterations', 0.0):.2f} s)")
             record = run.record
             if args.incremental:
                 r = run.replay
@@ -286,6 +302,7 @@ def _run_posegraph(args) -> int:
                            f"(+ {record.init_seconds:.3f} s initialization), {status}")
 
         def wrote(self, path):
+            progress_line(f"wrote {path}")
             _say(args, f"wrote {path}")
 
     if args.incremental:  # the online replay (ISAM2)

@@ -79,7 +79,11 @@ class RunEvents:
         """The file is read and checked (``run.pg``)."""
 
     def started(self, start: Initialization) -> None:
-        """The initial values are chosen; LM starts next."""
+        """The initial values are chosen; the optimizer is set up next."""
+
+    def set_up(self, run: "PoseGraphRun") -> None:
+        """The optimizer is set up (graph or problem, linear system, symbolic analysis:
+        ``run.timings["setup"]``); its iterations come next."""
 
     def iteration(self, info: IterationInfo) -> None:
         """One LM iteration done."""
@@ -210,6 +214,7 @@ class PoseGraphRun:
         loss = self.robust if self.gnc is None else None
         graph = build_graph(pg, backend, loss, self.robust_all)
         self.timings["setup"] = time.perf_counter() - t
+        self.events.set_up(self)
         start = self.start_values()
         if self.gnc is not None:
             self.record, self.result = _run_gnc(pg, graph, self.start, start, backend, self.max_iterations,
@@ -247,6 +252,7 @@ class PoseGraphRun:
                 numba.set_num_threads(1)
             self._opt = opt = BatchLevenbergMarquardt(problem, None, params)
             self.timings["setup"] = clock.seconds()
+            self.events.set_up(self)
             result = opt.optimize(self.events.iteration, values=not self.lazy_values)
         except BatchError as exc:
             raise PoseGraphError(f"batch backend: {exc}") from None
@@ -306,10 +312,13 @@ class PoseGraphRun:
 
     def execute(self) -> Record:
         """check → load → initialize → optimize → write; returns the record."""
+        from ..batch.cholmod import reuse_factor_memory
+
         self.check()
         self.load()
-        self.initialize()
-        self.optimize()
+        with reuse_factor_memory():  # the initializer's factor memory serves the optimizer's
+            self.initialize()
+            self.optimize()
         self.events.optimized(self)
         self.write()
         if isinstance(self.record, RunRecord):

@@ -25,6 +25,7 @@ import gtsam
 import numpy as np
 
 from .. import factors as _factors
+from ..arrays import sorted_unique
 from ..kernels import elements
 from ..kernels.jit import kernel
 from .loops import GroupLoops
@@ -68,8 +69,10 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(table (U, k), index (N,)): rows of ``a`` (N, k) float64 with ``a == table[index]`` bit
     for bit, equal rows sharing one entry (graphs with one information matrix for every edge
     keep one).  Rows are told apart by a hash of their bits, then compared."""
-    a = np.ascontiguousarray(a, dtype=np.float64)
     N = a.shape[0]
+    if N and a.strides[0] == 0:  # one row broadcast (the reader shares a matrix every edge states)
+        return np.array(a[:1], dtype=np.float64), np.zeros(N, dtype=np.int64)
+    a = np.ascontiguousarray(a, dtype=np.float64)
     if N == 0:
         return a[:0].copy(), np.zeros(0, dtype=np.int64)
     if np.array_equal(a.view(np.uint64), np.broadcast_to(a[:1].view(np.uint64), a.shape)):
@@ -139,7 +142,7 @@ class VarBlock:
 
     def number_keys(self) -> None:
         """``keys`` (sorted) and ``index`` (key → local element index) of every key a factor uses."""
-        ks = (np.unique(np.concatenate(self._key_arrays)) if self._key_arrays
+        ks = (sorted_unique(np.concatenate(self._key_arrays)) if self._key_arrays
               else np.zeros(0, dtype=np.uint64))
         self._sorted = ks
         self.keys = ks.tolist()
@@ -338,7 +341,10 @@ class Problem:
             missing = used[(pos >= len(keys)) | (keys[np.minimum(pos, len(keys) - 1)] != used)][0]
             raise BatchError(f"key {key_name(missing)} is used by a {spec.name} factor "
                              "but has no initial element")
-        block.X = np.ascontiguousarray(np.asarray(X, dtype=np.float64)[pos])
+        X = np.asarray(X, dtype=np.float64)
+        # every key used, in order: the start itself (never written in place), else its rows
+        block.X = X if len(pos) == len(X) and X.flags.c_contiguous and np.array_equal(pos, np.arange(len(X))) \
+            else np.ascontiguousarray(X[pos])
         for g in self.groups:
             g.finalize(block)
         self.managed = dict.fromkeys(block.keys, spec.name)

@@ -29,7 +29,8 @@ import time
 import numpy as np
 
 from ..kernels.jit import kernel
-from .cholmod import block_order
+from ..arrays import sorted_unique
+from .cholmod import order_blocks
 
 #: Factors per batch of :meth:`LinearSystem.linearize_assemble`: its buffer (8192 SE(3) factors:
 #: 5 MB) stays in cache between the linearization and the assembly that reads it.
@@ -58,15 +59,20 @@ class Pattern:
         np.cumsum(dims[:-1], out=self.offsets[1:]) if V > 1 else None
         self.n = int(dims.sum())
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        # The block pattern's lower triangle, by (column, row) variable; then by position.
+        lo, hi = np.minimum(pairs[:, 0], pairs[:, 1]), np.maximum(pairs[:, 0], pairs[:, 1])
+        codes = sorted_unique(np.concatenate([lo * V + hi, np.arange(V, dtype=np.int64) * (V + 1)]))
+        bcol, brow = np.divmod(codes, V)
         if order is None:
-            order = block_order(V, pairs[:, 0], pairs[:, 1])
+            colptr = np.zeros(V + 1, dtype=np.int64)
+            np.cumsum(np.bincount(bcol, minlength=V), out=colptr[1:])
+            order = order_blocks(colptr, brow)
         self.order = order = np.asarray(order, dtype=np.int64)
         self.position = np.empty(V, dtype=np.int64)
         self.position[order] = np.arange(V)
-        pa, pb = self.position[pairs[:, 0]], self.position[pairs[:, 1]]
-        diag = np.arange(V, dtype=np.int64)
+        pa, pb = self.position[bcol], self.position[brow]
         # Blocks by (column, row) position, row ≥ column: each column's diagonal block comes first.
-        codes = np.unique(np.concatenate([np.minimum(pa, pb) * V + np.maximum(pa, pb), diag * (V + 1)]))
+        codes = np.sort(np.minimum(pa, pb) * V + np.maximum(pa, pb))
         self._codes = codes
         bcol, brow = np.divmod(codes, V)
         first = np.searchsorted(bcol, np.arange(V + 1))

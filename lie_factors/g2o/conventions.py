@@ -54,7 +54,7 @@ import numpy as np
 
 import gtsam
 
-from .records import RECORDS, Rows, upper_to_symmetric
+from .records import RECORDS, Rows, same_rows, upper_to_symmetric
 
 
 def landmark_key(j: int) -> int:
@@ -166,11 +166,19 @@ def elements(rows: Rows) -> np.ndarray:
 
 
 def information(rows: Rows) -> np.ndarray:
-    """Information matrices of a record's rows in GTSAM's tangent order, (N, n, n)."""
+    """Information matrices of a record's rows in GTSAM's tangent order, (N, n, n).
+
+    Rows that all state the same matrix (the usual case) share it: the result is then one
+    (n, n) matrix broadcast to (N, n, n), read-only.
+    """
     rec = RECORDS[rows.tag]
     # readG2o permutes EDGE_SE3:QUAT information [t, R] → [ω, v]
     order = _SE3_INFO_ORDER if rec.tag == "EDGE_SE3:QUAT" else None
-    return upper_to_symmetric(rows.values[:, len(rec.values):], rec.info_dim, order)
+    upper = rows.values[:, len(rec.values):]
+    if len(upper) > 1 and same_rows(upper):
+        one = upper_to_symmetric(upper[:1], rec.info_dim, order)
+        return np.broadcast_to(one, (len(upper),) + one.shape[1:])
+    return upper_to_symmetric(upper, rec.info_dim, order)
 
 
 # --------------------------------------------------------------------------- #

@@ -129,7 +129,7 @@ def arrays_supported(summary: G2oSummary) -> bool:
     if any(RECORDS[t].kind not in ("pose", "between") for t in summary.rows):
         return False
     vertices = summary.pose_vertex_ids
-    return len(vertices) == 0 or len(vertices) == len(summary.pose_ids)
+    return len(vertices) == 0 or len(vertices) == len(summary.pose_id_array)
 
 
 def read_arrays(summary: G2oSummary) -> PoseGraph:
@@ -143,18 +143,27 @@ def read_arrays(summary: G2oSummary) -> PoseGraph:
     if not arrays_supported(summary):
         raise ValueError(f"{summary.path}: landmark records or poses without a vertex line: "
                          "use read_g2o")
-    keys = np.asarray(summary.pose_ids, dtype=np.int64)
+    keys = summary.pose_id_array
     edges = summary.of_kind("between")
-    lines = np.concatenate([r.lines for r in edges])
-    order = np.argsort(lines, kind="stable")  # GTSAM's factor order is the file's line order
-    edge_keys = np.concatenate([r.ids[:, :2] for r in edges])[order]
-    measured = np.concatenate([elements(r) for r in edges])[order]
-    info = np.concatenate([information(r) for r in edges])[order]
+    # GTSAM's factor order is the file's line order (one tag: the rows are in it already)
+    order = None if len(edges) == 1 else np.argsort(np.concatenate([r.lines for r in edges]), kind="stable")
+    edge_keys = _in_order([r.ids[:, :2] for r in edges], order)
+    measured = _in_order([elements(r) for r in edges], order)
+    info = _in_order([information(r) for r in edges], order)
+    lines = _in_order([r.lines for r in edges], order)
     vertices = None
     poses = summary.of_kind("pose")
     if poses:
         ids = np.concatenate([r.ids[:, 0] for r in poses])
-        X = np.concatenate([elements(r) for r in poses])
-        vertices = X[np.argsort(ids)]  # every pose has exactly one vertex (arrays_supported, check_g2o)
-    return PoseGraph(summary.group, keys, np.ascontiguousarray(edge_keys), measured, info,
-                     vertices, lines[order])
+        X = np.concatenate([elements(r) for r in poses]) if len(poses) > 1 else elements(poses[0])
+        # every pose has exactly one vertex (arrays_supported, check_g2o): sorted ids are the keys
+        vertices = X if np.all(ids[1:] > ids[:-1]) else X[np.argsort(ids)]
+    return PoseGraph(summary.group, keys, np.ascontiguousarray(edge_keys), measured, info, vertices, lines)
+
+
+def _in_order(parts: list, order: np.ndarray | None) -> np.ndarray:
+    """The parts concatenated, rows taken in ``order`` (None: as they are, one part not copied)."""
+    if order is None and len(parts) == 1:
+        return parts[0]
+    whole = np.concatenate(parts)
+    return whole if order is None else whole[order]

@@ -55,17 +55,14 @@ def _closest_rotation(M: np.ndarray) -> np.ndarray:
 def _relaxed(n, ii, jj, Rz, w) -> np.ndarray:
     """Rotations (n + 1, 3, 3) of the anchored edge list (anchor n, identity)."""
     N = n + 1
-    # H = Σ w (−e_i + R e_j)ᵀ(·) per row system: diagonal w on i and j (RᵀR = I), −w R at (i, j).
-    deg = np.bincount(ii, weights=w, minlength=N) + np.bincount(jj, weights=w, minlength=N)
-    deg[n] += 1.0  # the anchor's prior, precision 1
-    d = np.arange(3 * N)
-    r1, c1, v1 = sparse.lower_block_triplets(ii, jj, -w[:, None, None] * Rz, 3)
-    rows = np.concatenate([d, r1])
-    cols = np.concatenate([d, c1])
-    vals = np.concatenate([np.repeat(deg, 3), v1])
+    # Each edge's rows √w·(−r_i + R r_j): H has w on the diagonal blocks of i and j (RᵀR = I)
+    # and −w R at (i, j); the anchor's prior, precision 1, asks its rows to be e_k.
+    sw = np.sqrt(w)[:, None, None]
+    prior = np.zeros(3 * N)
+    prior[3 * n:] = 1.0
     rhs = np.zeros((3 * N, 3))
     rhs[3 * n:, :] = np.eye(3)  # anchor rows = e_k
-    X = sparse.solve(3 * N, rows, cols, vals, rhs)
+    X = sparse.solve_edges(N, ii, jj, -sw * np.eye(3), sw * Rz, prior, rhs)
     # Column k holds row k of every rotation: M_i[k, c] = X[3i + c, k].
     M = np.swapaxes(X.reshape(N, 3, 3), 1, 2)
     return _closest_rotation(M)

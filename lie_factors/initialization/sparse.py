@@ -2,7 +2,9 @@
 
 A symmetric matrix is given by the triplets (row, column, value) of its lower
 triangle, duplicates summed; :func:`solve` hands it to CHOLMOD
-(:func:`lie_factors.batch.cholmod.solve_spd`).
+(:func:`lie_factors.batch.cholmod.solve_spd`).  :func:`solve_edges` takes the
+rows of an edge list instead and assembles them into the batch solver's block
+pattern, which CHOLMOD factors in place (the large relaxations).
 """
 
 from __future__ import annotations
@@ -11,6 +13,43 @@ import numpy as np
 
 from ..batch import cholmod
 from ..errors import InitializationError
+
+
+def solve_edges(count: int, ii: np.ndarray, jj: np.ndarray, A1: np.ndarray, A2: np.ndarray,
+                diagonal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """x (count·d, m) with (Σ_e [A1_e A2_e]ᵀ[A1_e A2_e] + diag(``diagonal``)) x = ``rhs``.
+
+    Edge e joins blocks ``ii[e]`` and ``jj[e]`` (of ``count`` blocks of dimension d) with rows
+    A1_e (r, d) on the first and A2_e (r, d) on the second; ``diagonal`` (count·d,) adds
+    to the diagonal (priors); ``rhs`` (count·d, m).  Assembled by the batch solver's kernel
+    into its block pattern (:class:`lie_factors.batch.system.Pattern`, a fill-reducing
+    order) and factored there by CHOLMOD.  :class:`InitializationError` if the matrix is
+    not positive definite.
+    """
+    from ..batch.system import Pattern, add_binary  # numba: LAGO's and GTSAM's paths stay without it
+
+    d = A1.shape[2]
+    E = len(ii)
+    pattern = Pattern(np.full(count, d), np.stack([ii, jj], axis=1))
+    b11, s11, _ = pattern.lookup(ii, ii)
+    b22, s22, _ = pattern.lookup(jj, jj)
+    b12, s12, first_is_row = pattern.lookup(ii, jj)
+    data, g = np.zeros(pattern.nnz), np.zeros(pattern.n)
+    add_binary(np.ascontiguousarray(A1, dtype=np.float64), np.ascontiguousarray(A2, dtype=np.float64),
+               np.zeros((E, A1.shape[1])), np.ones(E), d * ii, d * jj, b11, s11, b22, s22, b12, s12,
+               first_is_row, data, g)
+    data[pattern.diagpos] += diagonal
+    try:
+        factor = cholmod.Cholesky(pattern.colptr, pattern.rowind)
+        factor.factorize(data)
+        x = factor.solve(np.asarray(rhs, dtype=np.float64)[pattern.scalar_order])
+    except np.linalg.LinAlgError as exc:
+        raise InitializationError(str(exc)) from None
+    out = np.empty_like(x)
+    out[pattern.scalar_order] = x
+    if not np.all(np.isfinite(out)):
+        raise InitializationError("the linear system is singular (non-finite solution)")
+    return out
 
 
 def solve(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray) -> np.ndarray:
