@@ -1,0 +1,725 @@
+"""Compiled kernels of the incremental block factor: marking, re-elimination, back-substitution.
+
+The factor is a tree of block columns (an elimination tree with one node per
+variable, ISAM2's Bayes tree at the granularity of variables).  Node ``j`` holds
+
+- its *separator* ``S_j``: the variables after ``j`` in the elimination order
+  whose rows of ``L`` are nonzero in column ``j`` (ids in ``ipool``, sorted by
+  position);
+- its *conditional* ``[R_j | T_j | d_j]`` (d × (d + s + 1), row-major in
+  ``fpool``): ``R_j δ_j + T_j δ_S = d_j``, with ``R_jᵀ`` the diagonal block of
+  ``L`` and ``T_jᵀ`` the block column below it (``L = Rᵀ``);
+- its *update matrix* ``U_j`` ((s + 1)², augmented with the right-hand side):
+  the Schur complement its subtree passes to its ancestors, the multifrontal
+  update matrix (Duff and Reid, "The multifrontal solution of indefinite sparse
+  symmetric linear equations", ACM TOMS 1983; ISAM2's cached marginal factor,
+  Kaess et al., "iSAM2", IJRR 2012, Alg. 4).  It is kept where a later update
+  can re-eliminate the parent without the node: the subtree below is then not
+  visited again.
+
+Positions are increasing integers: an update gives the re-eliminated
+variables positions after every other, so a node's ancestors always come
+after it.  Shapes: ``V`` variable capacity, ``F`` factor capacity.
+
+Factors are stored as whitened Jacobians ``[A_1 … A_k | b]`` (r × (D + 1),
+row-major in ``jac``), the rows ``A δ ≈ b`` of one factor; a factor enters the
+frontal matrix of its first variable in the order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.jit import kernel
+
+#: Status codes of :func:`reeliminate`.
+OK, NEED_INT, NEED_FLOAT, NOT_POSITIVE = 0, 1, 2, 3
+
+#: A pivot is refused when it is not above this fraction of its diagonal entry before
+#: elimination (a pivot is 1/(Λ⁻¹)_pp in units of Λ_pp: this refuses a condition number
+#: above 1e13, where the variable is not determined to double precision).
+PIVOT_TOLERANCE = 1e-13
+
+
+# --------------------------------------------------------------------------- marking
+
+@kernel
+def _has(ipool, start, length, v):
+    for q in range(start, start + length):
+        if ipool[q] == v:
+            return True
+    return False
+
+
+@kernel
+def mark_affected(marked, relin, parent, first, nxt, nchild, sep_start, sep_len, ipool,
+                  flag, out_affected, out_orphans):
+    """The variables to re-eliminate and the subtrees hanging from them.
+
+    ``marked`` (M,): variables of new factors (and new variables); ``relin`` (Q,):
+    relinearized variables, whose every factor changes: the nodes whose
+    separator holds one (its row subtree, ISAM2's ``findAll``) are marked too.
+    Then every ancestor of a marked node, and the only child of an affected
+    node when its separator is the parent's plus the parent (the two share a
+    clique; the child keeps no update matrix).  ``flag`` (V,) zero on entry,
+    zero on return.  Writes ``out_affected``/``out_orphans``; returns their counts.
+    """
+    na = 0
+    stack = np.empty(16, dtype=np.int64)
+    # row subtrees of the relinearized variables
+    for q in range(relin.shape[0]):
+        r = relin[q]
+        top = 0
+        c = first[r]
+        while c >= 0:
+            if top == stack.shape[0]:
+                grown = np.empty(2 * top, dtype=np.int64)
+                grown[:top] = stack
+                stack = grown
+            stack[top] = c
+            top += 1
+            c = nxt[c]
+        while top > 0:
+            top -= 1
+            j = stack[top]
+            if not _has(ipool, sep_start[j], sep_len[j], r):
+                continue
+            if flag[j] == 0:
+                flag[j] = 1
+                out_affected[na] = j
+                na += 1
+            c = first[j]
+            while c >= 0:
+                if top == stack.shape[0]:
+                    grown = np.empty(2 * top, dtype=np.int64)
+                    grown[:top] = stack
+                    stack = grown
+                stack[top] = c
+                top += 1
+                c = nxt[c]
+    for lst in (marked, relin):
+        for q in range(lst.shape[0]):
+            j = lst[q]
+            if flag[j] == 0:
+                flag[j] = 1
+                out_affected[na] = j
+                na += 1
+    # ancestors
+    n0 = na
+    for q in range(n0):
+        j = parent[out_affected[q]]
+        while j >= 0 and flag[j] == 0:
+            flag[j] = 1
+            out_affected[na] = j
+            na += 1
+            j = parent[j]
+    # clique members below an affected node
+    q = 0
+    while q < na:
+        p = out_affected[q]
+        q += 1
+        if nchild[p] == 1:
+            c = first[p]
+            if flag[c] == 0 and sep_len[c] == sep_len[p] + 1:
+                flag[c] = 1
+                out_affected[na] = c
+                na += 1
+    no = 0
+    for q in range(na):
+        c = first[out_affected[q]]
+        while c >= 0:
+            if flag[c] == 0:
+                out_orphans[no] = c
+                no += 1
+            c = nxt[c]
+    for q in range(na):
+        flag[out_affected[q]] = 0
+    return na, no
+
+
+@kernel
+def ordering_graph(affected, orphans, fnv, fvstart, fvars, ahead, anext, afac, sep_start, sep_len,
+                   ipool, flag, fstamp, stamp, out_ptr, out_vars):
+    """The graph the affected variables are ordered on: every factor whose variables are all
+    affected, and every orphan's separator (a clique).  Lists in ``out_ptr``/``out_vars``
+    (CSR); returns (lists, entries).  ``flag`` (V,) zero on entry and return; ``fstamp``
+    (F,) holds factor stamps below ``stamp``."""
+    for q in range(affected.shape[0]):
+        flag[affected[q]] = 1
+    n = 0
+    m = 0
+    out_ptr[0] = 0
+    for q in range(affected.shape[0]):
+        e = ahead[affected[q]]
+        while e >= 0:
+            f = afac[e]
+            e = anext[e]
+            if fstamp[f] == stamp:
+                continue
+            fstamp[f] = stamp
+            inside = True
+            for t in range(fvstart[f], fvstart[f] + fnv[f]):
+                if flag[fvars[t]] == 0:
+                    inside = False
+                    break
+            if not inside:
+                continue
+            for t in range(fvstart[f], fvstart[f] + fnv[f]):
+                out_vars[m] = fvars[t]
+                m += 1
+            n += 1
+            out_ptr[n] = m
+    for q in range(orphans.shape[0]):
+        o = orphans[q]
+        for t in range(sep_start[o], sep_start[o] + sep_len[o]):
+            out_vars[m] = ipool[t]
+            m += 1
+        n += 1
+        out_ptr[n] = m
+    for q in range(affected.shape[0]):
+        flag[affected[q]] = 0
+    return n, m
+
+
+# --------------------------------------------------------------------------- re-elimination
+
+@kernel
+def _sort_by(keys_of, buf, n):
+    """Insertion sort of buf[:n] by keys_of[buf[i]] (separators are short)."""
+    for i in range(1, n):
+        v = buf[i]
+        k = keys_of[v]
+        t = i - 1
+        while t >= 0 and keys_of[buf[t]] > k:
+            buf[t + 1] = buf[t]
+            t -= 1
+        buf[t + 1] = v
+
+
+@kernel
+def _eliminate_front(Phi, d):
+    """Eliminate the first ``d`` scalars of the symmetric frontal ``Phi`` (N × N, upper triangle
+    read and written): rows 0..d-1 become [R | T | d_j] (R upper triangular, RᵀR = Φ₁₁),
+    the trailing upper triangle becomes U = Φ₂₂ − [T d]ᵀ[T d].  Returns −1, or the first
+    pivot that is not positive (relative to :data:`PIVOT_TOLERANCE`)."""
+    N = Phi.shape[0]
+    for p in range(d):
+        a = Phi[p, p]
+        if not (a > PIVOT_TOLERANCE * Phi[N - 1, p] and a < np.inf):
+            return p
+        r = np.sqrt(a)
+        inv = 1.0 / r
+        Phi[p, p] = r
+        for c in range(p + 1, N):
+            Phi[p, c] *= inv
+        for i in range(p + 1, N):
+            f = Phi[p, i]
+            if f != 0.0:
+                for c in range(i, N):
+                    Phi[i, c] -= f * Phi[p, c]
+    return -1
+
+
+@kernel
+def reeliminate(order, orphans, base,
+                dim, pos, parent, first, nxt, nchild, sep_start, sep_len, sep_dim, cond, ustart,
+                roots, ipool, itop, fpool, ftop,
+                fnv, fvstart, fvars, frows, fjstart, fcols, jac, ahead, anext, afac,
+                aidx, mark, stamps, loc, chead, cnext, stats):
+    """Re-eliminate the variables ``order`` (in that order, given positions ``base``, ``base`` + 1, …)
+    on top of the subtrees ``orphans`` (their update matrices cached).
+
+    New separators, conditionals and update matrices are written past ``itop``/``ftop``
+    in the pools; the nodes' arrays are only written once every variable has
+    been eliminated, so a refusal leaves the factor as it was (positions are
+    restored).  Returns (status, detail, new itop, new ftop): status
+    :data:`OK`; :data:`NEED_INT`/:data:`NEED_FLOAT` with the pool size needed
+    to go on (grow and call again); :data:`NOT_POSITIVE` with the variable whose
+    pivot failed.  ``aidx`` (V,) −1 on entry and return; ``mark``, ``loc``,
+    ``chead``, ``cnext`` (V,) scratch; ``stamps[0]``: the last mark used (above
+    every entry of ``mark``).  ``stats`` (6,): += [columns eliminated,
+    update matrices extend-added, factors assembled, frontal scalars², pool floats
+    freed, pool ints freed].
+    """
+    K = order.shape[0]
+    old_pos = np.empty(K, dtype=np.int64)
+    for k in range(K):
+        j = order[k]
+        old_pos[k] = pos[j]
+        pos[j] = base + k
+        aidx[j] = k
+        chead[j] = -1
+    t_parent = np.empty(K, dtype=np.int64)
+    t_sep = np.empty(K, dtype=np.int64)
+    t_len = np.empty(K, dtype=np.int64)
+    t_sdim = np.empty(K, dtype=np.int64)
+    t_cond = np.empty(K, dtype=np.int64)
+    t_u = np.empty(K, dtype=np.int64)
+    new_roots = -1
+    # orphans hang from the first of their separator's variables in the new order
+    o_parent = np.empty(orphans.shape[0], dtype=np.int64)
+    for q in range(orphans.shape[0]):
+        o = orphans[q]
+        best = -1
+        for t in range(sep_start[o], sep_start[o] + sep_len[o]):
+            v = ipool[t]
+            if best < 0 or pos[v] < pos[best]:
+                best = v
+        o_parent[q] = best
+        cnext[o] = chead[best]
+        chead[best] = o
+    it = itop
+    ft = ftop
+    sbuf = np.empty(64, dtype=np.int64)
+    fbuf = np.empty(64, dtype=np.int64)
+    colmap = np.empty(64, dtype=np.int64)
+    status = OK
+    detail = 0
+    stamp = stamps[0]
+    for k in range(K):
+        j = order[k]
+        stamp += 1
+        mark[j] = stamp
+        ns = 0
+        nf = 0
+        # factors whose first variable is j
+        e = ahead[j]
+        while e >= 0:
+            f = afac[e]
+            e = anext[e]
+            first_var = True
+            for t in range(fvstart[f], fvstart[f] + fnv[f]):
+                v = fvars[t]
+                if v != j and pos[v] < pos[j]:
+                    first_var = False
+                    break
+            if not first_var:
+                continue
+            if nf == fbuf.shape[0]:
+                grown = np.empty(2 * nf, dtype=np.int64)
+                grown[:nf] = fbuf
+                fbuf = grown
+            fbuf[nf] = f
+            nf += 1
+            for t in range(fvstart[f], fvstart[f] + fnv[f]):
+                v = fvars[t]
+                if mark[v] != stamp:
+                    mark[v] = stamp
+                    if ns == sbuf.shape[0]:
+                        grown = np.empty(2 * ns, dtype=np.int64)
+                        grown[:ns] = sbuf
+                        sbuf = grown
+                    sbuf[ns] = v
+                    ns += 1
+        # children's separators
+        c = chead[j]
+        while c >= 0:
+            ci = aidx[c]
+            s0 = t_sep[ci] if ci >= 0 else sep_start[c]
+            sl = t_len[ci] if ci >= 0 else sep_len[c]
+            for t in range(s0, s0 + sl):
+                v = ipool[t]
+                if mark[v] != stamp:
+                    mark[v] = stamp
+                    if ns == sbuf.shape[0]:
+                        grown = np.empty(2 * ns, dtype=np.int64)
+                        grown[:ns] = sbuf
+                        sbuf = grown
+                    sbuf[ns] = v
+                    ns += 1
+            c = cnext[c]
+        _sort_by(pos, sbuf, ns)
+        d = dim[j]
+        s = 0
+        loc[j] = 0
+        for q in range(ns):
+            loc[sbuf[q]] = d + s
+            s += dim[sbuf[q]]
+        N = d + s + 1
+        need_f = d * N + (s + 1) * (s + 1)
+        if it + ns > ipool.shape[0]:
+            status = NEED_INT
+            detail = it + ns + (K - k) * (ns + 1)
+            break
+        if ft + need_f > fpool.shape[0]:
+            status = NEED_FLOAT
+            detail = ft + need_f + (K - k - 1) * need_f
+            break
+        for q in range(ns):
+            ipool[it + q] = sbuf[q]
+        t_sep[k] = it
+        t_len[k] = ns
+        t_sdim[k] = s
+        it += ns
+        # frontal matrix: the factors, then the children's update matrices (extend-add)
+        Phi = np.zeros((N, N))
+        for q in range(nf):
+            f = fbuf[q]
+            D1 = fcols[f]
+            if D1 > colmap.shape[0]:
+                colmap = np.empty(2 * D1, dtype=np.int64)
+            cc = 0
+            for t in range(fvstart[f], fvstart[f] + fnv[f]):
+                v = fvars[t]
+                for i in range(dim[v]):
+                    colmap[cc] = loc[v] + i
+                    cc += 1
+            colmap[cc] = N - 1
+            J0 = fjstart[f]
+            r = frows[f]
+            for c1 in range(D1):
+                t1 = colmap[c1]
+                for c2 in range(D1):
+                    t2 = colmap[c2]
+                    if t1 > t2:
+                        continue
+                    acc = 0.0
+                    for rr in range(r):
+                        acc += jac[J0 + rr * D1 + c1] * jac[J0 + rr * D1 + c2]
+                    Phi[t1, t2] += acc
+        c = chead[j]
+        nu = 0
+        while c >= 0:
+            ci = aidx[c]
+            s0 = t_sep[ci] if ci >= 0 else sep_start[c]
+            sl = t_len[ci] if ci >= 0 else sep_len[c]
+            u0 = t_u[ci] if ci >= 0 else ustart[c]
+            S1 = (t_sdim[ci] if ci >= 0 else sep_dim[c]) + 1
+            if S1 > colmap.shape[0]:
+                colmap = np.empty(2 * S1, dtype=np.int64)
+            cc = 0
+            for t in range(s0, s0 + sl):
+                v = ipool[t]
+                for i in range(dim[v]):
+                    colmap[cc] = loc[v] + i
+                    cc += 1
+            colmap[cc] = N - 1
+            for a in range(S1):
+                ta = colmap[a]
+                row = u0 + a * S1
+                for b in range(S1):
+                    tb = colmap[b]
+                    if ta <= tb:
+                        Phi[ta, tb] += fpool[row + b]
+            nu += 1
+            c = cnext[c]
+        # the diagonal before elimination, for the pivot test (row N−1 below the diagonal is free)
+        for p in range(d):
+            Phi[N - 1, p] = Phi[p, p]
+        bad = _eliminate_front(Phi, d)
+        if bad >= 0:
+            status = NOT_POSITIVE
+            detail = j
+            break
+        # conditional [R | T | d_j] (upper part of rows 0..d-1), update matrix (symmetric)
+        t_cond[k] = ft
+        for p in range(d):
+            for q in range(N):
+                fpool[ft + p * N + q] = Phi[p, q] if q >= p else 0.0
+        ft += d * N
+        t_u[k] = ft
+        S1 = s + 1
+        for a in range(S1):
+            for b in range(a, S1):
+                x = Phi[d + a, d + b]
+                fpool[ft + a * S1 + b] = x
+                fpool[ft + b * S1 + a] = x
+        ft += S1 * S1
+        # this node hangs from the first variable of its separator
+        if ns > 0:
+            p = sbuf[0]
+            t_parent[k] = p
+            cnext[j] = chead[p]
+            chead[p] = j
+        else:
+            t_parent[k] = -1
+            cnext[j] = new_roots
+            new_roots = j
+        stats[0] += 1
+        stats[1] += nu
+        stats[2] += nf
+        stats[3] += N * N
+    stamps[0] = stamp
+    if status != OK:
+        for k in range(K):
+            j = order[k]
+            pos[j] = old_pos[k]
+            aidx[j] = -1
+        return status, detail, itop, ftop
+    # commit: the old roots that were not re-eliminated stay roots
+    r = roots[0]
+    kept = -1
+    while r >= 0:
+        following = nxt[r]
+        if aidx[r] < 0:
+            nxt[r] = kept
+            kept = r
+        r = following
+    for q in range(orphans.shape[0]):
+        o = orphans[q]
+        nxt[o] = cnext[o]
+        parent[o] = o_parent[q]
+    for k in range(K):
+        j = order[k]
+        if cond[j] >= 0:
+            stats[4] += dim[j] * (dim[j] + sep_dim[j] + 1)
+            stats[5] += sep_len[j]
+        if ustart[j] >= 0:
+            stats[4] += (sep_dim[j] + 1) * (sep_dim[j] + 1)
+        parent[j] = t_parent[k]
+        sep_start[j] = t_sep[k]
+        sep_len[j] = t_len[k]
+        sep_dim[j] = t_sdim[k]
+        cond[j] = t_cond[k]
+        ustart[j] = t_u[k]
+        first[j] = chead[j]
+        nxt[j] = cnext[j]
+    # prepend the new roots to the kept ones
+    r = new_roots
+    last = -1
+    while r >= 0:
+        last = r
+        r = nxt[r]
+    if last >= 0:
+        nxt[last] = kept
+        roots[0] = new_roots
+    else:
+        roots[0] = kept
+    for k in range(K):
+        j = order[k]
+        n = 0
+        c = first[j]
+        while c >= 0:
+            n += 1
+            c = nxt[c]
+        nchild[j] = n
+    # a node sharing its parent's clique is never an orphan: its update matrix goes
+    for k in range(K):
+        j = order[k]
+        p = parent[j]
+        if p >= 0 and nchild[p] == 1 and sep_len[j] == sep_len[p] + 1:
+            ustart[j] = -1
+            stats[4] += (sep_dim[j] + 1) * (sep_dim[j] + 1)
+        aidx[j] = -1
+    return OK, 0, it, ft
+
+
+# --------------------------------------------------------------------------- solving
+
+@kernel
+def _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x):
+    """x = R_j⁻¹ (d_j − T_j δ_S): the node's variable given its separator's values in ``delta``."""
+    d = dim[j]
+    c0 = cond[j]
+    s = 0
+    for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+        s += dim[ipool[t]]
+    N = d + s + 1
+    for p in range(d):
+        acc = fpool[c0 + p * N + N - 1]
+        col = d
+        for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+            v = ipool[t]
+            o = voff[v]
+            for i in range(dim[v]):
+                acc -= fpool[c0 + p * N + col] * delta[o + i]
+                col += 1
+        x[p] = acc
+    for p in range(d - 1, -1, -1):
+        acc = x[p]
+        for q in range(p + 1, d):
+            acc -= fpool[c0 + p * N + q] * x[q]
+        x[p] = acc / fpool[c0 + p * N + p]
+
+
+@kernel
+def back_substitute(threshold, replaced, changed, roots, first, nxt, dim, voff, sep_start, sep_len, cond,
+                    ipool, fpool, delta, visited):
+    """ISAM2's wildfire back-substitution (Kaess et al., IJRR 2012, Alg. 5), from the roots down.
+
+    A node is solved again when it was re-eliminated (``replaced``) or a variable
+    of its separator changed; its new value is kept, and the node counts as
+    changed, when it was re-eliminated or moved by ``threshold`` or more (max
+    norm), else its old value stays.  Children are visited below solved nodes only.
+    ``threshold`` ≤ 0: every change propagates (the exact solution).  ``replaced``
+    and ``changed`` (V,) are cleared on return (every re-eliminated node is below a
+    re-eliminated root, so all are visited); ``visited`` (V,) scratch.
+    Returns the number of nodes solved.
+    """
+    x = np.empty(64)
+    pending = np.empty(64, dtype=np.int64)
+    npend = 0
+    r = roots[0]
+    while r >= 0:
+        if npend == pending.shape[0]:
+            grown = np.empty(2 * npend, dtype=np.int64)
+            grown[:npend] = pending
+            pending = grown
+        pending[npend] = r
+        npend += 1
+        r = nxt[r]
+    solved = 0
+    cleared = 0
+    while npend > 0:
+        npend -= 1
+        j = pending[npend]
+        dirty = replaced[j] != 0
+        if not dirty:
+            for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+                if changed[ipool[t]] != 0:
+                    dirty = True
+                    break
+        if not dirty:
+            continue
+        d = dim[j]
+        if d > x.shape[0]:
+            x = np.empty(2 * d)
+        _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x)
+        solved += 1
+        o = voff[j]
+        keep = replaced[j] != 0
+        if not keep:
+            m = 0.0
+            for p in range(d):
+                a = abs(x[p] - delta[o + p])
+                if a > m:
+                    m = a
+            keep = m >= threshold
+        if keep:
+            for p in range(d):
+                delta[o + p] = x[p]
+            changed[j] = 1
+            visited[cleared] = j
+            cleared += 1
+        replaced[j] = 0
+        c = first[j]
+        while c >= 0:
+            if npend == pending.shape[0]:
+                grown = np.empty(2 * npend, dtype=np.int64)
+                grown[:npend] = pending
+                pending = grown
+            pending[npend] = c
+            npend += 1
+            c = nxt[c]
+    for q in range(cleared):
+        changed[visited[q]] = 0
+    return solved
+
+
+@kernel
+def clear_flags(flags, idx):
+    for q in range(idx.shape[0]):
+        flags[idx[q]] = 0
+
+
+@kernel
+def marginal_information_root_path(v, parent, dim, voff, sep_start, sep_len, cond, ipool, fpool, out):
+    """Σ_v = YᵀY with Y = R⁻ᵀ E_v, nonzero only on the path from ``v`` to its root
+    (``out`` (d_v, d_v) receives the marginal covariance of ``v``).
+
+    Forward substitution Rᵀ Y = E_v visiting only that path: a node's rows of Y
+    take the contributions of the path nodes below it through their blocks T."""
+    dv = dim[v]
+    # path from v to the root
+    plen = 0
+    j = v
+    while j >= 0:
+        plen += 1
+        j = parent[j]
+    path = np.empty(plen, dtype=np.int64)
+    j = v
+    q = 0
+    while j >= 0:
+        path[q] = j
+        q += 1
+        j = parent[j]
+    # Y rows of each path node, (d_j, dv), accumulated right-hand side first
+    tot = 0
+    start = np.empty(plen, dtype=np.int64)
+    for q in range(plen):
+        start[q] = tot
+        tot += dim[path[q]]
+    Y = np.zeros((tot, dv))
+    where = {}
+    for q in range(plen):
+        where[path[q]] = q
+    for i in range(dv):
+        Y[i, i] = 1.0
+    for q in range(plen):
+        j = path[q]
+        d = dim[j]
+        c0 = cond[j]
+        s = 0
+        for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+            s += dim[ipool[t]]
+        N = d + s + 1
+        y0 = start[q]
+        # Y_j = R_j⁻ᵀ (E_j − contributions already subtracted)
+        for col in range(dv):
+            for p in range(d):
+                acc = Y[y0 + p, col]
+                for t in range(p):
+                    acc -= fpool[c0 + t * N + p] * Y[y0 + t, col]
+                Y[y0 + p, col] = acc / fpool[c0 + p * N + p]
+        # push T_jᵀ Y_j down to the separator's rows (all on the path)
+        cc = d
+        for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+            w = ipool[t]
+            dw = dim[w]
+            if w in where:
+                yw = start[where[w]]
+                for i in range(dw):
+                    for col in range(dv):
+                        acc = 0.0
+                        for p in range(d):
+                            acc += fpool[c0 + p * N + cc + i] * Y[y0 + p, col]
+                        Y[yw + i, col] -= acc
+            cc += dw
+    for a in range(dv):
+        for b in range(dv):
+            acc = 0.0
+            for r in range(tot):
+                acc += Y[r, a] * Y[r, b]
+            out[a, b] = acc
+
+
+# --------------------------------------------------------------------------- storage
+
+@kernel
+def link_adjacency(ahead, anext, afac, fvars, fnv, fvstart, f0, f1):
+    """Prepend factors f0..f1-1 to their variables' adjacency lists (entry t of fvars is entry t)."""
+    for f in range(f0, f1):
+        for t in range(fvstart[f], fvstart[f] + fnv[f]):
+            v = fvars[t]
+            afac[t] = f
+            anext[t] = ahead[v]
+            ahead[v] = t
+
+
+@kernel
+def compact_pools(nv, dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool, new_ipool, new_fpool):
+    """Copy every node's separator, conditional and update matrix into the new pools, in node
+    order, and point the node there; returns the new tops."""
+    it = 0
+    ft = 0
+    for j in range(nv):
+        if cond[j] < 0:
+            continue
+        for t in range(sep_len[j]):
+            new_ipool[it + t] = ipool[sep_start[j] + t]
+        sep_start[j] = it
+        it += sep_len[j]
+        d = dim[j]
+        s = sep_dim[j]
+        n = d * (d + s + 1)
+        for t in range(n):
+            new_fpool[ft + t] = fpool[cond[j] + t]
+        cond[j] = ft
+        ft += n
+        if ustart[j] >= 0:
+            n = (s + 1) * (s + 1)
+            for t in range(n):
+                new_fpool[ft + t] = fpool[ustart[j] + t]
+            ustart[j] = ft
+            ft += n
+    return it, ft
