@@ -4,7 +4,10 @@
   columns an update changes, their re-elimination on top of the cached update
   matrices of the subtrees below, wildfire back-substitution, marginals);
 * :mod:`~lie_factors.incremental.cholesky`: :class:`BlockFactor`, the factor of a
-  growing problem of whitened Jacobian blocks, updated all or nothing.
+  growing problem of whitened Jacobian blocks, updated all or nothing;
+* :mod:`~lie_factors.incremental.smoother`: :class:`Smoother`, ISAM2's interface
+  (``update``, ``calculateEstimate``, ``marginalCovariance``, …) on GTSAM graphs
+  or on arrays.
 
 ``import lie_factors.incremental`` alone loads neither numba nor GTSAM: its names
 are imported on first use.
@@ -14,6 +17,8 @@ import importlib
 
 _EXPORTS = {
     "BlockFactor": "cholesky", "IndeterminantLinearSystem": "cholesky", "UpdateStats": "cholesky",
+    "Smoother": "smoother", "SmootherError": "smoother", "SmootherParams": "smoother",
+    "UpdateResult": "smoother",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -44,6 +44,18 @@ PIVOT_TOLERANCE = 1e-13
 # --------------------------------------------------------------------------- marking
 
 @kernel
+def _push(buf, n, v):
+    """buf[n] = v, in ``buf`` or in a copy of twice its size when it is full (the caller keeps
+    the array returned)."""
+    if n == buf.shape[0]:
+        grown = np.empty(2 * n + 16, dtype=buf.dtype)
+        grown[:n] = buf
+        buf = grown
+    buf[n] = v
+    return buf
+
+
+@kernel
 def _has(ipool, start, length, v):
     for q in range(start, start + length):
         if ipool[q] == v:
@@ -72,11 +84,7 @@ def mark_affected(marked, relin, parent, first, nxt, nchild, sep_start, sep_len,
         top = 0
         c = first[r]
         while c >= 0:
-            if top == stack.shape[0]:
-                grown = np.empty(2 * top, dtype=np.int64)
-                grown[:top] = stack
-                stack = grown
-            stack[top] = c
+            stack = _push(stack, top, c)
             top += 1
             c = nxt[c]
         while top > 0:
@@ -90,11 +98,7 @@ def mark_affected(marked, relin, parent, first, nxt, nchild, sep_start, sep_len,
                 na += 1
             c = first[j]
             while c >= 0:
-                if top == stack.shape[0]:
-                    grown = np.empty(2 * top, dtype=np.int64)
-                    grown[:top] = stack
-                    stack = grown
-                stack[top] = c
+                stack = _push(stack, top, c)
                 top += 1
                 c = nxt[c]
     for lst in (marked, relin):
@@ -295,21 +299,13 @@ def reeliminate(order, orphans, base,
                     break
             if not first_var:
                 continue
-            if nf == fbuf.shape[0]:
-                grown = np.empty(2 * nf, dtype=np.int64)
-                grown[:nf] = fbuf
-                fbuf = grown
-            fbuf[nf] = f
+            fbuf = _push(fbuf, nf, f)
             nf += 1
             for t in range(fvstart[f], fvstart[f] + fnv[f]):
                 v = fvars[t]
                 if mark[v] != stamp:
                     mark[v] = stamp
-                    if ns == sbuf.shape[0]:
-                        grown = np.empty(2 * ns, dtype=np.int64)
-                        grown[:ns] = sbuf
-                        sbuf = grown
-                    sbuf[ns] = v
+                    sbuf = _push(sbuf, ns, v)
                     ns += 1
         # children's separators
         c = chead[j]
@@ -321,11 +317,7 @@ def reeliminate(order, orphans, base,
                 v = ipool[t]
                 if mark[v] != stamp:
                     mark[v] = stamp
-                    if ns == sbuf.shape[0]:
-                        grown = np.empty(2 * ns, dtype=np.int64)
-                        grown[:ns] = sbuf
-                        sbuf = grown
-                    sbuf[ns] = v
+                    sbuf = _push(sbuf, ns, v)
                     ns += 1
             c = cnext[c]
         _sort_by(pos, sbuf, ns)
@@ -551,11 +543,7 @@ def back_substitute(threshold, replaced, changed, roots, first, nxt, dim, voff, 
     npend = 0
     r = roots[0]
     while r >= 0:
-        if npend == pending.shape[0]:
-            grown = np.empty(2 * npend, dtype=np.int64)
-            grown[:npend] = pending
-            pending = grown
-        pending[npend] = r
+        pending = _push(pending, npend, r)
         npend += 1
         r = nxt[r]
     solved = 0
@@ -594,11 +582,7 @@ def back_substitute(threshold, replaced, changed, roots, first, nxt, dim, voff, 
         replaced[j] = 0
         c = first[j]
         while c >= 0:
-            if npend == pending.shape[0]:
-                grown = np.empty(2 * npend, dtype=np.int64)
-                grown[:npend] = pending
-                pending = grown
-            pending[npend] = c
+            pending = _push(pending, npend, c)
             npend += 1
             c = nxt[c]
     for q in range(cleared):
@@ -723,3 +707,40 @@ def compact_pools(nv, dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpo
             ustart[j] = ft
             ft += n
     return it, ft
+
+
+@kernel
+def factors_of(variables, ahead, anext, afac, nf):
+    """The factors on any of ``variables``, each once, in increasing order."""
+    seen = np.zeros(nf, dtype=np.uint8)
+    n = 0
+    for q in range(variables.shape[0]):
+        e = ahead[variables[q]]
+        while e >= 0:
+            f = afac[e]
+            if seen[f] == 0:
+                seen[f] = 1
+                n += 1
+            e = anext[e]
+    out = np.empty(n, dtype=np.int64)
+    k = 0
+    for f in range(nf):
+        if seen[f]:
+            out[k] = f
+            k += 1
+    return out
+
+
+@kernel
+def max_abs_blocks(delta, voff, dim):
+    """max_i |δ_v[i]| of every variable v: (V,)."""
+    V = voff.shape[0]
+    out = np.empty(V)
+    for v in range(V):
+        m = 0.0
+        for i in range(dim[v]):
+            a = abs(delta[voff[v] + i])
+            if a > m:
+                m = a
+        out[v] = m
+    return out
