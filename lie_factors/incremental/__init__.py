@@ -17,7 +17,7 @@ import importlib
 
 _EXPORTS = {
     "BlockFactor": "cholesky", "IndeterminantLinearSystem": "cholesky", "UpdateStats": "cholesky",
-    "Smoother": "smoother", "SmootherError": "smoother", "SmootherParams": "smoother",
+    "FactorArrays": "smoother", "Smoother": "smoother", "SmootherError": "smoother", "SmootherParams": "smoother",
     "UpdateResult": "smoother",
 }
 

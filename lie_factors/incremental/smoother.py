@@ -159,7 +159,7 @@ class _Elements:
 
     def __init__(self, spec):
         self.spec = spec
-        self.loops = GroupLoops(spec)
+        self.loops = GroupLoops(spec, serial=True)
         self.X = np.zeros((0, spec.mat, spec.mat))
         self.var = np.zeros(0, dtype=np.int64)
         self.n = 0
@@ -236,6 +236,55 @@ class _FactorKind:
             self.elements.loops.prior_err(X, np.ascontiguousarray(self.e[:self.n, 0]), self.C[:self.n],
                                           self.R[:self.n], sq)
         return sq
+
+
+class FactorArrays:
+    """A pose graph's between factors and priors, checked and set up once (M⁻¹, Ad(M⁻¹), the
+    whitening R with RᵀR = Λ): :meth:`Smoother.update_prepared` adds any of them by index.
+
+    ``edge_keys`` (E, 2), ``measured`` (E, m, m), ``information`` (E, n, n); ``prior_keys``
+    (Q,), ``prior_measured`` (Q, m, m), ``prior_information`` (Q, n, n).  Raises
+    :class:`SmootherError` for wrong shapes, non-finite numbers, a self-loop, an element that
+    is not in the group, an information matrix that is not positive definite.
+    """
+
+    def __init__(self, group: str, edge_keys=None, measured=None, information=None, prior_keys=None,
+                 prior_measured=None, prior_information=None):
+        spec = _factors.GROUPS.get(group)
+        if spec is None:
+            raise SmootherError(f"unknown group {group!r} (choose from {', '.join(_factors.GROUPS)})")
+        self.group, self.spec = group, spec
+        loops = GroupLoops(spec, serial=True)
+        m, n = spec.mat, spec.dim
+        parts = {}
+        for kind, k, M, info, nk in (("between", edge_keys, measured, information, 2),
+                                     ("prior", prior_keys, prior_measured, prior_information, 1)):
+            k = np.zeros((0, nk), dtype=np.int64) if k is None else np.asarray(k, dtype=np.int64).reshape(-1, nk)
+            F = len(k)
+            M = np.zeros((0, m, m)) if M is None and F == 0 else np.asarray(M, dtype=np.float64)
+            info = np.zeros((0, n, n)) if info is None and F == 0 else np.asarray(info, dtype=np.float64)
+            if M.shape != (F, m, m) or info.shape != (F, n, n):
+                raise SmootherError(f"{kind} factors: expected measurements ({F}, {m}, {m}) and information "
+                                    f"({F}, {n}, {n}), got {M.shape} and {info.shape}")
+            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(info))):
+                raise SmootherError(f"{kind} factors: a measurement or information matrix is not finite")
+            if kind == "between" and np.any(k[:, 0] == k[:, 1]):
+                raise SmootherError("between factors: a factor connects a key to itself")
+            Minv, Ad, codes = loops.setup(M)
+            bad = np.flatnonzero(codes != _factors.OK)
+            if bad.size:
+                q = int(bad[0])
+                raise SmootherError(str(_factors._element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
+                                                                "update")))
+            try:
+                R = whitening(info) if F else np.zeros((0, n, n))
+            except np.linalg.LinAlgError:
+                raise SmootherError(f"{kind} factors: an information matrix is not positive definite") from None
+            parts[kind] = (k, Minv, Ad, R)
+        self.edge_keys, self.Minv, self.Ad, self.R = parts["between"]
+        pk, self.Pinv, _, self.prior_R = parts["prior"]
+        self.prior_keys = pk.reshape(-1)
+        self.E, self.Q = len(self.edge_keys), len(self.prior_keys)
 
 
 @dataclass
@@ -461,10 +510,16 @@ class Smoother:
         elements ``values`` (P, m, m); between factors ``edge_keys`` (E, 2), ``measured``
         (E, m, m) (Z ≈ X₁⁻¹·X₂), ``information`` (E, n, n); priors ``prior_keys`` (Q,),
         ``prior_measured`` (Q, m, m), ``prior_information`` (Q, n, n).  ``group``: Pose2,
-        Pose3, Rot3, Similarity2 or Similarity3; GTSAM's tangent order."""
-        spec = _factors.GROUPS.get(group)
-        if spec is None:
-            raise SmootherError(f"unknown group {group!r} (choose from {', '.join(_factors.GROUPS)})")
+        Pose3, Rot3, Similarity2 or Similarity3; GTSAM's tangent order.  (A replay that
+        knows its factors in advance prepares them once: :class:`FactorArrays`,
+        :meth:`update_prepared`.)"""
+        fa = FactorArrays(group, edge_keys, measured, information, prior_keys, prior_measured, prior_information)
+        return self.update_prepared(fa, keys, values, np.arange(fa.E), np.arange(fa.Q))
+
+    def update_prepared(self, fa: "FactorArrays", keys, values, edges=(), priors=()) -> UpdateResult:
+        """An update adding the new variables ``keys`` (P,) at ``values`` (P, m, m) and the
+        factors ``edges``/``priors`` (indices) of the prepared ``fa``."""
+        spec = fa.spec
         m, n = spec.mat, spec.dim
         keys = np.asarray(keys, dtype=np.int64).reshape(-1)
         P = len(keys)
@@ -474,33 +529,38 @@ class Smoother:
         if not np.all(np.isfinite(X)):
             raise SmootherError("values: not finite")
         arrays = {}
-        for kind, k, M, info, nk in (("between", edge_keys, measured, information, 2),
-                                     ("prior", prior_keys, prior_measured, prior_information, 1)):
-            if k is None:
-                continue
-            k = np.asarray(k, dtype=np.int64).reshape(-1, nk)
-            F = len(k)
-            if F == 0:
-                continue
-            M = np.asarray(M, dtype=np.float64)
-            info = np.asarray(info, dtype=np.float64)
-            if M.shape != (F, m, m) or info.shape != (F, n, n):
-                raise SmootherError(f"{kind} factors: expected measurements ({F}, {m}, {m}) and information "
-                                    f"({F}, {n}, {n}), got {M.shape} and {info.shape}")
-            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(info))):
-                raise SmootherError(f"{kind} factors: a measurement or information matrix is not finite")
-            if kind == "between" and np.any(k[:, 0] == k[:, 1]):
-                raise SmootherError("between factors: a factor connects a key to itself")
-            Minv, Ad = self._setup(spec, M, "measured")
-            try:
-                R = whitening(info)
-            except np.linalg.LinAlgError:
-                raise SmootherError(f"{kind} factors: an information matrix is not positive definite") from None
-            arrays[(kind, group)] = dict(keys=k, C=Minv, Ad=Ad if kind == "between" else None, R=R, src=[None] * F)
-        nf = _NewFactors(keys.tolist(), [group] * P, list(X), [n] * P, arrays, [])
+        edges = np.asarray(edges, dtype=np.int64).reshape(-1)
+        priors = np.asarray(priors, dtype=np.int64).reshape(-1)
+        if len(edges):
+            arrays[("between", fa.group)] = dict(keys=fa.edge_keys[edges], C=fa.Minv[edges], Ad=fa.Ad[edges],
+                                                 R=fa.R[edges], src=[None] * len(edges))
+        if len(priors):
+            arrays[("prior", fa.group)] = dict(keys=fa.prior_keys[priors, None], C=fa.Pinv[priors], Ad=None,
+                                               R=fa.prior_R[priors], src=[None] * len(priors))
+        nf = _NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, [])
         nf.theta = None
         nf.types = {}
         return self._apply(nf)
+
+    def estimate_matrices(self, keys) -> np.ndarray:
+        """(K, m, m): the estimates of the group variables ``keys`` (all of one group)."""
+        self._solve()
+        vs = np.array([self._var_of(k) for k in np.asarray(keys).tolist()], dtype=np.int64)
+        names = {self.vgroup[v] for v in vs.tolist()}
+        if len(names) != 1 or None in names:
+            raise SmootherError("estimate_matrices: the keys must all hold elements of one group")
+        el = self.elements[names.pop()]
+        out = np.empty((len(vs), el.spec.mat, el.spec.mat))
+        el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.bf.delta, self.bf.voff[vs], out)
+        return out
+
+    def estimate_matrix(self, key) -> np.ndarray:
+        """The estimate θ ⊕ δ of the group variable ``key`` as its (m, m) matrix."""
+        self._solve()
+        v = self._var_of(key)
+        if self.vgroup[v] is None:
+            raise SmootherError(f"key {key_name(int(key))} is not a group element")
+        return self._estimate_matrix(v)
 
     def _validate(self, nf: _NewFactors) -> None:
         var = self.var
@@ -785,22 +845,6 @@ class Smoother:
         self._insert_from(one, self.other, k)
         return getattr(one.retract(vv), f"at{self.other_types[k]}")(k)
 
-    def __getattr__(self, name):
-        # calculateEstimatePose3(key), calculateEstimatePoint3(key), … : the typed forms
-        if name.startswith("calculateEstimate") and len(name) > len("calculateEstimate"):
-            type_name = name[len("calculateEstimate"):]
-
-            def typed(key):
-                value = self.calculateEstimate(key)
-                if type_name in ("Vector", "Double") or type(value).__name__ == type_name or (
-                        isinstance(value, np.ndarray) and type_name in ("Point2", "Point3")):
-                    return value
-                raise SmootherError(f"key {key_name(int(key))} holds a {type(value).__name__}, not a {type_name}")
-
-            typed.__name__ = name
-            return typed
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
-
     def getLinearizationPoint(self) -> gtsam.Values:
         """θ as a ``gtsam.Values`` (a copy)."""
         out = gtsam.Values()
@@ -873,6 +917,23 @@ class Smoother:
             if step < tolerance:
                 return it
         return max_iterations
+
+
+def _typed_estimate(type_name: str):
+    def typed(self, key):
+        value = self.calculateEstimate(key)
+        if type(value).__name__ == type_name or (isinstance(value, np.ndarray) and (
+                type_name in ("Vector", "Matrix") or type_name == f"Point{value.shape[0]}")):
+            return value
+        raise SmootherError(f"key {key_name(int(key))} holds a {type(value).__name__}, not a {type_name}")
+
+    typed.__name__ = typed.__qualname__ = f"calculateEstimate{type_name}"
+    typed.__doc__ = f"The estimate of ``key``, a ``gtsam.{type_name}`` (ISAM2's typed form)."
+    return typed
+
+
+for _type in _VALUE_TYPES:
+    setattr(Smoother, f"calculateEstimate{_type}", _typed_estimate(_type))
 
 
 class _Undo:
