@@ -35,9 +35,9 @@ class RandomProblem:
     """Poses of mixed dimensions added one per update with odometry, random loop closures,
     landmarks seen from several poses, relinearizations (new Jacobians for old factors)."""
 
-    def __init__(self, seed, dims=(3, 6, 2, 7)):
+    def __init__(self, seed, dims=(3, 6, 2, 7), keep_update=None):
         self.rng = np.random.default_rng(seed)
-        self.bf = BlockFactor()
+        self.bf = BlockFactor() if keep_update is None else BlockFactor(keep_update)
         self.dims = []
         self.factors = []  # (vars,)
         self.dim_choices = dims
@@ -74,9 +74,10 @@ class RandomProblem:
         return vars_
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_random_updates_equal_a_from_scratch_cholesky(seed):
-    p = RandomProblem(seed)
+@pytest.mark.parametrize("seed,keep_update", [(0, None), (1, None), (2, None), (3, 0), (4, 200), (5, 10 ** 9)])
+def test_random_updates_equal_a_from_scratch_cholesky(seed, keep_update):
+    # clique members below the last keep no update matrix (0), small ones (200), every one
+    p = RandomProblem(seed, keep_update=keep_update)
     for step in range(60):
         loops = int(p.rng.random() < 0.3) + int(p.rng.random() < 0.1)
         p.add_pose(loops)

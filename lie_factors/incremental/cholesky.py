@@ -74,6 +74,8 @@ class BlockFactor:
     """Variables with block dimensions, factors as whitened Jacobians, and the incremental factor.
 
     Variables and factors are numbered from 0 in the order they are added.
+    ``keep_update``: the largest update matrix (floats) a clique member below the clique's
+    last variable keeps (:data:`~lie_factors.incremental.elimination.KEEP_UPDATE`).
     Attributes after an update: ``delta`` (solution, see :meth:`solve`),
     ``last`` (:class:`UpdateStats`), ``totals`` (the sums over all updates).
     """
@@ -83,7 +85,8 @@ class BlockFactor:
                    "replaced", "changed", "visited")
     _FAC_ARRAYS = ("fnv", "fvstart", "frows", "fcols", "fjstart", "fstamp")
 
-    def __init__(self):
+    def __init__(self, keep_update: int = _el.KEEP_UPDATE):
+        self.keep_update = int(keep_update)
         self.nv = 0
         self.nf = 0
         self.nscalar = 0
@@ -98,9 +101,9 @@ class BlockFactor:
         # adjacency lists of the variables, one entry per (factor, variable) parallel to fvars
         self.anext = np.zeros(0, dtype=np.int64)
         self.afac = np.zeros(0, dtype=np.int64)
-        self.ipool = np.zeros(1024, dtype=np.int64)
+        self.ipool = np.zeros(1 << 14, dtype=np.int64)
         self.itop = 0
-        self.fpool = np.zeros(1 << 14)
+        self.fpool = np.zeros(1 << 18)
         self.ftop = 0
         self.roots = np.full(1, -1, dtype=np.int64)
         self.stamps = np.zeros(1, dtype=np.int64)
@@ -226,7 +229,8 @@ class BlockFactor:
         affected = np.empty(nv, dtype=np.int64)
         orphans = np.empty(nv, dtype=np.int64)
         na, no = _el.mark_affected(observed, relin, self.parent, self.first, self.nxt, self.nchild,
-                                   self.sep_start, self.sep_len, self.ipool, self.flag, affected, orphans)
+                                   self.sep_start, self.sep_len, self.ustart, self.ipool, self.flag, affected,
+                                   orphans)
         affected, orphans = affected[:na], orphans[:no]
         batch = na >= BATCH_SHARE * nv
         if batch:
@@ -243,14 +247,20 @@ class BlockFactor:
                 self.fpool, self.ftop,
                 self.fnv, self.fvstart, self.fvars, self.frows, self.fjstart, self.fcols, self.jac,
                 self.ahead, self.anext, self.afac,
-                self.aidx, self.mark, self.stamps, self.loc, self.chead, self.cnext, st)
+                self.aidx, self.mark, self.stamps, self.loc, self.chead, self.cnext, st, self.keep_update)
             if status == _el.OK:
                 break
             st[:] = before
             if status == _el.NEED_INT:
-                self.ipool = _grow(self.ipool, int(detail))
+                if 2 * self.stats[5] > self.itop:
+                    self._compact()
+                else:
+                    self.ipool = _grow(self.ipool, int(detail))
             elif status == _el.NEED_FLOAT:
-                self.fpool = _grow(self.fpool, int(detail))
+                if 2 * self.stats[4] > self.ftop:
+                    self._compact()
+                else:
+                    self.fpool = _grow(self.fpool, int(detail))
             else:
                 raise IndeterminantLinearSystem(
                     f"the linear system is not positive definite at variable {int(detail)}: it is not "
@@ -267,7 +277,6 @@ class BlockFactor:
         t.extend_adds += self.last.extend_adds
         t.factors += self.last.factors
         t.batch += self.last.batch
-        self._maybe_compact()
 
     def _order(self, affected: np.ndarray, orphans: np.ndarray, observed: np.ndarray) -> np.ndarray:
         """The affected variables in elimination order: CCOLAMD on the factors inside them and the
@@ -307,17 +316,14 @@ class BlockFactor:
             ordering = gtsam.Ordering.ColamdSymbolicFactorGraph(g)
         return np.array([ordering.at(i) for i in range(ordering.size())], dtype=np.int64)
 
-    def _maybe_compact(self) -> None:
-        """Rewrite the pools without the freed entries once those are most of them."""
-        if self.ftop > (1 << 16) and 2 * self.stats[4] > self.ftop:
-            self._compact()
-
     def _compact(self) -> None:
+        """Rewrite the pools without the entries freed (same capacity): when a pool is full and
+        most of it is freed, instead of growing it."""
         nv = self.nv
-        ipool = np.empty(max(2 * (self.itop - int(self.stats[5])), 1024), dtype=np.int64)
-        fpool = np.empty(max(2 * (self.ftop - int(self.stats[4])), 1 << 14))
-        self.itop, self.ftop = _el.compact_pools(nv, self.dim, self.sep_start, self.sep_len, self.sep_dim, self.cond,
-                                              self.ustart, self.ipool, self.fpool, ipool, fpool)
+        ipool = np.empty_like(self.ipool)
+        fpool = np.empty_like(self.fpool)
+        self.itop, self.ftop = _el.compact_pools(nv, self.dim, self.sep_start, self.sep_len, self.sep_dim,
+                                                 self.cond, self.ustart, self.ipool, self.fpool, ipool, fpool)
         self.ipool, self.fpool = ipool, fpool
         self.stats[4:] = 0
 

@@ -35,6 +35,12 @@ from ..kernels.jit import kernel
 #: Status codes of :func:`reeliminate`.
 OK, NEED_INT, NEED_FLOAT, NOT_POSITIVE = 0, 1, 2, 3
 
+#: A clique member below the last keeps its update matrix (augmented, floats) when it is at
+#: most this large: an update that re-eliminates only the members above it then starts from
+#: it (an odometry step re-eliminates the newest pose alone, not the whole root clique), at
+#: the price of that memory.
+KEEP_UPDATE = 64 * 64
+
 #: A pivot is refused when it is not above this fraction of its diagonal entry before
 #: elimination (a pivot is 1/(Λ⁻¹)_pp in units of Λ_pp: this refuses a condition number
 #: above 1e13, where the variable is not determined to double precision).
@@ -64,7 +70,7 @@ def _has(ipool, start, length, v):
 
 
 @kernel
-def mark_affected(marked, relin, parent, first, nxt, nchild, sep_start, sep_len, ipool,
+def mark_affected(marked, relin, parent, first, nxt, nchild, sep_start, sep_len, ustart, ipool,
                   flag, out_affected, out_orphans):
     """The variables to re-eliminate and the subtrees hanging from them.
 
@@ -124,7 +130,7 @@ def mark_affected(marked, relin, parent, first, nxt, nchild, sep_start, sep_len,
         q += 1
         if nchild[p] == 1:
             c = first[p]
-            if flag[c] == 0 and sep_len[c] == sep_len[p] + 1:
+            if flag[c] == 0 and ustart[c] < 0:
                 flag[c] = 1
                 out_affected[na] = c
                 na += 1
@@ -201,13 +207,17 @@ def _sort_by(keys_of, buf, n):
 
 
 @kernel
-def _eliminate_front(Phi, d):
-    """Eliminate the first ``d`` scalars of the symmetric frontal ``Phi`` (N × N, upper triangle
-    read and written): rows 0..d-1 become [R | T | d_j] (R upper triangular, RᵀR = Φ₁₁),
-    the trailing upper triangle becomes U = Φ₂₂ − [T d]ᵀ[T d].  Returns −1, or the first
-    pivot that is not positive (relative to :data:`PIVOT_TOLERANCE`)."""
+def _eliminate_columns(Phi, o, D):
+    """Eliminate the scalars o … o + D − 1 of the symmetric frontal ``Phi`` (N × N, upper
+    triangle read and written, the first o already eliminated; ``Phi[N − 1, :]`` below the
+    diagonal holds the diagonal before elimination): rows o … o + D − 1 become [R | T | d]
+    (R upper triangular, RᵀR = Φ₁₁, T = R⁻ᵀΦ₁₂), and the trailing upper triangle becomes the
+    update matrix Φ₂₂ − [T d]ᵀ[T d], each of its rows updated once with all D rows of the
+    panel.  Returns −1, or the first pivot that is not positive (relative to
+    :data:`PIVOT_TOLERANCE`)."""
     N = Phi.shape[0]
-    for p in range(d):
+    e = o + D
+    for p in range(o, e):
         a = Phi[p, p]
         if not (a > PIVOT_TOLERANCE * Phi[N - 1, p] and a < np.inf):
             return p
@@ -216,11 +226,17 @@ def _eliminate_front(Phi, d):
         Phi[p, p] = r
         for c in range(p + 1, N):
             Phi[p, c] *= inv
-        for i in range(p + 1, N):
+        for i in range(p + 1, e):
             f = Phi[p, i]
             if f != 0.0:
                 for c in range(i, N):
                     Phi[i, c] -= f * Phi[p, c]
+    for i in range(e, N):
+        for q in range(o, e):
+            w = Phi[q, i]
+            if w != 0.0:
+                for c in range(i, N):
+                    Phi[i, c] -= w * Phi[q, c]
     return -1
 
 
@@ -229,9 +245,15 @@ def reeliminate(order, orphans, base,
                 dim, pos, parent, first, nxt, nchild, sep_start, sep_len, sep_dim, cond, ustart,
                 roots, ipool, itop, fpool, ftop,
                 fnv, fvstart, fvars, frows, fjstart, fcols, jac, ahead, anext, afac,
-                aidx, mark, stamps, loc, chead, cnext, stats):
+                aidx, mark, stamps, loc, chead, cnext, stats, keep_update):
     """Re-eliminate the variables ``order`` (in that order, given positions ``base``, ``base`` + 1, …)
     on top of the subtrees ``orphans`` (their update matrices cached).
+
+    First the symbolic pass (each variable's separator: its factors' later variables and its
+    children's separators), then the numeric one by supernodes: a variable and the chain of
+    parents that each have it as only child with the separator one shorter (a clique) are
+    eliminated from one dense front, assembled from their factors and the update matrices of
+    the first one's children; only the last member keeps its update matrix.
 
     New separators, conditionals and update matrices are written past ``itop``/``ftop``
     in the pools; the nodes' arrays are only written once every variable has
@@ -241,9 +263,9 @@ def reeliminate(order, orphans, base,
     to go on (grow and call again); :data:`NOT_POSITIVE` with the variable whose
     pivot failed.  ``aidx`` (V,) −1 on entry and return; ``mark``, ``loc``,
     ``chead``, ``cnext`` (V,) scratch; ``stamps[0]``: the last mark used (above
-    every entry of ``mark``).  ``stats`` (6,): += [columns eliminated,
-    update matrices extend-added, factors assembled, frontal scalars², pool floats
-    freed, pool ints freed].
+    every entry of ``mark``).  ``keep_update``: a clique member below the last keeps an
+    update matrix of at most this many floats (:data:`KEEP_UPDATE`).  ``stats`` (6,): += [columns eliminated, update matrices
+    extend-added, factors assembled, frontal scalars², pool floats freed, pool ints freed].
     """
     K = order.shape[0]
     old_pos = np.empty(K, dtype=np.int64)
@@ -258,7 +280,11 @@ def reeliminate(order, orphans, base,
     t_len = np.empty(K, dtype=np.int64)
     t_sdim = np.empty(K, dtype=np.int64)
     t_cond = np.empty(K, dtype=np.int64)
-    t_u = np.empty(K, dtype=np.int64)
+    t_u = np.full(K, -1, dtype=np.int64)
+    t_nch = np.zeros(K, dtype=np.int64)
+    f_start = np.empty(K + 1, dtype=np.int64)
+    fall = np.empty(16, dtype=np.int64)
+    nfall = 0
     new_roots = -1
     # orphans hang from the first of their separator's variables in the new order
     o_parent = np.empty(orphans.shape[0], dtype=np.int64)
@@ -272,20 +298,19 @@ def reeliminate(order, orphans, base,
         o_parent[q] = best
         cnext[o] = chead[best]
         chead[best] = o
+        t_nch[aidx[best]] += 1
     it = itop
-    ft = ftop
     sbuf = np.empty(64, dtype=np.int64)
-    fbuf = np.empty(64, dtype=np.int64)
-    colmap = np.empty(64, dtype=np.int64)
     status = OK
     detail = 0
     stamp = stamps[0]
+    # ---- symbolic pass
     for k in range(K):
         j = order[k]
         stamp += 1
         mark[j] = stamp
         ns = 0
-        nf = 0
+        f_start[k] = nfall
         # factors whose first variable is j
         e = ahead[j]
         while e >= 0:
@@ -299,8 +324,8 @@ def reeliminate(order, orphans, base,
                     break
             if not first_var:
                 continue
-            fbuf = _push(fbuf, nf, f)
-            nf += 1
+            fall = _push(fall, nfall, f)
+            nfall += 1
             for t in range(fvstart[f], fvstart[f] + fnv[f]):
                 v = fvars[t]
                 if mark[v] != stamp:
@@ -321,117 +346,212 @@ def reeliminate(order, orphans, base,
                     ns += 1
             c = cnext[c]
         _sort_by(pos, sbuf, ns)
-        d = dim[j]
-        s = 0
-        loc[j] = 0
-        for q in range(ns):
-            loc[sbuf[q]] = d + s
-            s += dim[sbuf[q]]
-        N = d + s + 1
-        need_f = d * N + (s + 1) * (s + 1)
         if it + ns > ipool.shape[0]:
             status = NEED_INT
-            detail = it + ns + (K - k) * (ns + 1)
+            detail = max(2 * ipool.shape[0], it + ns)
             break
-        if ft + need_f > fpool.shape[0]:
-            status = NEED_FLOAT
-            detail = ft + need_f + (K - k - 1) * need_f
-            break
+        s = 0
         for q in range(ns):
             ipool[it + q] = sbuf[q]
+            s += dim[sbuf[q]]
         t_sep[k] = it
         t_len[k] = ns
         t_sdim[k] = s
         it += ns
-        # frontal matrix: the factors, then the children's update matrices (extend-add)
-        Phi = np.zeros((N, N))
-        for q in range(nf):
-            f = fbuf[q]
-            D1 = fcols[f]
-            if D1 > colmap.shape[0]:
-                colmap = np.empty(2 * D1, dtype=np.int64)
-            cc = 0
-            for t in range(fvstart[f], fvstart[f] + fnv[f]):
-                v = fvars[t]
-                for i in range(dim[v]):
-                    colmap[cc] = loc[v] + i
-                    cc += 1
-            colmap[cc] = N - 1
-            J0 = fjstart[f]
-            r = frows[f]
-            for c1 in range(D1):
-                t1 = colmap[c1]
-                for c2 in range(D1):
-                    t2 = colmap[c2]
-                    if t1 > t2:
-                        continue
-                    acc = 0.0
-                    for rr in range(r):
-                        acc += jac[J0 + rr * D1 + c1] * jac[J0 + rr * D1 + c2]
-                    Phi[t1, t2] += acc
-        c = chead[j]
-        nu = 0
-        while c >= 0:
-            ci = aidx[c]
-            s0 = t_sep[ci] if ci >= 0 else sep_start[c]
-            sl = t_len[ci] if ci >= 0 else sep_len[c]
-            u0 = t_u[ci] if ci >= 0 else ustart[c]
-            S1 = (t_sdim[ci] if ci >= 0 else sep_dim[c]) + 1
-            if S1 > colmap.shape[0]:
-                colmap = np.empty(2 * S1, dtype=np.int64)
-            cc = 0
-            for t in range(s0, s0 + sl):
-                v = ipool[t]
-                for i in range(dim[v]):
-                    colmap[cc] = loc[v] + i
-                    cc += 1
-            colmap[cc] = N - 1
-            for a in range(S1):
-                ta = colmap[a]
-                row = u0 + a * S1
-                for b in range(S1):
-                    tb = colmap[b]
-                    if ta <= tb:
-                        Phi[ta, tb] += fpool[row + b]
-            nu += 1
-            c = cnext[c]
-        # the diagonal before elimination, for the pivot test (row N−1 below the diagonal is free)
-        for p in range(d):
-            Phi[N - 1, p] = Phi[p, p]
-        bad = _eliminate_front(Phi, d)
-        if bad >= 0:
-            status = NOT_POSITIVE
-            detail = j
-            break
-        # conditional [R | T | d_j] (upper part of rows 0..d-1), update matrix (symmetric)
-        t_cond[k] = ft
-        for p in range(d):
-            for q in range(N):
-                fpool[ft + p * N + q] = Phi[p, q] if q >= p else 0.0
-        ft += d * N
-        t_u[k] = ft
-        S1 = s + 1
-        for a in range(S1):
-            for b in range(a, S1):
-                x = Phi[d + a, d + b]
-                fpool[ft + a * S1 + b] = x
-                fpool[ft + b * S1 + a] = x
-        ft += S1 * S1
         # this node hangs from the first variable of its separator
         if ns > 0:
             p = sbuf[0]
             t_parent[k] = p
             cnext[j] = chead[p]
             chead[p] = j
+            t_nch[aidx[p]] += 1
         else:
             t_parent[k] = -1
             cnext[j] = new_roots
             new_roots = j
-        stats[0] += 1
-        stats[1] += nu
-        stats[2] += nf
-        stats[3] += N * N
+    f_start[K] = nfall
     stamps[0] = stamp
+    # ---- numeric pass, one supernode at a time
+    ft = ftop
+    colmap = np.empty(64, dtype=np.int64)
+    members = np.empty(16, dtype=np.int64)
+    if status == OK:
+        for k in range(K):
+            j = order[k]
+            # a member of the supernode of its parent's chain is eliminated with the chain's first
+            c = chead[j]
+            if t_nch[k] == 1 and aidx[c] >= 0 and t_len[aidx[c]] == t_len[k] + 1:
+                continue
+            # the chain j → parent → … while the parent has j as only child and nests its separator
+            nm = 0
+            members = _push(members, nm, j)
+            nm += 1
+            top = j
+            while True:
+                ti = aidx[top]
+                p = t_parent[ti]
+                if p < 0:
+                    break
+                pi = aidx[p]
+                if t_nch[pi] != 1 or t_len[ti] != t_len[pi] + 1:
+                    break
+                members = _push(members, nm, p)
+                nm += 1
+                top = p
+            topk = aidx[top]
+            D = 0
+            for q in range(nm):
+                v = members[q]
+                loc[v] = D
+                D += dim[v]
+            s = t_sdim[topk]
+            o = D
+            for t in range(t_sep[topk], t_sep[topk] + t_len[topk]):
+                v = ipool[t]
+                loc[v] = o
+                o += dim[v]
+            N = D + s + 1
+            need_f = (s + 1) * (s + 1)
+            for q in range(nm):
+                need_f += dim[members[q]] * (N - loc[members[q]])
+            if ft + need_f > fpool.shape[0]:
+                status = NEED_FLOAT
+                detail = max(2 * fpool.shape[0], ft + need_f)
+                break
+            Phi = np.zeros((N, N))
+            diag0 = np.zeros(N)  # the diagonal as assembled, for the pivot test
+            # the update matrices of the first member's children (extend-add)
+            nu = 0
+            c = chead[j]
+            while c >= 0:
+                ci = aidx[c]
+                s0 = t_sep[ci] if ci >= 0 else sep_start[c]
+                sl = t_len[ci] if ci >= 0 else sep_len[c]
+                u0 = t_u[ci] if ci >= 0 else ustart[c]
+                if u0 < 0:
+                    # never: a child without an update matrix shares its parent's clique
+                    status = NOT_POSITIVE
+                    detail = c
+                    break
+                S1 = (t_sdim[ci] if ci >= 0 else sep_dim[c]) + 1
+                if S1 > colmap.shape[0]:
+                    colmap = np.empty(2 * S1, dtype=np.int64)
+                cc = 0
+                for t in range(s0, s0 + sl):
+                    v = ipool[t]
+                    for i in range(dim[v]):
+                        colmap[cc] = loc[v] + i
+                        cc += 1
+                colmap[cc] = N - 1
+                for a in range(S1):
+                    ta = colmap[a]
+                    row = u0 + a * S1
+                    diag0[ta] += fpool[row + a]
+                    for b in range(a, S1):
+                        tb = colmap[b]
+                        if ta <= tb:
+                            Phi[ta, tb] += fpool[row + b]
+                        else:
+                            Phi[tb, ta] += fpool[row + b]
+                nu += 1
+                c = cnext[c]
+            if status != OK:
+                break
+            # members in blocks, each ending at a member that keeps its update matrix (the last
+            # always does; the others when it is small: a later update that re-eliminates only
+            # the members above starts from it).  A member's factors enter just before its block
+            # (they touch no column before it), so that each update matrix kept is its subtree's
+            # alone.  The members' update matrices are stored past the top's.
+            ux = ft + need_f
+            b0 = 0
+            bad = -1
+            nf = 0
+            for q in range(nm):
+                v = members[q]
+                mk = aidx[v]
+                for t in range(f_start[mk], f_start[mk + 1]):
+                    f = fall[t]
+                    nf += 1
+                    D1 = fcols[f]
+                    if D1 > colmap.shape[0]:
+                        colmap = np.empty(2 * D1, dtype=np.int64)
+                    cc = 0
+                    for u in range(fvstart[f], fvstart[f] + fnv[f]):
+                        w = fvars[u]
+                        for i in range(dim[w]):
+                            colmap[cc] = loc[w] + i
+                            cc += 1
+                    colmap[cc] = N - 1
+                    J0 = fjstart[f]
+                    r = frows[f]
+                    for c1 in range(D1):
+                        t1 = colmap[c1]
+                        for c2 in range(D1):
+                            t2 = colmap[c2]
+                            if t1 > t2:
+                                continue
+                            acc = 0.0
+                            for rr in range(r):
+                                acc += jac[J0 + rr * D1 + c1] * jac[J0 + rr * D1 + c2]
+                            Phi[t1, t2] += acc
+                            if t1 == t2:
+                                diag0[t1] += acc
+                e = loc[v] + dim[v]
+                sq = N - e
+                last = q == nm - 1
+                if not last and sq * sq > keep_update:
+                    continue
+                for p in range(b0, e):
+                    Phi[N - 1, p] = diag0[p]
+                bad = _eliminate_columns(Phi, b0, e - b0)
+                if bad >= 0:
+                    break
+                b0 = e
+                if not last:
+                    if ux + sq * sq > fpool.shape[0]:
+                        bad = -2
+                        break
+                    t_u[mk] = ux
+                    for a in range(sq):
+                        for b in range(a, sq):
+                            x = Phi[e + a, e + b]
+                            fpool[ux + a * sq + b] = x
+                            fpool[ux + b * sq + a] = x
+                    ux += sq * sq
+            if bad == -2:
+                status = NEED_FLOAT
+                detail = max(2 * fpool.shape[0], ux + need_f)
+                break
+            if bad >= 0:
+                status = NOT_POSITIVE
+                for q in range(nm):
+                    v = members[q]
+                    if loc[v] <= bad < loc[v] + dim[v]:
+                        detail = v
+                break
+            # conditionals: member q's rows, from its own columns on
+            for q in range(nm):
+                v = members[q]
+                o = loc[v]
+                W = N - o
+                t_cond[aidx[v]] = ft
+                for p in range(dim[v]):
+                    for qq in range(W):
+                        cidx = o + qq
+                        fpool[ft + p * W + qq] = Phi[o + p, cidx] if cidx >= o + p else 0.0
+                ft += dim[v] * W
+            S1 = s + 1
+            t_u[topk] = ft
+            for a in range(S1):
+                for b in range(a, S1):
+                    x = Phi[D + a, D + b]
+                    fpool[ft + a * S1 + b] = x
+                    fpool[ft + b * S1 + a] = x
+            ft = ux
+            stats[0] += nm
+            stats[1] += nu
+            stats[2] += nf
+            stats[3] += N * N
     if status != OK:
         for k in range(K):
             j = order[k]
@@ -466,6 +586,8 @@ def reeliminate(order, orphans, base,
         ustart[j] = t_u[k]
         first[j] = chead[j]
         nxt[j] = cnext[j]
+        nchild[j] = t_nch[k]
+        aidx[j] = -1
     # prepend the new roots to the kept ones
     r = new_roots
     last = -1
@@ -477,22 +599,6 @@ def reeliminate(order, orphans, base,
         roots[0] = new_roots
     else:
         roots[0] = kept
-    for k in range(K):
-        j = order[k]
-        n = 0
-        c = first[j]
-        while c >= 0:
-            n += 1
-            c = nxt[c]
-        nchild[j] = n
-    # a node sharing its parent's clique is never an orphan: its update matrix goes
-    for k in range(K):
-        j = order[k]
-        p = parent[j]
-        if p >= 0 and nchild[p] == 1 and sep_len[j] == sep_len[p] + 1:
-            ustart[j] = -1
-            stats[4] += (sep_dim[j] + 1) * (sep_dim[j] + 1)
-        aidx[j] = -1
     return OK, 0, it, ft
 
 
