@@ -110,7 +110,7 @@ class BlockFactor:
         self.fstamp_box = 0
         self.next_pos = 0
         self.delta = np.zeros(0)
-        self.stats = np.zeros(6, dtype=np.int64)
+        self.stats = np.zeros(7, dtype=np.int64)
         self.last = UpdateStats()
         self.totals = UpdateStats()
         self.updates = 0
@@ -239,12 +239,15 @@ class BlockFactor:
         order = self._order(affected, orphans, observed)
         st = self.stats
         before = st.copy()
+        # a batch step rewrites every node: into new pools (nothing in the old ones is read),
+        # which replace the old ones whole, with nothing freed left in them
+        ipool, itop = (np.empty_like(self.ipool), 0) if batch else (self.ipool, self.itop)
+        fpool, ftop = (np.empty_like(self.fpool), 0) if batch else (self.fpool, self.ftop)
         while True:
             status, detail, it, ft = _el.reeliminate(
                 order, orphans, self.next_pos,
                 self.dim, self.pos, self.parent, self.first, self.nxt, self.nchild, self.sep_start,
-                self.sep_len, self.sep_dim, self.cond, self.ustart, self.roots, self.ipool, self.itop,
-                self.fpool, self.ftop,
+                self.sep_len, self.sep_dim, self.cond, self.ustart, self.roots, ipool, itop, fpool, ftop,
                 self.fnv, self.fvstart, self.fvars, self.frows, self.fjstart, self.fcols, self.jac,
                 self.ahead, self.anext, self.afac,
                 self.aidx, self.mark, self.stamps, self.loc, self.chead, self.cnext, st, self.keep_update)
@@ -252,19 +255,28 @@ class BlockFactor:
                 break
             st[:] = before
             if status == _el.NEED_INT:
-                if 2 * self.stats[5] > self.itop:
+                if batch:
+                    ipool = _grow(ipool, int(detail))
+                elif 2 * self.stats[5] > self.itop:
                     self._compact()
                 else:
                     self.ipool = _grow(self.ipool, int(detail))
             elif status == _el.NEED_FLOAT:
-                if 2 * self.stats[4] > self.ftop:
+                if batch:
+                    fpool = _grow(fpool, int(detail) + int(detail) // 4)
+                elif 2 * self.stats[4] > self.ftop and int(detail) - self.stats[4] <= self.fpool.shape[0]:
                     self._compact()
                 else:
-                    self.fpool = _grow(self.fpool, int(detail))
+                    self.fpool = _grow(self.fpool, int(detail) + int(detail) // 4)
             else:
                 raise IndeterminantLinearSystem(
                     f"the linear system is not positive definite at variable {int(detail)}: it is not "
                     "determined by the factors so far", int(detail))
+            if not batch:
+                ipool, itop, fpool, ftop = self.ipool, self.itop, self.fpool, self.ftop
+        self.ipool, self.fpool = ipool, fpool
+        if batch:
+            st[4:6] = 0
         self.itop, self.ftop = int(it), int(ft)
         self.next_pos += len(order)
         self.replaced[order] = 1
@@ -292,6 +304,7 @@ class BlockFactor:
         n, m = _el.ordering_graph(affected, orphans, self.fnv, self.fvstart, self.fvars, self.ahead, self.anext,
                                   self.afac, self.sep_start, self.sep_len, self.ipool, self.flag, self.fstamp,
                                   self.fstamp_box, ptr, out)
+        obs = np.intersect1d(observed, affected)
         g = gtsam.SymbolicFactorGraph()
         push = g.push_factor
         ptr = ptr[:n + 1].tolist()
@@ -309,7 +322,6 @@ class BlockFactor:
         # a variable in no factor inside the set still needs a column
         for v in affected.tolist():
             push(v)
-        obs = np.intersect1d(observed, affected)
         if 0 < len(obs) < na:
             ordering = gtsam.Ordering.ColamdConstrainedLastSymbolicFactorGraph(g, obs.tolist(), False)
         else:
@@ -325,7 +337,7 @@ class BlockFactor:
         self.itop, self.ftop = _el.compact_pools(nv, self.dim, self.sep_start, self.sep_len, self.sep_dim,
                                                  self.cond, self.ustart, self.ipool, self.fpool, ipool, fpool)
         self.ipool, self.fpool = ipool, fpool
-        self.stats[4:] = 0
+        self.stats[4:6] = 0
 
     # ------------------------------------------------------------------ solving
     def solve(self, threshold: float = 0.0) -> int:

@@ -30,7 +30,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from numba import njit
+
 from ..kernels.jit import kernel
+
+#: The dense loops: :data:`lie_factors.kernels.jit.kernel`'s options, with sums that may be
+#: reassociated and multiply-adds contracted (vectorized); NaN and infinity keep their IEEE
+#: semantics (the pivot test relies on them).
+dense_kernel = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
 
 #: Status codes of :func:`reeliminate`.
 OK, NEED_INT, NEED_FLOAT, NOT_POSITIVE = 0, 1, 2, 3
@@ -206,7 +213,7 @@ def _sort_by(keys_of, buf, n):
         buf[t + 1] = v
 
 
-@kernel
+@dense_kernel
 def _eliminate_columns(Phi, o, D):
     """Eliminate the scalars o … o + D − 1 of the symmetric frontal ``Phi`` (N × N, upper
     triangle read and written, the first o already eliminated; ``Phi[N − 1, :]`` below the
@@ -240,7 +247,7 @@ def _eliminate_columns(Phi, o, D):
     return -1
 
 
-@kernel
+@dense_kernel
 def reeliminate(order, orphans, base,
                 dim, pos, parent, first, nxt, nchild, sep_start, sep_len, sep_dim, cond, ustart,
                 roots, ipool, itop, fpool, ftop,
@@ -259,13 +266,14 @@ def reeliminate(order, orphans, base,
     in the pools; the nodes' arrays are only written once every variable has
     been eliminated, so a refusal leaves the factor as it was (positions are
     restored).  Returns (status, detail, new itop, new ftop): status
-    :data:`OK`; :data:`NEED_INT`/:data:`NEED_FLOAT` with the pool size needed
-    to go on (grow and call again); :data:`NOT_POSITIVE` with the variable whose
+    :data:`OK`; :data:`NEED_INT`/:data:`NEED_FLOAT` with a pool size to grow to
+    before calling again (the floats are counted exactly after the symbolic pass); :data:`NOT_POSITIVE` with the variable whose
     pivot failed.  ``aidx`` (V,) −1 on entry and return; ``mark``, ``loc``,
     ``chead``, ``cnext`` (V,) scratch; ``stamps[0]``: the last mark used (above
     every entry of ``mark``).  ``keep_update``: a clique member below the last keeps an
     update matrix of at most this many floats (:data:`KEEP_UPDATE`).  ``stats`` (6,): += [columns eliminated, update matrices
-    extend-added, factors assembled, frontal scalars², pool floats freed, pool ints freed].
+    extend-added, factors assembled, frontal scalars², pool floats freed, pool ints freed,
+    Σ D·N² over fronts (the work of their dense elimination, in multiply-adds up to a constant)].
     """
     K = order.shape[0]
     old_pos = np.empty(K, dtype=np.int64)
@@ -371,10 +379,26 @@ def reeliminate(order, orphans, base,
             new_roots = j
     f_start[K] = nfall
     stamps[0] = stamp
+    if status == OK:
+        # the floats the numeric pass writes: every conditional, the update matrix of every
+        # clique's last member and of the members that keep theirs
+        need = 0
+        for k in range(K):
+            d = dim[order[k]]
+            S1 = t_sdim[k] + 1
+            need += d * (d + S1)
+            p = t_parent[k]
+            top = p < 0 or t_nch[aidx[p]] != 1 or t_len[k] != t_len[aidx[p]] + 1
+            if top or S1 * S1 <= keep_update:
+                need += S1 * S1
+        if ftop + need > fpool.shape[0]:
+            status = NEED_FLOAT
+            detail = ftop + need
     # ---- numeric pass, one supernode at a time
     ft = ftop
     colmap = np.empty(64, dtype=np.int64)
     members = np.empty(16, dtype=np.int64)
+    scratch = np.empty(4096)  # the fronts, reused (grown to the largest)
     if status == OK:
         for k in range(K):
             j = order[k]
@@ -414,12 +438,11 @@ def reeliminate(order, orphans, base,
             need_f = (s + 1) * (s + 1)
             for q in range(nm):
                 need_f += dim[members[q]] * (N - loc[members[q]])
-            if ft + need_f > fpool.shape[0]:
-                status = NEED_FLOAT
-                detail = max(2 * fpool.shape[0], ft + need_f)
-                break
-            Phi = np.zeros((N, N))
-            diag0 = np.zeros(N)  # the diagonal as assembled, for the pivot test
+            if N * N + N > scratch.shape[0]:
+                scratch = np.empty(2 * (N * N + N))
+            scratch[:N * N + N] = 0.0
+            Phi = scratch[:N * N].reshape((N, N))
+            diag0 = scratch[N * N:N * N + N]  # the diagonal as assembled, for the pivot test
             # the update matrices of the first member's children (extend-add)
             nu = 0
             c = chead[j]
@@ -508,9 +531,6 @@ def reeliminate(order, orphans, base,
                     break
                 b0 = e
                 if not last:
-                    if ux + sq * sq > fpool.shape[0]:
-                        bad = -2
-                        break
                     t_u[mk] = ux
                     for a in range(sq):
                         for b in range(a, sq):
@@ -518,10 +538,6 @@ def reeliminate(order, orphans, base,
                             fpool[ux + a * sq + b] = x
                             fpool[ux + b * sq + a] = x
                     ux += sq * sq
-            if bad == -2:
-                status = NEED_FLOAT
-                detail = max(2 * fpool.shape[0], ux + need_f)
-                break
             if bad >= 0:
                 status = NOT_POSITIVE
                 for q in range(nm):
@@ -552,6 +568,7 @@ def reeliminate(order, orphans, base,
             stats[1] += nu
             stats[2] += nf
             stats[3] += N * N
+            stats[6] += D * N * N
     if status != OK:
         for k in range(K):
             j = order[k]

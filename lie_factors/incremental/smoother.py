@@ -350,8 +350,13 @@ class Smoother:
         self.vgroup: list = []  # variable index -> group name or None
         self.velem = np.zeros(0, dtype=np.int64)  # variable index -> element index in its group
         self.elements: dict[str, _Elements] = {}
+        self.vcode = np.zeros(0, dtype=np.int64)  # variable index -> index in group_names, or -1
+        self.vnative = np.zeros(0, dtype=bool)  # variable index -> a native factor uses it
+        self.group_names: list[str] = []
         self.kinds: dict[tuple, _FactorKind] = {}
-        self.fstore: list = []  # factor id -> (kind key or None, local index)
+        self.kind_list: list[_FactorKind] = []
+        self.fkind = np.zeros(0, dtype=np.int64)  # factor id -> index in kind_list, or -1 (native)
+        self.flocal = np.zeros(0, dtype=np.int64)  # factor id -> index in its kind (or in native)
         self.native: list = []  # (factor, var indices, factor id)
         self.native_theta = gtsam.Values()  # θ of every variable a native factor touches
         self.other = gtsam.Values()  # θ of the variables GTSAM holds (no group of ours)
@@ -493,6 +498,8 @@ class Smoother:
         el = self.elements.get(name)
         if el is None:
             el = self.elements[name] = _Elements(_factors.GROUPS[name])
+            el.code = len(self.group_names)
+            self.group_names.append(name)
         return el
 
     # ------------------------------------------------------------------ updates
@@ -637,6 +644,10 @@ class Smoother:
         ids = list(range(nv0, nv0 + P))
         undo.vars(nv0)
         self.velem = _grow(self.velem, nv0 + P)
+        self.vcode = _grow(self.vcode, nv0 + P)
+        self.vnative = _grow(self.vnative, nv0 + P)
+        self.vcode[nv0:nv0 + P] = -1
+        self.vnative[nv0:nv0 + P] = False
         by_group: dict = {}
         for q, (k, name) in enumerate(zip(nf.keys, nf.kinds)):
             self.keys.append(k)
@@ -649,8 +660,12 @@ class Smoother:
             undo.elements(el)
             idx = el.append(np.array([nf.values[q] for q in qs]), np.array([nv0 + q for q in qs], dtype=np.int64))
             self.velem[[nv0 + q for q in qs]] = idx
+            self.vcode[[nv0 + q for q in qs]] = el.code
         others = [q for q, name in enumerate(nf.kinds) if name is None]
         native_keys = {k for _, keys in nf.native for k in keys}
+        if native_keys:
+            undo.vnative()
+            self.vnative[[self.var[k] for k in native_keys]] = True
         if others or native_keys:
             undo.values()
             self.other = gtsam.Values(self.other)
@@ -682,6 +697,8 @@ class Smoother:
             store = self.kinds.get((kind, name))
             if store is None:
                 store = self.kinds[(kind, name)] = _FactorKind(kind, _factors.GROUPS[name], self._elements(name))
+                store.code = len(self.kind_list)
+                self.kind_list.append(store)
             undo.kind(store)
             keys = entry["keys"]
             v = np.fromiter((var[k] for k in keys.ravel().tolist()), dtype=np.int64, count=keys.size).reshape(keys.shape)
@@ -689,8 +706,7 @@ class Smoother:
             idx = store.append(v, e, entry["C"], entry["Ad"], entry["R"], entry["src"])
             fids = np.arange(self.bf.nf + sum(len(o[0]) for o in out), self.bf.nf + sum(len(o[0]) for o in out) + len(v))
             store.fid[idx] = fids
-            undo.fstore(len(self.fstore))
-            self.fstore.extend(((kind, name), int(i)) for i in idx)
+            self._register(fids, store.code, idx)
             out.append((v, store.jacobians(idx)))
         if nf.native:
             undo.native(len(self.native))
@@ -698,10 +714,18 @@ class Smoother:
             for q, (f, keys) in enumerate(nf.native):
                 vs = np.array([var[k] for k in keys], dtype=np.int64)
                 self.native.append((f, vs, base + q))
-                undo.fstore(len(self.fstore))
-                self.fstore.append((None, len(self.native) - 1))
+                self._register(np.array([base + q]), -1, np.array([len(self.native) - 1]))
                 out.append((vs[None, :], self._native_jacobian(f)[None]))
         return out
+
+    def _register(self, fids: np.ndarray, code: int, local: np.ndarray) -> None:
+        """Factor ids ``fids`` are entries ``local`` of kind ``code`` (−1: native factors).  (Ids
+        past the block factor's count are dropped with it if the update fails.)"""
+        n = int(fids.max()) + 1
+        self.fkind = _grow(self.fkind, n)
+        self.flocal = _grow(self.flocal, n)
+        self.fkind[fids] = code
+        self.flocal[fids] = local
 
     def _native_jacobian(self, f) -> np.ndarray:
         """[A | b] of a factor GTSAM linearizes at θ (rows: a JacobianFactor's, or a square root of
@@ -736,9 +760,9 @@ class Smoother:
     def _relinearize(self, relin: np.ndarray, undo) -> list:
         """θ ← θ ⊕ δ on ``relin``, and new Jacobians for every factor on them."""
         bf = self.bf
-        groups = np.array([self.vgroup[v] or "" for v in relin.tolist()], dtype=object)
+        codes = self.vcode[relin]
         for name, el in self.elements.items():
-            vs = relin[groups == name]
+            vs = relin[codes == el.code]
             if not len(vs):
                 continue
             e = self.velem[vs]
@@ -746,9 +770,9 @@ class Smoother:
             out = np.empty((len(e), el.spec.mat, el.spec.mat))
             el.loops.retract(np.ascontiguousarray(el.X[e]), bf.delta, bf.voff[vs], out)
             el.X[e] = out
-        other = relin[groups == ""]
-        touched_native = [v for v in relin.tolist() if self.native_theta.exists(self.keys[v])]
-        if len(other) or touched_native:
+        other = relin[codes < 0]
+        touched_native = relin[self.vnative[relin]]
+        if len(other) or len(touched_native):
             undo.values()
             if len(other):
                 vv = gtsam.VectorValues()
@@ -757,7 +781,7 @@ class Smoother:
                 self.other = self.other.retract(vv)
             nt = gtsam.Values(self.native_theta)
             vv = gtsam.VectorValues()
-            for v in touched_native:
+            for v in touched_native.tolist():
                 name = self.vgroup[v]
                 k = self.keys[v]
                 if name is None:
@@ -767,20 +791,13 @@ class Smoother:
                     nt.update(k, to_gtsam(el.spec.name, el.X[self.velem[v]]))
             self.native_theta = nt.retract(vv) if vv.size() else nt
         fids = _el.factors_of(relin, bf.ahead, bf.anext, bf.afac, bf.nf)
-        by_kind: dict = {}
-        natives = []
-        for f in fids.tolist():
-            kk, local = self.fstore[f]
-            if kk is None:
-                natives.append(local)
-            else:
-                by_kind.setdefault(kk, []).append(local)
+        fk, fl = self.fkind[fids], self.flocal[fids]
         out = []
-        for kk, locals_ in by_kind.items():
-            store = self.kinds[kk]
-            idx = np.array(locals_, dtype=np.int64)
-            out.append((store.fid[idx], store.jacobians(idx)))
-        for local in natives:
+        for store in self.kind_list:
+            idx = fl[fk == store.code]
+            if len(idx):
+                out.append((store.fid[idx], store.jacobians(idx)))
+        for local in fl[fk < 0].tolist():
             f, _, fid = self.native[local]
             out.append((np.array([fid]), self._native_jacobian(f)[None]))
         return out
@@ -859,11 +876,11 @@ class Smoother:
         """Every factor added, in the order added (factors given as arrays are made as GTSAM's
         ``BetweenFactor``/``PriorFactor`` with ``noiseModel.Gaussian.Information``)."""
         graph = gtsam.NonlinearFactorGraph()
-        for kk, local in self.fstore:
-            if kk is None:
+        for code, local in zip(self.fkind[:self.bf.nf].tolist(), self.flocal[:self.bf.nf].tolist()):
+            if code < 0:
                 graph.push_back(self.native[local][0])
                 continue
-            store = self.kinds[kk]
+            store = self.kind_list[code]
             f = store.source[local]
             if f is None:
                 f = self._make_factor(store, local)
@@ -976,9 +993,10 @@ class _Undo:
         n = store.n
         self.steps.append(lambda: store.truncate(n))
 
-    def fstore(self, n):
+    def vnative(self):
         s = self.s
-        self.steps.append(lambda: s.fstore.__delitem__(slice(n, None)))
+        saved = s.vnative.copy()
+        self.steps.append(lambda: setattr(s, "vnative", saved))
 
     def native(self, n):
         s = self.s
