@@ -1,26 +1,34 @@
-"""Online replay through ISAM2, three ways:
+"""Online replay, four ways:
 
 - ``native``: GTSAM's own factors in ``gtsam.ISAM2``;
 - ``plain``: lie_factors' factors in plain ``gtsam.ISAM2`` (every callback gets a copy of
   the whole Values: quadratic; cut off after ``--plain-limit`` seconds, and then compared
   with the other legs' time for the same number of updates);
-- ``dropin``: lie_factors' factors in :class:`lie_factors.optimizers.ISAM2`.
+- ``dropin``: lie_factors' factors in :class:`lie_factors.optimizers.ISAM2`;
+- ``batch``: the incremental smoother, :class:`lie_factors.incremental.Smoother` on arrays
+  (what ``lie-factors posegraph FILE --incremental`` runs by default).
 
-Each replay is :func:`lie_factors.app.incremental.replay` (what ``lie-factors posegraph FILE
---incremental`` runs: poses in id order, one per update, GTSAM's default ISAM2Params).
-The legs alternate (repeat ▸ dataset ▸ leg) and each reports its best of ``--repeat``.
-Datasets: files (``--data-dir``) and ``helix``: a generated 10k-pose SE(3) helix that
-revisits a place every 100 poses, odometry between consecutive poses and, at every 10th
-pose, a loop closure to the pose 100 back; noise σ 0.01 rad / 0.05 m (seeded); its ATE
-(RMSE of the positions against the ground truth, no alignment: the prior holds pose 0 at
-the truth) is reported.
+Each replay is :func:`lie_factors.app.incremental.replay` (poses in id order, one per update,
+GTSAM's default ISAM2Params).  The legs alternate (repeat ▸ dataset ▸ leg) and each reports
+its best of ``--repeat``.  Datasets: files (``--data-dir``, or a path) and ``helix``: a
+generated 10k-pose SE(3) helix that revisits a place every 100 poses, odometry between
+consecutive poses and, at every 10th pose, a loop closure to the pose 100 back; noise σ
+0.01 rad / 0.05 m (seeded); its ATE (RMSE of the positions against the ground truth, no
+alignment: the prior holds pose 0 at the truth) is reported.
 
     python benchmarks/incremental.py [--data-dir DIR] [--datasets intel city10000 sphere2500 helix]
-        [--legs native plain dropin] [--repeat 2] [--plain-limit 60] [--helix-poses 10000] [--cli]
+        [--legs native plain dropin batch] [--repeat 2] [--plain-limit 60] [--helix-poses 10000]
+        [--cli] [--accuracy]
 
 ``--cli`` instead times what a user runs: ``lie-factors posegraph FILE --incremental --backend
-native|dropin --json`` in a fresh process each (wall seconds of the whole command, and its
-update_seconds), alternating, best of ``--repeat``.
+LEG --json`` in a fresh process each (legs: ``--legs``, default native and batch), alternating,
+best of ``--repeat``: the wall seconds of the whole command, its update_seconds and p99, its
+peak resident memory, and each against native's.
+
+``--accuracy`` replays each graph through ``gtsam.ISAM2`` (GTSAM's factors) and the smoother
+side by side and prints the error of the graph so far at each one's estimate at every tenth
+of the replay (and the worst ratio), the final errors, and the error after the smoother's
+``optimize()`` (relinearize everything and iterate) against batch Levenberg–Marquardt's optimum.
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ from lie_factors.app.backends import build_graph  # noqa: E402
 from lie_factors.app.load import load as load_dataset  # noqa: E402
 
 DEFAULT_DATASETS = ["intel", "city10000", "sphere2500", "helix"]
-LEGS = ("native", "plain", "dropin")
+LEGS = ("native", "plain", "dropin", "batch")
 SIGMA_ROT, SIGMA_TRANS = 0.01, 0.05
 
 
@@ -103,35 +111,128 @@ def run_leg(pg, leg: str, graphs: dict, plain_limit: float):
     if leg == "plain":
         return incremental.replay(pg, "dropin", graph=graphs["dropin"], isam_class=gtsam.ISAM2,
                                   max_seconds=plain_limit)
+    if leg == "batch":
+        return incremental.replay(pg, "batch")
     return incremental.replay(pg, "dropin", graph=graphs["dropin"])
 
 
-def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int) -> None:
+def _run_command(cmd: list) -> tuple[float, str, float]:
+    """(wall seconds, stdout, peak resident MB) of ``cmd`` in a fresh process."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    out = proc.stdout.read()
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} exited with {proc.returncode}")
+    return wall, out, usage.ru_maxrss / 1024.0
+
+
+def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int, legs) -> None:
     exe = os.path.join(os.path.dirname(sys.executable), "lie-factors")
     paths = {}
     for name in datasets:
         pg, _ = load(name, data_dir, tmp, helix_poses)
         paths[name] = pg.path
     best: dict = {}
-    for _ in range(repeat):
+    for r in range(repeat):
         for name in datasets:
-            for backend in ("native", "dropin"):
-                t0 = time.perf_counter()
-                out = subprocess.run([exe, "posegraph", paths[name], "--incremental", "--backend", backend,
-                                      "--json", "--quiet"], check=True, capture_output=True, text=True).stdout
-                wall = time.perf_counter() - t0
+            for backend in legs:
+                wall, out, rss = _run_command([exe, "posegraph", paths[name], "--incremental", "--backend",
+                                               backend, "--json", "--quiet"])
                 d = json.loads(out.strip().splitlines()[-1])
+                print(f"# repeat {r + 1} {name} {backend}: wall {wall:.2f} s, updates {d['update_seconds']:.3f} s, "
+                      f"p99 {d['update_p99'] * 1e3:.2f} ms, {rss:.0f} MB", file=sys.stderr, flush=True)
                 key = (name, backend)
-                if key not in best or wall < best[key][0]:
-                    best[key] = (wall, d)
-    print("| graph | backend | command wall s | update_seconds | p99 ms | final error | wall × native |")
-    print("|---|---|---|---|---|---|---|")
+                if key not in best:
+                    best[key] = dict(wall=wall, rss=rss, d=d)
+                else:
+                    b = best[key]
+                    b["wall"] = min(b["wall"], wall)
+                    b["rss"] = min(b["rss"], rss)
+                    if d["update_seconds"] < b["d"]["update_seconds"]:
+                        b["d"] = d
+    print("| graph | backend | command wall s | update_seconds | p99 ms | peak MB | final error | relin. | reord. "
+          "| updates × native | p99 × native | wall × native |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in datasets:
-        for backend in ("native", "dropin"):
-            wall, d = best[(name, backend)]
-            print(f"| {d['dataset']} | {backend} | {wall:.2f} | {d['update_seconds']:.3f} | "
-                  f"{d['update_p99'] * 1e3:.2f} | {d['final_error']:.10g} | "
-                  f"{wall / best[(name, 'native')][0]:.2f} |")
+        ref = best.get((name, "native"))
+        for backend in legs:
+            b = best[(name, backend)]
+            d = b["d"]
+
+            def ratio(x, y):
+                return f"{x / y:.2f}" if ref is not None else ""
+
+            print(f"| {d['dataset']} | {backend} | {b['wall']:.2f} | {d['update_seconds']:.3f} | "
+                  f"{d['update_p99'] * 1e3:.2f} | {b['rss']:.0f} | {d['final_error']:.10g} | "
+                  f"{d.get('relinearizations')} | {d.get('reorderings')} | "
+                  f"{ratio(d['update_seconds'], ref['d']['update_seconds']) if ref else ''} | "
+                  f"{ratio(d['update_p99'], ref['d']['update_p99']) if ref else ''} | "
+                  f"{ratio(b['wall'], ref['wall']) if ref else ''} |")
+
+
+def accuracy_rows(datasets, data_dir: str, tmp: str, helix_poses: int) -> None:
+    """gtsam.ISAM2 (GTSAM's factors) and the smoother side by side: the error of the graph so far
+    at every tenth, the final errors, and optimize() against batch LM's optimum."""
+    from lie_factors.incremental import FactorArrays, Smoother
+    from lie_factors.kernels.elements import to_gtsam
+
+    print("| graph | worst tenth (ours / ISAM2) | final ISAM2 | final ours | ours / ISAM2 − 1 "
+          "| optimize() | batch LM optimum | rel. diff |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in datasets:
+        ds, _ = load(name, data_dir, tmp, helix_poses)
+        pg = ds.posed()
+        graph = build_graph(ds, "native")
+        E = len(pg.edge_keys)
+        steps = incremental.schedule(ds, graph)
+        fa = FactorArrays(pg.group, pg.edge_keys, pg.measured, pg.information, pg.prior_keys, pg.prior_measured,
+                          pg.prior_information)
+        ref, ours = gtsam.ISAM2(incremental.isam2_params()), Smoother()
+        at = getattr(gtsam.Values, f"at{pg.group}")
+        so_far = gtsam.NonlinearFactorGraph()
+        tenth = max(len(steps) // 10, 1)
+        prev_ref = prev_ours = None
+        worst = 0.0
+        for n, step in enumerate(steps):
+            for k in step.factors:
+                so_far.add(graph.at(k))
+            g = gtsam.NonlinearFactorGraph()
+            for k in step.factors:
+                g.add(graph.at(k))
+            if step.odometry is not None and prev_ref is not None:
+                k, forward = step.odometry
+                M = pg.measured[k] if forward else fa.Minv[k]
+                guess_ref = prev_ref.compose(to_gtsam(pg.group, M))
+                guess_ours = prev_ours @ M
+            else:
+                guess_ref = at(ds.initial, step.key)
+                guess_ours = ds.start_poses[n]
+            v = gtsam.Values()
+            v.insert(step.key, guess_ref)
+            ref.update(g, v)
+            prev_ref = getattr(ref, f"calculateEstimate{pg.group}")(step.key)
+            ours.update_prepared(fa, [step.key], guess_ours[None], [k for k in step.factors if k < E],
+                                 [k - E for k in step.factors if k >= E])
+            prev_ours = ours.estimate_matrix(step.key)
+            if (n + 1) % tenth == 0 or n + 1 == len(steps):
+                e_ref = so_far.error(ref.calculateEstimate())
+                e_ours = so_far.error(ours.calculateEstimate())
+                worst = max(worst, e_ours / e_ref)
+                print(f"# {name} update {n + 1}: ISAM2 {e_ref:.10g}, ours {e_ours:.10g}", file=sys.stderr,
+                      flush=True)
+        final_ref, final_ours = so_far.error(ref.calculateEstimate()), so_far.error(ours.calculateEstimate())
+        ours.optimize()
+        optimized = so_far.error(ours.calculateEstimate())
+        params = gtsam.LevenbergMarquardtParams()
+        params.setRelativeErrorTol(1e-12)
+        params.setAbsoluteErrorTol(1e-12)
+        params.setMaxIterations(200)
+        lm = so_far.error(gtsam.LevenbergMarquardtOptimizer(so_far, ref.calculateEstimate(), params).optimize())
+        print(f"| {ds.name} | {worst:.6f} | {final_ref:.10g} | {final_ours:.10g} | {final_ours / final_ref - 1:.2e} "
+              f"| {optimized:.10g} | {lm:.10g} | {abs(optimized - lm) / lm:.1e} |", flush=True)
 
 
 def main(argv=None) -> int:
@@ -143,10 +244,16 @@ def main(argv=None) -> int:
     ap.add_argument("--plain-limit", type=float, default=60.0)
     ap.add_argument("--helix-poses", type=int, default=10000)
     ap.add_argument("--cli", action="store_true", help="time the whole CLI command instead")
+    ap.add_argument("--accuracy", action="store_true", help="errors against gtsam.ISAM2 and batch LM instead")
     args = ap.parse_args(argv)
-    if args.cli:
+    if args.accuracy:
         with tempfile.TemporaryDirectory() as tmp:
-            cli_rows(args.datasets, args.data_dir, tmp, args.helix_poses, args.repeat)
+            accuracy_rows(args.datasets, args.data_dir, tmp, args.helix_poses)
+        return 0
+    if args.cli:
+        legs = args.legs if args.legs != list(LEGS) else ["native", "batch"]
+        with tempfile.TemporaryDirectory() as tmp:
+            cli_rows(args.datasets, args.data_dir, tmp, args.helix_poses, args.repeat, legs)
         return 0
 
     with tempfile.TemporaryDirectory() as tmp:

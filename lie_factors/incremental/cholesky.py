@@ -114,6 +114,10 @@ class BlockFactor:
         self.last = UpdateStats()
         self.totals = UpdateStats()
         self.updates = 0
+        # scratch reused by every update
+        self._marks = np.zeros(0, dtype=np.int64)
+        self._graph_ptr = np.zeros(0, dtype=np.int64)
+        self._graph_vars = np.zeros(0, dtype=np.int64)
 
     # ------------------------------------------------------------------ storage
     def _reserve_vars(self, n: int) -> None:
@@ -226,12 +230,14 @@ class BlockFactor:
 
     def _reeliminate(self, observed: np.ndarray, relin: np.ndarray) -> None:
         nv = self.nv
-        affected = np.empty(nv, dtype=np.int64)
-        orphans = np.empty(nv, dtype=np.int64)
+        if self._marks.shape[0] < 2 * nv:
+            self._marks = np.empty(4 * nv + 64, dtype=np.int64)
+        affected = self._marks[:nv]
+        orphans = self._marks[nv:2 * nv]
         na, no = _el.mark_affected(observed, relin, self.parent, self.first, self.nxt, self.nchild,
                                    self.sep_start, self.sep_len, self.ustart, self.ipool, self.flag, affected,
                                    orphans)
-        affected, orphans = affected[:na], orphans[:no]
+        affected, orphans = affected[:na].copy(), orphans[:no].copy()
         batch = na >= BATCH_SHARE * nv
         if batch:
             affected = np.arange(nv, dtype=np.int64)
@@ -298,8 +304,13 @@ class BlockFactor:
             return affected
         import gtsam
 
-        ptr = np.empty(self.nf + len(orphans) + 1, dtype=np.int64)
-        out = np.empty(self.nfv + int(self.sep_len[orphans].sum()) + 1, dtype=np.int64)
+        nptr = self.nf + len(orphans) + 1 + na
+        nout = self.nfv + int(self.sep_len[orphans].sum()) + 1 + na
+        if self._graph_ptr.shape[0] < nptr:
+            self._graph_ptr = np.empty(2 * nptr, dtype=np.int64)
+        if self._graph_vars.shape[0] < nout:
+            self._graph_vars = np.empty(2 * nout, dtype=np.int64)
+        ptr, out = self._graph_ptr, self._graph_vars
         self.fstamp_box += 1
         n, m = _el.ordering_graph(affected, orphans, self.fnv, self.fvstart, self.fvars, self.ahead, self.anext,
                                   self.afac, self.sep_start, self.sep_len, self.ipool, self.flag, self.fstamp,
@@ -319,9 +330,6 @@ class BlockFactor:
                 push(flat[a], flat[a + 1], flat[a + 2])
             else:
                 g.push_back(gtsam.SymbolicFactor.FromKeys(flat[a:b]))
-        # a variable in no factor inside the set still needs a column
-        for v in affected.tolist():
-            push(v)
         if 0 < len(obs) < na:
             ordering = gtsam.Ordering.ColamdConstrainedLastSymbolicFactorGraph(g, obs.tolist(), False)
         else:

@@ -158,7 +158,7 @@ def mark_affected(marked, relin, parent, first, nxt, nchild, sep_start, sep_len,
 def ordering_graph(affected, orphans, fnv, fvstart, fvars, ahead, anext, afac, sep_start, sep_len,
                    ipool, flag, fstamp, stamp, out_ptr, out_vars):
     """The graph the affected variables are ordered on: every factor whose variables are all
-    affected, and every orphan's separator (a clique).  Lists in ``out_ptr``/``out_vars``
+    affected, every orphan's separator (a clique), and each affected variable in neither alone.  Lists in ``out_ptr``/``out_vars``
     (CSR); returns (lists, entries).  ``flag`` (V,) zero on entry and return; ``fstamp``
     (F,) holds factor stamps below ``stamp``."""
     for q in range(affected.shape[0]):
@@ -183,6 +183,7 @@ def ordering_graph(affected, orphans, fnv, fvstart, fvars, ahead, anext, afac, s
                 continue
             for t in range(fvstart[f], fvstart[f] + fnv[f]):
                 out_vars[m] = fvars[t]
+                flag[fvars[t]] = 2
                 m += 1
             n += 1
             out_ptr[n] = m
@@ -190,11 +191,19 @@ def ordering_graph(affected, orphans, fnv, fvstart, fvars, ahead, anext, afac, s
         o = orphans[q]
         for t in range(sep_start[o], sep_start[o] + sep_len[o]):
             out_vars[m] = ipool[t]
+            flag[ipool[t]] = 2
             m += 1
         n += 1
         out_ptr[n] = m
+    # a variable in none of those still needs its column
     for q in range(affected.shape[0]):
-        flag[affected[q]] = 0
+        v = affected[q]
+        if flag[v] == 1:
+            out_vars[m] = v
+            m += 1
+            n += 1
+            out_ptr[n] = m
+        flag[v] = 0
     return n, m
 
 
