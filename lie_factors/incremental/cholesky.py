@@ -203,8 +203,7 @@ class BlockFactor:
                 self.njac += F * r * D1
             if touched_vars:
                 allv = np.concatenate(touched_vars)
-                uniq = np.unique(allv)
-                saved_heads = (uniq, self.ahead[uniq].copy())
+                saved_heads = (allv, self.ahead[allv].copy())  # repeated variables: equal heads
                 _el.link_adjacency(self.ahead, self.anext, self.afac, self.fvars, self.fnv, self.fvstart, nf0, self.nf)
             for fids, jac in refreshed:
                 fids = np.asarray(fids, dtype=np.int64)
@@ -215,8 +214,9 @@ class BlockFactor:
                 idx = (self.fjstart[fids][:, None] + np.arange(r * D1)[None, :])
                 saved_jac.append((idx, self.jac[idx].copy()))
                 self.jac[idx] = jac.reshape(len(fids), r * D1)
-            observed_all = np.unique(np.concatenate(observed_parts))
-            relin = np.unique(np.asarray(relinearized, dtype=np.int64).reshape(-1))
+            observed_all = np.concatenate(observed_parts)  # repeats allowed
+            relin = np.unique(np.asarray(relinearized, dtype=np.int64).reshape(-1)) if len(relinearized) else \
+                np.zeros(0, dtype=np.int64)
             self._reeliminate(observed_all, relin)
         except BaseException:
             if saved_heads is not None:
@@ -315,7 +315,7 @@ class BlockFactor:
         n, m = _el.ordering_graph(affected, orphans, self.fnv, self.fvstart, self.fvars, self.ahead, self.anext,
                                   self.afac, self.sep_start, self.sep_len, self.ipool, self.flag, self.fstamp,
                                   self.fstamp_box, ptr, out)
-        obs = np.intersect1d(observed, affected)
+        obs = _el.marked_among(affected, observed, self.flag)
         g = gtsam.SymbolicFactorGraph()
         push = g.push_factor
         ptr = ptr[:n + 1].tolist()

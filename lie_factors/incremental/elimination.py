@@ -876,3 +876,24 @@ def max_abs_blocks(delta, voff, dim):
                 m = a
         out[v] = m
     return out
+
+
+@kernel
+def marked_among(affected, observed, flag):
+    """The variables of ``affected`` that are in ``observed`` (repeats allowed), once each, in
+    the order of ``affected``.  ``flag`` (V,) zero on entry and return."""
+    for q in range(observed.shape[0]):
+        flag[observed[q]] = 1
+    n = 0
+    for q in range(affected.shape[0]):
+        if flag[affected[q]] == 1:
+            n += 1
+    out = np.empty(n, dtype=np.int64)
+    n = 0
+    for q in range(affected.shape[0]):
+        if flag[affected[q]] == 1:
+            out[n] = affected[q]
+            n += 1
+    for q in range(observed.shape[0]):
+        flag[observed[q]] = 0
+    return out

@@ -581,7 +581,7 @@ class Smoother:
         new_group = dict(zip(nf.keys, nf.kinds))
         used = set()
         for (kind, name), entry in nf.arrays.items():
-            for k in np.unique(entry["keys"]).tolist():
+            for k in set(entry["keys"].ravel().tolist()):
                 used.add(k)
                 if k in new_group:
                     g = new_group[k]
