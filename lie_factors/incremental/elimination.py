@@ -223,36 +223,55 @@ def _sort_by(keys_of, buf, n):
 
 
 @dense_kernel
+def _row_update(Phi, i, q0, q1):
+    """Φ[i, i:] −= Σ_{q0 ≤ q < q1} Φ[q, i]·Φ[q, i:] (upper triangle), four rows q at a time: the
+    row of i is read and written once per four."""
+    N = Phi.shape[0]
+    ri = Phi[i]
+    q = q0
+    while q + 3 < q1:
+        w0 = Phi[q, i]
+        w1 = Phi[q + 1, i]
+        w2 = Phi[q + 2, i]
+        w3 = Phi[q + 3, i]
+        r0 = Phi[q]
+        r1 = Phi[q + 1]
+        r2 = Phi[q + 2]
+        r3 = Phi[q + 3]
+        for c in range(i, N):
+            ri[c] -= w0 * r0[c] + w1 * r1[c] + w2 * r2[c] + w3 * r3[c]
+        q += 4
+    while q < q1:
+        w = Phi[q, i]
+        rq = Phi[q]
+        for c in range(i, N):
+            ri[c] -= w * rq[c]
+        q += 1
+
+
+@dense_kernel
 def _eliminate_columns(Phi, o, D):
     """Eliminate the scalars o … o + D − 1 of the symmetric frontal ``Phi`` (N × N, upper
     triangle read and written, the first o already eliminated; ``Phi[N − 1, :]`` below the
     diagonal holds the diagonal before elimination): rows o … o + D − 1 become [R | T | d]
     (R upper triangular, RᵀR = Φ₁₁, T = R⁻ᵀΦ₁₂), and the trailing upper triangle becomes the
-    update matrix Φ₂₂ − [T d]ᵀ[T d], each of its rows updated once with all D rows of the
-    panel.  Returns −1, or the first pivot that is not positive (relative to
+    update matrix Φ₂₂ − [T d]ᵀ[T d].  Row by row (left-looking): each row takes the updates of
+    all the pivot rows above it at once, then, if it is a pivot row, is scaled by its pivot's
+    square root.  Returns −1, or the first pivot that is not positive (relative to
     :data:`PIVOT_TOLERANCE`)."""
     N = Phi.shape[0]
     e = o + D
-    for p in range(o, e):
-        a = Phi[p, p]
-        if not (a > PIVOT_TOLERANCE * Phi[N - 1, p] and a < np.inf):
-            return p
-        r = np.sqrt(a)
-        inv = 1.0 / r
-        Phi[p, p] = r
-        for c in range(p + 1, N):
-            Phi[p, c] *= inv
-        for i in range(p + 1, e):
-            f = Phi[p, i]
-            if f != 0.0:
-                for c in range(i, N):
-                    Phi[i, c] -= f * Phi[p, c]
-    for i in range(e, N):
-        for q in range(o, e):
-            w = Phi[q, i]
-            if w != 0.0:
-                for c in range(i, N):
-                    Phi[i, c] -= w * Phi[q, c]
+    for i in range(o, N):
+        _row_update(Phi, i, o, min(i, e))
+        if i < e:
+            a = Phi[i, i]
+            if not (a > PIVOT_TOLERANCE * Phi[N - 1, i] and a < np.inf):
+                return i
+            r = np.sqrt(a)
+            inv = 1.0 / r
+            Phi[i, i] = r
+            for c in range(i + 1, N):
+                Phi[i, c] *= inv
     return -1
 
 
@@ -897,3 +916,49 @@ def marked_among(affected, observed, flag):
     for q in range(observed.shape[0]):
         flag[observed[q]] = 0
     return out
+
+
+@kernel
+def init_variables(nv0, dims, ns0, dim, voff, parent, first, nxt, nchild, sep_len, sep_dim, cond, ustart, ahead,
+                   delta):
+    """Variables nv0, nv0 + 1, … of dimensions ``dims``: no node yet, no factor, δ = 0, scalar
+    offsets from ``ns0``; returns the new scalar count."""
+    o = ns0
+    for q in range(dims.shape[0]):
+        j = nv0 + q
+        dim[j] = dims[q]
+        voff[j] = o
+        for i in range(dims[q]):
+            delta[o + i] = 0.0
+        o += dims[q]
+        parent[j] = -1
+        first[j] = -1
+        nxt[j] = -1
+        nchild[j] = 0
+        sep_len[j] = 0
+        sep_dim[j] = 0
+        cond[j] = -1
+        ustart[j] = -1
+        ahead[j] = -1
+    return o
+
+
+@kernel
+def append_factors(fv, J, nf, nfv, njac, fnv, fvstart, fvars, frows, fcols, fjstart, jac, fstamp):
+    """Factors nf, nf + 1, … on the variables ``fv`` (F, k) with Jacobians ``J`` (F, r, D + 1),
+    stored from ``nfv`` in ``fvars`` and ``njac`` in ``jac``."""
+    F, k = fv.shape
+    r, D1 = J.shape[1], J.shape[2]
+    for q in range(F):
+        f = nf + q
+        fnv[f] = k
+        fvstart[f] = nfv + q * k
+        for t in range(k):
+            fvars[nfv + q * k + t] = fv[q, t]
+        frows[f] = r
+        fcols[f] = D1
+        fjstart[f] = njac + q * r * D1
+        for a in range(r):
+            for b in range(D1):
+                jac[njac + q * r * D1 + a * D1 + b] = J[q, a, b]
+        fstamp[f] = 0
