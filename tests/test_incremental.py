@@ -129,9 +129,10 @@ def test_cli_incremental_sim3(tmp_path, capsys):
         assert d["updates"] == 30 and d["dimension"] == 3 and np.isfinite(d["final_error"])
 
 
-def test_progress_line_every_1000_updates(capsys):
+@pytest.mark.parametrize("backend", ["native", "batch"])
+def test_progress_line_every_1000_updates(capsys, backend):
     status, out, err = run_main(capsys, "posegraph", "cityTrees_reduced_1k.g2o", "--incremental",
-                                "--backend", "native")
+                                "--backend", backend)
     assert status == 0
     assert [line.split(":")[0] for line in err.splitlines() if line.startswith("update ")] == ["update 1000/1000"]
 
@@ -158,3 +159,5 @@ def test_incremental_errors_are_one_line(tmp_path, capsys):
     status, out, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental",
                               "--backend", "native")
     assert_one_line_error(status, out, err, "ISAM2 update 2 (pose 1) failed", "Indeterminate")
+    status, out, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental")
+    assert_one_line_error(status, out, err, "update 2 (pose 1) failed", "undetermined")

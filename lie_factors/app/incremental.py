@@ -217,8 +217,8 @@ def replay(ds: Dataset, backend: str = "dropin",
             result = isam.update(new_factors, new_theta)
             previous = estimate(isam, step.key)
         except (RuntimeError, ValueError) as exc:
-            raise PoseGraphError(f"ISAM2 update {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}"
-                                 ) from None
+            what = "update" if backend == "batch" else "ISAM2 update"
+            raise PoseGraphError(f"{what} {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}") from None
         times[n] = time.perf_counter() - t0
         relinearized += int(result.getVariablesRelinearized())
         if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
