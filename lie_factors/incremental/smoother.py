@@ -666,24 +666,21 @@ class Smoother:
         if native_keys:
             undo.vnative()
             self.vnative[[self.var[k] for k in native_keys]] = True
-        if others or native_keys:
-            undo.values()
-            self.other = gtsam.Values(self.other)
-            self.native_theta = gtsam.Values(self.native_theta)
-            for q in others:
-                k = nf.keys[q]
-                self.other_types[k] = nf.types[k]
-                self._insert_from(self.other, nf.theta, k)
-            for k in native_keys:
-                if self.native_theta.exists(k):
-                    continue
-                v = self.var[k]
-                name = self.vgroup[v]
-                if name is None:
-                    self._insert_from(self.native_theta, self.other, k)
-                else:
-                    spec = _factors.GROUPS[name]
-                    self.native_theta.insert(k, to_gtsam(spec.name, self.elements[name].X[self.velem[v]]))
+        for q in others:
+            k = nf.keys[q]
+            self.other_types[k] = nf.types[k]
+            self._insert_from(self.other, nf.theta, k)
+            undo.inserted(self.other, k)
+        for k in native_keys:
+            if self.native_theta.exists(k):
+                continue
+            v = self.var[k]
+            name = self.vgroup[v]
+            if name is None:
+                self._insert_from(self.native_theta, self.other, k)
+            else:
+                self.native_theta.insert(k, to_gtsam(name, self.elements[name].X[self.velem[v]]))
+            undo.inserted(self.native_theta, k)
         return ids
 
     def _insert_from(self, dest: gtsam.Values, src: gtsam.Values, key: int) -> None:
@@ -770,26 +767,24 @@ class Smoother:
             out = np.empty((len(e), el.spec.mat, el.spec.mat))
             el.loops.retract(np.ascontiguousarray(el.X[e]), bf.delta, bf.voff[vs], out)
             el.X[e] = out
-        other = relin[codes < 0]
-        touched_native = relin[self.vnative[relin]]
-        if len(other) or len(touched_native):
-            undo.values()
-            if len(other):
-                vv = gtsam.VectorValues()
-                for v in other.tolist():
-                    vv.insert(self.keys[v], bf.variable_delta(v).copy())
-                self.other = self.other.retract(vv)
-            nt = gtsam.Values(self.native_theta)
+        # the variables GTSAM holds: retracted one by one, in place (the old values kept for undo)
+        for v in relin[codes < 0].tolist():
+            k = self.keys[v]
+            one = gtsam.Values()
+            self._insert_from(one, self.other, k)
             vv = gtsam.VectorValues()
-            for v in touched_native.tolist():
-                name = self.vgroup[v]
-                k = self.keys[v]
-                if name is None:
-                    vv.insert(k, bf.variable_delta(v).copy())
-                else:
-                    el = self.elements[name]
-                    nt.update(k, to_gtsam(el.spec.name, el.X[self.velem[v]]))
-            self.native_theta = nt.retract(vv) if vv.size() else nt
+            vv.insert(k, bf.variable_delta(v).copy())
+            moved = getattr(one.retract(vv), f"at{self.other_types[k]}")(k)
+            for values in (self.other, self.native_theta):
+                if values.exists(k):
+                    undo.updated(values, k, getattr(values, f"at{self.other_types[k]}")(k))
+                    values.update(k, moved)
+        for v in relin[self.vnative[relin] & (codes >= 0)].tolist():
+            k = self.keys[v]
+            name = self.vgroup[v]
+            el = self.elements[name]
+            undo.updated(self.native_theta, k, getattr(self.native_theta, f"at{name}")(k))
+            self.native_theta.update(k, to_gtsam(name, el.X[self.velem[v]]))
         fids = _el.factors_of(relin, bf.ahead, bf.anext, bf.afac, bf.nf)
         fk, fl = self.fkind[fids], self.flocal[fids]
         out = []
@@ -976,11 +971,11 @@ class _Undo:
         n = el.n
         self.steps.append(lambda: setattr(el, "n", n))
 
-    def values(self):
-        s = self.s
-        other, nt, types = s.other, s.native_theta, dict(s.other_types)
-        self.steps.append(lambda: (setattr(s, "other", other), setattr(s, "native_theta", nt),
-                                   setattr(s, "other_types", types)))
+    def inserted(self, values: gtsam.Values, key: int):
+        self.steps.append(lambda: values.erase(key))
+
+    def updated(self, values: gtsam.Values, key: int, old):
+        self.steps.append(lambda: values.update(key, old))
 
     def theta(self, el, e):
         X = el.X[e].copy()
