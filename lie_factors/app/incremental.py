@@ -302,7 +302,6 @@ def warm_up_smoother(group: str) -> None:
                     np.eye(info.dim)[None])
     s.update_arrays(group, [2], I[None], [[1, 2], [0, 2]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))
     s.estimate_matrix(2)
-    s.marginalCovariance(2)
 
 
 #: The figures of a :class:`Replay` its record reports.
