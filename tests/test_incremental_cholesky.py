@@ -35,9 +35,12 @@ class RandomProblem:
     """Poses of mixed dimensions added one per update with odometry, random loop closures,
     landmarks seen from several poses, relinearizations (new Jacobians for old factors)."""
 
-    def __init__(self, seed, dims=(3, 6, 2, 7), keep_update=None):
+    def __init__(self, seed, dims=(3, 6, 2, 7), keep_update=None, small_pools=False):
         self.rng = np.random.default_rng(seed)
         self.bf = BlockFactor() if keep_update is None else BlockFactor(keep_update)
+        if small_pools:  # every update grows or compacts them
+            self.bf.ipool = np.zeros(8, dtype=np.int64)
+            self.bf.fpool = np.zeros(64)
         self.dims = []
         self.factors = []  # (vars,)
         self.dim_choices = dims
@@ -74,10 +77,12 @@ class RandomProblem:
         return vars_
 
 
-@pytest.mark.parametrize("seed,keep_update", [(0, None), (1, None), (2, None), (3, 0), (4, 200), (5, 10 ** 9)])
-def test_random_updates_equal_a_from_scratch_cholesky(seed, keep_update):
-    # clique members below the last keep no update matrix (0), small ones (200), every one
-    p = RandomProblem(seed, keep_update=keep_update)
+@pytest.mark.parametrize("seed,keep_update,small_pools", [(0, None, False), (1, None, True), (2, None, False),
+                                                           (3, 0, False), (4, 200, True), (5, 10 ** 9, False)])
+def test_random_updates_equal_a_from_scratch_cholesky(seed, keep_update, small_pools):
+    # clique members below the last keep no update matrix (0), small ones (200), every one;
+    # pools that start small are grown and compacted in place along the way
+    p = RandomProblem(seed, keep_update=keep_update, small_pools=small_pools)
     for step in range(60):
         loops = int(p.rng.random() < 0.3) + int(p.rng.random() < 0.1)
         p.add_pose(loops)
@@ -87,6 +92,8 @@ def test_random_updates_equal_a_from_scratch_cholesky(seed, keep_update):
             H, eta = check_exact(p.bf)
             check_solution(p.bf, H, eta)
     assert p.bf.totals.batch >= 1  # the first updates re-eliminate everything
+    if small_pools:
+        assert p.bf.compactions > 0
     H, eta = check_exact(p.bf)
     check_solution(p.bf, H, eta)
 

@@ -63,6 +63,17 @@ def _grow(a: np.ndarray, n: int, fill=None) -> np.ndarray:
     return out
 
 
+def _grow_pool(a: np.ndarray, n: int) -> np.ndarray:
+    """The pool ``a`` with room for ``n`` entries and a quarter more, its entries kept.  Pools
+    are most of the factor's memory: they grow by less than doubling, and in place
+    (``ndarray.resize``: a large block is remapped, not copied, so the old and the new pool
+    are never both in memory); no view of a pool outlives a call."""
+    if a.shape[0] >= n:
+        return a
+    a.resize(n + n // 4, refcheck=False)
+    return a
+
+
 @dataclass
 class UpdateStats:
     """What one update did: columns re-eliminated (``columns``), orphan subtrees reattached,
@@ -119,6 +130,7 @@ class BlockFactor:
         self.last = UpdateStats()
         self.totals = UpdateStats()
         self.updates = 0
+        self.compactions = 0
         # scratch reused by every update
         self._marks = np.zeros(0, dtype=np.int64)
         self._graph_ptr = np.zeros(0, dtype=np.int64)
@@ -238,8 +250,9 @@ class BlockFactor:
         before = st.copy()
         # a batch step rewrites every node: into new pools (nothing in the old ones is read),
         # which replace the old ones whole, with nothing freed left in them
-        ipool, itop = (np.empty_like(self.ipool), 0) if batch else (self.ipool, self.itop)
-        fpool, ftop = (np.empty_like(self.fpool), 0) if batch else (self.fpool, self.ftop)
+        # (sized by the kernel's own count: it asks for the room after its symbolic pass)
+        ipool, itop = (np.empty(self.itop + 1024, dtype=np.int64), 0) if batch else (self.ipool, self.itop)
+        fpool, ftop = (np.empty(0), 0) if batch else (self.fpool, self.ftop)
         while True:
             status, detail, it, ft = _el.reeliminate(
                 order, orphans, self.next_pos,
@@ -253,18 +266,18 @@ class BlockFactor:
             st[:] = before
             if status == _el.NEED_INT:
                 if batch:
-                    ipool = _grow(ipool, int(detail))
+                    ipool = _grow_pool(ipool, int(detail))
                 elif 2 * self.stats[5] > self.itop:
                     self._compact()
                 else:
-                    self.ipool = _grow(self.ipool, int(detail))
+                    self.ipool = _grow_pool(self.ipool, int(detail))
             elif status == _el.NEED_FLOAT:
                 if batch:
-                    fpool = _grow(fpool, int(detail) + int(detail) // 4)
+                    fpool = _grow_pool(fpool, int(detail))
                 elif 2 * self.stats[4] > self.ftop and int(detail) - self.stats[4] <= self.fpool.shape[0]:
                     self._compact()
                 else:
-                    self.fpool = _grow(self.fpool, int(detail) + int(detail) // 4)
+                    self.fpool = _grow_pool(self.fpool, int(detail))
             else:
                 raise IndeterminantLinearSystem(
                     f"the linear system is not positive definite at variable {int(detail)}: it is not "
@@ -331,15 +344,12 @@ class BlockFactor:
         return np.array([ordering.at(i) for i in range(ordering.size())], dtype=np.int64)
 
     def _compact(self) -> None:
-        """Rewrite the pools without the entries freed (same capacity): when a pool is full and
-        most of it is freed, instead of growing it."""
-        nv = self.nv
-        ipool = np.empty_like(self.ipool)
-        fpool = np.empty_like(self.fpool)
-        self.itop, self.ftop = _el.compact_pools(nv, self.dim, self.sep_start, self.sep_len, self.sep_dim,
-                                                 self.cond, self.ustart, self.ipool, self.fpool, ipool, fpool)
-        self.ipool, self.fpool = ipool, fpool
+        """Move the live entries of the pools down over the freed ones, in place: when a pool is
+        full and most of it is freed, instead of growing it."""
+        self.itop, self.ftop = _el.compact_pools(self.nv, self.dim, self.sep_start, self.sep_len, self.sep_dim,
+                                                 self.cond, self.ustart, self.ipool, self.fpool)
         self.stats[4:6] = 0
+        self.compactions += 1
 
     # ------------------------------------------------------------------ solving
     def solve(self, threshold: float = 0.0) -> int:

@@ -832,31 +832,65 @@ def link_adjacency(ahead, anext, afac, fvars, fnv, fvstart, f0, f1):
 
 
 @kernel
-def compact_pools(nv, dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool, new_ipool, new_fpool):
-    """Copy every node's separator, conditional and update matrix into the new pools, in node
-    order, and point the node there; returns the new tops."""
-    it = 0
-    ft = 0
+def _move_down(pool, segments, starts, sizes, order):
+    """Move the segments of ``pool`` (``starts``, ``sizes``) down to be contiguous, in order of
+    address (each moves to where it is or below, over entries already moved or freed);
+    ``segments[k]`` receives segment k's new start.  Returns the new top."""
+    top = 0
+    for q in range(order.shape[0]):
+        k = order[q]
+        s0 = starts[k]
+        for t in range(sizes[k]):
+            pool[top + t] = pool[s0 + t]
+        segments[k] = top
+        top += sizes[k]
+    return top
+
+
+@kernel
+def compact_pools(nv, dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool):
+    """Move every node's separator, conditional and update matrix down over the freed entries of
+    the pools, in place, and point the node there; returns the new tops."""
+    # separators
+    starts = np.empty(nv, dtype=np.int64)
+    sizes = np.empty(nv, dtype=np.int64)
+    nodes = np.empty(nv, dtype=np.int64)
+    n = 0
     for j in range(nv):
-        if cond[j] < 0:
-            continue
-        for t in range(sep_len[j]):
-            new_ipool[it + t] = ipool[sep_start[j] + t]
-        sep_start[j] = it
-        it += sep_len[j]
-        d = dim[j]
+        if cond[j] >= 0 and sep_len[j] > 0:
+            starts[n] = sep_start[j]
+            sizes[n] = sep_len[j]
+            nodes[n] = j
+            n += 1
+    moved = np.empty(n, dtype=np.int64)
+    it = _move_down(ipool, moved, starts[:n], sizes[:n], np.argsort(starts[:n]))
+    for k in range(n):
+        sep_start[nodes[k]] = moved[k]
+    # conditionals and update matrices
+    starts = np.empty(2 * nv, dtype=np.int64)
+    sizes = np.empty(2 * nv, dtype=np.int64)
+    nodes = np.empty(2 * nv, dtype=np.int64)
+    n = 0
+    for j in range(nv):
         s = sep_dim[j]
-        n = d * (d + s + 1)
-        for t in range(n):
-            new_fpool[ft + t] = fpool[cond[j] + t]
-        cond[j] = ft
-        ft += n
+        if cond[j] >= 0:
+            starts[n] = cond[j]
+            sizes[n] = dim[j] * (dim[j] + s + 1)
+            nodes[n] = j
+            n += 1
         if ustart[j] >= 0:
-            n = (s + 1) * (s + 1)
-            for t in range(n):
-                new_fpool[ft + t] = fpool[ustart[j] + t]
-            ustart[j] = ft
-            ft += n
+            starts[n] = ustart[j]
+            sizes[n] = (s + 1) * (s + 1)
+            nodes[n] = -1 - j
+            n += 1
+    moved = np.empty(n, dtype=np.int64)
+    ft = _move_down(fpool, moved, starts[:n], sizes[:n], np.argsort(starts[:n]))
+    for k in range(n):
+        j = nodes[k]
+        if j >= 0:
+            cond[j] = moved[k]
+        else:
+            ustart[-1 - j] = moved[k]
     return it, ft
 
 
