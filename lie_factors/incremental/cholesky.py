@@ -356,8 +356,8 @@ class BlockFactor:
         """Bring ``delta`` up to date after updates (wildfire, see
         :func:`~lie_factors.incremental.elimination.back_substitute`); returns the nodes solved."""
         return int(_el.back_substitute(float(threshold), self.replaced, self.changed, self.roots, self.first,
-                                       self.nxt, self.dim, self.voff, self.sep_start, self.sep_len, self.cond,
-                                       self.ipool, self.fpool, self.delta, self.visited))
+                                       self.nxt, self.dim, self.voff, self.sep_start, self.sep_len, self.sep_dim,
+                                       self.cond, self.ipool, self.fpool, self.delta, self.visited))
 
     def variable_delta(self, v: int) -> np.ndarray:
         o = int(self.voff[v])

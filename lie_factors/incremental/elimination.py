@@ -649,24 +649,25 @@ def reeliminate(order, orphans, base,
 
 # --------------------------------------------------------------------------- solving
 
-@kernel
-def _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x):
-    """x = R_j⁻¹ (d_j − T_j δ_S): the node's variable given its separator's values in ``delta``."""
+@dense_kernel
+def _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x, xs):
+    """x = R_j⁻¹ (d_j − T_j δ_S): the node's variable given its separator's values in ``delta``
+    (gathered once into ``xs``, so that each row is one contiguous dot product)."""
     d = dim[j]
     c0 = cond[j]
     s = 0
     for t in range(sep_start[j], sep_start[j] + sep_len[j]):
-        s += dim[ipool[t]]
+        v = ipool[t]
+        o = voff[v]
+        for i in range(dim[v]):
+            xs[s] = delta[o + i]
+            s += 1
     N = d + s + 1
     for p in range(d):
+        row = c0 + p * N + d
         acc = fpool[c0 + p * N + N - 1]
-        col = d
-        for t in range(sep_start[j], sep_start[j] + sep_len[j]):
-            v = ipool[t]
-            o = voff[v]
-            for i in range(dim[v]):
-                acc -= fpool[c0 + p * N + col] * delta[o + i]
-                col += 1
+        for k in range(s):
+            acc -= fpool[row + k] * xs[k]
         x[p] = acc
     for p in range(d - 1, -1, -1):
         acc = x[p]
@@ -675,9 +676,9 @@ def _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x):
         x[p] = acc / fpool[c0 + p * N + p]
 
 
-@kernel
-def back_substitute(threshold, replaced, changed, roots, first, nxt, dim, voff, sep_start, sep_len, cond,
-                    ipool, fpool, delta, visited):
+@dense_kernel
+def back_substitute(threshold, replaced, changed, roots, first, nxt, dim, voff, sep_start, sep_len, sep_dim,
+                    cond, ipool, fpool, delta, visited):
     """ISAM2's wildfire back-substitution (Kaess et al., IJRR 2012, Alg. 5), from the roots down.
 
     A node is solved again when it was re-eliminated (``replaced``) or a variable
@@ -690,6 +691,7 @@ def back_substitute(threshold, replaced, changed, roots, first, nxt, dim, voff, 
     Returns the number of nodes solved.
     """
     x = np.empty(64)
+    xs = np.empty(256)
     pending = np.empty(64, dtype=np.int64)
     npend = 0
     r = roots[0]
@@ -713,7 +715,9 @@ def back_substitute(threshold, replaced, changed, roots, first, nxt, dim, voff, 
         d = dim[j]
         if d > x.shape[0]:
             x = np.empty(2 * d)
-        _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x)
+        if sep_dim[j] > xs.shape[0]:
+            xs = np.empty(2 * sep_dim[j])
+        _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x, xs)
         solved += 1
         o = voff[j]
         keep = replaced[j] != 0
