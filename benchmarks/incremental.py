@@ -17,8 +17,8 @@ consecutive poses and, at every 10th pose, a loop closure to the pose 100 back; 
 alignment: the prior holds pose 0 at the truth) is reported.
 
     python benchmarks/incremental.py [--data-dir DIR] [--datasets intel city10000 sphere2500 helix]
-        [--legs native plain dropin batch] [--repeat 2] [--plain-limit 60] [--helix-poses 10000]
-        [--cli] [--accuracy]
+        [--legs native plain dropin batch] [--repeat 2] [--plain-limit 60] [--limit SECONDS]
+        [--helix-poses 10000] [--cli] [--accuracy]
 
 ``--cli`` instead times what a user runs: ``lie-factors posegraph FILE --incremental --backend
 LEG --json`` in a fresh process each (legs: ``--legs``, default native and batch), alternating,
@@ -105,15 +105,15 @@ def ate(values: gtsam.Values, truth) -> float:
     return float(np.sqrt(np.mean(np.sum(np.square(err), axis=1))))
 
 
-def run_leg(pg, leg: str, graphs: dict, plain_limit: float):
+def run_leg(pg, leg: str, graphs: dict, plain_limit: float, limit: float | None = None):
     if leg == "native":
-        return incremental.replay(pg, "native", graph=graphs["native"])
+        return incremental.replay(pg, "native", graph=graphs["native"], max_seconds=limit)
     if leg == "plain":
         return incremental.replay(pg, "dropin", graph=graphs["dropin"], isam_class=gtsam.ISAM2,
-                                  max_seconds=plain_limit)
+                                  max_seconds=plain_limit if limit is None else min(plain_limit, limit))
     if leg == "batch":
-        return incremental.replay(pg, "batch")
-    return incremental.replay(pg, "dropin", graph=graphs["dropin"])
+        return incremental.replay(pg, "batch", max_seconds=limit)
+    return incremental.replay(pg, "dropin", graph=graphs["dropin"], max_seconds=limit)
 
 
 def _run_command(cmd: list) -> tuple[float, str | None, float]:
@@ -263,6 +263,9 @@ def main(argv=None) -> int:
     ap.add_argument("--legs", nargs="+", default=list(LEGS), choices=LEGS)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--plain-limit", type=float, default=60.0)
+    ap.add_argument("--limit", type=float, default=None,
+                    help="stop every leg after the update that passes this many seconds (a graph whose full "
+                         "replay takes too long); legs are compared over the updates both did")
     ap.add_argument("--helix-poses", type=int, default=10000)
     ap.add_argument("--cli", action="store_true", help="time the whole CLI command instead")
     ap.add_argument("--accuracy", action="store_true", help="errors against gtsam.ISAM2 and batch LM instead")
@@ -288,7 +291,7 @@ def main(argv=None) -> int:
             for name in args.datasets:
                 pg, truth, graphs = loaded[name]
                 for leg in args.legs:
-                    res = run_leg(pg, leg, graphs, args.plain_limit)
+                    res = run_leg(pg, leg, graphs, args.plain_limit, args.limit)
                     print(f"# repeat {r + 1} {name} {leg}: {res.updates} updates {res.update_seconds:.3f} s",
                           file=sys.stderr, flush=True)
                     key = (name, leg)
@@ -305,9 +308,11 @@ def main(argv=None) -> int:
                 done = res.updates
                 ratio = ""
                 if native is not None:
-                    ref = float(native.times[:done].sum())
-                    ratio = f"{res.update_seconds / ref:.2f}" + ("" if done == native.updates else
-                                                                 f" (first {done} updates)")
+                    common = min(done, native.updates)
+                    mine = float(res.times[:common].sum())
+                    ref = float(native.times[:common].sum())
+                    ratio = f"{mine / ref:.2f}" + ("" if common == done == native.updates else
+                                                   f" (first {common} updates)")
                 a = f"{ate(res.values, truth):.4f}" if truth is not None and done == pg.poses else ""
                 err = "" if math.isnan(res.final_error) else f"{res.final_error:.10g}"
                 print(f"| {pg.name} | {pg.poses} | {res.factors} | {leg} | {done} | {res.update_seconds:.3f} "
