@@ -160,6 +160,14 @@ def _first_sentence(exc: Exception) -> str:
     return text
 
 
+def _stop_after(n: int, total: int, clock: Stopwatch, progress, max_seconds: float | None) -> bool:
+    """After update ``n`` (0-based) of ``total``: the progress line every :data:`PROGRESS_EVERY`
+    updates, and whether ``max_seconds`` have passed with updates left."""
+    if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
+        progress(n + 1, total, clock.seconds())
+    return max_seconds is not None and n + 1 < total and clock.seconds() > max_seconds
+
+
 def replay(ds: Dataset, backend: str = "dropin",
            params: gtsam.ISAM2Params | None = None,
            progress: Callable[[int, int, float], None] | None = None,
@@ -221,9 +229,7 @@ def replay(ds: Dataset, backend: str = "dropin",
             raise PoseGraphError(f"{what} {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}") from None
         times[n] = time.perf_counter() - t0
         relinearized += int(result.getVariablesRelinearized())
-        if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
-            progress(n + 1, len(steps), clock.seconds())
-        if max_seconds is not None and n + 1 < len(steps) and clock.seconds() > max_seconds:
+        if _stop_after(n, len(steps), clock, progress, max_seconds):
             times = times[:n + 1]
             break
     seconds = clock.seconds()
@@ -273,9 +279,7 @@ def replay_arrays(ds: Dataset, params=None, progress: Callable[[int, int, float]
         except ValueError as exc:
             raise PoseGraphError(f"update {n + 1} (pose {step.key}) failed: {str(exc).strip()}") from None
         times[n] = time.perf_counter() - t0
-        if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
-            progress(n + 1, len(steps), clock.seconds())
-        if max_seconds is not None and n + 1 < len(steps) and clock.seconds() > max_seconds:
+        if _stop_after(n, len(steps), clock, progress, max_seconds):
             times = times[:n + 1]
             break
     seconds = clock.seconds()
