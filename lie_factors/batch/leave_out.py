@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..pose_graph import PoseGraph
-from .cholmod import Factor
+from .cholmod import Cholesky
 from .graph import Problem
 from .system import LinearSystem
 
@@ -60,9 +60,8 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
     system.weights[:] = weights
     system.assemble()
     p = system.pattern
-    cols = p.colind()
-    lower = p.rowind >= cols
-    factor = Factor(p.n, p.rowind[lower], cols[lower], system.data[lower])
+    factor = Cholesky(p.colptr, p.rowind)
+    factor.factorize(system.data)
     between = next(g for g in problem.groups if g.kind == "between")
     where = np.full(problem.graph_size, -1, dtype=np.int64)
     where[between.fidx] = np.arange(between.fidx.size)
@@ -87,7 +86,7 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
         block = np.arange(n)
         B[(between.o1[rows][:, None] + block)[:, :, None], cols[:, None, :]] = np.swapaxes(between.A1[rows], 1, 2)
         B[(between.o2[rows][:, None] + block)[:, :, None], cols[:, None, :]] = np.swapaxes(between.A2[rows], 1, 2)
-        Z, dinv = factor.half(B)
+        Z, dinv = factor.half(system.in_matrix_order(B))
         Zw = Z * np.sqrt(dinv)[:, None]
         f0 = g0 = 0  # factors and groups of the chunk before this run of one size
         for size in np.unique(sizes[chunk]).tolist():

@@ -184,20 +184,17 @@ class _FactorKind:
         self.v = np.zeros((0, 2 if kind == "between" else 1), dtype=np.int64)
         self.e = np.zeros((0, 2 if kind == "between" else 1), dtype=np.int64)
         self.C = np.zeros((0, m, m))
-        self.Ad = np.zeros((0, n, n))
         self.R = np.zeros((0, n, n))
         self.fid = np.zeros(0, dtype=np.int64)
         self.source: list = []  # the factor objects read (None: from arrays)
         self.n = 0
 
-    def append(self, v, e, C, Ad, R, sources) -> np.ndarray:
+    def append(self, v, e, C, R, sources) -> np.ndarray:
         k = len(v)
-        for name in ("v", "e", "C", "R", "fid") + (("Ad",) if self.kind == "between" else ()):
+        for name in ("v", "e", "C", "R", "fid"):
             setattr(self, name, _grow(getattr(self, name), self.n + k))
         idx = np.arange(self.n, self.n + k)
         self.v[idx], self.e[idx], self.C[idx], self.R[idx] = v, e, C, R
-        if self.kind == "between":
-            self.Ad[idx] = Ad
         self.source.extend(sources)
         self.n += k
         return idx
@@ -209,38 +206,25 @@ class _FactorKind:
     def jacobians(self, idx: np.ndarray) -> np.ndarray:
         """Whitened [A_1 (A_2) | b] of the factors ``idx`` at the current θ: (F, n, D + 1), one compiled call."""
         n = self.spec.dim
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         F = len(idx)
         X = self.elements.X
-        R = self.R[idx]
         b = np.empty((F, n))
         sq = np.empty(F)
         if self.kind == "between":
             A1, A2 = np.empty((F, n, n)), np.empty((F, n, n))
             e = self.e[idx]
             self.elements.loops.between_lin(X, np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1]),
-                                            self.C[idx], self.Ad[idx], R, A1, A2, b, sq)
+                                            self.C[idx], self.R, idx, A1, A2, b, sq)
             return np.concatenate([A1, A2, b[:, :, None]], axis=2)
         A1 = np.empty((F, n, n))
-        self.elements.loops.prior_lin(X, np.ascontiguousarray(self.e[idx, 0]), self.C[idx], R, A1, b, sq)
+        self.elements.loops.prior_lin(X, np.ascontiguousarray(self.e[idx, 0]), self.C[idx], self.R, idx, A1, b, sq)
         return np.concatenate([A1, b[:, :, None]], axis=2)
-
-    def errors(self) -> np.ndarray:
-        """‖R e‖² of every factor at the current θ."""
-        sq = np.empty(self.n)
-        X = self.elements.X
-        if self.kind == "between":
-            self.elements.loops.between_err(X, np.ascontiguousarray(self.e[:self.n, 0]),
-                                            np.ascontiguousarray(self.e[:self.n, 1]), self.C[:self.n],
-                                            self.R[:self.n], sq)
-        else:
-            self.elements.loops.prior_err(X, np.ascontiguousarray(self.e[:self.n, 0]), self.C[:self.n],
-                                          self.R[:self.n], sq)
-        return sq
 
 
 class FactorArrays:
-    """A pose graph's between factors and priors, checked and set up once (M⁻¹, Ad(M⁻¹), the
-    whitening R with RᵀR = Λ): :meth:`Smoother.update_prepared` adds any of them by index.
+    """A pose graph's between factors and priors, checked and set up once (M⁻¹, the whitening R
+    with RᵀR = Λ): :meth:`Smoother.update_prepared` adds any of them by index.
 
     ``edge_keys`` (E, 2), ``measured`` (E, m, m), ``information`` (E, n, n); ``prior_keys``
     (Q,), ``prior_measured`` (Q, m, m), ``prior_information`` (Q, n, n).  Raises
@@ -270,7 +254,7 @@ class FactorArrays:
                 raise SmootherError(f"{kind} factors: a measurement or information matrix is not finite")
             if kind == "between" and np.any(k[:, 0] == k[:, 1]):
                 raise SmootherError("between factors: a factor connects a key to itself")
-            Minv, Ad, codes = loops.setup(M)
+            Minv, codes = loops.setup(M)
             bad = np.flatnonzero(codes != _factors.OK)
             if bad.size:
                 q = int(bad[0])
@@ -280,9 +264,9 @@ class FactorArrays:
                 R = whitening(info) if F else np.zeros((0, n, n))
             except np.linalg.LinAlgError:
                 raise SmootherError(f"{kind} factors: an information matrix is not positive definite") from None
-            parts[kind] = (k, Minv, Ad, R)
-        self.edge_keys, self.Minv, self.Ad, self.R = parts["between"]
-        pk, self.Pinv, _, self.prior_R = parts["prior"]
+            parts[kind] = (k, Minv, R)
+        self.edge_keys, self.Minv, self.R = parts["between"]
+        pk, self.Pinv, self.prior_R = parts["prior"]
         self.prior_keys = pk.reshape(-1)
         self.E, self.Q = len(self.edge_keys), len(self.prior_keys)
 
@@ -295,7 +279,7 @@ class _NewFactors:
     kinds: list  # group name (array variable) or None (GTSAM's values)
     values: list  # element matrix (m, m) or the gtsam value
     dims: list
-    arrays: dict  # (kind, group) -> dict(k1, k2, C, Ad, R, sources)
+    arrays: dict  # (kind, group) -> dict(keys, C, R, src)
     native: list  # (factor, keys)
 
 
@@ -368,7 +352,7 @@ class Smoother:
 
     # ------------------------------------------------------------------ reading
     def _classify(self, f):
-        """(kind, spec, keys, Minv, AdMinv, R, M) for an array factor, None for a native one."""
+        """(kind, spec, keys, Minv, R, M) for an array factor, None for a native one."""
         if isinstance(f, _factors.BetweenFactor):
             kind, spec = "between", f.spec
             keys = (f._key1, f._key2)
@@ -392,11 +376,11 @@ class Smoother:
             R = _whitening(nm)
             if R is None or (kind == "between" and keys[0] == keys[1]):
                 return None
-            return kind, spec, keys, None, None, np.asarray(R, dtype=np.float64), spec.matrix(value)
+            return kind, spec, keys, None, np.asarray(R, dtype=np.float64), spec.matrix(value)
         R = _whitening(nm)
         if R is None or (kind == "between" and keys[0] == keys[1]):
             return None
-        return kind, spec, keys, f._Minv, f._AdMinv, np.asarray(R, dtype=np.float64), None
+        return kind, spec, keys, f._Minv, np.asarray(R, dtype=np.float64), None
 
     def _read(self, newFactors, newTheta) -> _NewFactors:
         newFactors = gtsam.NonlinearFactorGraph() if newFactors is None else newFactors
@@ -418,7 +402,7 @@ class Smoother:
                     raise SmootherError(f"factor {i}: unsupported type {type(f).__name__}")
                 native.append((f, [int(k) for k in f.keys()]))
                 continue
-            kind, spec, keys, Minv, Ad, R, M = c
+            kind, spec, keys, Minv, R, M = c
             if not np.all(np.isfinite(R)):
                 raise SmootherError(f"factor {i} ({type(f).__name__}): its noise model is not finite")
             if M is not None and not np.all(np.isfinite(M)):
@@ -427,10 +411,9 @@ class Smoother:
                 g = group_of.setdefault(k, spec.name)
                 if g != spec.name:
                     raise SmootherError(f"key {key_name(k)} is used by both {g} and {spec.name} factors")
-            entry = arrays.setdefault((kind, spec.name), dict(keys=[], Minv=[], Ad=[], R=[], M=[], src=[]))
+            entry = arrays.setdefault((kind, spec.name), dict(keys=[], Minv=[], R=[], M=[], src=[]))
             entry["keys"].append(keys)
             entry["Minv"].append(Minv)
-            entry["Ad"].append(Ad)
             entry["R"].append(R)
             entry["M"].append(M)
             entry["src"].append(f)
@@ -440,20 +423,14 @@ class Smoother:
             spec = _factors.GROUPS[name]
             F = len(entry["keys"])
             Minv = np.empty((F, spec.mat, spec.mat))
-            Ad = np.empty((F, spec.dim, spec.dim))
             need = [q for q in range(F) if entry["Minv"][q] is None]
             for q in range(F):
                 if entry["Minv"][q] is not None:
                     Minv[q] = entry["Minv"][q]
-                    if kind == "between":
-                        Ad[q] = entry["Ad"][q]
             if need:
-                mi, ad = self._setup(spec, np.array([entry["M"][q] for q in need]), "measurement")
-                Minv[need] = mi
-                Ad[need] = ad
+                Minv[need] = self._setup(spec, np.array([entry["M"][q] for q in need]), "measurement")
             keys = np.array(entry["keys"], dtype=np.int64).reshape(F, -1)
-            out[(kind, name)] = dict(keys=keys, C=Minv, Ad=Ad if kind == "between" else None,
-                                     R=np.array(entry["R"], dtype=np.float64), src=entry["src"])
+            out[(kind, name)] = dict(keys=keys, C=Minv, R=np.array(entry["R"], dtype=np.float64), src=entry["src"])
         new_keys = [int(k) for k in newTheta.keys()]
         kinds, values, dims, types = [], [], [], {}
         zero = None
@@ -487,12 +464,12 @@ class Smoother:
         return nf
 
     def _setup(self, spec, M: np.ndarray, what: str):
-        Minv, Ad, codes = self._elements(spec.name).loops.setup(M)
+        Minv, codes = self._elements(spec.name).loops.setup(M)
         bad = np.flatnonzero(codes != _factors.OK)
         if bad.size:
             k = int(bad[0])
             raise SmootherError(str(_factors._element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
-        return Minv, Ad
+        return Minv
 
     def _elements(self, name: str) -> _Elements:
         el = self.elements.get(name)
@@ -539,10 +516,10 @@ class Smoother:
         edges = np.asarray(edges, dtype=np.int64).reshape(-1)
         priors = np.asarray(priors, dtype=np.int64).reshape(-1)
         if len(edges):
-            arrays[("between", fa.group)] = dict(keys=fa.edge_keys[edges], C=fa.Minv[edges], Ad=fa.Ad[edges],
-                                                 R=fa.R[edges], src=[None] * len(edges))
+            arrays[("between", fa.group)] = dict(keys=fa.edge_keys[edges], C=fa.Minv[edges], R=fa.R[edges],
+                                                 src=[None] * len(edges))
         if len(priors):
-            arrays[("prior", fa.group)] = dict(keys=fa.prior_keys[priors, None], C=fa.Pinv[priors], Ad=None,
+            arrays[("prior", fa.group)] = dict(keys=fa.prior_keys[priors, None], C=fa.Pinv[priors],
                                                R=fa.prior_R[priors], src=[None] * len(priors))
         nf = _NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, [])
         nf.theta = None
@@ -700,7 +677,7 @@ class Smoother:
             keys = entry["keys"]
             v = np.fromiter((var[k] for k in keys.ravel().tolist()), dtype=np.int64, count=keys.size).reshape(keys.shape)
             e = self.velem[v]
-            idx = store.append(v, e, entry["C"], entry["Ad"], entry["R"], entry["src"])
+            idx = store.append(v, e, entry["C"], entry["R"], entry["src"])
             fids = np.arange(self.bf.nf + sum(len(o[0]) for o in out), self.bf.nf + sum(len(o[0]) for o in out) + len(v))
             store.fid[idx] = fids
             self._register(fids, store.code, idx)
