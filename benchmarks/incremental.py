@@ -1,26 +1,34 @@
-"""Online replay through ISAM2, three ways:
+"""Online replay, four ways:
 
 - ``native``: GTSAM's own factors in ``gtsam.ISAM2``;
 - ``plain``: lie_factors' factors in plain ``gtsam.ISAM2`` (every callback gets a copy of
   the whole Values: quadratic; cut off after ``--plain-limit`` seconds, and then compared
   with the other legs' time for the same number of updates);
-- ``dropin``: lie_factors' factors in :class:`lie_factors.optimizers.ISAM2`.
+- ``dropin``: lie_factors' factors in :class:`lie_factors.optimizers.ISAM2`;
+- ``batch``: the incremental smoother, :class:`lie_factors.incremental.Smoother` on arrays
+  (what ``lie-factors posegraph FILE --incremental`` runs by default).
 
-Each replay is :func:`lie_factors.app.incremental.replay` (what ``lie-factors posegraph FILE
---incremental`` runs: poses in id order, one per update, GTSAM's default ISAM2Params).
-The legs alternate (repeat ▸ dataset ▸ leg) and each reports its best of ``--repeat``.
-Datasets: files (``--data-dir``) and ``helix``: a generated 10k-pose SE(3) helix that
-revisits a place every 100 poses, odometry between consecutive poses and, at every 10th
-pose, a loop closure to the pose 100 back; noise σ 0.01 rad / 0.05 m (seeded); its ATE
-(RMSE of the positions against the ground truth, no alignment: the prior holds pose 0 at
-the truth) is reported.
+Each replay is :func:`lie_factors.app.incremental.replay` (poses in id order, one per update,
+GTSAM's default ISAM2Params).  The legs alternate (repeat ▸ dataset ▸ leg) and each reports
+its best of ``--repeat``.  Datasets: files (``--data-dir``, or a path) and ``helix``: a
+generated 10k-pose SE(3) helix that revisits a place every 100 poses, odometry between
+consecutive poses and, at every 10th pose, a loop closure to the pose 100 back; noise σ
+0.01 rad / 0.05 m (seeded); its ATE (RMSE of the positions against the ground truth, no
+alignment: the prior holds pose 0 at the truth) is reported.
 
     python benchmarks/incremental.py [--data-dir DIR] [--datasets intel city10000 sphere2500 helix]
-        [--legs native plain dropin] [--repeat 2] [--plain-limit 60] [--helix-poses 10000] [--cli]
+        [--legs native plain dropin batch] [--repeat 2] [--plain-limit 60] [--limit SECONDS]
+        [--helix-poses 10000] [--cli] [--accuracy]
 
 ``--cli`` instead times what a user runs: ``lie-factors posegraph FILE --incremental --backend
-native|dropin --json`` in a fresh process each (wall seconds of the whole command, and its
-update_seconds), alternating, best of ``--repeat``.
+LEG --json`` in a fresh process each (legs: ``--legs``, default native and batch), alternating,
+best of ``--repeat``: the wall seconds of the whole command, its update_seconds and p99, its
+peak resident memory, and each against native's.
+
+``--accuracy`` replays each graph through ``gtsam.ISAM2`` (GTSAM's factors) and the smoother
+side by side and prints the error of the graph so far at each one's estimate at every tenth
+of the replay (and the worst ratio), the final errors, and the error after the smoother's
+``optimize()`` (relinearize everything and iterate) against batch Levenberg–Marquardt's optimum.
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ from lie_factors.app.backends import build_graph  # noqa: E402
 from lie_factors.app.load import load as load_dataset  # noqa: E402
 
 DEFAULT_DATASETS = ["intel", "city10000", "sphere2500", "helix"]
-LEGS = ("native", "plain", "dropin")
+LEGS = ("native", "plain", "dropin", "batch")
 SIGMA_ROT, SIGMA_TRANS = 0.01, 0.05
 
 
@@ -97,41 +105,155 @@ def ate(values: gtsam.Values, truth) -> float:
     return float(np.sqrt(np.mean(np.sum(np.square(err), axis=1))))
 
 
-def run_leg(pg, leg: str, graphs: dict, plain_limit: float):
+def run_leg(pg, leg: str, graphs: dict, plain_limit: float, limit: float | None = None):
     if leg == "native":
-        return incremental.replay(pg, "native", graph=graphs["native"])
+        return incremental.replay(pg, "native", graph=graphs["native"], max_seconds=limit)
     if leg == "plain":
         return incremental.replay(pg, "dropin", graph=graphs["dropin"], isam_class=gtsam.ISAM2,
-                                  max_seconds=plain_limit)
-    return incremental.replay(pg, "dropin", graph=graphs["dropin"])
+                                  max_seconds=plain_limit if limit is None else min(plain_limit, limit))
+    if leg == "batch":
+        return incremental.replay(pg, "batch", max_seconds=limit)
+    return incremental.replay(pg, "dropin", graph=graphs["dropin"], max_seconds=limit)
 
 
-def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int) -> None:
+def _run_command(cmd: list) -> tuple[float, str | None, float]:
+    """(wall seconds, stdout or None if it failed, peak resident MB) of ``cmd`` in a fresh process."""
+    with tempfile.TemporaryFile(mode="w+") as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True)
+        out = proc.stdout.read()
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        message = err.read().strip()
+    if proc.returncode != 0:
+        print(f"#   {cmd[2]} {cmd[5]}: {message.splitlines()[-1] if message else 'failed'}", file=sys.stderr)
+    return wall, out if proc.returncode == 0 else None, usage.ru_maxrss / 1024.0
+
+
+def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int, legs) -> None:
     exe = os.path.join(os.path.dirname(sys.executable), "lie-factors")
     paths = {}
     for name in datasets:
         pg, _ = load(name, data_dir, tmp, helix_poses)
         paths[name] = pg.path
     best: dict = {}
-    for _ in range(repeat):
+    for r in range(repeat):
         for name in datasets:
-            for backend in ("native", "dropin"):
-                t0 = time.perf_counter()
-                out = subprocess.run([exe, "posegraph", paths[name], "--incremental", "--backend", backend,
-                                      "--json", "--quiet"], check=True, capture_output=True, text=True).stdout
-                wall = time.perf_counter() - t0
+            for backend in legs:
+                wall, out, rss = _run_command([exe, "posegraph", paths[name], "--incremental", "--backend",
+                                               backend, "--json", "--quiet"])
+                if out is None:
+                    print(f"# repeat {r + 1} {name} {backend}: failed", file=sys.stderr, flush=True)
+                    best.setdefault((name, backend), None)
+                    continue
                 d = json.loads(out.strip().splitlines()[-1])
+                print(f"# repeat {r + 1} {name} {backend}: wall {wall:.2f} s, updates {d['update_seconds']:.3f} s, "
+                      f"p99 {d['update_p99'] * 1e3:.2f} ms, {rss:.0f} MB", file=sys.stderr, flush=True)
                 key = (name, backend)
-                if key not in best or wall < best[key][0]:
-                    best[key] = (wall, d)
-    print("| graph | backend | command wall s | update_seconds | p99 ms | final error | wall × native |")
-    print("|---|---|---|---|---|---|---|")
+                if best.get(key) is None:
+                    best[key] = dict(wall=wall, rss=rss, d=d)
+                else:
+                    b = best[key]
+                    b["wall"] = min(b["wall"], wall)
+                    b["rss"] = min(b["rss"], rss)
+                    if d["update_seconds"] < b["d"]["update_seconds"]:
+                        b["d"] = d
+    print("| graph | backend | command wall s | update_seconds | p99 ms | peak MB | final error | relin. | reord. "
+          "| updates × native | p99 × native | wall × native |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in datasets:
-        for backend in ("native", "dropin"):
-            wall, d = best[(name, backend)]
-            print(f"| {d['dataset']} | {backend} | {wall:.2f} | {d['update_seconds']:.3f} | "
-                  f"{d['update_p99'] * 1e3:.2f} | {d['final_error']:.10g} | "
-                  f"{wall / best[(name, 'native')][0]:.2f} |")
+        ref = best.get((name, "native"))
+        for backend in legs:
+            b = best[(name, backend)]
+            if b is None:
+                print(f"| {name} | {backend} | failed (see the log) | | | | | | | | | |")
+                continue
+            d = b["d"]
+
+            def ratio(x, y):
+                return f"{x / y:.2f}" if ref is not None else ""
+
+            print(f"| {d['dataset']} | {backend} | {b['wall']:.2f} | {d['update_seconds']:.3f} | "
+                  f"{d['update_p99'] * 1e3:.2f} | {b['rss']:.0f} | {d['final_error']:.10g} | "
+                  f"{d.get('relinearizations')} | {d.get('reorderings')} | "
+                  f"{ratio(d['update_seconds'], ref['d']['update_seconds']) if ref else ''} | "
+                  f"{ratio(d['update_p99'], ref['d']['update_p99']) if ref else ''} | "
+                  f"{ratio(b['wall'], ref['wall']) if ref else ''} |")
+
+
+def accuracy_rows(datasets, data_dir: str, tmp: str, helix_poses: int) -> None:
+    """gtsam.ISAM2 (GTSAM's factors) and the smoother side by side: the error of the graph so far
+    at every tenth, the final errors, and optimize() against batch LM's optimum."""
+    from lie_factors.incremental import FactorArrays, Smoother
+    from lie_factors.kernels.elements import to_gtsam
+
+    print("| graph | worst tenth (ours / ISAM2) | final ISAM2 | final ours | ours / ISAM2 − 1 "
+          "| optimize() | batch LM optimum | rel. diff |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in datasets:
+        ds, _ = load(name, data_dir, tmp, helix_poses)
+        pg = ds.posed()
+        graph = build_graph(ds, "native")
+        E = len(pg.edge_keys)
+        steps = incremental.schedule(ds, graph)
+        fa = FactorArrays(pg.group, pg.edge_keys, pg.measured, pg.information, pg.prior_keys, pg.prior_measured,
+                          pg.prior_information)
+        ref, ours = gtsam.ISAM2(incremental.isam2_params()), Smoother()
+        at = getattr(gtsam.Values, f"at{pg.group}")
+        so_far = gtsam.NonlinearFactorGraph()
+        tenth = max(len(steps) // 10, 1)
+        prev_ref = prev_ours = None
+        worst = 0.0
+        failed = ""
+        for n, step in enumerate(steps):
+            for k in step.factors:
+                so_far.add(graph.at(k))
+            g = gtsam.NonlinearFactorGraph()
+            for k in step.factors:
+                g.add(graph.at(k))
+            if step.odometry is not None and prev_ref is not None:
+                k, forward = step.odometry
+                M = pg.measured[k] if forward else fa.Minv[k]
+                guess_ref = prev_ref.compose(to_gtsam(pg.group, M))
+                guess_ours = prev_ours @ M
+            else:
+                guess_ref = at(ds.initial, step.key)
+                guess_ours = ds.start_poses[n]
+            if ref is not None:
+                v = gtsam.Values()
+                v.insert(step.key, guess_ref)
+                try:
+                    ref.update(g, v)
+                    prev_ref = getattr(ref, f"calculateEstimate{pg.group}")(step.key)
+                except RuntimeError as exc:
+                    failed = f"gtsam.ISAM2 failed at update {n + 1}: {str(exc).strip().splitlines()[0]}"
+                    print(f"# {name}: {failed}", file=sys.stderr, flush=True)
+                    ref = None
+            ours.update_prepared(fa, [step.key], guess_ours[None], [k for k in step.factors if k < E],
+                                 [k - E for k in step.factors if k >= E])
+            prev_ours = ours.estimate_matrix(step.key)
+            if (n + 1) % tenth == 0 or n + 1 == len(steps):
+                e_ours = so_far.error(ours.calculateEstimate())
+                e_ref = so_far.error(ref.calculateEstimate()) if ref is not None else math.nan
+                if e_ref > 1e-9:  # both at the optimum of a tree: no ratio to speak of
+                    worst = max(worst, e_ours / e_ref)
+                print(f"# {name} update {n + 1}: ISAM2 {e_ref:.10g}, ours {e_ours:.10g}", file=sys.stderr,
+                      flush=True)
+        final_ours = so_far.error(ours.calculateEstimate())
+        final_ref = so_far.error(ref.calculateEstimate()) if ref is not None else math.nan
+        ours.optimize()
+        optimized = so_far.error(ours.calculateEstimate())
+        params = gtsam.LevenbergMarquardtParams()
+        params.setRelativeErrorTol(1e-12)
+        params.setAbsoluteErrorTol(1e-12)
+        params.setMaxIterations(200)
+        start = ours.calculateEstimate()
+        lm = so_far.error(gtsam.LevenbergMarquardtOptimizer(so_far, start, params).optimize())
+        print(f"| {ds.name} | {worst:.6f}{' ' + failed if failed else ''} | {final_ref:.10g} | {final_ours:.10g} "
+              f"| {final_ours / final_ref - 1:.2e} | {optimized:.10g} | {lm:.10g} | {abs(optimized - lm) / lm:.1e} |",
+              flush=True)
 
 
 def main(argv=None) -> int:
@@ -141,12 +263,21 @@ def main(argv=None) -> int:
     ap.add_argument("--legs", nargs="+", default=list(LEGS), choices=LEGS)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--plain-limit", type=float, default=60.0)
+    ap.add_argument("--limit", type=float, default=None,
+                    help="stop every leg after the update that passes this many seconds (a graph whose full "
+                         "replay takes too long); legs are compared over the updates both did")
     ap.add_argument("--helix-poses", type=int, default=10000)
     ap.add_argument("--cli", action="store_true", help="time the whole CLI command instead")
+    ap.add_argument("--accuracy", action="store_true", help="errors against gtsam.ISAM2 and batch LM instead")
     args = ap.parse_args(argv)
-    if args.cli:
+    if args.accuracy:
         with tempfile.TemporaryDirectory() as tmp:
-            cli_rows(args.datasets, args.data_dir, tmp, args.helix_poses, args.repeat)
+            accuracy_rows(args.datasets, args.data_dir, tmp, args.helix_poses)
+        return 0
+    if args.cli:
+        legs = args.legs if args.legs != list(LEGS) else ["native", "batch"]
+        with tempfile.TemporaryDirectory() as tmp:
+            cli_rows(args.datasets, args.data_dir, tmp, args.helix_poses, args.repeat, legs)
         return 0
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -160,7 +291,7 @@ def main(argv=None) -> int:
             for name in args.datasets:
                 pg, truth, graphs = loaded[name]
                 for leg in args.legs:
-                    res = run_leg(pg, leg, graphs, args.plain_limit)
+                    res = run_leg(pg, leg, graphs, args.plain_limit, args.limit)
                     print(f"# repeat {r + 1} {name} {leg}: {res.updates} updates {res.update_seconds:.3f} s",
                           file=sys.stderr, flush=True)
                     key = (name, leg)
@@ -177,9 +308,11 @@ def main(argv=None) -> int:
                 done = res.updates
                 ratio = ""
                 if native is not None:
-                    ref = float(native.times[:done].sum())
-                    ratio = f"{res.update_seconds / ref:.2f}" + ("" if done == native.updates else
-                                                                 f" (first {done} updates)")
+                    common = min(done, native.updates)
+                    mine = float(res.times[:common].sum())
+                    ref = float(native.times[:common].sum())
+                    ratio = f"{mine / ref:.2f}" + ("" if common == done == native.updates else
+                                                   f" (first {common} updates)")
                 a = f"{ate(res.values, truth):.4f}" if truth is not None and done == pg.poses else ""
                 err = "" if math.isnan(res.final_error) else f"{res.final_error:.10g}"
                 print(f"| {pg.name} | {pg.poses} | {res.factors} | {leg} | {done} | {res.update_seconds:.3f} "

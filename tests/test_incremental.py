@@ -79,9 +79,13 @@ def test_cli_incremental_native_and_dropin_on_small_grid(capsys):
         assert 0 < d["update_p50"] <= d["update_p99"] <= d["update_seconds"]
         assert d["relinearize_threshold"] == 0.1 and d["relinearize_skip"] == 10
         assert "125 updates" in out
+        assert isinstance(d["relinearizations"], int) and d["relinearizations"] > 0
+        assert (d["reorderings"] is None) == (backend != "batch")
     # GTSAM's Pose3 between factor and ours: the same error, Jacobians equal to rounding
     assert records["dropin"]["final_error"] == pytest.approx(records["native"]["final_error"], rel=1e-9)
-    assert records["dropin"]["final_error"] == records["batch"]["final_error"]
+    # the incremental smoother: ISAM2's policy on its own factorization, the same accuracy
+    assert records["batch"]["final_error"] <= records["native"]["final_error"] * (1 + 1e-4)
+    assert records["batch"]["reorderings"] >= 1
     # the replay's estimate is close to the batch optimum (the same minimum, ISAM2 stops short of it)
     status, out, _ = run_main(capsys, "posegraph", SMALL, "--backend", "native", "--json", "--init", "file")
     assert records["native"]["final_error"] == pytest.approx(last_json(out)["final_error"], rel=1e-2)
@@ -100,10 +104,12 @@ def test_cli_incremental_options_output_and_plot(tmp_path, capsys):
     assert png.stat().st_size > 0
 
 
-@pytest.mark.parametrize("name", ["pose3example-grid.txt", "noisyToyGraph.txt",
-                                  "known_landmark_localization_20.g2o"])
-def test_cli_incremental_on_gtsam_example_files(capsys, name):
-    status, out, err = run_main(capsys, "posegraph", name, "--incremental", "--backend", "dropin", "--json")
+@pytest.mark.parametrize("name,backend", [("pose3example-grid.txt", "dropin"), ("noisyToyGraph.txt", "dropin"),
+                                          ("known_landmark_localization_20.g2o", "dropin"),
+                                          ("pose3example-grid.txt", "batch"),
+                                          ("known_landmark_localization_20.g2o", "batch")])
+def test_cli_incremental_on_gtsam_example_files(capsys, name, backend):
+    status, out, err = run_main(capsys, "posegraph", name, "--incremental", "--backend", backend, "--json")
     assert status == 0, err
     d = last_json(out)
     pg = load(name)
@@ -115,7 +121,7 @@ def test_cli_incremental_sim3(tmp_path, capsys):
     status, out, err = run_main(capsys, "demo", "--scenario", "sim3", "--poses", "30", "--output",
                               str(tmp_path), "--quiet")
     assert status == 0, err
-    for backend in ("native", "dropin"):
+    for backend in ("native", "dropin", "batch"):
         status, out, err = run_main(capsys, "posegraph", str(tmp_path / "optimized.g2o"), "--incremental",
                                     "--backend", backend, "--json", "--quiet")
         assert status == 0, err
@@ -123,9 +129,10 @@ def test_cli_incremental_sim3(tmp_path, capsys):
         assert d["updates"] == 30 and d["dimension"] == 3 and np.isfinite(d["final_error"])
 
 
-def test_progress_line_every_1000_updates(capsys):
+@pytest.mark.parametrize("backend", ["native", "batch"])
+def test_progress_line_every_1000_updates(capsys, backend):
     status, out, err = run_main(capsys, "posegraph", "cityTrees_reduced_1k.g2o", "--incremental",
-                                "--backend", "native")
+                                "--backend", backend)
     assert status == 0
     assert [line.split(":")[0] for line in err.splitlines() if line.startswith("update ")] == ["update 1000/1000"]
 
@@ -152,3 +159,5 @@ def test_incremental_errors_are_one_line(tmp_path, capsys):
     status, out, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental",
                               "--backend", "native")
     assert_one_line_error(status, out, err, "ISAM2 update 2 (pose 1) failed", "Indeterminate")
+    status, out, err = run_main(capsys, "posegraph", write(tmp_path, text, "i.g2o"), "--incremental")
+    assert_one_line_error(status, out, err, "update 2 (pose 1) failed", "undetermined")

@@ -6,7 +6,7 @@ Layers, bottom up (docs/architecture.md):
 1. kernels: ``kernels.*`` and the group modules (``so3`` … ``sim3``, ``quaternion``,
    ``dual_quaternion``);
 2. ``factors``;
-3. solvers: ``lm``, ``pose_graph``, ``topology``, ``batch``, ``optimizers``,
+3. solvers: ``lm``, ``pose_graph``, ``topology``, ``batch``, ``incremental``, ``optimizers``,
    ``initialization``, ``dropin``;
 4. g2o I/O: ``g2o``;
 5. the app: ``app``.
@@ -30,7 +30,8 @@ LAYERS = {
     "kernels": 1, "so3": 1, "se3": 1, "se2": 1, "sim2": 1, "sim3": 1, "quaternion": 1,
     "dual_quaternion": 1,
     "factors": 2,
-    "lm": 3, "pose_graph": 3, "topology": 3, "batch": 3, "optimizers": 3, "initialization": 3,
+    "lm": 3, "pose_graph": 3, "topology": 3, "batch": 3, "incremental": 3, "optimizers": 3,
+    "initialization": 3,
     "dropin": 3,
     "g2o": 4,
     "app": 5,

@@ -168,10 +168,11 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                    help="with --gnc: skip the consistency stage and the final check (plain GNC, as "
                         "GTSAM's GncOptimizer)")
     p.add_argument("--incremental", action="store_true",
-                   help="replay the file online through ISAM2 instead (poses in id order, one per "
-                        "update; native = GTSAM's factors in gtsam.ISAM2, dropin/batch = ours in "
-                        "lie_factors.optimizers.ISAM2); the JSON adds incremental, updates, "
-                        "update_seconds, update_p50, update_p99")
+                   help="replay the file online instead (poses in id order, one per update; batch = "
+                        "the incremental smoother lie_factors.incremental.Smoother on arrays, dropin = "
+                        "our factors in lie_factors.optimizers.ISAM2, native = GTSAM's factors in "
+                        "gtsam.ISAM2); the JSON adds incremental, updates, update_seconds, update_p50, "
+                        "update_p99, relinearizations, reorderings")
     p.add_argument("--relinearize-threshold", type=_positive_float, default=0.1, metavar="T",
                    help="with --incremental: ISAM2's relinearizeThreshold (default: 0.1)")
     p.add_argument("--relinearize-skip", type=_bounded_int("--relinearize-skip", 1, MAX_ITERATIONS),

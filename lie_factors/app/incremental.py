@@ -11,10 +11,13 @@ The file is replayed as a robot would have built it:
   file's value where there is no such edge. A landmark enters with its first
   measurement: at the file's vertex if it has one, else placed from that
   measurement at its pose's initial value.
-- Factors: backend ``native`` puts GTSAM's own factors in ``gtsam.ISAM2``;
-  ``dropin`` and ``batch`` put lie_factors' factors in
-  :class:`lie_factors.optimizers.ISAM2` (GTSAM's ISAM2 whose callbacks receive
-  its own linearization point instead of a copy of it).
+- Backends: ``native`` puts GTSAM's own factors in ``gtsam.ISAM2``; ``dropin``
+  puts lie_factors' factors in :class:`lie_factors.optimizers.ISAM2` (GTSAM's
+  ISAM2 whose callbacks receive its own linearization point instead of a copy
+  of it); ``batch`` runs the incremental smoother
+  (:class:`lie_factors.incremental.Smoother`): on arrays, with no factor object,
+  for a pose graph (:func:`replay_arrays`), on the graph's factors where the
+  file has landmarks.
 
 Each update's time is that of ``update`` plus reading back the new pose's
 estimate (what the next pose's initial value needs): ``update_seconds`` is
@@ -36,7 +39,8 @@ import numpy as np
 import gtsam
 
 from ..errors import PoseGraphError
-from ..kernels.elements import to_gtsam
+from ..kernels import registry
+from ..kernels.elements import to_gtsam, values_from_matrices
 from ..timing import Stopwatch, warm_up_factors
 from .backends import build_graph
 from .load import Dataset, is_landmark_key
@@ -61,15 +65,17 @@ class Step:
     odometry: tuple[int, bool] | None = None
 
 
-def schedule(ds: Dataset, graph: gtsam.NonlinearFactorGraph) -> list[Step]:
-    """The updates of the replay of ``graph`` (built by :func:`lie_factors.app.backends.build_graph`
-    from ``ds``: file edge k is factor k, then the prior, then the landmark measurements)."""
+def schedule(ds: Dataset, factors) -> list[Step]:
+    """The updates of the replay of ``factors``: a graph built by
+    :func:`lie_factors.app.backends.build_graph` from ``ds`` (file edge k is factor k, then the
+    prior, then the landmark measurements), or the keys of those factors in that order."""
+    if isinstance(factors, gtsam.NonlinearFactorGraph):
+        factors = [[int(key) for key in factors.at(k).keys()] for k in range(factors.size())]
     order = ds.graph.keys.tolist()
     position = {k: n for n, k in enumerate(order)}
     steps = [Step(k, []) for k in order]
     seen_landmarks: set[int] = set()
-    for k in range(graph.size()):
-        keys = [int(key) for key in graph.at(k).keys()]
+    for k, keys in enumerate(factors):
         poses = [key for key in keys if not is_landmark_key(key)]
         if not poses:
             raise PoseGraphError(f"factor {k} has no pose: it cannot be placed in the replay")
@@ -108,6 +114,8 @@ class Replay:
     start: gtsam.Values
     factors: int
     times: np.ndarray
+    relinearizations: int | None = None
+    reorderings: int | None = None
 
 
 def isam2_params(relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
@@ -119,9 +127,14 @@ def isam2_params(relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
 
 
 def isam2_class(backend: str) -> type:
-    """``gtsam.ISAM2`` for the native backend, the drop-in for ours."""
+    """``gtsam.ISAM2`` for the native backend, the drop-in for ``dropin``, the incremental
+    smoother (:class:`lie_factors.incremental.Smoother`) for ``batch``."""
     if backend == "native":
         return gtsam.ISAM2
+    if backend == "batch":
+        from ..incremental import Smoother
+
+        return Smoother
     from ..optimizers.isam2 import ISAM2
 
     return ISAM2
@@ -147,6 +160,14 @@ def _first_sentence(exc: Exception) -> str:
     return text
 
 
+def _stop_after(n: int, total: int, clock: Stopwatch, progress, max_seconds: float | None) -> bool:
+    """After update ``n`` (0-based) of ``total``: the progress line every :data:`PROGRESS_EVERY`
+    updates, and whether ``max_seconds`` have passed with updates left."""
+    if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
+        progress(n + 1, total, clock.seconds())
+    return max_seconds is not None and n + 1 < total and clock.seconds() > max_seconds
+
+
 def replay(ds: Dataset, backend: str = "dropin",
            params: gtsam.ISAM2Params | None = None,
            progress: Callable[[int, int, float], None] | None = None,
@@ -161,6 +182,8 @@ def replay(ds: Dataset, backend: str = "dropin",
     benchmark's cut-off for a leg that grows quadratically); ``updates`` then
     counts the updates done and ``final_error`` is NaN.
     """
+    if backend == "batch" and graph is None and isam_class is None and ds.landmarks is None:
+        return replay_arrays(ds, params, progress, max_seconds)
     if graph is None:
         graph = build_graph(ds, backend)
     if isam_class is None:
@@ -177,6 +200,7 @@ def replay(ds: Dataset, backend: str = "dropin",
         batches.append(g)
     warm_up_factors()  # compile before the clock starts
     isam = isam_class(params if params is not None else isam2_params())
+    relinearized = 0
     start = gtsam.Values()
     times = np.empty(len(steps))
     previous = None
@@ -198,15 +222,14 @@ def replay(ds: Dataset, backend: str = "dropin",
             start.insert(key, point)
         t0 = time.perf_counter()
         try:
-            isam.update(new_factors, new_theta)
+            result = isam.update(new_factors, new_theta)
             previous = estimate(isam, step.key)
-        except RuntimeError as exc:
-            raise PoseGraphError(f"ISAM2 update {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}"
-                                 ) from None
+        except (RuntimeError, ValueError) as exc:
+            what = "update" if backend == "batch" else "ISAM2 update"
+            raise PoseGraphError(f"{what} {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}") from None
         times[n] = time.perf_counter() - t0
-        if progress is not None and (n + 1) % PROGRESS_EVERY == 0:
-            progress(n + 1, len(steps), clock.seconds())
-        if max_seconds is not None and n + 1 < len(steps) and clock.seconds() > max_seconds:
+        relinearized += int(result.getVariablesRelinearized())
+        if _stop_after(n, len(steps), clock, progress, max_seconds):
             times = times[:n + 1]
             break
     seconds = clock.seconds()
@@ -215,7 +238,74 @@ def replay(ds: Dataset, backend: str = "dropin",
     return Replay(updates=len(times), update_seconds=float(times.sum()),
                   update_p50=float(np.percentile(times, 50)), update_p99=float(np.percentile(times, 99)),
                   seconds=seconds, final_error=final_error, values=values, start=start,
-                  factors=int(graph.size()), times=times)
+                  factors=int(graph.size()), times=times, relinearizations=relinearized,
+                  reorderings=getattr(isam, "reorderings", None))
+
+
+def replay_arrays(ds: Dataset, params=None, progress: Callable[[int, int, float], None] | None = None,
+                  max_seconds: float | None = None) -> Replay:
+    """The replay of a pose graph (no landmarks) through :class:`lie_factors.incremental.Smoother`
+    on arrays: the same updates, initial values and figures as :func:`replay`, and no factor
+    object at all.  ``params``: a :class:`~lie_factors.incremental.SmootherParams` or a
+    ``gtsam.ISAM2Params``."""
+    from ..batch.graph import Problem
+    from ..incremental import FactorArrays, Smoother
+
+    pg = ds.posed()
+    E = len(pg.edge_keys)
+    fa = FactorArrays(pg.group, pg.edge_keys, pg.measured, pg.information, pg.prior_keys, pg.prior_measured,
+                      pg.prior_information)
+    steps = schedule(ds, pg.edge_keys.tolist() + [[k] for k in pg.prior_keys.tolist()])
+    edges = [np.array([k for k in s.factors if k < E], dtype=np.int64) for s in steps]
+    priors = [np.array([k - E for k in s.factors if k >= E], dtype=np.int64) for s in steps]
+    warm_up_smoother(fa.group)  # compile before the clock starts
+    smoother = Smoother(params)
+    start = np.empty((len(steps), fa.spec.mat, fa.spec.mat))
+    file_poses = ds.start_poses
+    times = np.empty(len(steps))
+    previous = None
+    clock = Stopwatch()
+    for n, step in enumerate(steps):
+        if step.odometry is not None and previous is not None:
+            k, forward = step.odometry
+            guess = previous @ (pg.measured[k] if forward else fa.Minv[k])
+        else:
+            guess = file_poses[n]
+        start[n] = guess
+        t0 = time.perf_counter()
+        try:
+            smoother.update_prepared(fa, [step.key], guess[None], edges[n], priors[n])
+            previous = smoother.estimate_matrix(step.key)
+        except ValueError as exc:
+            raise PoseGraphError(f"update {n + 1} (pose {step.key}) failed: {str(exc).strip()}") from None
+        times[n] = time.perf_counter() - t0
+        if _stop_after(n, len(steps), clock, progress, max_seconds):
+            times = times[:n + 1]
+            break
+    seconds = clock.seconds()
+    done = len(times)
+    keys = pg.keys[:done]
+    X = smoother.estimate_matrices(keys)
+    final_error = Problem.from_pose_graph(pg, X).error() if done == len(steps) else math.nan
+    return Replay(updates=done, update_seconds=float(times.sum()),
+                  update_p50=float(np.percentile(times, 50)), update_p99=float(np.percentile(times, 99)),
+                  seconds=seconds, final_error=float(final_error),
+                  values=values_from_matrices(pg.group, keys, X),
+                  start=values_from_matrices(pg.group, keys, start[:done]), factors=E + len(pg.prior_keys),
+                  times=times, relinearizations=smoother.relinearizations, reorderings=smoother.reorderings)
+
+
+def warm_up_smoother(group: str) -> None:
+    """Compile (or load) every kernel a replay on ``group`` runs, on a three-pose problem."""
+    from ..incremental import Smoother, SmootherParams
+
+    info = registry.group(group)
+    I = np.eye(info.mat)
+    s = Smoother(SmootherParams(relinearizeSkip=1, relinearizeThreshold=0.0))
+    s.update_arrays(group, [0, 1], np.stack([I, I]), [[0, 1]], I[None], np.eye(info.dim)[None], [0], I[None],
+                    np.eye(info.dim)[None])
+    s.update_arrays(group, [2], I[None], [[1, 2], [0, 2]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))
+    s.estimate_matrix(2)
 
 
 #: The figures of a :class:`Replay` its record reports.
@@ -235,6 +325,7 @@ class ReplayRecord(Record):
     def to_dict(self) -> dict:
         return {**{f.name: getattr(self, f.name) for f in dataclasses.fields(Record)}, "incremental": True,
                 **{k: getattr(self.replay, k) for k in FIGURES},
+                "relinearizations": self.replay.relinearizations, "reorderings": self.replay.reorderings,
                 "relinearize_threshold": float(self.relinearize_threshold),
                 "relinearize_skip": int(self.relinearize_skip)}
 
@@ -261,7 +352,13 @@ class IncrementalRun(PoseGraphRun):
         return None
 
     def optimize(self) -> Replay:
-        params = isam2_params(self.relinearize_threshold, self.relinearize_skip)
+        if self.backend == "batch":
+            from ..incremental import SmootherParams
+
+            params = SmootherParams(relinearizeThreshold=self.relinearize_threshold,
+                                    relinearizeSkip=self.relinearize_skip)
+        else:
+            params = isam2_params(self.relinearize_threshold, self.relinearize_skip)
         self.replay = r = replay(self.pg, self.backend, params, self.events.replayed)
         self.record = ReplayRecord(**Record.of(self.pg, self.backend, r.factors), replay=r,
                                    relinearize_threshold=self.relinearize_threshold,

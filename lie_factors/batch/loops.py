@@ -64,38 +64,50 @@ def _whiten_jacobian(Rf, H, out):
             out[r, c] = acc
 
 
+@kernel
+def _between_lin_range(g, X, i1, i2, Minv, R, ridx, A1, A2, b, sq, f0, f1):
+    """:func:`_between_lin` on the factors f0 … f1 − 1."""
+    n = R.shape[1]
+    e = np.empty(n)
+    H1 = np.empty((n, n))
+    H2 = np.empty((n, n))
+    Ad = np.empty((n, n))
+    for f in range(f0, f1):
+        _dispatch.Ad(g, Minv[f], Ad)
+        _factors.between(g, Minv[f], Ad, X[i1[f]], X[i2[f]], e, H1, H2)
+        Rf = R[ridx[f]]
+        sq[f] = _whiten_residual(Rf, e, b[f])
+        _whiten_jacobian(Rf, H1, A1[f])
+        _whiten_jacobian(Rf, H2, A2[f])
+
+
 @parallel_kernel
 def _between_lin(g, X, i1, i2, Minv, R, ridx, A1, A2, b, sq):
     """Whitened A1 = R·H1, A2 = R·H2, b = −R·e and sq = ‖R e‖² for every between factor
     (R = R[ridx[f]]; Ad(M⁻¹) from M⁻¹ by the factors' own construction core)."""
-    n = R.shape[1]
     F = i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
-        e = np.empty(n)
-        H1 = np.empty((n, n))
-        H2 = np.empty((n, n))
-        Ad = np.empty((n, n))
-        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
-            _dispatch.Ad(g, Minv[f], Ad)
-            _factors.between(g, Minv[f], Ad, X[i1[f]], X[i2[f]], e, H1, H2)
-            Rf = R[ridx[f]]
-            sq[f] = _whiten_residual(Rf, e, b[f])
-            _whiten_jacobian(Rf, H1, A1[f])
-            _whiten_jacobian(Rf, H2, A2[f])
+        _between_lin_range(g, X, i1, i2, Minv, R, ridx, A1, A2, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
+
+
+@kernel
+def _prior_lin_range(g, X, i1, Pinv, R, ridx, A1, b, sq, f0, f1):
+    """:func:`_prior_lin` on the factors f0 … f1 − 1."""
+    n = R.shape[1]
+    e = np.empty(n)
+    H = np.empty((n, n))
+    for f in range(f0, f1):
+        _factors.prior(g, Pinv[f], X[i1[f]], e, H)
+        Rf = R[ridx[f]]
+        sq[f] = _whiten_residual(Rf, e, b[f])
+        _whiten_jacobian(Rf, H, A1[f])
 
 
 @parallel_kernel
 def _prior_lin(g, X, i1, Pinv, R, ridx, A1, b, sq):
-    n = R.shape[1]
     F = i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
-        e = np.empty(n)
-        H = np.empty((n, n))
-        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
-            _factors.prior(g, Pinv[f], X[i1[f]], e, H)
-            Rf = R[ridx[f]]
-            sq[f] = _whiten_residual(Rf, e, b[f])
-            _whiten_jacobian(Rf, H, A1[f])
+        _prior_lin_range(g, X, i1, Pinv, R, ridx, A1, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
 
 
 @parallel_kernel
@@ -116,24 +128,30 @@ def _errors(g, X, i1, i2, Minv, R, ridx, sq):
             sq[f] = _whiten_residual(R[ridx[f]], e, scratch)
 
 
+@kernel
+def _retract_range(g, X, delta, offsets, out, i0, i1):
+    """:func:`_retract` on the elements i0 … i1 − 1."""
+    n = _dispatch.dim(g)
+    m = X.shape[1]
+    D = np.empty((m, m))
+    x = np.empty(n)
+    for i in range(i0, i1):
+        o = offsets[i]
+        if o < 0:
+            out[i] = X[i]
+            continue
+        for k in range(n):
+            x[k] = delta[o + k]
+        _dispatch.exp(g, x, D)
+        _dispatch.compose(g, X[i], D, out[i])
+
+
 @parallel_kernel
 def _retract(g, X, delta, offsets, out):
     """out[i] = X[i]·Exp(delta[offsets[i] : offsets[i] + n]) (GTSAM's retract); offset −1: unchanged."""
-    n = _dispatch.dim(g)
-    m = X.shape[1]
     N = X.shape[0]
     for c in prange((N + CHUNK - 1) // CHUNK):
-        D = np.empty((m, m))
-        x = np.empty(n)
-        for i in range(c * CHUNK, min(N, (c + 1) * CHUNK)):
-            o = offsets[i]
-            if o < 0:
-                out[i] = X[i]
-                continue
-            for k in range(n):
-                x[k] = delta[o + k]
-            _dispatch.exp(g, x, D)
-            _dispatch.compose(g, X[i], D, out[i])
+        _retract_range(g, X, delta, offsets, out, c * CHUNK, min(N, (c + 1) * CHUNK))
 
 
 @kernel
@@ -162,12 +180,19 @@ def _setup(g, M, Minv, codes):
 class GroupLoops:
     """The loops above bound to one group (``spec.group``, a :mod:`lie_factors.kernels.dispatch` tag):
     ``between_lin(*a)`` is ``_between_lin(g, *a)``, and so on; ``between_err`` and ``prior_err``
-    are :func:`_errors`."""
+    are :func:`_errors`.  ``serial=True``: the linearizations and the retraction run on the
+    calling thread, one compiled call with no fork and join (for the few factors of an
+    incremental update, where starting numba's threads costs more than the work)."""
 
-    def __init__(self, spec):
+    def __init__(self, spec, serial: bool = False):
         self.g = spec.group
         for name in ("between_lin", "prior_lin", "retract", "relative_log"):
             setattr(self, name, functools.partial(globals()[f"_{name}"], self.g))
+        if serial:
+            g = self.g
+            self.between_lin = lambda X, i1, *a: _between_lin_range(g, X, i1, *a, 0, i1.shape[0])
+            self.prior_lin = lambda X, i1, *a: _prior_lin_range(g, X, i1, *a, 0, i1.shape[0])
+            self.retract = lambda X, *a: _retract_range(g, X, *a, 0, X.shape[0])
 
     def between_err(self, X, i1, i2, Minv, R, ridx, sq):
         _errors(self.g, X, i1, i2, Minv, R, ridx, sq)
