@@ -2,7 +2,8 @@
 
 cvxopt's wheels bundle CHOLMOD (SuiteSparse) and OpenBLAS.  The batch solver
 keeps a symbolic analysis across iterations (:class:`lie_factors.batch.solvers.CholmodSolver`);
-the initializers solve a system once (:func:`solve_spd`).  Neither numba nor
+the initializers solve a system once (:func:`solve_spd`); the final check of loop closures
+reads the factor itself (:func:`lower_factor`).  Neither numba nor
 GTSAM is imported here.
 """
 
@@ -20,47 +21,36 @@ def available() -> bool:
     return True
 
 
-class Factor:
-    """One CHOLMOD factorization P·A·Pᵀ = L·D·Lᵀ of an SPD matrix A (n × n), for repeated solves.
+def lower_factor(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray):
+    """The Cholesky factor of a symmetric positive definite A (n × n, lower triangle as triplets
+    with rows ≥ cols): P·A·Pᵀ = L·Lᵀ with CHOLMOD's fill-reducing P.
 
-    ``solve(rhs)``: x with A x = rhs; ``half(rhs)``: (Z, d) with Z = L⁻¹·P·rhs and d = D⁻¹
-    (ones for a supernodal LLᵀ), so that rhsᵀ·A⁻¹·rhs = Zᵀ·diag(d)·Z at the cost of one
-    triangular sweep.  ``rhs`` (n,) or (n, m).
+    Returns (perm, colptr, rowind, values): ``perm`` (n,) int64 with (P·x)[k] = x[perm[k]]; L
+    (n × n, lower) in compressed columns, each column's diagonal first and its rows ascending.
+    The supernodal factorization is asked for because CHOLMOD hands back its simplicial one as
+    L·D·Lᵀ (D on L's diagonal); cvxopt's ``getfactor`` converts a supernodal factor to L·Lᵀ.
+    Raises ``numpy.linalg.LinAlgError`` if A is not positive definite.
     """
+    from cvxopt import cholmod, matrix, spmatrix
 
-    def __init__(self, n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray):
-        from cvxopt import cholmod, matrix, spmatrix
-
-        self.n, self._cholmod, self._matrix = n, cholmod, matrix
-        A = spmatrix(matrix(np.ascontiguousarray(vals, dtype=np.float64)),
-                     matrix(np.ascontiguousarray(rows, dtype=np.int64)),
-                     matrix(np.ascontiguousarray(cols, dtype=np.int64)), (n, n))
-        try:
-            self._F = cholmod.symbolic(A, uplo="L")
-            cholmod.numeric(A, self._F)
-        except ArithmeticError as exc:
-            raise np.linalg.LinAlgError(f"the matrix is not positive definite (CHOLMOD: {exc})") from None
-        D = matrix(np.ones(n))
-        cholmod.solve(self._F, D, sys=6)
-        self.dinv = np.array(D).reshape(-1)
-        if not (np.all(self.dinv > 0) and np.all(np.isfinite(self.dinv))):
-            raise np.linalg.LinAlgError("the matrix is not positive definite (a pivot of D is not > 0)")
-
-    def _run(self, rhs, systems) -> np.ndarray:
-        b = np.asarray(rhs, dtype=np.float64)
-        B = self._matrix(b.reshape(self.n, -1).copy(order="F"))
-        for sys in systems:
-            self._cholmod.solve(self._F, B, sys=sys)
-        x = np.array(B).reshape(b.shape)
-        if not np.all(np.isfinite(x)):
-            raise np.linalg.LinAlgError("the linear system is singular (non-finite solution)")
-        return x
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        return self._run(rhs, (0,))
-
-    def half(self, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self._run(rhs, (7, 4)), self.dinv
+    A = spmatrix(matrix(np.ascontiguousarray(vals, dtype=np.float64)),
+                 matrix(np.ascontiguousarray(rows, dtype=np.int64)),
+                 matrix(np.ascontiguousarray(cols, dtype=np.int64)), (n, n))
+    saved = dict(cholmod.options)  # a module-level dict: restored afterwards
+    cholmod.options["supernodal"] = 2
+    try:
+        F = cholmod.symbolic(A, uplo="L")
+        cholmod.numeric(A, F)
+    except ArithmeticError as exc:
+        raise np.linalg.LinAlgError(f"the matrix is not positive definite (CHOLMOD: {exc})") from None
+    finally:
+        cholmod.options.clear()
+        cholmod.options.update(saved)
+    p = matrix(np.arange(n, dtype=np.float64))
+    cholmod.solve(F, p, sys=7)
+    perm = np.rint(np.array(p).reshape(-1)).astype(np.int64)
+    colptr, rowind, values = (np.array(x).reshape(-1) for x in cholmod.getfactor(F).CCS)
+    return perm, colptr.astype(np.int64), rowind.astype(np.int64), values.astype(np.float64)
 
 
 def solve_spd(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray) -> np.ndarray:
