@@ -364,6 +364,37 @@ def test_assembled_system_equals_gtsam_hessian_with_weights():
     assert total == pytest.approx(lie.error(initial), rel=1e-12)
 
 
+@pytest.mark.parametrize("batch_size", [1, 4, 7, 10_000])
+def test_linearize_assemble_in_batches_equals_linearize_then_assemble(batch_size, monkeypatch):
+    """The batched path (a buffer of ``BATCH`` factors) gives H, g, the factors' squared norms and
+    the error of the whole-graph path, bit for bit, native factors and weights included; the
+    groups' whole-graph Jacobians are never allocated."""
+    from lie_factors.batch import system as system_module
+
+    lie, _, initial = _landmark_graph(True, seed=4)
+    whole = batch.BatchLevenbergMarquardt(lie, initial, linear_solver="gtsam")
+    batched = batch.BatchLevenbergMarquardt(lie, initial)
+    w = np.random.default_rng(2).uniform(0.0, 2.0, size=lie.size())
+    w[5] = 0.0
+    for opt in (whole, batched):
+        opt.system.weights[:] = w
+    error = whole.problem.linearize()
+    whole.system.assemble()
+    monkeypatch.setattr(system_module, "BATCH", batch_size)
+    got, seconds_lin, seconds_asm = batched.system.linearize_assemble()
+    assert got == error and seconds_lin >= 0 and seconds_asm >= 0
+    assert batched.system.data.tobytes() == whole.system.data.tobytes()
+    assert batched.system.rhs.tobytes() == whole.system.rhs.tobytes()
+    assert batched.problem.linearized_sqnorms().tobytes() == whole.problem.linearized_sqnorms().tobytes()
+    assert batched.system.hessian_diagonal().tobytes() == whole.system.hessian_diagonal().tobytes()
+    assert all(g.A1 is None and g.b is None for g in batched.problem.groups)
+    # the same run either way (CHOLMOD factors the same matrix)
+    a = batch.optimize(lie, initial)
+    monkeypatch.setattr(system_module, "BATCH", 10_000)
+    b = batch.optimize(lie, initial)
+    assert a.errors == b.errors
+
+
 @pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
 def test_gauss_newton_matches_gtsam(linear_solver):
     lie, _, initial = _landmark_graph(False, seed=9)
@@ -399,20 +430,35 @@ def test_unknown_linear_solver_rejected():
         batch.optimize(lie, initial, linear_solver="lu")
 
 
-def test_pattern_scatter_map_addresses_csc_entries():
+@pytest.mark.parametrize("order", [None, [3, 1, 0, 2], [0, 1, 2, 3]])
+def test_pattern_scatter_map_addresses_csc_entries(order):
+    """Every entry of every stored block has one place in the lower-triangle CSC, where the
+    pattern's rows and columns say it is, in the given order of the blocks (default: CHOLMOD's)."""
     dims = np.array([3, 6, 2, 6])
-    pat = batch.Pattern(dims, np.array([[0, 3], [2, 1], [3, 0]]))
-    base, stride, a_is_row = pat.lookup(np.array([3, 1]), np.array([0, 2]))
-    for blk, (a, b) in enumerate([(3, 0), (2, 1)]):
-        row, col = max(a, b), min(a, b)
+    pat = batch.Pattern(dims, np.array([[0, 3], [2, 1], [3, 0]]), None if order is None else np.array(order))
+    if order is not None:
+        assert pat.order.tolist() == order
+    assert sorted(pat.order.tolist()) == [0, 1, 2, 3] and np.all(pat.position[pat.order] == np.arange(4))
+    column_of = np.empty(pat.n, dtype=np.int64)  # δ index → matrix column
+    column_of[pat.scalar_order] = np.arange(pat.n)
+    seen = []
+    for a, b in [(3, 0), (2, 1), (0, 0), (1, 1), (2, 2), (3, 3)]:
+        base, stride, a_is_row = pat.lookup(np.array([a]), np.array([b]))
+        row, col = (a, b) if a_is_row[0] else (b, a)
+        assert pat.position[row] >= pat.position[col]
         for j in range(dims[col]):
-            for i in range(dims[row]):
-                p = base[blk] + j * stride[blk] + i
-                c = pat.offsets[col] + j
+            for i in range(j if row == col else 0, dims[row]):
+                p = base[0] + j * stride[0] - j * (j + 1) // 2 + i
+                c = column_of[pat.offsets[col] + j]
                 assert pat.colptr[c] <= p < pat.colptr[c + 1]
-                assert pat.rowind[p] == pat.offsets[row] + i
-    assert list(a_is_row) == [1, 0]
-    assert np.all(pat.rowind[pat.diagpos] == np.arange(pat.n))
+                assert pat.scalar_order[pat.rowind[p]] == pat.offsets[row] + i
+                seen.append(int(p))
+    assert sorted(seen) == list(range(pat.nnz))  # every stored entry, once
+    assert pat.nnz == 6 + 21 + 3 + 21 + 3 * 6 + 2 * 6
+    cols = pat.colind()
+    assert np.all(pat.rowind >= cols) and pat.rowind.dtype == np.int32 and pat.colptr.dtype == np.int32
+    assert np.all((np.diff(pat.rowind) > 0) | (np.diff(cols) > 0))  # rows sorted within columns
+    assert np.all(pat.rowind[pat.diagpos] == column_of) and np.all(cols[pat.diagpos] == column_of)
 
 
 def test_pardiso_solver_matches_cholmod():
@@ -494,10 +540,30 @@ class _DenseSystem:
         n = self.H.shape[0]
         self.pattern = Pattern(np.array([n]), np.zeros((0, 2), dtype=np.int64))
         self.rhs = np.asarray(g, dtype=float)
+        self.data = np.concatenate([self.H[j:, j] for j in range(n)])  # the lower triangle, by columns
 
-    def damped(self, scale, out):
-        # CSC of the full diagonal block, column by column.
-        out[:] = self.H.T.reshape(-1)
+    def damp(self, scale):
+        return self.data
+
+    def in_matrix_order(self, v):
+        return v
+
+    def from_matrix_order(self, v):
+        return v
+
+
+@pytest.fixture(params=["direct", "cvxopt"])
+def cholmod_way(request, monkeypatch):
+    """Both ways into CHOLMOD: direct (ctypes), and cvxopt's API."""
+    from lie_factors.batch import cholmod
+
+    if request.param == "cvxopt":
+        monkeypatch.setenv("LIE_FACTORS_CHOLMOD", "cvxopt")
+    cholmod._direct.cache_clear()
+    assert cholmod.direct_available() == (request.param == "direct")
+    yield request.param
+    monkeypatch.delenv("LIE_FACTORS_CHOLMOD", raising=False)
+    cholmod._direct.cache_clear()
 
 
 @pytest.mark.parametrize("H, definite", [
@@ -506,7 +572,7 @@ class _DenseSystem:
     ([[-1.0, 0.0], [0.0, 2.0]], False),
     ([[2.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, -5.0]], False),
 ])
-def test_cholmod_simplicial_factor_detects_indefinite_systems(H, definite):
+def test_cholmod_simplicial_factor_detects_indefinite_systems(H, definite, cholmod_way):
     from cvxopt import cholmod
 
     from lie_factors.batch.solvers import CholmodSolver, NotPositiveDefinite
@@ -519,11 +585,14 @@ def test_cholmod_simplicial_factor_detects_indefinite_systems(H, definite):
         with pytest.raises(NotPositiveDefinite, match="not positive definite"):
             solver.solve(None)
     # The case under test is CHOLMOD's simplicial LDLᵀ (cvxopt's diag() accepts supernodal factors only).
-    with pytest.raises(ValueError, match="supernodal"):
-        cholmod.diag(solver._F)
+    if cholmod_way == "direct":
+        assert solver.factor.supernodal is False
+    else:
+        with pytest.raises(ValueError, match="supernodal"):
+            cholmod.diag(solver.factor._impl._F)
 
 
-def test_cholmod_symbolic_leaves_cvxopt_options_alone():
+def test_cholmod_leaves_cvxopt_options_alone(cholmod_way):
     from cvxopt import cholmod
 
     from lie_factors.batch.solvers import CholmodSolver

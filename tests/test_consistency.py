@@ -24,7 +24,6 @@ from lie_factors.app.plotting import positions
 from lie_factors.app.run import run
 from lie_factors.batch import clique, consistency
 from lie_factors.batch import gnc as gncm
-from lie_factors.batch.cholmod import lower_factor
 from lie_factors.batch.leave_out import leave_out_chi2
 from lie_factors.batch.losses import chi2_inlier_threshold, f_quantile
 from lie_factors.batch.rejection import TailModel, closure_groups, reject_false_closures
@@ -473,27 +472,6 @@ def test_tail_model_thresholds_are_quantiles_of_sums_of_independent_closures(n):
     assert TailModel(n, np.array([np.nan]), p).scale == 1.0  # no statistic: the noise models' own scale
     with pytest.raises(ValueError, match="finite mean"):
         TailModel(n, np.ones(3), p, dof=2.0)
-
-
-@pytest.mark.parametrize("density", [0.0, 0.3])
-def test_lower_factor_is_the_cholesky_factor_of_the_permuted_matrix(density):
-    # density 0: a chain (CHOLMOD's own choice would be a simplicial L·D·Lᵀ)
-    rng = np.random.default_rng(31)
-    n = 60
-    A = np.diag(rng.uniform(2, 3, n))
-    for i in range(n - 1):
-        A[i + 1, i] = A[i, i + 1] = rng.uniform(-0.5, 0.5)
-    B = (rng.random((n, n)) < density) * rng.normal(size=(n, n))
-    A += B @ B.T
-    r, c = np.nonzero(np.tril(A))
-    perm, colptr, rowind, values = lower_factor(n, r, c, A[r, c])
-    L = np.zeros((n, n))
-    for j in range(n):
-        rows = rowind[colptr[j]:colptr[j + 1]]
-        assert rows[0] == j and np.all(np.diff(rows) > 0)  # the diagonal first, rows ascending
-        L[rows, j] = values[colptr[j]:colptr[j + 1]]
-    np.testing.assert_allclose(L @ L.T, A[np.ix_(perm, perm)], atol=1e-12)
-    assert sorted(perm.tolist()) == list(range(n))
 
 
 def test_gnc_without_its_known_outliers_in_the_solver_is_the_same_gnc():

@@ -95,15 +95,14 @@ class Dataset:
     ``graph``: the poses and pose–pose edges (no prior); its ``vertices`` are the
     file's, None if the file has no pose vertex (GTSAM's reader: for a 2-D file
     where some poses have none, GTSAM's odometry chaining; the identity for
-    poses seen only in landmark measurements).  ``summary``: what
-    :func:`lie_factors.g2o.check_g2o` found.  Every run puts one prior on the
-    first pose (:meth:`posed`).
+    poses seen only in landmark measurements).  Every run puts one prior on the
+    first pose (:meth:`posed`).  The file's parsed records are not kept: ``graph``
+    holds the numbers.
     """
 
     path: str
     name: str
     graph: PoseGraph
-    summary: object = dataclasses.field(default=None, repr=False)
     landmarks: Landmarks | None = None
 
     @property
@@ -191,9 +190,9 @@ def load(dataset: str) -> Dataset:
     summary = check_g2o(path)
     name = os.path.basename(path)
     if arrays_supported(summary):
-        return Dataset(path, name, read_arrays(summary), summary)
+        return Dataset(path, name, read_arrays(summary))
     graph, landmarks = _read_with_gtsam(path, summary)
-    return Dataset(path, name, graph, summary, landmarks)
+    return Dataset(path, name, graph, landmarks)
 
 
 def _read_with_gtsam(path: str, summary) -> tuple[PoseGraph, Landmarks | None]:

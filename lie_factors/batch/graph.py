@@ -26,6 +26,7 @@ import numpy as np
 
 from .. import factors as _factors
 from ..kernels import elements
+from ..kernels.jit import kernel
 from .loops import GroupLoops
 from .losses import from_gtsam
 
@@ -61,6 +62,59 @@ def whitening(information: np.ndarray) -> np.ndarray:
     """
     L = np.linalg.cholesky(np.asarray(information, dtype=np.float64))
     return np.ascontiguousarray(np.swapaxes(L, -1, -2))
+
+
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(table (U, k), index (N,)): rows of ``a`` (N, k) float64 with ``a == table[index]`` bit
+    for bit, equal rows sharing one entry (graphs with one information matrix for every edge
+    keep one).  Rows are told apart by a hash of their bits, then compared."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    N = a.shape[0]
+    if N == 0:
+        return a[:0].copy(), np.zeros(0, dtype=np.int64)
+    if np.array_equal(a.view(np.uint64), np.broadcast_to(a[:1].view(np.uint64), a.shape)):
+        return a[:1].copy(), np.zeros(N, dtype=np.int64)
+    words = a.view(np.uint64)
+    order = np.argsort(_row_hashes(words), kind="stable")
+    index, first = _group_rows(words, order)
+    return a[first].copy(), index
+
+
+@kernel
+def _row_hashes(words):
+    """A 64-bit hash of each row's bits (FNV-1a over its words)."""
+    out = np.empty(words.shape[0], dtype=np.uint64)
+    for r in range(words.shape[0]):
+        h = np.uint64(14695981039346656037)
+        for w in words[r]:
+            h = (h ^ w) * np.uint64(1099511628211)
+        out[r] = h
+    return out
+
+
+@kernel
+def _group_rows(words, order):
+    """Rows in hash order: each run of equal rows gets one table entry; (index (N,), the first
+    row of each entry (U,))."""
+    N = words.shape[0]
+    index = np.empty(N, dtype=np.int64)
+    first = np.empty(N, dtype=np.int64)
+    U = 0
+    prev = -1
+    for q in range(N):
+        r = order[q]
+        same = prev >= 0
+        if same:
+            for k in range(words.shape[1]):
+                if words[r, k] != words[prev, k]:
+                    same = False
+                    break
+        if not same:
+            first[U] = r
+            U += 1
+        index[r] = U - 1
+        prev = r
+    return index, first[:U]
 
 
 def _robust_loss(noise_model):
@@ -101,29 +155,36 @@ class FactorGroup:
 
     Arrays (F = factor count, n = group dimension): ``fidx`` graph positions,
     ``i1``/``i2`` element indices, ``v1``/``v2`` variable (column block)
-    indices, ``o1``/``o2`` scalar offsets, ``C`` M⁻¹ or P⁻¹, ``Ad`` Ad(M⁻¹),
-    ``R`` whitening; outputs of a linearization ``A1``, ``A2``, ``b``, ``sq``.
+    indices, ``o1``/``o2`` scalar offsets, ``C`` M⁻¹ or P⁻¹; the whitening of
+    factor f is ``R[ridx[f]]`` (``R`` (U, n, n): one per distinct noise model);
+    outputs of a linearization ``A1``, ``A2``, ``b``, ``sq``.  Ad(M⁻¹) is computed
+    where a linearization needs it, from ``C``.
     """
 
     def __init__(self, kind, spec):
         self.kind, self.spec = kind, spec
-        self.rows: list = []  # (graph index, key1, key2 | None, constant, AdMinv | None, R)
+        self.rows: list = []  # (graph index, key1, key2 | None, constant, R)
         self.columns: tuple = ()  # the rows transposed, by close_rows
 
     def close_rows(self, block: VarBlock) -> None:
-        """Transpose the rows read into columns and hand their keys to ``block`` for numbering."""
-        fidx, k1, k2, C, Ad, R = tuple(zip(*self.rows)) if self.rows else ((),) * 6
+        """Transpose the rows read into columns and hand their keys to ``block`` for numbering.
+
+        Factors that share a noise model share its whitening R (one table entry)."""
+        fidx, k1, k2, C, R = tuple(zip(*self.rows)) if self.rows else ((),) * 5
         self.rows = None
         k1 = np.array(k1, dtype=np.uint64)
         block.use_keys(k1)
         if self.kind == "between":
             k2 = np.array(k2, dtype=np.uint64)
             block.use_keys(k2)
-        self.columns = (fidx, k1, k2, C, Ad, R)
+        entry: dict = {}
+        ridx = np.array([entry.setdefault(id(r), len(entry)) for r in R], dtype=np.int64)
+        table = list({id(r): r for r in R}.values())
+        self.columns = (fidx, k1, k2, C, (table, ridx))
 
     def finalize(self, block: VarBlock):
         n = self.spec.dim
-        fidx, k1, k2, C, Ad, R = self.columns
+        fidx, k1, k2, C, (R, ridx) = self.columns
         E = len(fidx)
         self.E = E
         self.loops = block.loops
@@ -132,28 +193,38 @@ class FactorGroup:
         m = self.spec.mat
         # asarray: the array reader's columns are used as they are (no second copy)
         self.C = np.ascontiguousarray(C, dtype=np.float64).reshape(E, m, m)
-        self.R = np.ascontiguousarray(R, dtype=np.float64).reshape(E, n, n)
+        self.R = np.ascontiguousarray(R, dtype=np.float64).reshape(-1, n, n)
+        self.ridx = np.asarray(ridx, dtype=np.int64)
         if self.kind == "between":
             self.i2 = block.local(k2)
-            self.Ad = np.ascontiguousarray(Ad, dtype=np.float64).reshape(E, n, n)
-            self.A2 = np.empty((E, n, n))
-        self.A1 = np.empty((E, n, n))
-        self.b = np.empty((E, n))
+        self.A1 = self.A2 = self.b = None  # allocated by the first linearization
         self.sq = np.empty(E)
         self.columns = ()
 
     def linearize(self, X):
+        """Every factor's whitened Jacobians and right-hand side into ``A1``, ``A2``, ``b`` (allocated
+        by the first call), ``sq``."""
+        if self.b is None:
+            n = self.spec.dim
+            self.A1, self.b = np.empty((self.E, n, n)), np.empty((self.E, n))
+            if self.kind == "between":
+                self.A2 = np.empty((self.E, n, n))
+        self.linearize_range(X, 0, self.E, self.A1, self.A2, self.b)
+
+    def linearize_range(self, X, start: int, stop: int, A1, A2, b):
+        """Factors ``start:stop`` into ``A1``, ``A2``, ``b`` (stop − start, ...), and ``sq[start:stop]``."""
+        s = slice(start, stop)
         if self.kind == "between":
-            self.loops.between_lin(X, self.i1, self.i2, self.C, self.Ad, self.R, self.A1, self.A2,
-                                   self.b, self.sq)
+            self.loops.between_lin(X, self.i1[s], self.i2[s], self.C[s], self.R, self.ridx[s], A1, A2, b,
+                                   self.sq[s])
         else:
-            self.loops.prior_lin(X, self.i1, self.C, self.R, self.A1, self.b, self.sq)
+            self.loops.prior_lin(X, self.i1[s], self.C[s], self.R, self.ridx[s], A1, b, self.sq[s])
 
     def evaluate(self, X, sq):
         if self.kind == "between":
-            self.loops.between_err(X, self.i1, self.i2, self.C, self.R, sq)
+            self.loops.between_err(X, self.i1, self.i2, self.C, self.R, self.ridx, sq)
         else:
-            self.loops.prior_err(X, self.i1, self.C, self.R, sq)
+            self.loops.prior_err(X, self.i1, self.C, self.R, self.ridx, sq)
 
 
 def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
@@ -211,8 +282,8 @@ class Problem:
 
         Factor k < E is Between(key1, key2, M_k) with error Log(M⁻¹·X1⁻¹·X2),
         factor E + q the q-th prior; whitening R = chol(Λ)ᵀ (RᵀR = Λ, upper
-        triangular, as ``noiseModel.Gaussian.Information``).  The constants M⁻¹
-        and Ad(M⁻¹) come from ``factors.between_setup``, the kernel a factor's
+        triangular, as ``noiseModel.Gaussian.Information``), one per distinct Λ.
+        The constant M⁻¹ comes from ``factors.between_setup``, the kernel a factor's
         construction runs (which also checks each M).  Every key of a factor
         must be in ``pg.keys``; a self-loop edge is refused.
         """
@@ -231,13 +302,18 @@ class Problem:
             raise BatchError("from_pose_graph: an edge connects a key to itself")
 
         def constants(M, what):
-            Minv, Ad, codes = block.loops.setup(M)
+            Minv, codes = block.loops.setup(M)
             bad = np.flatnonzero(codes != _factors.OK)
             if bad.size:
                 k = int(bad[0])
                 raise BatchError(str(_factors._element_error(spec, np.asarray(M[k]), int(codes[k]),
                                                              f"{what} {k}", "from_pose_graph")))
-            return Minv, Ad
+            return Minv
+
+        def whitenings(information):
+            """(R of each distinct information matrix, the index of each factor's)."""
+            table, index = unique_rows(np.asarray(information, dtype=np.float64).reshape(len(information), -1))
+            return whitening(table.reshape(-1, spec.dim, spec.dim)), index
 
         if E:
             g = FactorGroup("between", spec)
@@ -245,16 +321,15 @@ class Problem:
             k1, k2 = edge_keys[:, 0].astype(np.uint64), edge_keys[:, 1].astype(np.uint64)
             block.use_keys(k1)
             block.use_keys(k2)
-            Minv, Ad = constants(pg.measured, "measured")
-            g.columns = (np.arange(E), k1, k2, Minv, Ad, whitening(pg.information))
+            g.columns = (np.arange(E), k1, k2, constants(pg.measured, "measured"), whitenings(pg.information))
             self.groups.append(g)
         if Q:
             g = FactorGroup("prior", spec)
             g.rows = None
             pk = np.asarray(pg.prior_keys, dtype=np.uint64)
             block.use_keys(pk)
-            Pinv, _ = constants(np.asarray(pg.prior_measured, dtype=np.float64), "prior")
-            g.columns = (E + np.arange(Q), pk, None, Pinv, None, whitening(pg.prior_information))
+            g.columns = (E + np.arange(Q), pk, None, constants(np.asarray(pg.prior_measured, dtype=np.float64), "prior"),
+                         whitenings(pg.prior_information))
             self.groups.append(g)
         block.number_keys()
         used = block._sorted.astype(np.int64)
@@ -278,7 +353,7 @@ class Problem:
         self.total_dim = n * P
         block.var = np.arange(P, dtype=np.int64)
         block.offsets = self.var_offsets
-        block.X0 = block.X.copy()
+        block.X0 = block.X  # the start, kept: X is replaced, never written in place
         for g in self.groups:
             g.v1, g.o1 = block.var[g.i1], block.offsets[g.i1]
             if g.kind == "between":
@@ -341,9 +416,9 @@ class Problem:
                 self.native.append((i, f, keys))
                 continue
             if kind == "between":
-                rows.append((i, f._key1, f._key2, f._Minv, f._AdMinv, R))
+                rows.append((i, f._key1, f._key2, f._Minv, R))
             else:
-                rows.append((i, f._key2, None, f._Minv, None, R))
+                rows.append((i, f._key2, None, f._Minv, R))
         for g in self.groups:
             g.close_rows(self.blocks[g.spec.name])
         for block in self.blocks.values():
@@ -545,11 +620,17 @@ class Problem:
         ``native_arrays.info`` (augmented information) and ``native_linear``
         (the GaussianFactorGraph, for the GTSAM linear solver).
         """
-        self.linearization = object()  # identifies this linearization (solvers cache per one)
         total = 0.0
         for g in self.groups:
             g.linearize(self.blocks[g.spec.name].X)
             total += 0.5 * float(g.sq.sum())
+        return total + self.linearize_native()
+
+    def linearize_native(self) -> float:
+        """The native factors' part of :meth:`linearize` (GTSAM linearizes them); returns their
+        error ½Σ‖b‖² (0 without native factors).  Starts a new linearization."""
+        self.linearization = object()  # identifies this linearization (solvers cache per one)
+        total = 0.0
         self.native_linear = None
         if self.native:
             nv = self.native_values()

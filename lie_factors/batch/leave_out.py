@@ -26,7 +26,7 @@ re-admits closures set aside earlier, as a group, where one at a time each
 would look wrong (a stretch of true closures that only agree with the map
 once all of them are in).
 
-One sparse Cholesky P·H·Pᵀ = L·Lᵀ; H_GG = YᵀY with Y = L⁻¹·P·A_Gᵀ.  A column
+One sparse Cholesky P·H·Pᵀ = L·D·Lᵀ; H_GG = YᵀD⁻¹Y with Y = L⁻¹·P·A_Gᵀ.  A column
 of P·A_Gᵀ is nonzero on the variables of two poses only, and L⁻¹ spreads it
 along their paths to the root of L's elimination tree (Gilbert and Peierls,
 "Sparse partial pivoting in time proportional to arithmetic operations",
@@ -40,7 +40,7 @@ import numpy as np
 from numba import prange
 
 from ..pose_graph import PoseGraph
-from .cholmod import lower_factor
+from .cholmod import Cholesky, block_order
 from .graph import Problem
 from .loops import parallel_kernel
 from .system import LinearSystem
@@ -52,10 +52,11 @@ GROUP_CHUNK = 64
 
 
 @parallel_kernel
-def _group_gram(colptr, rowind, values, pos, o1, o2, A1, A2, gptr, rows, hptr, H):
-    """H[hptr[g]:…] = Y_gᵀ·Y_g (d × d, row-major, d = n·size) for each group g of factors
-    ``rows[gptr[g]:gptr[g+1]]`` (indices into o1, o2, A1, A2), Y_g = L⁻¹·P·A_gᵀ on the union
-    of the elimination-tree paths from the group's variables (see the module docstring)."""
+def _group_gram(colptr, rowind, values, d, pos, o1, o2, A1, A2, gptr, rows, hptr, H):
+    """H[hptr[g]:…] = Y_gᵀ·D⁻¹·Y_g (d × d, row-major, d = n·size) for each group g of factors
+    ``rows[gptr[g]:gptr[g+1]]`` (indices into o1, o2, A1, A2), Y_g = L⁻¹·P·A_gᵀ on the union of
+    the elimination-tree paths from the group's variables (see the module docstring); L unit
+    lower triangular, each column's diagonal first."""
     N = colptr.shape[0] - 1
     G = gptr.shape[0] - 1
     n = A1.shape[1]
@@ -70,18 +71,21 @@ def _group_gram(colptr, rowind, values, pos, o1, o2, A1, A2, gptr, rows, hptr, H
                     base = o1[r] if side == 0 else o2[r]
                     for i in range(n):
                         j = pos[base + i]
-                        # up the elimination tree (a column's parent is its first off-diagonal
+                        # up the elimination tree (a column's parent is its smallest off-diagonal
                         # row) until a node already on the reach
                         while j >= 0 and loc[j] == -1:
                             loc[j] = 0
                             nodes[count] = j
                             count += 1
-                            j = rowind[colptr[j] + 1] if colptr[j + 1] - colptr[j] > 1 else -1
+                            parent = N
+                            for q in range(colptr[j] + 1, colptr[j + 1]):
+                                parent = min(parent, rowind[q])
+                            j = parent if parent < N else -1
             reach = np.sort(nodes[:count])  # a child precedes its parent: the order of the sweep
             for k in range(count):
                 loc[reach[k]] = k
-            d = n * (gptr[g + 1] - gptr[g])
-            Y = np.zeros((count, d))
+            dg = n * (gptr[g + 1] - gptr[g])
+            Y = np.zeros((count, dg))
             for t in range(gptr[g], gptr[g + 1]):
                 r = rows[t]
                 col0 = n * (t - gptr[g])
@@ -91,39 +95,37 @@ def _group_gram(colptr, rowind, values, pos, o1, o2, A1, A2, gptr, rows, hptr, H
                         Y[loc[pos[o2[r] + i]], col0 + c] += A2[r, c, i]
             for k in range(count):
                 j = reach[k]
-                p0 = colptr[j]
-                inv = 1.0 / values[p0]
-                for c in range(d):
-                    Y[k, c] *= inv
-                for p in range(p0 + 1, colptr[j + 1]):
-                    li = loc[rowind[p]]
-                    v = values[p]
-                    for c in range(d):
+                for q in range(colptr[j] + 1, colptr[j + 1]):
+                    li = loc[rowind[q]]
+                    v = values[q]
+                    for c in range(dg):
                         Y[li, c] -= v * Y[k, c]
             h = hptr[g]
-            for a in range(d):
-                for b in range(a, d):
+            for a in range(dg):
+                for b in range(a, dg):
                     acc = 0.0
                     for k in range(count):
-                        acc += Y[k, a] * Y[k, b]
-                    H[h + a * d + b] = acc
-                    H[h + b * d + a] = acc
+                        acc += Y[k, a] * Y[k, b] / d[reach[k]]
+                    H[h + a * dg + b] = acc
+                    H[h + b * dg + a] = acc
             for k in range(count):
                 loc[reach[k]] = -1
 
 
-def group_gram(n_var: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, o1: np.ndarray,
-               o2: np.ndarray, A1: np.ndarray, A2: np.ndarray, groups: list) -> list:
-    """A_G·H⁻¹·A_Gᵀ for each group of two-variable factors, H (n_var × n_var, SPD) given by its
-    lower triangle as triplets (rows ≥ cols).
+def group_gram(factor: Cholesky, pos: np.ndarray, o1: np.ndarray, o2: np.ndarray, A1: np.ndarray,
+               A2: np.ndarray, groups: list) -> list:
+    """A_G·H⁻¹·A_Gᵀ for each group of two-variable factors, with ``factor`` a numeric factor of H
+    (handed over: see :meth:`~lie_factors.batch.cholmod.Cholesky.lower`) and ``pos`` (n,) the
+    matrix row of each variable scalar.
 
-    Factor f has the (n, n) Jacobian blocks ``A1[f]``, ``A2[f]`` on the variables
-    ``o1[f]:o1[f]+n`` and ``o2[f]:o2[f]+n``; ``groups``: sequences of factor
+    Factor f has the (n, n) Jacobian blocks ``A1[f]``, ``A2[f]`` on the variable
+    scalars ``o1[f]:o1[f]+n`` and ``o2[f]:o2[f]+n``; ``groups``: sequences of factor
     indices.  Returns one (d, d) array per group, d = n·len(group).
     """
-    perm, colptr, rowind, values = lower_factor(n_var, rows, cols, vals)
-    pos = np.empty(n_var, dtype=np.int64)
-    pos[perm] = np.arange(n_var)
+    perm, colptr, rowind, values, d = factor.lower()
+    where = np.empty(len(perm), dtype=np.int64)
+    where[perm] = np.arange(len(perm))
+    pos = where[np.asarray(pos, dtype=np.int64)]
     n = A1.shape[1]
     sizes = np.array([len(G) for G in groups], dtype=np.int64)
     gptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
@@ -132,7 +134,7 @@ def group_gram(n_var: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray,
             else np.zeros(0, dtype=np.int64))
     H = np.empty(int(hptr[-1]))
     if len(groups):
-        _group_gram(colptr, rowind, values, pos, np.ascontiguousarray(o1, dtype=np.int64),
+        _group_gram(colptr, rowind, values, d, pos, np.ascontiguousarray(o1, dtype=np.int64),
                     np.ascontiguousarray(o2, dtype=np.int64), np.ascontiguousarray(A1),
                     np.ascontiguousarray(A2), gptr, flat, hptr, H)
     return [H[hptr[g]:hptr[g + 1]].reshape(n * sizes[g], n * sizes[g]) for g in range(len(groups))]
@@ -149,15 +151,23 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
     """
     problem = Problem.from_pose_graph(graph, X)
     problem.linearize()
-    system = LinearSystem(problem)
+    between = next(g for g in problem.groups if g.kind == "between")
+    # What weighs 0 (a rejected closure between far-apart poses) stays out of the fill-reducing
+    # order and of the factor's structure: its blocks of H are 0, and would only add fill to L.
+    live = weights[between.fidx] != 0.0
+    pairs = np.concatenate([np.stack([between.v1[live], between.v2[live]], axis=1), problem.native_pairs])
+    system = LinearSystem(problem, block_order(len(problem.var_dims), pairs[:, 0], pairs[:, 1]))
     system.weights[:] = weights
     system.assemble()
     p = system.pattern
-    cols = p.colind()
-    # Entries that only factors of weight 0 touch are exactly 0: left out of CHOLMOD's structure,
-    # a rejected closure between far-apart poses adds no fill to L (H is the same matrix).
-    lower = (p.rowind >= cols) & ((system.data != 0.0) | (p.rowind == cols))
-    between = next(g for g in problem.groups if g.kind == "between")
+    keep = system.data != 0.0
+    keep[p.colptr[:-1]] = True  # the diagonal (first in each column)
+    colptr = np.concatenate([[0], np.cumsum(np.add.reduceat(keep, p.colptr[:-1]))]).astype(np.int64) \
+        if p.n else np.zeros(1, dtype=np.int64)
+    factor = Cholesky(colptr, p.rowind[keep])
+    factor.factorize(np.ascontiguousarray(system.data[keep]))
+    pos = np.empty(p.n, dtype=np.int64)
+    pos[p.scalar_order] = np.arange(p.n)
     where = np.full(problem.graph_size, -1, dtype=np.int64)
     where[between.fidx] = np.arange(between.fidx.size)
     out = np.full(len(groups), np.nan)
@@ -166,8 +176,7 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
     rows = [where[np.asarray(G, dtype=np.int64)] for G in groups]
     if any(np.any(r < 0) for r in rows):
         raise ValueError("leave_out_chi2: a group holds a factor that is not a between factor")
-    Hs = group_gram(p.n, p.rowind[lower], cols[lower], system.data[lower], between.o1, between.o2,
-                    between.A1, between.A2, rows)
+    Hs = group_gram(factor, pos, between.o1, between.o2, between.A1, between.A2, rows)
     sizes = np.array([len(G) for G in groups], dtype=np.int64)
     for size in np.unique(sizes).tolist():
         idx = np.flatnonzero(sizes == size)

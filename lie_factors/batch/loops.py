@@ -7,8 +7,8 @@ that group's cores); the per-factor work is
 and Jacobians) and their ``*_error`` halves, so no formula is repeated here.
 
 Arrays: ``X`` (N, m, m) elements of one group; ``i1``, ``i2`` (F,) indices into
-``X``; ``Minv``/``Pinv`` (F, m, m); ``AdMinv`` (F, n, n); ``R`` (F, n, n)
-whitening; outputs ``A1``, ``A2`` (F, n, n), ``b`` (F, n) and ``sq`` (F,), the
+``X``; ``Minv``/``Pinv`` (F, m, m); ``R`` (U, n, n) whitening matrices and ``ridx``
+(F,) the one of each factor; outputs ``A1``, ``A2`` (F, n, n), ``b`` (F, n) and ``sq`` (F,), the
 squared whitened residual norm ‖R·e‖² of every factor (the per-factor array a
 robust reweighting needs; the Gaussian error is ½·Σ sq).
 
@@ -65,23 +65,27 @@ def _whiten_jacobian(Rf, H, out):
 
 
 @parallel_kernel
-def _between_lin(g, X, i1, i2, Minv, AdMinv, R, A1, A2, b, sq):
-    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e and sq = ‖R e‖² for every between factor."""
-    n = AdMinv.shape[1]
+def _between_lin(g, X, i1, i2, Minv, R, ridx, A1, A2, b, sq):
+    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e and sq = ‖R e‖² for every between factor
+    (R = R[ridx[f]]; Ad(M⁻¹) from M⁻¹ by the factors' own construction core)."""
+    n = R.shape[1]
     F = i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
         e = np.empty(n)
         H1 = np.empty((n, n))
         H2 = np.empty((n, n))
+        Ad = np.empty((n, n))
         for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
-            _factors.between(g, Minv[f], AdMinv[f], X[i1[f]], X[i2[f]], e, H1, H2)
-            sq[f] = _whiten_residual(R[f], e, b[f])
-            _whiten_jacobian(R[f], H1, A1[f])
-            _whiten_jacobian(R[f], H2, A2[f])
+            _dispatch.Ad(g, Minv[f], Ad)
+            _factors.between(g, Minv[f], Ad, X[i1[f]], X[i2[f]], e, H1, H2)
+            Rf = R[ridx[f]]
+            sq[f] = _whiten_residual(Rf, e, b[f])
+            _whiten_jacobian(Rf, H1, A1[f])
+            _whiten_jacobian(Rf, H2, A2[f])
 
 
 @parallel_kernel
-def _prior_lin(g, X, i1, Pinv, R, A1, b, sq):
+def _prior_lin(g, X, i1, Pinv, R, ridx, A1, b, sq):
     n = R.shape[1]
     F = i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
@@ -89,12 +93,13 @@ def _prior_lin(g, X, i1, Pinv, R, A1, b, sq):
         H = np.empty((n, n))
         for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
             _factors.prior(g, Pinv[f], X[i1[f]], e, H)
-            sq[f] = _whiten_residual(R[f], e, b[f])
-            _whiten_jacobian(R[f], H, A1[f])
+            Rf = R[ridx[f]]
+            sq[f] = _whiten_residual(Rf, e, b[f])
+            _whiten_jacobian(Rf, H, A1[f])
 
 
 @parallel_kernel
-def _errors(g, X, i1, i2, Minv, R, sq):
+def _errors(g, X, i1, i2, Minv, R, ridx, sq):
     """sq[f] = ‖R·e‖² (no Jacobians), e = Log(M⁻¹·X1⁻¹·X2) with X1 = X[i1[f]], X2 = X[i2[f]]; for
     priors (``i1`` empty) e = Log(P⁻¹·X2), P⁻¹ = Minv[f]."""
     n = R.shape[2]
@@ -108,7 +113,7 @@ def _errors(g, X, i1, i2, Minv, R, sq):
                 _factors.prior_error(g, Minv[f], X[i2[f]], e)
             else:
                 _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
-            sq[f] = _whiten_residual(R[f], e, scratch)
+            sq[f] = _whiten_residual(R[ridx[f]], e, scratch)
 
 
 @parallel_kernel
@@ -144,11 +149,14 @@ def _relative_log(g, X0, X, out):
 
 
 @kernel
-def _setup(g, M, Minv, AdMinv, codes):
-    """Every factor's construction: Minv[i] = M[i]⁻¹, AdMinv[i] = Ad(M[i]⁻¹), codes[i] the check
-    of M[i] (``factors.between_setup``, the kernel each factor object runs)."""
+def _setup(g, M, Minv, codes):
+    """Every factor's construction: Minv[i] = M[i]⁻¹, codes[i] the check of M[i]
+    (``factors.between_setup``, the kernel each factor object runs; its Ad(M⁻¹) is
+    recomputed where a linearization needs it)."""
+    n = _dispatch.dim(g)
+    Ad = np.empty((n, n))
     for i in range(M.shape[0]):
-        codes[i] = _factors.between_setup(g, M[i], Minv[i], AdMinv[i])
+        codes[i] = _factors.between_setup(g, M[i], Minv[i], Ad)
 
 
 class GroupLoops:
@@ -161,21 +169,21 @@ class GroupLoops:
         for name in ("between_lin", "prior_lin", "retract", "relative_log"):
             setattr(self, name, functools.partial(globals()[f"_{name}"], self.g))
 
-    def between_err(self, X, i1, i2, Minv, R, sq):
-        _errors(self.g, X, i1, i2, Minv, R, sq)
+    def between_err(self, X, i1, i2, Minv, R, ridx, sq):
+        _errors(self.g, X, i1, i2, Minv, R, ridx, sq)
 
-    def prior_err(self, X, i1, Pinv, R, sq):
-        _errors(self.g, X, _NO_INDEX, i1, Pinv, R, sq)
+    def prior_err(self, X, i1, Pinv, R, ridx, sq):
+        _errors(self.g, X, _NO_INDEX, i1, Pinv, R, ridx, sq)
 
     def setup(self, M):
-        """(M⁻¹ (N, m, m), Ad(M⁻¹) (N, n, n), check codes (N,)) of elements ``M`` (N, m, m)."""
+        """(M⁻¹ (N, m, m), check codes (N,)) of elements ``M`` (N, m, m)."""
         M = np.ascontiguousarray(M, dtype=np.float64)
         N, m = M.shape[0], M.shape[1]
-        Minv, Ad = np.empty((N, m, m)), np.empty((N, self.g.dim, self.g.dim))
+        Minv = np.empty((N, m, m))
         codes = np.empty(N, dtype=np.int64)
         if N:
-            _setup(self.g, M, Minv, Ad, codes)
-        return Minv, Ad, codes
+            _setup(self.g, M, Minv, codes)
+        return Minv, codes
 
 
 def threads() -> int:

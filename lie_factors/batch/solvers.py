@@ -1,10 +1,11 @@
 """Linear-solver backends for the damped normal equations of :mod:`lie_factors.batch.system`.
 
-* ``"cholmod"`` (default): CHOLMOD's sparse Cholesky through cvxopt
-  (its wheels bundle CHOLMOD and OpenBLAS).  The symbolic analysis —
-  fill-reducing ordering (AMD), elimination tree, supernodes — is done once
-  per graph; every λ and every linearization is a numeric refactorization of
-  the same pattern plus two triangular solves.
+* ``"cholmod"`` (default): CHOLMOD's sparse Cholesky
+  (:mod:`lie_factors.batch.cholmod`; cvxopt's wheels bundle CHOLMOD and OpenBLAS).
+  The fill-reducing order of the variables (AMD on the block graph) and the
+  symbolic analysis — elimination tree, supernodes — are done once per graph;
+  every λ and every linearization is a numeric refactorization of the same
+  pattern, in place, plus two triangular solves.
 * ``"gtsam"``: GTSAM's own multifrontal elimination of the whitened factor
   rows plus GTSAM's λ-priors (``GaussianFactorGraph.optimize``), as GTSAM's LM
   does it: the cross-check, and the fallback where cvxopt is not installed.
@@ -20,6 +21,8 @@ import gtsam
 import numpy as np
 
 from .. import stack
+from . import cholmod
+from .cholmod import Cholesky
 from .cholmod import available as cholmod_available
 from .graph import BatchError
 
@@ -61,53 +64,25 @@ def make(name: str, system):
 
 
 class CholmodSolver:
-    """Sparse Cholesky of ``system``'s pattern; symbolic analysis once, numeric per solve."""
+    """Sparse Cholesky of ``system``'s pattern (:class:`lie_factors.batch.cholmod.Cholesky`):
+    symbolic analysis once, a numeric factorization of ``system.data`` in place per solve."""
 
     name = "cholmod"
+    needs_jacobians = False  # it factors H
 
     def __init__(self, system):
-        from cvxopt import cholmod, matrix, spmatrix
-
-        self._cholmod = cholmod
-        self.system = system
         p = system.pattern
-        n = p.n
-        cols = p.colind()
-        # cvxopt stores the values in (column, row) order: ours already is, checked below.
-        self._V = matrix(np.ones(p.nnz))
-        self._S = spmatrix(self._V, matrix(p.rowind), matrix(cols), (n, n))
-        I, J, _ = self._S.CCS
-        if not (np.array_equal(np.asarray(I).ravel(), p.colptr)
-                and np.array_equal(np.asarray(J).ravel(), p.rowind)):
-            raise AssertionError("cvxopt reordered the sparsity pattern")
-        self.values = np.asarray(self._V).reshape(-1)  # numba writes the damped H here
-        self._B = matrix(np.zeros(n))
-        self._b = np.asarray(self._B).reshape(-1)
-        self._Dinv = matrix(np.zeros(n))
-        self._dinv = np.asarray(self._Dinv).reshape(-1)
-        self._F = _symbolic(cholmod, self._S)
+        self.system = system
+        self.factor = Cholesky(p.colptr, p.rowind, natural=True)
 
     def solve(self, scale: np.ndarray | None) -> np.ndarray:
         """δ solving (H + diag(scale)) δ = g."""
         sys_ = self.system
-        sys_.damped(scale, self.values)
-        self._S.V = self._V
         try:
-            self._cholmod.numeric(self._S, self._F)
-        except ArithmeticError as exc:
-            raise NotPositiveDefinite(f"the linear system is not positive definite "
-                                      f"(CHOLMOD stopped at pivot {first_arg(exc)})") from None
-        # A simplicial factor is LDLᵀ, and CHOLMOD stops there only at a zero pivot:
-        # H is positive definite iff every d > 0 (for a supernodal LLᵀ, D = I).
-        self._dinv[:] = 1.0
-        self._cholmod.solve(self._F, self._Dinv, sys=6)
-        if not np.all(self._dinv > 0.0) or not np.all(np.isfinite(self._dinv)):
-            bad = int(np.nonzero(~(self._dinv > 0.0) | ~np.isfinite(self._dinv))[0][0])
-            raise NotPositiveDefinite(f"the linear system is not positive definite "
-                                      f"(CHOLMOD's LDLᵀ has a non-positive pivot at {bad})")
-        self._b[:] = sys_.rhs
-        self._cholmod.solve(self._F, self._B)
-        delta = self._b.copy()
+            self.factor.factorize(sys_.damp(scale))
+        except cholmod.NotPositiveDefinite as exc:
+            raise NotPositiveDefinite(f"the linear system is not positive definite ({exc.reason})") from None
+        delta = sys_.from_matrix_order(self.factor.solve(sys_.in_matrix_order(sys_.rhs)))
         if not np.all(np.isfinite(delta)):
             raise NotPositiveDefinite("the linear system is singular (non-finite step)")
         return delta
@@ -121,6 +96,7 @@ class PardisoSolver:
     """
 
     name = "pardiso"
+    needs_jacobians = False  # it factors H
 
     def __init__(self, system):
         import pypardiso
@@ -129,13 +105,12 @@ class PardisoSolver:
         self.system = system
         p = system.pattern
         n = p.n
-        cols = p.colind()
-        # PARDISO wants the upper triangle in CSR = our lower CSC without the diagonal blocks' upper halves.
-        self._keep = np.nonzero(p.rowind >= cols)[0]
-        indptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(np.bincount(cols[self._keep], minlength=n), out=indptr[1:])
-        self._U = sp.csr_matrix((np.ones(len(self._keep)), p.rowind[self._keep], indptr), shape=(n, n))
-        self.values = np.empty(p.nnz)
+        # PARDISO wants the upper triangle in CSR: the lower triangle in CSC, transposed.
+        lower = sp.csc_matrix((np.arange(p.nnz, dtype=np.float64), p.rowind, p.colptr), shape=(n, n))
+        upper = lower.T.tocsr()
+        upper.sort_indices()
+        self._take = upper.data.astype(np.int64)  # entry k of the CSR is data[take[k]]
+        self._U = upper
         self._ps = pypardiso.PyPardisoSolver(mtype=2)
         self._ps._check_A(self._U)
         self._ps.set_phase(11)
@@ -145,48 +120,26 @@ class PardisoSolver:
         import pypardiso
 
         sys_ = self.system
-        sys_.damped(scale, self.values)
-        self._U.data[:] = self.values[self._keep]
+        self._U.data[:] = sys_.damp(scale)[self._take]
+        rhs = sys_.in_matrix_order(sys_.rhs)
         try:
             self._ps.set_phase(22)
-            self._ps._call_pardiso(self._U, sys_.rhs)
+            self._ps._call_pardiso(self._U, rhs)
             self._ps.set_phase(33)
-            delta = self._ps._call_pardiso(self._U, np.asfortranarray(sys_.rhs))
+            x = self._ps._call_pardiso(self._U, np.asfortranarray(rhs))
         except pypardiso.pardiso_wrapper.PyPardisoError as exc:
             raise NotPositiveDefinite(f"the linear system is not positive definite (PARDISO: {exc})") from None
+        delta = sys_.from_matrix_order(x)
         if not np.all(np.isfinite(delta)):
             raise NotPositiveDefinite("the linear system is singular (non-finite step)")
         return delta
-
-
-def _symbolic(cholmod, S):
-    """CHOLMOD's symbolic analysis with its own simplicial/supernodal choice.
-
-    cvxopt asks for a supernodal factor by default; CHOLMOD's automatic choice
-    (by flops per nonzero of L) takes a simplicial LDLᵀ for near-chain graphs,
-    which factors 2× faster there (kitti_00: 3.5 ms instead of 7.3 ms per
-    numeric factorization) and is the same on 3-D graphs with loop closures.
-    (:meth:`CholmodSolver.solve` checks D's signs: CHOLMOD's LDLᵀ does not
-    stop at a negative pivot.)  cvxopt's options are a module-level dict:
-    restored afterwards.
-    """
-    saved = dict(cholmod.options)
-    cholmod.options["supernodal"] = 1
-    try:
-        return cholmod.symbolic(S, uplo="L")
-    finally:
-        cholmod.options.clear()
-        cholmod.options.update(saved)
-
-
-def first_arg(exc) -> str:
-    return str(exc.args[0]) if exc.args else "?"
 
 
 class GtsamSolver:
     """GTSAM elimination of the whitened factors + λ-priors (``GaussianFactorGraph.optimize``)."""
 
     name = "gtsam"
+    needs_jacobians = True  # it eliminates the whitened factors
 
     def __init__(self, system):
         self.system = system

@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..batch.graph import Problem
+from ..batch.solvers import CholmodSolver, NotPositiveDefinite
 from ..batch.system import LinearSystem
 from ..errors import InitializationError
 from ..kernels.elements import pose2_matrices
@@ -92,27 +93,24 @@ def rotations(pg: PoseGraph) -> np.ndarray:
     return _anchored_rotations(anchor.prepared(pg))[5][:-1]
 
 
-def _pose_step(group: str, n, ii, jj, Z, info, X) -> np.ndarray:
-    """One Gauss–Newton iteration of the anchored between factors from the poses ``X`` (n + 1, m, m),
-    the anchor n with a unit prior at the identity: the poses (n + 1, m, m).
+def _pose_step(problem: Problem) -> np.ndarray:
+    """One Gauss–Newton iteration of the anchored between factors (the anchor n, the last
+    pose, with a unit prior at the identity) from the poses ``problem`` starts at: the poses
+    (n + 1, m, m).
 
     The between factors are :mod:`lie_factors.factors`' (error Log(Z⁻¹ X_i⁻¹ X_j)
     and its exact Jacobians: GTSAM's ``between`` times ``LogmapDerivative``),
     linearized and assembled by the batch solver's loops, solved by CHOLMOD;
     X_i ← X_i Exp(δ_i).
     """
-    m, d = X.shape[1], 6 if group == "Pose3" else 3
-    graph = PoseGraph(group, np.arange(n + 1), np.stack([ii, jj], axis=1), Z, info, None, None,
-                      np.array([n]), np.eye(m)[None], np.eye(d)[None])
-    problem = Problem.from_pose_graph(graph, X)
-    problem.linearize()
     system = LinearSystem(problem)
-    system.assemble()
-    # One solve: CHOLMOD's one-shot analysis and factorization, cheaper than keeping the
-    # symbolic analysis the batch solver reuses across iterations.
-    p = system.pattern
-    delta = sparse.solve(p.n, p.rowind, p.colind(), system.data, system.rhs)
-    return problem.retract(delta)[0][group]
+    system.linearize_assemble()
+    try:
+        delta = CholmodSolver(system).solve(None)
+    except NotPositiveDefinite as exc:
+        raise InitializationError(str(exc)) from None
+    (X,) = problem.retract(delta)[0].values()
+    return X
 
 
 def initialize(pg: PoseGraph) -> np.ndarray:
@@ -132,4 +130,8 @@ def initialize(pg: PoseGraph) -> np.ndarray:
         X[:, 3, 3] = 1.0
     else:
         X = pose2_matrices(np.stack([np.zeros(n + 1), np.zeros(n + 1), np.arctan2(R[:, 1, 0], R[:, 0, 0])], 1))
-    return _pose_step(pg.group, n, ii, jj, Z, info, X)[:n]
+    m, d = X.shape[1], 6 if pg.group == "Pose3" else 3
+    problem = Problem.from_pose_graph(PoseGraph(pg.group, np.arange(n + 1), np.stack([ii, jj], axis=1), Z, info,
+                                                None, None, np.array([n]), np.eye(m)[None], np.eye(d)[None]), X)
+    del ii, jj, Z, info, R, X  # the problem holds what the step needs; its factor comes next
+    return _pose_step(problem)[:n]
