@@ -28,11 +28,26 @@ inliers); ``file`` the file's vertices (the chain: composed odometry);
 ``chordal`` the relaxation over every edge, false ones included (what
 ``--init auto`` is without ``--gnc``/``--robust``).
 
+``--suite`` compares what ``lie-factors posegraph FILE --gnc tls`` runs
+(consistency stage, GNC, final check) with GTSAM's ``GncOptimizer`` on the
+suite's graphs, uniform and clustered false closures, at ``--fractions`` and
+``--seeds``.  Besides precision and recall of the rejected edges, it reports
+how many planted closures happen to fit the clean optimum (χ² ≤ χ²_n(0.95)
+under their own noise model) and precision and recall with those left out of
+the count (riSAM's rule: such a closure is not an outlier).  GTSAM's results
+are stored in ``--native-cache``; ``--reuse-native`` reads them instead of
+running GTSAM again (its seconds, from the earlier run, are marked ``*``).
+``--clean`` runs the suite's graphs without false closures (``--gnc tls``
+against plain LM); ``--tails`` prints the true closures' leave-one-out
+statistics at each clean optimum against χ² (the final check's tail model).
+
 Usage::
 
     python benchmarks/outliers.py                                   # all graphs, 20 %
     python benchmarks/outliers.py --graphs intel chain1000 --methods lm gnc-tls
     python benchmarks/outliers.py --graphs intel --backends batch --start chordal
+    python benchmarks/outliers.py --suite --graphs intel CSAIL --seeds 0 1 --repeat 2
+    python benchmarks/outliers.py --tails --graphs intel CSAIL manhattan city10000 sphere2500
 
 Timing: best of ``--repeat`` runs, native and batch alternated (on a shared
 machine, run nothing else heavy meanwhile).
@@ -45,6 +60,7 @@ import dataclasses
 import multiprocessing as mp
 import os
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -75,8 +91,6 @@ def load_graph(name: str) -> Dataset:
     """A dataset of data/ by name, ``chainN``: the demo's SE(3) trajectory with N poses, or
     ``helixN``: ``generate_posegraph.py``'s SE(3) helix with N poses (written to the temp dir)."""
     if name.startswith("helix"):
-        import tempfile
-
         import generate_posegraph
 
         n = int(name[5:])
@@ -183,12 +197,17 @@ def start_values(pg, how: str):
     return s.values, s.method + (" of the odometry and the prior" if s.inliers_only else " of every edge")
 
 
-def reference_positions(pg) -> np.ndarray:
-    """The outlier-free optimum's positions: the default command's solver (chordal start, batch LM)."""
+def reference_values(pg):
+    """The outlier-free optimum: the default command's solver (chordal start, batch LM)."""
     from lie_factors.app.run import run
 
     _, result, _ = run(pg, backend="batch")
-    return positions(result.values, pg)
+    return result.values
+
+
+def reference_positions(pg) -> np.ndarray:
+    """The outlier-free optimum's positions."""
+    return positions(reference_values(pg), pg)
 
 
 def plant(pg, fraction, seed, kind="uniform"):
@@ -229,46 +248,98 @@ def run_ours(planted_pg):
     return positions(result.values, planted_pg), record.seconds, record.outliers, record.rejected_by
 
 
+NATIVE_CACHE = os.path.join(tempfile.gettempdir(), "lie_factors_outliers_native")
+
+
+def _cache_path(cache, name, fraction, kind, seed):
+    return os.path.join(cache, f"{os.path.basename(name)}-{fraction:g}-{kind}-{seed}.npz")
+
+
+def load_native(cache, name, fraction, kind, seed):
+    """A stored GTSAM GncOptimizer result: (positions, seconds, rejected) or "timeout" (after the
+    stored timeout); None if there is none."""
+    path = _cache_path(cache, name, fraction, kind, seed)
+    if not os.path.exists(path):
+        return None
+    d = np.load(path)
+    if bool(d["timeout"]):
+        return ("timeout", float(d["seconds"]))
+    return (d["positions"], float(d["seconds"]), d["rejected"])
+
+
+def store_native(cache, name, fraction, kind, seed, out, timeout):
+    os.makedirs(cache, exist_ok=True)
+    path = _cache_path(cache, name, fraction, kind, seed)
+    if out is None:
+        np.savez(path, timeout=True, seconds=timeout, positions=np.zeros(0), rejected=np.zeros(0, np.int64))
+    else:
+        np.savez(path, timeout=False, seconds=out[1], positions=out[0], rejected=np.asarray(out[2], np.int64))
+
+
+def consistent_planted(between, planted, ref_values, dim) -> np.ndarray:
+    """The planted closures that fit the clean optimum: χ² = 2·error ≤ χ²_dim(0.95) under their
+    own noise model (riSAM's rule: such a closure is not an outlier, whatever it was planted as)."""
+    from lie_factors.batch.losses import chi2_inlier_threshold
+
+    limit = 2.0 * chi2_inlier_threshold(dim, 0.95)
+    return np.array([k for k in planted.tolist() if 2.0 * between.at(int(k)).error(ref_values) <= limit],
+                    dtype=np.int64)
+
+
 def suite(args) -> int:
     fractions = args.fractions or [0.2, 0.5]
+    cache = args.native_cache
     print(f"# outliers suite: seeds {args.seeds}, best of {args.repeat} (ours and GTSAM's GncOptimizer "
-          f"alternated), GTSAM abandoned after {args.native_timeout:.0f} s")
+          f"alternated), GTSAM abandoned after {args.native_timeout:.0f} s"
+          + (f"; GTSAM's results read from {cache} where stored (seconds marked *)" if args.reuse_native else ""))
     print("| graph | false | kind | seed | method | precision | recall | map error / diag | seconds | "
-          "rejected by |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "rejected by | planted consistent | precision, recall (riSAM) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.graphs:
         base = load_graph(name)
-        ref = reference_positions(base)
+        ref_values = reference_values(base)
+        ref = positions(ref_values, base)
         diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
         for fraction in fractions:
             for kind in args.kinds:
                 for seed in args.seeds:
                     between, planted = plant(base, fraction, seed, kind)
+                    consistent = consistent_planted(between, planted, ref_values, base.graph.info.dim)
                     pg = with_edges(base, between)
                     pg.initial, _ = start_values(pg, "auto")
                     best = {"ours": None, "gtsam": None}
+                    cached = load_native(cache, name, fraction, kind, seed) if args.reuse_native else None
+                    if cached is not None:
+                        best["gtsam"] = "timeout" if cached[0] == "timeout" else (cached[0], cached[1], cached[2], None)
                     for _ in range(args.repeat):
                         P, sec, rejected, by = run_ours(pg)
                         if best["ours"] is None or sec < best["ours"][1]:
                             best["ours"] = (P, sec, rejected, by)
-                        if not args.no_native and best["gtsam"] != "timeout":
+                        if not args.no_native and cached is None and best["gtsam"] != "timeout":
                             out = run_native_gnc_with_timeout(name, fraction, seed, "auto", args.native_timeout,
                                                               kind)
                             if out is None:
                                 best["gtsam"] = "timeout"
                             elif best["gtsam"] is None or out[2] < best["gtsam"][1]:
                                 best["gtsam"] = (out[0], out[2], out[3], None)
+                    if cached is None and best["gtsam"] is not None:
+                        store_native(cache, name, fraction, kind, seed,
+                                     None if best["gtsam"] == "timeout" else best["gtsam"], args.native_timeout)
                     label = f"{base.name} | {fraction:.0%} ({len(planted)}) | {kind} | {seed}"
+                    star = "*" if cached is not None else ""
                     for method in ("gtsam", "ours"):
                         b = best[method]
                         if b is None:
                             continue
                         if b == "timeout":
-                            print(f"| {label} | GTSAM GNC | – | – | – | > {args.native_timeout:.0f} | – |",
-                                  flush=True)
+                            limit = cached[1] if cached is not None else args.native_timeout
+                            print(f"| {label} | GTSAM GNC | – | – | – | > {limit:.0f}{star} | – | – | – |", flush=True)
                             continue
                         P, sec, rejected, by = b
                         c = outliers.classify(rejected, planted)
+                        # riSAM: a planted closure that fits the clean optimum counts neither way
+                        keep = np.setdiff1d(planted, consistent)
+                        c2 = outliers.classify(np.setdiff1d(rejected, consistent), keep)
                         stages = "–"
                         if by is not None:
                             counts = {}
@@ -278,7 +349,30 @@ def suite(args) -> int:
                                                if k in counts)
                         print(f"| {label} | {'GTSAM GNC' if method == 'gtsam' else 'lie-factors'} | "
                               f"{c.precision:.3f} | {c.recall:.3f} | {100 * rmse(P, ref) / diag:.3g} % | "
-                              f"{sec:.2f} | {stages} |", flush=True)
+                              f"{sec:.2f}{star if method == 'gtsam' else ''} | {stages} | {len(consistent)} | "
+                              f"{c2.precision:.3f}, {c2.recall:.3f} |", flush=True)
+    return 0
+
+
+def tails(args) -> int:
+    """The true closures' leave-one-out statistics at each graph's clean optimum, against χ²."""
+    from lie_factors.batch.leave_out import leave_out_chi2
+    from lie_factors.batch.losses import chi2_inlier_threshold
+    from lie_factors.kernels.elements import matrices_from_values
+
+    print("# leave-one-out statistic T of every loop closure at the clean optimum (batch LM, chordal start)")
+    print("| graph | loop closures | median T / median χ²_n | T quantile 0.99 / median | largest T / median |")
+    print("|---|---|---|---|---|")
+    for name in args.graphs:
+        base = load_graph(name)
+        pg = base.posed()
+        values = reference_values(base)
+        X = matrices_from_values(values, base.group, base.graph.keys)
+        lc = pg.loop_closures()
+        T = leave_out_chi2(pg, X, np.ones(len(pg.edge_keys) + len(pg.prior_keys)), [lc[k:k + 1] for k in range(lc.size)])
+        med = float(np.nanmedian(T))
+        print(f"| {base.name} | {lc.size} | {med / (2 * chi2_inlier_threshold(pg.info.dim, 0.5)):.2g} | "
+              f"{np.nanquantile(T, 0.99) / med:.1f} | {np.nanmax(T) / med:.1f} |", flush=True)
     return 0
 
 
@@ -330,7 +424,18 @@ def main(argv=None) -> int:
     ap.add_argument("--no-native", action="store_true", help="with --suite: skip GTSAM's GncOptimizer")
     ap.add_argument("--clean", action="store_true",
                     help="the suite's graphs without false closures: --gnc tls against plain LM")
+    ap.add_argument("--tails", action="store_true",
+                    help="the true closures' leave-one-out statistics at each clean optimum, against χ²")
+    ap.add_argument("--native-cache", default=NATIVE_CACHE,
+                    help=f"with --suite: where GTSAM's results are stored (default {NATIVE_CACHE})")
+    ap.add_argument("--reuse-native", action="store_true",
+                    help="with --suite: read GTSAM's results from --native-cache where stored instead of "
+                         "running it (its seconds are then from an earlier run: marked *)")
     args = ap.parse_args(argv)
+    if args.tails:
+        if args.graphs == list(GRAPHS):
+            args.graphs = list(SUITE_GRAPHS)
+        return tails(args)
     if args.clean:
         if args.graphs == list(GRAPHS):
             args.graphs = list(SUITE_GRAPHS)

@@ -196,3 +196,29 @@ def test_supernodal_values_are_ours_and_reused_within_the_scope():
         assert cholmod._Spare.array is None and third._x.size == third._L.contents.xsize > spare
         third.free()
     assert cholmod._Spare.array is None
+
+
+@pytest.mark.parametrize("natural", [True, False])
+@pytest.mark.parametrize("density, dense_rows", [(0.0, 0), (0.05, 0), (0.01, 30)])
+def test_lower_is_the_factor_of_the_permuted_matrix(way, natural, density, dense_rows):
+    # density 0: a chain, where CHOLMOD takes a simplicial L·D·Lᵀ; dense rows make supernodes (L·Lᵀ)
+    n = 120
+    A = _random_spd(n, density, seed=5, dense_rows=dense_rows)
+    for i in range(n - 1):
+        A[i + 1, i] = A[i, i + 1] = 0.5
+    colptr, rowind, values = _lower(A)
+    factor = cholmod.Cholesky(colptr, rowind, natural=natural)
+    factor.factorize(values)
+    perm, Lp, Li, Lx, d = factor.lower()
+    L = np.zeros((n, n))
+    for j in range(n):
+        assert Li[Lp[j]] == j and Lx[Lp[j]] == 1.0  # unit diagonal, first in its column
+        L[Li[Lp[j]:Lp[j + 1]], j] = Lx[Lp[j]:Lp[j + 1]]
+    assert np.all(np.tril(L) == L) and np.all(d > 0)
+    np.testing.assert_allclose(L @ np.diag(d) @ L.T, A[np.ix_(perm, perm)], atol=1e-10 * n)
+    if natural:
+        np.testing.assert_array_equal(perm, np.arange(n))
+    with pytest.raises(RuntimeError, match="factorize again"):
+        factor.solve(np.ones(n))
+    factor.factorize(values)  # a new factorization can be solved with again
+    np.testing.assert_allclose(factor.solve(np.ones(n)), np.linalg.solve(A, np.ones(n)), rtol=1e-9)

@@ -19,13 +19,16 @@ _STYLES = {
     "native": dict(color="tab:orange", lw=1.0, ls="-."),
     "initial landmarks": dict(color="tab:red", marker="x", s=12, alpha=0.6),
     "optimized landmarks": dict(color="tab:green", marker="o", s=10),
+    "rejected loop closures": dict(color="tab:red", lw=0.6, alpha=0.7),
 }
 
 
 def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str = "",
-                      three_d: bool = True, points: dict[str, np.ndarray] | None = None) -> None:
+                      three_d: bool = True, points: dict[str, np.ndarray] | None = None,
+                      segments: dict[str, np.ndarray] | None = None) -> None:
     """Save a PNG of named trajectories, each an array of positions, shape (N, 3),
-    and of named point sets (landmarks), shape (M, 3), drawn as markers.
+    of named point sets (landmarks), shape (M, 3), drawn as markers, and of named
+    sets of line segments (rejected loop closures), shape (K, 2, 3).
 
     Left: top view (x, y).  Right (if ``three_d``): a 3-D view.  ``path`` is
     written as PNG whatever its suffix (callers write to a temporary name).
@@ -49,6 +52,16 @@ def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str
         top.scatter(P[:, 0], P[:, 1], label=label, **style)
         if ax3 is not None:
             ax3.scatter(P[:, 0], P[:, 1], P[:, 2], label=label, **style)
+    for label, S in (segments or {}).items():
+        from matplotlib.collections import LineCollection
+
+        S = np.asarray(S, dtype=float).reshape(-1, 2, 3)
+        style = _STYLES.get(label, {})
+        top.add_collection(LineCollection(S[:, :, :2], label=f"{label} ({len(S)})", **style))
+        if ax3 is not None:
+            from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+            ax3.add_collection(Line3DCollection(S, label=f"{label} ({len(S)})", **style))
     top.set_xlabel("x [m]")
     top.set_ylabel("y [m]")
     top.set_title("top view")
@@ -81,6 +94,13 @@ def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.
         p = values.atPose2(k)
         out[n, :2] = (p.x(), p.y())
     return out
+
+
+def edge_segments(positions: np.ndarray, graph, edges) -> np.ndarray:
+    """(K, 2, 3) the end positions of ``graph``'s edges ``edges`` (indices), from ``positions``
+    (P, 3) in ``graph.keys`` order (:func:`positions` of values holding every pose)."""
+    ends = graph.index(np.asarray(graph.edge_keys)[np.asarray(edges, dtype=np.int64)].reshape(-1))
+    return np.asarray(positions, dtype=float)[ends].reshape(-1, 2, 3)
 
 
 def landmark_positions(values: gtsam.Values, is3d: bool) -> np.ndarray:

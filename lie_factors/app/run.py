@@ -285,7 +285,7 @@ class PoseGraphRun:
         """Write ``output`` (the optimized graph, g2o) and ``plot`` (png), each atomically."""
         from .. import atomic
         from ..g2o import write_g2o
-        from .plotting import landmark_positions, positions
+        from .plotting import edge_segments, landmark_positions, positions
 
         pg = self.pg
         t = time.perf_counter()
@@ -300,8 +300,12 @@ class PoseGraphRun:
             trajectories = {start: positions(begin, pg.is3d, pg.group), result: positions(values, pg.is3d, pg.group)}
             points = ({start_points: landmark_positions(begin, pg.is3d),
                        result_points: landmark_positions(values, pg.is3d)} if pg.landmark_count else None)
+            rejected = getattr(self.record, "outliers", None)
+            # under --robust/--gnc: the loop closures set aside, drawn between their optimized poses
+            segments = ({"rejected loop closures": edge_segments(trajectories[result], pg.graph, rejected)}
+                        if rejected else None)
             atomic.replace_atomically(self.plot, lambda tmp: plot_trajectories(
-                tmp, trajectories, title, three_d=pg.is3d, points=points), suffix=".png")
+                tmp, trajectories, title, three_d=pg.is3d, points=points, segments=segments), suffix=".png")
             self.events.wrote(self.plot)
         self.timings["write"] = time.perf_counter() - t
 
@@ -404,10 +408,14 @@ def _run_gnc(pg: Dataset, graph, start: Initialization, values: gtsam.Values, ba
                             first_solve_known_inliers=consistency and backend != "native")
     Inner = gncm.BatchInner if backend == "batch" else gncm.GtsamInner
 
+    def inner(start, exclude):
+        # the batch solver leaves out what weighs 0 throughout (see BatchInner)
+        return Inner(graph, start, lm, exclude=exclude) if backend == "batch" else Inner(graph, start, lm)
+
     def run_gnc(p):
         if backend == "native":
             return gncm.gtsam_gnc(graph, values, p)
-        res = gncm.gnc_optimize(Inner(graph, values, lm), p, gnc_progress)
+        res = gncm.gnc_optimize(inner(values, p.known_outliers), p, gnc_progress)
         if not isinstance(res.values, gtsam.Values):
             res.values = res.values.to_values()
         return res
@@ -420,7 +428,7 @@ def _run_gnc(pg: Dataset, graph, start: Initialization, values: gtsam.Values, ba
         return np.array([graph.at(k).error(v) for k in range(graph.size())])
 
     def refine(v, weights):
-        out = Inner(graph, v, lm).optimize(weights)[0]
+        out = inner(v, np.flatnonzero(weights == 0.0)).optimize(weights)[0]
         return out if isinstance(out, gtsam.Values) else out.to_values()
 
     def poses(v):

@@ -1,6 +1,6 @@
 """CHOLMOD's sparse Cholesky (SuiteSparse), the one cvxopt's wheels bundle: a factor kept across
-refactorizations (:class:`Cholesky`), the fill-reducing order of a block pattern
-(:func:`block_order`) and one-shot solves (:func:`solve_spd`).
+refactorizations (:class:`Cholesky`, whose factor can also be read as arrays), the fill-reducing
+order of a block pattern (:func:`block_order`) and one-shot solves (:func:`solve_spd`).
 
 A matrix is given by its lower triangle in compressed sparse columns: ``colptr`` (n + 1,)
 and ``rowind`` (nnz,) int32, rows sorted within each column, the values (nnz,) float64
@@ -164,6 +164,9 @@ def _direct():
                 ("cholmod_factorize", ctypes.c_int, [ctypes.POINTER(_Sparse), fac, ctypes.c_void_p]),
                 ("cholmod_solve", ctypes.POINTER(_Dense), [ctypes.c_int, fac, ctypes.POINTER(_Dense), ctypes.c_void_p]),
                 ("cholmod_free_factor", ctypes.c_int, [ctypes.POINTER(fac), ctypes.c_void_p]),
+                ("cholmod_copy_factor", fac, [fac, ctypes.c_void_p]),
+                ("cholmod_factor_to_sparse", ctypes.POINTER(_Sparse), [fac, ctypes.c_void_p]),
+                ("cholmod_free_sparse", ctypes.c_int, [ctypes.POINTER(ctypes.POINTER(_Sparse)), ctypes.c_void_p]),
                 ("cholmod_free_dense", ctypes.c_int, [ctypes.POINTER(ctypes.POINTER(_Dense)), ctypes.c_void_p])):
             f = getattr(lib, name)
             f.restype, f.argtypes = res, args
@@ -300,6 +303,7 @@ class Cholesky:
             lib.cholmod_finish(self._common)
             raise MemoryError(message)
         self._A.xtype = _REAL
+        self._spent = False
         self._L = handle
         head = handle.contents
         self.supernodal = bool(head.is_super)
@@ -327,6 +331,7 @@ class Cholesky:
             return
         self._values = values
         self._A.x = values.ctypes.data
+        self._spent = False
         L = self._L
         if not self._lib.cholmod_factorize(ctypes.byref(self._A), L, self._common):
             raise MemoryError(_failure(self._common, "numeric factorization"))
@@ -343,6 +348,56 @@ class Cholesky:
                 raise NotPositiveDefinite(f"CHOLMOD's LDLᵀ has a non-positive pivot at {int(bad[0])}",
                                           int(bad[0]))
 
+    def lower(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The last factorization as arrays, (perm, colptr, rowind, values, d): P·A·Pᵀ = L·diag(d)·Lᵀ
+        with (P·x)[k] = x[perm[k]], L (n × n) unit lower triangular in compressed columns (int64;
+        each column's diagonal, 1, first), d (n,) > 0.
+
+        The numeric factor is handed over (cvxopt's way takes it apart to make a sparse
+        matrix): :meth:`factorize` again before the next :meth:`solve`.  The direct way converts
+        a copy, because CHOLMOD's conversion reallocates the values, and a supernodal factor's
+        values live in an array of ours that CHOLMOD must not free.
+        """
+        self._check_numeric()
+        if self._lib is None:
+            perm, colptr, rowind, values, ll = self._impl.lower()
+        else:
+            lib, common = self._lib, self._common
+            head = self._L.contents
+            perm = np.ctypeslib.as_array(ctypes.cast(head.Perm, ctypes.POINTER(ctypes.c_int32)),
+                                         shape=(self.n,)).astype(np.int64)
+            ll = bool(head.is_ll)  # a supernodal factor is L·Lᵀ, and stays so as a sparse matrix
+            copy = lib.cholmod_copy_factor(self._L, common)
+            self._spent = True
+            if not copy:
+                raise MemoryError(_failure(common, "copy of the factor"))
+            try:
+                S = lib.cholmod_factor_to_sparse(copy, common)
+            finally:
+                lib.cholmod_free_factor(ctypes.byref(copy), common)
+            if not S:
+                raise MemoryError(_failure(common, "conversion of the factor"))
+            try:
+                sp = S.contents
+                as_array = np.ctypeslib.as_array
+                p = as_array(ctypes.cast(sp.p, ctypes.POINTER(ctypes.c_int32)), shape=(self.n + 1,)).astype(np.int64)
+                start = p[:-1]
+                count = (np.diff(p) if sp.packed else
+                         as_array(ctypes.cast(sp.nz, ctypes.POINTER(ctypes.c_int32)), shape=(self.n,)).astype(np.int64))
+                size = int(p[-1]) if sp.packed else int(start.max(initial=0) + count.max(initial=0))
+                i = as_array(ctypes.cast(sp.i, ctypes.POINTER(ctypes.c_int32)), shape=(max(size, 1),))
+                x = as_array(ctypes.cast(sp.x, ctypes.POINTER(ctypes.c_double)), shape=(max(size, 1),))
+                take = np.concatenate([np.arange(a, a + c) for a, c in zip(start.tolist(), count.tolist())])
+                colptr = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
+                rowind, values = i[take].astype(np.int64), x[take].astype(np.float64)
+            finally:
+                lib.cholmod_free_sparse(ctypes.byref(S), common)
+        return (perm, colptr, rowind) + _unit_lower(colptr, rowind, values, ll)
+
+    def _check_numeric(self) -> None:
+        if getattr(self, "_spent", False) or (self._lib is None and self._impl.spent):
+            raise RuntimeError("the factor was handed over by lower(): factorize again first")
+
     def diagonal(self) -> np.ndarray:
         """D (n,) of a simplicial LDLᵀ factor (ones for an LLᵀ one)."""
         if self._lib is None:
@@ -358,6 +413,7 @@ class Cholesky:
         """x with A x = rhs (``system`` :data:`SOLVE_A`), or one of CHOLMOD's partial systems
         (:data:`SOLVE_P`: x = P·rhs, :data:`SOLVE_L`: L x = rhs, :data:`SOLVE_D`: D x = rhs).
         ``rhs`` (n,) or (n, m)."""
+        self._check_numeric()
         b = np.asarray(rhs, dtype=np.float64)
         B = np.asfortranarray(b.reshape(self.n, -1))
         if self._lib is None:
@@ -389,6 +445,22 @@ class Cholesky:
             self._impl = None
 
 
+def _unit_lower(colptr, rowind, values, ll: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(values, d) of L·diag(d)·Lᵀ with L unit lower triangular, from CHOLMOD's L·Lᵀ (``ll``) or its
+    L·D·Lᵀ, whose simplicial factor keeps D on L's diagonal; each column's diagonal is first."""
+    diag = values[colptr[:-1]].copy()
+    if not np.all(rowind[colptr[:-1]] == np.arange(len(colptr) - 1)):
+        raise AssertionError("CHOLMOD's factor does not keep each column's diagonal first")
+    if ll:
+        values = values / np.repeat(diag, np.diff(colptr))
+        d = diag * diag
+    else:
+        values = values.copy()
+        d = diag
+    values[colptr[:-1]] = 1.0
+    return values, d
+
+
 class _CvxoptFactor:
     """The same factor through cvxopt's API (its spmatrix holds a copy of the pattern and values)."""
 
@@ -412,8 +484,23 @@ class _CvxoptFactor:
         self.n = n
         self.supernodal = None
         self._dinv = None
+        self.spent = False
+
+    def lower(self):
+        """(perm, colptr, rowind, values, ll): cvxopt's getfactor gives a supernodal factor as L·Lᵀ
+        and a simplicial one as L·D·Lᵀ with D on the diagonal; D's solve told which (an L·Lᵀ
+        factor has D = I, and a unit diagonal reads the same either way)."""
+        p = self._matrix(np.arange(self.n, dtype=np.float64))
+        self._cholmod.solve(self._F, p, sys=SOLVE_P)
+        perm = np.rint(np.array(p).reshape(-1)).astype(np.int64)
+        colptr, rowind, values = (np.array(a).reshape(-1) for a in self._cholmod.getfactor(self._F).CCS)
+        self.spent = True
+        colptr, rowind = colptr.astype(np.int64), rowind.astype(np.int64)
+        ll = not np.allclose(values[colptr[:-1]], self.diagonal(), rtol=1e-12, atol=0.0)
+        return perm, colptr, rowind, values.astype(np.float64), ll
 
     def factorize(self, values):
+        self.spent = False
         self._S.V = self._matrix(values)
         try:
             self._cholmod.numeric(self._S, self._F)

@@ -49,7 +49,7 @@ from ..kernels.jit import kernel
 __all__ = [
     "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH",
     "LOSSES", "RobustLoss", "parse_loss", "from_gtsam", "weight", "loss",
-    "weights_and_losses", "chi2_inlier_threshold",
+    "weights_and_losses", "chi2_inlier_threshold", "f_quantile",
 ]
 
 GAUSSIAN = 0
@@ -314,3 +314,35 @@ def chi2_inlier_threshold(dim: int, probability: float = 0.99) -> float:
         gnc.setInlierCostThresholdsAtProbability(float(probability))
         _CHI2_CACHE[key] = float(np.asarray(gnc.getInlierCostThresholds())[0])
     return _CHI2_CACHE[key]
+
+
+_F_CACHE: dict[tuple[float, float, float], float] = {}
+
+
+def f_quantile(d1: float, d2: float, probability: float) -> float:
+    """The quantile of Fisher's F distribution with (``d1``, ``d2``) degrees of freedom at ``probability``.
+
+    F(d1, d2) is (χ²_d1/d1)/(χ²_d2/d2); d1·F(d1, d2) is the squared Mahalanobis
+    norm of a d1-dimensional Student-t vector with d2 degrees of freedom (as
+    d2 → ∞, χ²_d1).  Its CDF is the regularized incomplete beta function
+    I_y(d1/2, d2/2) at y = d1·x/(d1·x + d2); the quantile inverts it by bisection
+    in y at 30 digits (mpmath), then x = d2·y/(d1·(1 − y)).
+    """
+    key = (float(d1), float(d2), float(probability))
+    if key not in _F_CACHE:
+        if not (d1 > 0 and d2 > 0 and 0.0 < probability < 1.0):
+            raise ValueError(f"need d1 > 0, d2 > 0 and 0 < probability < 1, got {d1}, {d2}, {probability}")
+        import mpmath
+
+        with mpmath.workdps(30):
+            a, b, p = mpmath.mpf(d1) / 2, mpmath.mpf(d2) / 2, mpmath.mpf(probability)
+            lo, hi = mpmath.mpf(0), mpmath.mpf(1)
+            for _ in range(120):  # 2^-120 in y: far below double precision of x
+                mid = (lo + hi) / 2
+                if mpmath.betainc(a, b, 0, mid, regularized=True) < p:
+                    lo = mid
+                else:
+                    hi = mid
+            y = (lo + hi) / 2
+            _F_CACHE[key] = float(mpmath.mpf(d2) * y / (mpmath.mpf(d1) * (1 - y)))
+    return _F_CACHE[key]
