@@ -324,9 +324,11 @@ def f_quantile(d1: float, d2: float, probability: float) -> float:
 
     F(d1, d2) is (χ²_d1/d1)/(χ²_d2/d2); d1·F(d1, d2) is the squared Mahalanobis
     norm of a d1-dimensional Student-t vector with d2 degrees of freedom (as
-    d2 → ∞, χ²_d1).  Its CDF is the regularized incomplete beta function
-    I_y(d1/2, d2/2) at y = d1·x/(d1·x + d2); the quantile inverts it by bisection
-    in y at 30 digits (mpmath), then x = d2·y/(d1·(1 − y)).
+    d2 → ∞, χ²_d1).  With y = d1·x/(d1·x + d2), P(F > x) = I_{1−y}(d2/2, d1/2)
+    (the regularized incomplete beta function, mpmath at 25 digits, the upper
+    tail taken directly so that probabilities near 1 keep their digits); the
+    quantile solves it for y by bisection to a bracket, then Newton's method with
+    the beta density, and x = d2·y/(d1·(1 − y)).
     """
     key = (float(d1), float(d2), float(probability))
     if key not in _F_CACHE:
@@ -334,15 +336,38 @@ def f_quantile(d1: float, d2: float, probability: float) -> float:
             raise ValueError(f"need d1 > 0, d2 > 0 and 0 < probability < 1, got {d1}, {d2}, {probability}")
         import mpmath
 
-        with mpmath.workdps(30):
-            a, b, p = mpmath.mpf(d1) / 2, mpmath.mpf(d2) / 2, mpmath.mpf(probability)
+        with mpmath.workdps(25):
+            a, b = mpmath.mpf(d1) / 2, mpmath.mpf(d2) / 2
+            q = 1 - mpmath.mpf(probability)
+            beta = mpmath.beta(a, b)
+
+            def upper(y):  # P(F > x(y)), decreasing in y
+                try:
+                    return mpmath.betainc(b, a, 0, 1 - y, regularized=True)
+                except ValueError:  # no convergence where it is below 2^-precision: the lower tail
+                    return 1 - mpmath.betainc(a, b, 0, y, regularized=True)
+
             lo, hi = mpmath.mpf(0), mpmath.mpf(1)
-            for _ in range(120):  # 2^-120 in y: far below double precision of x
+            for _ in range(12):
                 mid = (lo + hi) / 2
-                if mpmath.betainc(a, b, 0, mid, regularized=True) < p:
+                if upper(mid) > q:
                     lo = mid
                 else:
                     hi = mid
             y = (lo + hi) / 2
+            for _ in range(60):
+                f = upper(y) - q
+                if f > 0:
+                    lo = y
+                else:
+                    hi = y
+                step = f / (y ** (a - 1) * (1 - y) ** (b - 1) / beta)
+                nxt = y + step
+                if not lo < nxt < hi:
+                    nxt = (lo + hi) / 2
+                if abs(nxt - y) <= mpmath.mpf(10) ** -20 * min(y, 1 - y):
+                    y = nxt
+                    break
+                y = nxt
             _F_CACHE[key] = float(mpmath.mpf(d2) * y / (mpmath.mpf(d1) * (1 - y)))
     return _F_CACHE[key]

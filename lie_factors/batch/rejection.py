@@ -204,12 +204,13 @@ def reject_false_closures(graph: PoseGraph, run_gnc: Callable[[GncParams], GncRe
     model = None
 
     def check():
-        """Rounds of the final check until nothing changes; the last round's statistics."""
+        """Rounds of the final check until nothing changes (at most MAX_ROUNDS re-solves); the last
+        round's verdict."""
         nonlocal values, rounds, model
-        for _ in range(MAX_ROUNDS + 1):
+        for k in range(MAX_ROUNDS + 1):
             verdict = _final_round(graph, poses(values), weights, lc, readmitted, stage, final_probability)
             model = verdict.model
-            if rounds == MAX_ROUNDS:
+            if k == MAX_ROUNDS:
                 return verdict
             if verdict.drop.size:
                 weights[verdict.drop] = 0.0
