@@ -280,3 +280,24 @@ def test_params_from_isam2_params():
         SmootherParams(relinearizeSkip=0)
     with pytest.raises(SmootherError, match="relinearizeThreshold"):
         SmootherParams(relinearizeThreshold=np.nan)
+
+
+def test_global_relinearization_policy_relinearizes_everything_at_once():
+    """SLAM++'s policy: when any variable moved by the threshold, every variable is relinearized."""
+    rng = np.random.default_rng(13)
+    ups = _updates("Pose3", rng, poses=30)
+    per_variable, everything = Smoother(relinearizeSkip=1), Smoother(relinearizeSkip=1, relinearizePolicy="global")
+    graph = gtsam.NonlinearFactorGraph()
+    counts = []
+    for g, v in ups:
+        graph.push_back(g)
+        before = everything.relinearizations
+        per_variable.update(g, v)
+        r = everything.update(g, v)
+        counts.append((everything.relinearizations - before, len(everything.keys) - len(v.keys())))
+        assert r.getVariablesRelinearized() in (0, len(everything.keys) - len(v.keys()))
+    assert any(n > 0 for n, _ in counts)
+    assert everything.relinearizations >= per_variable.relinearizations
+    e_global, e_var = graph.error(everything.calculateEstimate()), graph.error(per_variable.calculateEstimate())
+    assert e_global <= 1.01 * e_var
+

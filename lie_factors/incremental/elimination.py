@@ -9,7 +9,8 @@ variable, ISAM2's Bayes tree at the granularity of variables).  Node ``j`` holds
 - its *conditional* ``[R_j | T_j | d_j]`` (d × (d + s + 1), row-major in
   ``fpool``): ``R_j δ_j + T_j δ_S = d_j``, with ``R_jᵀ`` the diagonal block of
   ``L`` and ``T_jᵀ`` the block column below it (``L = Rᵀ``);
-- its *update matrix* ``U_j`` ((s + 1)², augmented with the right-hand side):
+- its *update matrix* ``U_j`` ((s + 1) × (s + 1), augmented with the right-hand side,
+  stored as its upper triangle row by row, :func:`packed` floats):
   the Schur complement its subtree passes to its ancestors, the multifrontal
   update matrix (Duff and Reid, "The multifrontal solution of indefinite sparse
   symmetric linear equations", ACM TOMS 1983; ISAM2's cached marginal factor,
@@ -42,11 +43,11 @@ dense_kernel = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reas
 #: Status codes of :func:`reeliminate`.
 OK, NEED_INT, NEED_FLOAT, NOT_POSITIVE = 0, 1, 2, 3
 
-#: A clique member below the last keeps its update matrix (augmented, floats) when it is at
-#: most this large: an update that re-eliminates only the members above it then starts from
-#: it (an odometry step re-eliminates the newest pose alone, not the whole root clique), at
-#: the price of that memory.
-KEEP_UPDATE = 64 * 64
+#: A clique member below the last keeps its update matrix (augmented, packed floats) when it
+#: is at most this large (a side of 64): an update that re-eliminates only the members above
+#: it then starts from it (an odometry step re-eliminates the newest pose alone, not the
+#: whole root clique), at the price of that memory.
+KEEP_UPDATE = 64 * 65 // 2
 
 #: A pivot is refused when it is not above this fraction of its diagonal entry before
 #: elimination (a pivot is 1/(Λ⁻¹)_pp in units of Λ_pp: this refuses a condition number
@@ -55,6 +56,12 @@ PIVOT_TOLERANCE = 1e-13
 
 
 # --------------------------------------------------------------------------- marking
+
+@kernel
+def packed(S1):
+    """Entries of an update matrix of side ``S1`` stored as its upper triangle, row by row."""
+    return S1 * (S1 + 1) // 2
+
 
 @kernel
 def _push(buf, n, v):
@@ -417,8 +424,8 @@ def reeliminate(order, orphans, base,
             need += d * (d + S1)
             p = t_parent[k]
             top = p < 0 or t_nch[aidx[p]] != 1 or t_len[k] != t_len[aidx[p]] + 1
-            if top or S1 * S1 <= keep_update:
-                need += S1 * S1
+            if top or packed(S1) <= keep_update:
+                need += packed(S1)
         if ftop + need > fpool.shape[0]:
             status = NEED_FLOAT
             detail = ftop + need
@@ -463,13 +470,16 @@ def reeliminate(order, orphans, base,
                 loc[v] = o
                 o += dim[v]
             N = D + s + 1
-            need_f = (s + 1) * (s + 1)
+            need_f = packed(s + 1)
             for q in range(nm):
                 need_f += dim[members[q]] * (N - loc[members[q]])
             if N * N + N > scratch.shape[0]:
                 scratch = np.empty(2 * (N * N + N))
-            scratch[:N * N + N] = 0.0
             Phi = scratch[:N * N].reshape((N, N))
+            for i in range(N):  # the upper triangle is all that is read
+                for c in range(i, N):
+                    Phi[i, c] = 0.0
+            scratch[N * N:N * N + N] = 0.0
             diag0 = scratch[N * N:N * N + N]  # the diagonal as assembled, for the pivot test
             # the update matrices of the first member's children (extend-add)
             nu = 0
@@ -494,16 +504,17 @@ def reeliminate(order, orphans, base,
                         colmap[cc] = loc[v] + i
                         cc += 1
                 colmap[cc] = N - 1
+                u = u0
                 for a in range(S1):
                     ta = colmap[a]
-                    row = u0 + a * S1
-                    diag0[ta] += fpool[row + a]
+                    diag0[ta] += fpool[u]
                     for b in range(a, S1):
                         tb = colmap[b]
                         if ta <= tb:
-                            Phi[ta, tb] += fpool[row + b]
+                            Phi[ta, tb] += fpool[u]
                         else:
-                            Phi[tb, ta] += fpool[row + b]
+                            Phi[tb, ta] += fpool[u]
+                        u += 1
                 nu += 1
                 c = cnext[c]
             if status != OK:
@@ -550,7 +561,7 @@ def reeliminate(order, orphans, base,
                 e = loc[v] + dim[v]
                 sq = N - e
                 last = q == nm - 1
-                if not last and sq * sq > keep_update:
+                if not last and packed(sq) > keep_update:
                     continue
                 for p in range(b0, e):
                     Phi[N - 1, p] = diag0[p]
@@ -562,10 +573,8 @@ def reeliminate(order, orphans, base,
                     t_u[mk] = ux
                     for a in range(sq):
                         for b in range(a, sq):
-                            x = Phi[e + a, e + b]
-                            fpool[ux + a * sq + b] = x
-                            fpool[ux + b * sq + a] = x
-                    ux += sq * sq
+                            fpool[ux] = Phi[e + a, e + b]
+                            ux += 1
             if bad >= 0:
                 status = NOT_POSITIVE
                 for q in range(nm):
@@ -588,9 +597,8 @@ def reeliminate(order, orphans, base,
             t_u[topk] = ft
             for a in range(S1):
                 for b in range(a, S1):
-                    x = Phi[D + a, D + b]
-                    fpool[ft + a * S1 + b] = x
-                    fpool[ft + b * S1 + a] = x
+                    fpool[ft] = Phi[D + a, D + b]
+                    ft += 1
             ft = ux
             stats[0] += nm
             stats[1] += nu
@@ -622,7 +630,7 @@ def reeliminate(order, orphans, base,
             stats[4] += dim[j] * (dim[j] + sep_dim[j] + 1)
             stats[5] += sep_len[j]
         if ustart[j] >= 0:
-            stats[4] += (sep_dim[j] + 1) * (sep_dim[j] + 1)
+            stats[4] += packed(sep_dim[j] + 1)
         parent[j] = t_parent[k]
         sep_start[j] = t_sep[k]
         sep_len[j] = t_len[k]
@@ -884,7 +892,7 @@ def compact_pools(nv, dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpo
             n += 1
         if ustart[j] >= 0:
             starts[n] = ustart[j]
-            sizes[n] = (s + 1) * (s + 1)
+            sizes[n] = packed(s + 1)
             nodes[n] = -1 - j
             n += 1
     moved = np.empty(n, dtype=np.int64)
