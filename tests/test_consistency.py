@@ -437,7 +437,8 @@ def _f_density(x, d1, d2):
 
 
 @pytest.mark.parametrize("d1, d2, p", [(3, 5, 0.5), (3, 5, 0.9999), (6, 5, 0.99), (1, 3, 0.9), (30, 5, 0.9999),
-                                        (2, 2.5, 0.999), (3, 5, 1 - 1e-5)])
+                                        (2, 2.5, 0.999), (3, 5, 1 - 1e-5), (3, 1e5, 0.99),
+                                        (6, 2e5, 0.999)])
 def test_f_quantile_inverts_the_integrated_density(d1, d2, p):
     import mpmath
 
