@@ -552,20 +552,6 @@ class _DenseSystem:
         return v
 
 
-@pytest.fixture(params=["direct", "cvxopt"])
-def cholmod_way(request, monkeypatch):
-    """Both ways into CHOLMOD: direct (ctypes), and cvxopt's API."""
-    from lie_factors.batch import cholmod
-
-    if request.param == "cvxopt":
-        monkeypatch.setenv("LIE_FACTORS_CHOLMOD", "cvxopt")
-    cholmod._direct.cache_clear()
-    assert cholmod.direct_available() == (request.param == "direct")
-    yield request.param
-    monkeypatch.delenv("LIE_FACTORS_CHOLMOD", raising=False)
-    cholmod._direct.cache_clear()
-
-
 @pytest.mark.parametrize("H, definite", [
     ([[4.0, 1.0], [1.0, 3.0]], True),
     ([[1.0, 2.0], [2.0, 1.0]], False),   # indefinite: LDLᵀ gives d = (1, −3) without stopping

@@ -11,17 +11,6 @@ import pytest
 from lie_factors.batch import cholmod
 
 
-@pytest.fixture(params=["direct", "cvxopt"])
-def way(request, monkeypatch):
-    if request.param == "cvxopt":
-        monkeypatch.setenv("LIE_FACTORS_CHOLMOD", "cvxopt")
-    cholmod._direct.cache_clear()
-    assert cholmod.direct_available() == (request.param == "direct")
-    yield request.param
-    monkeypatch.delenv("LIE_FACTORS_CHOLMOD", raising=False)
-    cholmod._direct.cache_clear()
-
-
 def _random_spd(n, density, seed, dense_rows=0):
     """A random sparse SPD matrix (n, n), dense; optionally with a few dense rows (supernodes)."""
     rng = np.random.default_rng(seed)
@@ -39,7 +28,7 @@ def _lower(A):
 
 @pytest.mark.parametrize("natural", [True, False])
 @pytest.mark.parametrize("n, density, dense_rows", [(1, 1.0, 0), (40, 0.05, 0), (300, 0.01, 30)])
-def test_factor_and_solves_against_dense(way, natural, n, density, dense_rows):
+def test_factor_and_solves_against_dense(cholmod_way, natural, n, density, dense_rows):
     A = _random_spd(n, density, seed=n, dense_rows=dense_rows)
     colptr, rowind, values = _lower(A)
     factor = cholmod.Cholesky(colptr, rowind, natural=natural)
@@ -54,12 +43,12 @@ def test_factor_and_solves_against_dense(way, natural, n, density, dense_rows):
     # refactor with other values on the same pattern
     factor.factorize(2.0 * values)
     np.testing.assert_allclose(factor.solve(b), np.linalg.solve(2.0 * A, b), rtol=1e-10, atol=1e-12)
-    if way == "direct":
+    if cholmod_way == "direct":
         assert factor.factor_entries >= colptr[-1] and factor.flops > 0
 
 
 @pytest.mark.parametrize("supernodal", [False, True])  # a chain: simplicial LDLᵀ; else supernodal LLᵀ
-def test_not_positive_definite_is_refused(way, supernodal):
+def test_not_positive_definite_is_refused(cholmod_way, supernodal):
     n = 300
     if supernodal:
         A = _random_spd(n, 0.01, seed=5, dense_rows=30)
@@ -71,7 +60,7 @@ def test_not_positive_definite_is_refused(way, supernodal):
     with pytest.raises(cholmod.NotPositiveDefinite, match="not positive definite") as info:
         factor.factorize(values)
     assert isinstance(info.value, np.linalg.LinAlgError)
-    if way == "direct":
+    if cholmod_way == "direct":
         assert factor.supernodal == supernodal
         assert info.value.column == n - 1
 
@@ -94,17 +83,17 @@ def test_direct_factor_keeps_the_natural_order_and_factors_in_place():
     assert ordered._L.contents.ordering != 0
 
 
-def test_factor_is_released(way):
+def test_factor_is_released(cholmod_way):
     A = _random_spd(40, 0.1, seed=2)
     colptr, rowind, values = _lower(A)
     factor = cholmod.Cholesky(colptr, rowind)
     factor.factorize(values)
     factor.free()
-    if way == "direct":
+    if cholmod_way == "direct":
         assert not factor._finalizer.alive
 
 
-def test_values_must_match_the_pattern(way):
+def test_values_must_match_the_pattern(cholmod_way):
     colptr, rowind, values = _lower(_random_spd(10, 0.3, seed=1))
     factor = cholmod.Cholesky(colptr, rowind)
     with pytest.raises(ValueError, match="contiguous"):
@@ -113,7 +102,7 @@ def test_values_must_match_the_pattern(way):
         factor.factorize(values.astype(np.float32))
 
 
-def test_block_order_is_a_fill_reducing_permutation(way):
+def test_block_order_is_a_fill_reducing_permutation(cholmod_way):
     """A grid of blocks: the order is a permutation, and it fills in less than the grid's rows."""
     k = 12
     idx = np.arange(k * k).reshape(k, k)
@@ -132,7 +121,7 @@ def test_block_order_is_a_fill_reducing_permutation(way):
     assert fill(order) < fill(np.arange(k * k))
 
 
-def test_solve_spd_sums_duplicate_triplets(way):
+def test_solve_spd_sums_duplicate_triplets(cholmod_way):
     A = _random_spd(50, 0.1, seed=7)
     r, c = np.nonzero(np.tril(A))
     v = A[r, c]
@@ -200,7 +189,7 @@ def test_supernodal_values_are_ours_and_reused_within_the_scope():
 
 @pytest.mark.parametrize("natural", [True, False])
 @pytest.mark.parametrize("density, dense_rows", [(0.0, 0), (0.05, 0), (0.01, 30)])
-def test_lower_is_the_factor_of_the_permuted_matrix(way, natural, density, dense_rows):
+def test_lower_is_the_factor_of_the_permuted_matrix(cholmod_way, natural, density, dense_rows):
     # density 0: a chain, where CHOLMOD takes a simplicial L·D·Lᵀ; dense rows make supernodes (L·Lᵀ)
     n = 120
     A = _random_spd(n, density, seed=5, dense_rows=dense_rows)

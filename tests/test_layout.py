@@ -2,7 +2,7 @@
 
 Layers, bottom up (docs/architecture.md):
 
-0. utilities: ``errors``, ``stack``, ``atomic``, ``timing``, ``arrays``, ``memory``;
+0. utilities: ``errors``, ``stack``, ``atomic``, ``timing``, ``arrays``, ``memory``, ``lazy``;
 1. kernels: ``kernels.*`` and the group modules (``so3`` … ``sim3``, ``quaternion``,
    ``dual_quaternion``);
 2. ``factors``;
@@ -26,7 +26,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "lie_factors"
 
 LAYERS = {
-    "errors": 0, "stack": 0, "atomic": 0, "timing": 0, "arrays": 0, "memory": 0,
+    "errors": 0, "stack": 0, "atomic": 0, "timing": 0, "arrays": 0, "memory": 0, "lazy": 0,
     "kernels": 1, "so3": 1, "se3": 1, "se2": 1, "sim2": 1, "sim3": 1, "quaternion": 1,
     "dual_quaternion": 1,
     "factors": 2,

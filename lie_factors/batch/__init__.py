@@ -21,7 +21,7 @@ Usage::
     result.values, result.iterations, result.errors, result.seconds, result.timings
 """
 
-import importlib
+from ..lazy import exports
 
 #: Public name → the submodule defining it.  Imported on first use (PEP 562), so that
 #: importing one submodule (say ``lie_factors.batch.losses``) does not load every
@@ -38,14 +38,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = exports(__name__, _EXPORTS)

@@ -13,7 +13,7 @@
 are imported on first use.
 """
 
-import importlib
+from ..lazy import exports
 
 _EXPORTS = {
     "BlockFactor": "cholesky", "IndeterminantLinearSystem": "cholesky", "UpdateStats": "cholesky",
@@ -24,14 +24,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = exports(__name__, _EXPORTS)
