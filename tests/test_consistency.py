@@ -505,16 +505,18 @@ def test_gnc_without_its_known_outliers_in_the_solver_is_the_same_gnc():
     assert gncm.BatchInner(lone, values, exclude=[1]).slots.tolist() == [0, 1]
 
 
-def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_true_one():
-    """GNC's verdict stubbed: one false closure accepted, one true closure rejected."""
+@pytest.mark.parametrize("rejected_weight", [0.0, 5e-6])
+def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_true_one(rejected_weight):
+    """GNC's verdict stubbed: one false closure accepted, one true closure rejected; GNC's
+    rejected weights exactly 0, or small where GNC stopped before its weights were binary."""
     ds, planted, prob = _planted_dataset(200, 22, "uniform", 0.1)
     pg = ds.posed()
     graph = pg.factor_graph()
     lc = pg.loop_closures()
     true = np.setdiff1d(lc, planted)
     weights = np.ones(graph.size())
-    weights[planted[1:]] = 0.0          # all false closures but the first rejected
-    weights[true[5]] = 0.0              # and one true closure
+    weights[planted[1:]] = rejected_weight  # all false closures but the first rejected
+    weights[true[5]] = rejected_weight      # and one true closure
     scorer = gncm.BatchInner(graph, prob.initial)
 
     def refine(v, w):
@@ -529,6 +531,7 @@ def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_t
                                 gncm.GncParams(), screen=False)
     assert rej.rejected_by == {int(e): ("final" if e == planted[0] else "gnc") for e in planted.tolist()}
     assert int(true[5]) in rej.readmitted
+    assert set(np.unique(rej.gnc.weights[lc]).tolist()) == {0.0, 1.0}
 
 
 # --------------------------------------------------------------------------- #

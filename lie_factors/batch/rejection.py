@@ -199,6 +199,13 @@ def reject_false_closures(graph: PoseGraph, run_gnc: Callable[[GncParams], GncRe
     for e in lc[weights[lc] < 0.5].tolist():
         stage.setdefault(e, "gnc")
     values = res.values
+    # GNC stopped short of binary weights (a rejected closure still at, say, 5e-6): the tests below
+    # take each closure as in the graph or out of it, so the solution is re-solved with GNC's verdict.
+    verdict_weights = np.where(weights[lc] >= 0.5, 1.0, 0.0)
+    resolved = bool(np.any(weights[lc] != verdict_weights))
+    if resolved:
+        weights[lc] = verdict_weights
+        values = refine(values, weights)
     readmitted: set = set()
     rounds = 0
     model = None
@@ -246,7 +253,7 @@ def reject_false_closures(graph: PoseGraph, run_gnc: Callable[[GncParams], GncRe
     if taken:
         check()
     out = dataclasses.replace(res, values=values, weights=weights,
-                              cost=float(np.dot(weights, errors(values))) if rounds else res.cost)
+                              cost=float(np.dot(weights, errors(values))) if rounds or resolved else res.cost)
     rejected_by = {e: s for e, s in sorted(stage.items()) if weights[e] < 0.5}
     return Rejection(out, rejected_by, sorted(readmitted - set(rejected_by)), screening, rounds,
                      model.scale if model is not None else float("nan"), clock.seconds())
