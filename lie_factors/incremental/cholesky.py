@@ -25,6 +25,7 @@ information (a pivot that is not positive) raises
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -306,9 +307,11 @@ class BlockFactor:
         na = len(affected)
         if na <= SMALL_SET:
             # no choice to make: the others (in their order so far), then the observed ones
-            obs = _el.marked_among(affected, observed, self.flag)
-            rest = affected[~np.isin(affected, obs)] if len(obs) else affected
-            return np.concatenate([rest[np.argsort(self.pos[rest], kind="stable")], obs])
+            # (lists: for three variables or fewer, numpy's set routines cost more than the work)
+            obs = _el.marked_among(affected, observed, self.flag).tolist()
+            pos = self.pos
+            rest = sorted((v for v in affected.tolist() if v not in obs), key=lambda v: pos[v])
+            return np.array(rest + obs, dtype=np.int64)
         import gtsam
 
         nptr = self.nf + len(orphans) + 1 + na
@@ -325,23 +328,29 @@ class BlockFactor:
         obs = _el.marked_among(affected, observed, self.flag)
         g = gtsam.SymbolicFactorGraph()
         push = g.push_factor
-        ptr = ptr[:n + 1].tolist()
+        # the two-variable factors (nearly all) pushed run by run through map(), in their order
+        starts = ptr[:n]
+        sizes = ptr[1:n + 1] - starts
+        firsts = out[starts].tolist()
+        seconds = out[np.minimum(starts + 1, max(m - 1, 0))].tolist()
         flat = out[:m].tolist()
-        for a, b in zip(ptr[:-1], ptr[1:]):
-            k = b - a
-            if k == 2:
-                push(flat[a], flat[a + 1])
-            elif k == 1:
-                push(flat[a])
-            elif k == 3:
-                push(flat[a], flat[a + 1], flat[a + 2])
-            else:
-                g.push_back(gtsam.SymbolicFactor.FromKeys(flat[a:b]))
+        ptr = ptr[:n + 1].tolist()
+        done = 0
+        for i in np.flatnonzero(sizes != 2).tolist() + [n]:
+            if i > done:
+                deque(map(push, firsts[done:i], seconds[done:i]), maxlen=0)
+            if i < n:
+                a, b = ptr[i], ptr[i + 1]
+                if b - a <= 3:
+                    push(*flat[a:b])
+                else:
+                    g.push_back(gtsam.SymbolicFactor.FromKeys(flat[a:b]))
+            done = i + 1
         if 0 < len(obs) < na:
             ordering = gtsam.Ordering.ColamdConstrainedLastSymbolicFactorGraph(g, obs.tolist(), False)
         else:
             ordering = gtsam.Ordering.ColamdSymbolicFactorGraph(g)
-        return np.array([ordering.at(i) for i in range(ordering.size())], dtype=np.int64)
+        return np.fromiter(map(ordering.at, range(ordering.size())), dtype=np.int64, count=ordering.size())
 
     def _compact(self) -> None:
         """Move the live entries of the pools down over the freed ones, in place: when a pool is
