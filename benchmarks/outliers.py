@@ -286,6 +286,14 @@ def consistent_planted(between, planted, ref_values, dim) -> np.ndarray:
                     dtype=np.int64)
 
 
+def stage_counts(rejected_by: dict) -> str:
+    """How many closures each stage rejected, in the stages' order ("gate 28, clique 107, gnc 21")."""
+    counts = {}
+    for v in rejected_by.values():
+        counts[v] = counts.get(v, 0) + 1
+    return ", ".join(f"{k} {counts[k]}" for k in ("gate", "clique", "gnc", "final") if k in counts)
+
+
 def suite(args) -> int:
     fractions = args.fractions or [0.2, 0.5]
     cache = args.native_cache
@@ -340,13 +348,7 @@ def suite(args) -> int:
                         # riSAM: a planted closure that fits the clean optimum counts neither way
                         keep = np.setdiff1d(planted, consistent)
                         c2 = outliers.classify(np.setdiff1d(rejected, consistent), keep)
-                        stages = "–"
-                        if by is not None:
-                            counts = {}
-                            for v in by.values():
-                                counts[v] = counts.get(v, 0) + 1
-                            stages = ", ".join(f"{k} {counts[k]}" for k in ("gate", "clique", "gnc", "final")
-                                               if k in counts)
+                        stages = "–" if by is None else stage_counts(by)
                         print(f"| {label} | {'GTSAM GNC' if method == 'gtsam' else 'lie-factors'} | "
                               f"{c.precision:.3f} | {c.recall:.3f} | {100 * rmse(P, ref) / diag:.3g} % | "
                               f"{sec:.2f}{star if method == 'gtsam' else ''} | {stages} | {len(consistent)} | "
@@ -390,10 +392,7 @@ def clean(args) -> int:
         record, result, _ = run(base, backend="batch", gnc="tls")
         graph = build_graph(base, "native")
         e_gnc, e_lm = float(graph.error(result.values)), float(graph.error(plain.values))
-        counts = {}
-        for v in record.rejected_by.values():
-            counts[v] = counts.get(v, 0) + 1
-        stages = ", ".join(f"{k} {counts[k]}" for k in ("gate", "clique", "gnc", "final") if k in counts)
+        stages = stage_counts(record.rejected_by)
         print(f"| {base.name} | {len(base.graph.loop_closures())} | {len(record.outliers)}"
               f"{f' ({stages})' if stages else ''} | {e_gnc:.8g} | {e_lm:.8g} | {abs(e_gnc - e_lm) / e_lm:.1e} |",
               flush=True)
