@@ -2,6 +2,7 @@
 and the whole ``posegraph --max-iterations 0`` command on city10000 split into its pieces.
 
     python benchmarks/startup.py [--repeat 3] [--dataset data/city10000.g2o] [--only SECTION]
+        [--reference DIR]
 
 Every whole-command figure is a fresh process (``python -m lie_factors.app.cli ...``), best of
 ``--repeat``, backends alternated. The first-run figures use an empty NUMBA_CACHE_DIR (as a
@@ -45,22 +46,43 @@ def help_table(repeat: int) -> None:
         print(f"| `{k}` | {v:.3f} |")
 
 
-def first_run_table() -> None:
-    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
-        env = dict(ENV, NUMBA_CACHE_DIR=cache)
+def _first_runs(env_base: dict, out: str) -> tuple[float, float, str]:
+    """The demo in a fresh process with an empty numba cache, then again with the cache it wrote:
+    (first wall s, best later wall s of two, the first run's compile note)."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(env_base, NUMBA_CACHE_DIR=cache)
         argv = cli("demo", "--output", out)
         t = time.perf_counter()
         p = subprocess.run(argv, env=env, capture_output=True, text=True)
         first = time.perf_counter() - t
-        note = [l for l in p.stderr.splitlines() if "compiled numba kernels" in l]
-        second = wall(argv, env)
-        third = wall(argv, env)
-    print("| `lie-factors demo` | wall s |\n|---|---|")
-    print(f"| first run (empty numba cache) | {first:.2f} |")
-    print(f"| second run | {second:.2f} |")
-    print(f"| third run | {third:.2f} |")
-    print(f"| compile = first − best later | {first - min(second, third):.2f} |")
-    print(f"\nstderr of the first run: `{note[0] if note else '(no compile note)'}`")
+        if p.returncode != 0:
+            raise SystemExit(f"{argv} failed: {p.stderr.strip()[-500:]}")
+        note = next((l for l in p.stderr.splitlines() if "compiled numba kernels" in l), "(no compile note)")
+        later = min(wall(argv, env), wall(argv, env))
+    return first, later, note
+
+
+def first_run_table(repeat: int, reference: str | None) -> None:
+    """``lie-factors demo`` from an empty numba cache and from a warm one; with ``reference``,
+    the same for that checkout (``PYTHONPATH=reference``), the two sides alternated."""
+    sides = {"this checkout": ENV}
+    if reference:
+        sides["reference"] = dict(os.environ, PYTHONPATH=os.path.abspath(reference) + os.pathsep
+                                  + os.environ.get("PYTHONPATH", ""))
+    best = {name: (float("inf"), float("inf"), "") for name in sides}
+    with tempfile.TemporaryDirectory() as out:
+        for r in range(repeat):
+            for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
+                first, later, note = _first_runs(sides[name], out)
+                f0, l0, n0 = best[name]
+                best[name] = (min(f0, first), min(l0, later), note if first < f0 else n0)
+    print(f"`lie-factors demo`, fresh processes, best of {repeat}:\n")
+    print("| side | first run, empty numba cache (wall s) | later run, warm cache (wall s) | compile = first − later |")
+    print("|---|---|---|---|")
+    for name, (first, later, _) in best.items():
+        print(f"| {name} | {first:.2f} | {later:.2f} | {first - later:.2f} |")
+    for name, (_, _, note) in best.items():
+        print(f"\nstderr of the best first run ({name}): `{note}`")
 
 
 FLOOR = r"""
@@ -250,9 +272,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dataset", default=os.path.join(ROOT, "data", "city10000.g2o"))
+    ap.add_argument("--reference", default=None,
+                    help="first-run: also time another checkout of the library (PYTHONPATH=DIR), alternated")
     ap.add_argument("--only", choices=("help", "first-run", "compile-split", "construction", "city", "floor"), default=None)
     args = ap.parse_args(argv)
-    sections = [("help", lambda: help_table(args.repeat)), ("first-run", first_run_table),
+    sections = [("help", lambda: help_table(args.repeat)),
+                ("first-run", lambda: first_run_table(args.repeat, args.reference)),
                 ("compile-split", lambda: compile_split_table(args.repeat)),
                 ("construction", construction_table), ("city", lambda: city_table(args.dataset, args.repeat)),
                 ("floor", lambda: floor_table(args.repeat))]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -355,6 +356,21 @@ def test_console_script_is_main_then_gc_freeze(monkeypatch):
     monkeypatch.setattr(gc, "freeze", lambda: calls.append("freeze"))
     monkeypatch.setattr(cli, "main", lambda argv=None: calls.append("main") or 7)
     assert cli.entry() == 7 and calls == ["main", "freeze"]
+
+
+_CRASH_IN_MAIN = """
+import ctypes
+from lie_factors.app import cli
+cli.main = lambda argv=None: ctypes.string_at(0)   # a fatal signal where a run would be
+cli.entry()
+"""
+
+
+def test_a_crash_in_the_console_script_prints_where_it_happened():
+    out = subprocess.run([sys.executable, "-c", _CRASH_IN_MAIN], capture_output=True, text=True, timeout=120)
+    assert out.returncode < 0 or out.returncode == 139
+    assert "Fatal Python error: Segmentation fault" in out.stderr
+    assert re.search(r'File ".*cli\.py", line \d+ in entry', out.stderr), out.stderr
 
 
 def test_main_called_from_python_leaves_the_collector_alone(capsys):

@@ -156,3 +156,88 @@ def test_marginal_covariance_is_the_block_of_the_inverse():
         idx = bf.voff[v] + np.arange(bf.dim[v])
         ref = Sigma[np.ix_(idx, idx)]
         assert np.allclose(bf.marginal_covariance(v), ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+
+
+def _pool_layout(data, nv):
+    """A random factor's pools: each node's separator, conditional and update matrix (or none)
+    placed at shuffled addresses with gaps of freed entries between them."""
+    from hypothesis import strategies as st
+    from lie_factors.incremental.elimination import packed
+
+    dim = np.array(data.draw(st.lists(st.integers(1, 4), min_size=nv, max_size=nv)), dtype=np.int64)
+    live = np.array(data.draw(st.lists(st.booleans(), min_size=nv, max_size=nv)))
+    sep_len = np.array(data.draw(st.lists(st.integers(0, 3), min_size=nv, max_size=nv)), dtype=np.int64)
+    sep_dim = sep_len * 2
+    has_update = np.array(data.draw(st.lists(st.booleans(), min_size=nv, max_size=nv)))
+    isegs = [(j, int(sep_len[j])) for j in range(nv) if live[j] and sep_len[j] > 0]
+    fsegs = [(j, int(dim[j] * (dim[j] + sep_dim[j] + 1))) for j in range(nv) if live[j]]
+    fsegs += [(-1 - j, int(packed(sep_dim[j] + 1))) for j in range(nv) if has_update[j]]
+
+    def place(segs):
+        order = data.draw(st.permutations(range(len(segs)))) if segs else []
+        starts, top = {}, 0
+        for k in order:
+            top += data.draw(st.integers(0, 5))  # freed entries
+            starts[segs[k][0]] = top
+            top += segs[k][1]
+        return starts, top + data.draw(st.integers(0, 5))
+
+    istarts, itop = place(isegs)
+    fstarts, ftop = place(fsegs)
+    sep_start = np.array([istarts.get(j, -1) for j in range(nv)], dtype=np.int64)
+    cond = np.array([fstarts.get(j, -1) for j in range(nv)], dtype=np.int64)
+    ustart = np.array([fstarts.get(-1 - j, -1) for j in range(nv)], dtype=np.int64)
+    rng = np.random.default_rng(data.draw(st.integers(0, 2 ** 32 - 1)))
+    ipool = rng.integers(0, 10 ** 6, size=itop).astype(np.int64)
+    fpool = rng.normal(size=ftop)
+    return dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool, dict(isegs), dict(fsegs)
+
+
+def test_compact_pools_keeps_every_live_segment_and_packs_them_in_address_order():
+    """Pool compaction against its definition: every live separator, conditional and update
+    matrix keeps its entries, the node points at them, they are contiguous from 0 in their
+    former address order, and the tops are their total sizes."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+    from lie_factors.incremental.elimination import compact_pools
+
+    @settings(max_examples=200, deadline=None)
+    @given(data=st.data(), nv=st.integers(1, 12))
+    def check(data, nv):
+        dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool, isizes, fsizes = _pool_layout(data, nv)
+        ibefore = {j: ipool[sep_start[j]:sep_start[j] + n].copy() for j, n in isizes.items()}
+        fstart = lambda j: cond[j] if j >= 0 else ustart[-1 - j]
+        fbefore = {j: fpool[fstart(j):fstart(j) + n].copy() for j, n in fsizes.items()}
+        iorder = sorted(isizes, key=lambda j: sep_start[j])
+        forder = sorted(fsizes, key=fstart)
+        itop, ftop = compact_pools(len(dim), dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool)
+        assert (itop, ftop) == (sum(isizes.values()), sum(fsizes.values()))
+        at = 0
+        for j in iorder:
+            assert sep_start[j] == at
+            np.testing.assert_array_equal(ipool[at:at + isizes[j]], ibefore[j])
+            at += isizes[j]
+        at = 0
+        for j in forder:
+            assert fstart(j) == at
+            np.testing.assert_array_equal(fpool[at:at + fsizes[j]], fbefore[j])
+            at += fsizes[j]
+
+    check()
+
+
+def test_many_compactions_keep_the_factor_exact():
+    """Pools that start small and a relinearization every third pose: the pools are compacted
+    dozens of times, and the factor equals a from-scratch Cholesky after each."""
+    p = RandomProblem(11, small_pools=True)
+    checked = 0
+    for step in range(150):
+        p.add_pose(int(p.rng.random() < 0.3))
+        if step % 3 == 2:
+            p.relinearize(8)
+        if p.bf.compactions > checked:
+            checked = p.bf.compactions
+            check_exact(p.bf)
+    assert p.bf.compactions >= 20
+    H, eta = check_exact(p.bf)
+    check_solution(p.bf, H, eta)

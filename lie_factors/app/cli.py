@@ -18,6 +18,7 @@ With ``--json`` the last line of stdout is one JSON object.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import gc
 import importlib
 import importlib.util
@@ -611,8 +612,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> int:
-    """The ``lie-factors`` console script (and ``python -m lie_factors.app.cli``): :func:`main`,
-    then ``gc.freeze()`` before the interpreter exits.
+    """The ``lie-factors`` console script (and ``python -m lie_factors.app.cli``): :func:`main`
+    with :mod:`faulthandler` on, then ``gc.freeze()`` before the interpreter exits.
+
+    With faulthandler on, a fatal signal inside compiled code (a segmentation fault)
+    prints the Python stack of every thread to stderr, so the crash says where it happened.
 
     Why: at exit Python sweeps every object it tracks for reference cycles; after a run has
     loaded numba and GTSAM that sweep alone takes ≈ 0.2 s, a quarter of a small graph's
@@ -622,6 +626,7 @@ def entry() -> int:
     the console script does this: :func:`main`, called from Python, leaves the caller's
     garbage collector alone.
     """
+    faulthandler.enable()
     status = main()
     gc.freeze()
     return status

@@ -23,14 +23,11 @@ import functools
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..kernels import dispatch as _dispatch
 from .. import factors as _factors
-from ..kernels.jit import kernel
-
-#: Like :data:`lie_factors.kernels.jit.kernel`, with ``prange`` loops run on numba's threads.
-parallel_kernel = njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+from ..kernels.jit import kernel, parallel_kernel
 
 #: Factors per parallel chunk: large enough that thread start-up and scratch allocation vanish.
 CHUNK = 256

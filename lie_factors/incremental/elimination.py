@@ -31,14 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from numba import njit
-
-from ..kernels.jit import kernel
-
-#: The dense loops: :data:`lie_factors.kernels.jit.kernel`'s options, with sums that may be
-#: reassociated and multiply-adds contracted (vectorized); NaN and infinity keep their IEEE
-#: semantics (the pivot test relies on them).
-dense_kernel = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
+from ..kernels.jit import dense_kernel, kernel  # dense_kernel keeps IEEE NaN, which the pivot test relies on
 
 #: Status codes of :func:`reeliminate`.
 OK, NEED_INT, NEED_FLOAT, NOT_POSITIVE = 0, 1, 2, 3

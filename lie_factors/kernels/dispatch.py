@@ -21,9 +21,8 @@ specialization contains SE(3)'s cores and nothing else (an SE(3) graph compiles
 no Sim(2) code). Every specialization is cached on disk by ``cache=True`` like
 any other signature (the tag's type pickles by name), and the generic kernels
 stay plain top-level functions, so no closure stands in the way of the cache.
-The tag's type also carries a digest of the kernel layer's sources
-(:data:`SOURCES`), so that a specialization cached before a core was edited is
-never loaded after.
+A specialization cached before a core was edited is never loaded after: the
+cache is keyed by the whole package's sources (:mod:`lie_factors.kernels.cache`).
 
 Writing a new group-generic kernel: make ``g`` its first argument, call the
 cores through this module (``_dispatch.exp(g, x, out)``, ``_dispatch.dim(g)``)
@@ -44,9 +43,7 @@ calls cost nothing extra, the dispatch having happened at compile time.
 
 from __future__ import annotations
 
-import hashlib
 import importlib
-from pathlib import Path
 
 from numba.core import types
 from numba.core.errors import TypingError
@@ -58,31 +55,12 @@ from . import checks, registry
 from .registry import UNIT, GroupInfo
 
 
-def _kernel_sources_digest() -> str:
-    """A digest of every source file group-generic kernels compile code from: lie_factors/kernels/,
-    the group modules and the factors' kernels."""
-    root = Path(__file__).resolve().parent.parent
-    names = (*registry.GROUPS, *registry.QUATERNIONS, "factors")
-    digest = hashlib.sha256()
-    for path in sorted(root.glob("kernels/*.py")) + [root / f"{name}.py" for name in names]:
-        digest.update(path.read_bytes())
-    return digest.hexdigest()[:12]
-
-
-#: Part of every group tag's numba type. Numba keys the on-disk cache of a kernel on that
-#: kernel's own source file, but a group-generic kernel (factors.between, the public functions'
-#: kernels, the batch loops) contains the code of other files: with the digest in the types
-#: of its signature, editing any core (or coefficient, check, factor kernel) makes every cached
-#: specialization miss and compile afresh instead of running the old code.
-SOURCES = _kernel_sources_digest()
-
-
 class GroupType(types.Type):
     """Numba type of a group tag; one instance (and so one specialization) per group."""
 
     def __init__(self, name: str):
         self.group = name
-        super().__init__(name=f"Group[{name}@{SOURCES}]")
+        super().__init__(name=f"Group[{name}]")
 
 
 class Op:

@@ -16,10 +16,23 @@ import time
 from numba import njit, types
 from numba.core import event as _event
 
+from . import cache
+
+# Before anything is compiled: symbols unique across processes, cache keys over the whole package.
+cache.install()
+
 #: Decorator for element cores. ``error_model="numpy"`` gives IEEE semantics
 #: (no Python ZeroDivisionError checks inside hot loops); ``cache=True`` keeps
-#: the compiled code in ``__pycache__`` so only the first import compiles.
+#: the compiled code in ``__pycache__`` so only the first import compiles
+#: (:mod:`lie_factors.kernels.cache` says what makes that safe).
 kernel = njit(cache=True, nogil=True, error_model="numpy")
+
+#: The dense loops: :data:`kernel`'s options, with sums that may be reassociated and
+#: multiply-adds contracted (vectorized); NaN and infinity keep their IEEE semantics.
+dense_kernel = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reassoc", "contract"})
+
+#: Like :data:`kernel`, with ``prange`` loops run on numba's threads.
+parallel_kernel = njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 
 
 class _CompileClock(_event.Listener):
