@@ -24,7 +24,6 @@ import argparse
 import importlib.metadata
 import os
 import platform
-import resource
 import subprocess
 import sys
 import time
@@ -37,9 +36,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from lie_factors import batch, factors
-from lie_factors.app.backends import build_graph  # noqa: E402
-from lie_factors.app.load import load as load_dataset  # noqa: E402
-from lie_factors.pose_graph import PRIOR_VARIANCES  # noqa: E402
+from lie_factors.backends import build_graph  # noqa: E402
+from lie_factors.g2o import read_pose_graph as load_dataset  # noqa: E402
+from lie_factors.posegraph.graph import PRIOR_VARIANCES  # noqa: E402
 
 DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(ROOT, "data"))
 DEFAULT = "sphere2500,torus3D,city10000,intel,kitti_00,parking-garage,se3chain6k,se3chain20k,se2chain20k"

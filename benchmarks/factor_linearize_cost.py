@@ -25,7 +25,7 @@ import gtsam
 import numpy as np
 
 from lie_factors import factors
-from lie_factors.app.load import load
+from lie_factors.g2o import read_pose_graph
 
 
 def _empty(this, values, H):
@@ -51,8 +51,8 @@ def main(argv=None):
     parser.add_argument("--lm", action="store_true", help="also time one LM run per backend (slow: ~10 s)")
     args = parser.parse_args(argv)
 
-    pg = load("sphere2500.txt")
-    between = pg.native_graph()
+    pg = read_pose_graph("sphere2500.txt")
+    between = pg.factor_graph()
     native, empty, ours = (gtsam.NonlinearFactorGraph() for _ in range(3))
     for i in range(between.size()):
         f = between.at(i)
@@ -64,7 +64,7 @@ def main(argv=None):
     t_native = timed_linearize(native, pg.initial, args.repeats)
     t_empty = timed_linearize(empty, pg.initial, args.repeats)
     t_ours = timed_linearize(ours, pg.initial, args.repeats)
-    print(f"sphere2500.txt: {pg.poses} poses, {n} BetweenFactorPose3, median of {args.repeats}")
+    print(f"sphere2500.txt: {pg.pose_count} poses, {n} BetweenFactorPose3, median of {args.repeats}")
     print("| graph | linearize (ms) | per factor (µs) |")
     print("|---|---|---|")
     for label, t in (("native BetweenFactorPose3", t_native), ("CustomFactor, empty callback", t_empty),
@@ -80,7 +80,7 @@ def main(argv=None):
         for label, graph, prior_factor in (("native", native, gtsam.PriorFactorPose3),
                                            ("lie_factors", ours, factors.PriorFactorPose3)):
             g = gtsam.NonlinearFactorGraph(graph)
-            g.add(prior_factor(pg.first_key, pg.initial.atPose3(pg.first_key), prior))
+            g.add(prior_factor(int(pg.keys[0]), pg.initial.atPose3(int(pg.keys[0])), prior))
             t = time.perf_counter()
             opt = gtsam.LevenbergMarquardtOptimizer(g, pg.initial, gtsam.LevenbergMarquardtParams())
             result = opt.optimize()

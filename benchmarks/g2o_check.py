@@ -67,13 +67,13 @@ def main(argv=None) -> int:
         try:
             g2o.check_g2o(path)
             result = "accepted"
-        except g2o.PoseGraphError as exc:
+        except g2o.InputError as exc:
             result = "refused: " + str(exc).split(": ", 1)[1][:60]
 
         def check():
             try:
                 g2o.check_g2o(path)
-            except g2o.PoseGraphError:
+            except g2o.InputError:
                 pass
 
         def read():

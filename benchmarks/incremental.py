@@ -52,8 +52,8 @@ import numpy as np  # noqa: E402
 
 from lie_factors import g2o
 from lie_factors.app import incremental  # noqa: E402
-from lie_factors.app.backends import build_graph  # noqa: E402
-from lie_factors.app.load import load as load_dataset  # noqa: E402
+from lie_factors.backends import build_graph  # noqa: E402
+from lie_factors.g2o import read_pose_graph as load_dataset  # noqa: E402
 
 DEFAULT_DATASETS = ["intel", "city10000", "sphere2500", "helix"]
 LEGS = ("native", "plain", "dropin", "batch")
@@ -88,7 +88,7 @@ def helix(poses: int, seed: int = 0, per_turn: int = 100, radius: float = 10.0, 
 
 
 def load(name: str, data_dir: str, tmp: str, helix_poses: int):
-    """(Dataset, truth or None)."""
+    """(PoseGraph, truth or None)."""
     if name == "helix":
         graph, initial, truth = helix(helix_poses)
         path = os.path.join(tmp, f"helix{helix_poses}.g2o")
@@ -187,14 +187,14 @@ def accuracy_rows(datasets, data_dir: str, tmp: str, helix_poses: int) -> None:
     """gtsam.ISAM2 (GTSAM's factors) and the smoother side by side: the error of the graph so far
     at every tenth, the final errors, and optimize() against batch LM's optimum."""
     from lie_factors.incremental import FactorArrays, Smoother
-    from lie_factors.kernels.elements import to_gtsam
+    from lie_factors.interop import to_gtsam
 
     print("| graph | worst tenth (ours / ISAM2) | final ISAM2 | final ours | ours / ISAM2 − 1 "
           "| optimize() | batch LM optimum | rel. diff |")
     print("|---|---|---|---|---|---|---|---|")
     for name in datasets:
         ds, _ = load(name, data_dir, tmp, helix_poses)
-        pg = ds.posed()
+        pg = ds.with_first_prior()
         graph = build_graph(ds, "native")
         E = len(pg.edge_keys)
         steps = incremental.schedule(ds, graph)
@@ -314,9 +314,9 @@ def main(argv=None) -> int:
                     ref = float(native.times[:common].sum())
                     ratio = f"{mine / ref:.2f}" + ("" if common == done == native.updates else
                                                    f" (first {common} updates)")
-                a = f"{ate(res.values, truth):.4f}" if truth is not None and done == pg.poses else ""
+                a = f"{ate(res.values, truth):.4f}" if truth is not None and done == pg.pose_count else ""
                 err = "" if math.isnan(res.final_error) else f"{res.final_error:.10g}"
-                print(f"| {pg.name} | {pg.poses} | {res.factors} | {leg} | {done} | {res.update_seconds:.3f} "
+                print(f"| {pg.name} | {pg.pose_count} | {res.factors} | {leg} | {done} | {res.update_seconds:.3f} "
                       f"| {res.update_p50 * 1e3:.3f} | {res.update_p99 * 1e3:.3f} | {err} | {a} | {ratio} |")
     return 0
 

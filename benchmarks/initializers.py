@@ -8,7 +8,7 @@ pose), alternating within each repetition, best of ``--repeat``:
 * ``gtsam``: ``InitializePose3.initialize`` (3-D), ``lago.initialize`` (2-D,
   diagonal noise), or ``InitializePose3.initialize`` on the planar Pose3 graph
   (2-D with full covariances, lie_factors' rule) — run on a large-stack thread
-  (lie_factors.stack), on GTSAM's own factor graph built beforehand;
+  (lie_factors.util.stack), on GTSAM's own factor graph built beforehand;
 * ``arrays``: ours, :func:`lie_factors.initialization.chordal.initialize` /
   :func:`lie_factors.initialization.lago.initialize_pose2`, on the pose graph;
 * ``initialize()``: :func:`lie_factors.initialization.initialize` on the pose graph
@@ -33,12 +33,12 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import gtsam  # noqa: E402
 
 from lie_factors import initialization as LI  # noqa: E402
-from lie_factors import stack  # noqa: E402
-from lie_factors.app.load import load  # noqa: E402
+from lie_factors.util import stack  # noqa: E402
+from lie_factors.g2o import read_pose_graph  # noqa: E402
 from lie_factors.initialization import chordal, lago  # noqa: E402
 from lie_factors.initialization.planar import planar_pose3  # noqa: E402
-from lie_factors.kernels.elements import matrices_from_values  # noqa: E402
-from lie_factors.pose_graph import PoseGraph  # noqa: E402
+from lie_factors.interop import matrices_from_values  # noqa: E402
+from lie_factors.posegraph.graph import PoseGraph  # noqa: E402
 
 DATA = os.environ.get("LIE_FACTORS_DATA", os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data"))
 DEFAULT = ["sphere2500", "torus3D", "city10000", "intel", "kitti_00"]
@@ -59,7 +59,7 @@ def best(fn, repeat):
 
 def run(name, repeat):
     path = name if os.path.exists(name) else os.path.join(DATA, name + ".g2o")
-    pg = load(path).posed()  # the edges, then the prior on the first pose
+    pg = read_pose_graph(path).with_first_prior()  # the edges, then the prior on the first pose
     n = len(pg.keys)
     diagonal = bool(np.all(np.abs(pg.information - np.einsum("kii->ki", pg.information)[:, :, None] * np.eye(3))
                            <= lago.GTSAM_DIAGONAL_TOL)) if not pg.is3d else False

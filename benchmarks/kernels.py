@@ -43,7 +43,8 @@ import numpy as np
 
 from lie_factors.app import crosscheck
 from lie_factors import se3, sim3
-from lie_factors.kernels import elements, registry
+from lie_factors import interop
+from lie_factors.kernels import registry
 
 #: The clock of every timing (set by --clock): the thread's CPU time or wall time.
 clock = time.thread_time
@@ -65,7 +66,7 @@ def _tangents(group: str, n: int, rng) -> np.ndarray:
 
 
 def _gtsam_object(group: str, X: np.ndarray):
-    return elements.to_gtsam(group, X)
+    return interop.to_gtsam(group, X)
 
 
 def _percall_rows(group: str, rng):

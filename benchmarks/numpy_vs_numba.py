@@ -156,12 +156,12 @@ def best(f, n=5):
 
 def main():
     path = sys.argv[1] if len(sys.argv) > 1 else os.path.join(DATA, "sphere2500.g2o")
-    from lie_factors.app.load import load
+    from lie_factors.g2o import read_pose_graph
     from lie_factors.batch import Problem
 
-    pg = load(path)
+    pg = read_pose_graph(path)
     assert pg.group == "Pose3"
-    prob = Problem.from_pose_graph(pg.posed(), pg.start_poses)
+    prob = Problem.from_pose_graph(pg.with_first_prior(), pg.start_poses)
     g = next(g for g in prob.groups if g.kind == "between")
     X = prob.blocks["Pose3"].X
     t_numba = best(lambda: g.linearize(X))

@@ -40,7 +40,7 @@ def graphs(path: str):
     """(native graph, graph with our factors, initial values) of a g2o file: its edges as
     GTSAM reads them, then GTSAM's g2o-example prior on the first pose at its file value."""
     summary = g2o.check_g2o(path)
-    native, initial = g2o.read_g2o(path, summary)
+    native, initial = g2o.read_with_gtsam(path, summary)
     group = summary.group
     first = min(initial.keys())
     prior = getattr(gtsam, f"PriorFactor{group}")

@@ -71,15 +71,16 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import gtsam  # noqa: E402
 
 from lie_factors.app import demo  # noqa: E402
-from lie_factors.app.backends import build_graph  # noqa: E402
-from lie_factors.app.load import Dataset, load  # noqa: E402
+from lie_factors.backends import build_graph  # noqa: E402
+from lie_factors.g2o import read_pose_graph  # noqa: E402
 from lie_factors.app.plotting import positions as trajectory  # noqa: E402
-from lie_factors.kernels.elements import matrices_from_values  # noqa: E402
-from lie_factors.pose_graph import PoseGraph  # noqa: E402
+from lie_factors.interop import matrices_from_values  # noqa: E402
+from lie_factors.posegraph.graph import PoseGraph  # noqa: E402
 from lie_factors.testing import outliers  # noqa: E402
 from lie_factors.initialization import initialize  # noqa: E402
-from lie_factors.batch import gnc as gncm  # noqa: E402
-from lie_factors.batch.robust import LOSSES, RobustLoss, WeightedLevenbergMarquardt  # noqa: E402
+from lie_factors.robust import gnc as gncm  # noqa: E402
+from lie_factors.robust.losses import LOSSES, RobustLoss  # noqa: E402
+from lie_factors.robust.weighted import WeightedLevenbergMarquardt  # noqa: E402
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data")
 GRAPHS = ("sphere2500", "intel", "city10000", "chain1000")
@@ -87,7 +88,7 @@ METHODS = ("lm", "huber", "cauchy", "tukey", "gm", "dcs", "gnc-tls")
 STARTS = ("auto", "file", "chordal")
 
 
-def load_graph(name: str) -> Dataset:
+def load_graph(name: str) -> PoseGraph:
     """A dataset of data/ by name, ``chainN``: the demo's SE(3) trajectory with N poses, or
     ``helixN``: ``generate_posegraph.py``'s SE(3) helix with N poses (written to the temp dir)."""
     if name.startswith("helix"):
@@ -97,21 +98,21 @@ def load_graph(name: str) -> Dataset:
         path = os.path.join(tempfile.gettempdir(), f"lie_factors_outliers_helix{n}.g2o")
         if not os.path.exists(path):
             generate_posegraph.write_g2o(path, *generate_posegraph.generate(n, lap=500))
-        return load(path)
+        return read_pose_graph(path)
     if name.startswith("chain"):
         n = int(name[5:])
         prob = demo.simulate(n, seed=0)
         graph = PoseGraph.from_gtsam(demo.between_graph(prob))
         graph = dataclasses.replace(graph, vertices=matrices_from_values(prob.initial, "Pose3", graph.keys))
-        return Dataset(path="", name=f"SE(3) chain {n}", graph=graph)
+        return dataclasses.replace(graph, name=f"SE(3) chain {n}")
     path = os.path.join(DATA, name + ".g2o")
-    return load(path if os.path.exists(path) else name)
+    return read_pose_graph(path if os.path.exists(path) else name)
 
 
-def with_edges(pg: Dataset, between) -> Dataset:
+def with_edges(pg: PoseGraph, between) -> PoseGraph:
     """``pg`` with the between factors ``between`` (GTSAM's), starting where ``pg`` starts."""
-    graph = dataclasses.replace(PoseGraph.from_gtsam(between, pg.group, pg.graph.keys), vertices=pg.graph.vertices)
-    planted = Dataset(pg.path, pg.name, graph)
+    graph = dataclasses.replace(PoseGraph.from_gtsam(between, pg.group, pg.keys), vertices=pg.vertices)
+    planted = dataclasses.replace(graph, name=pg.name, path=pg.path)
     planted.initial = pg.initial
     return planted
 
@@ -138,7 +139,7 @@ def run_lm(pg, backend, loss):
 
 
 def gnc_params(graph, pg):
-    closures = set(pg.graph.loop_closures().tolist())
+    closures = set(pg.loop_closures().tolist())
     known = [k for k in range(graph.size()) if k not in closures]
     return gncm.GncParams(loss="tls", known_inliers=known, lm_params=lm_params())
 
@@ -192,7 +193,7 @@ def start_values(pg, how: str):
     if how == "file":
         return pg.initial, "file"
     graph = build_graph(pg, "native")
-    inliers = np.setdiff1d(np.arange(pg.edges), pg.graph.loop_closures()) if how == "auto" else None
+    inliers = np.setdiff1d(np.arange(pg.edge_count), pg.loop_closures()) if how == "auto" else None
     s = initialize(graph, "auto" if how == "auto" else how, pg.initial, inliers=inliers)
     return s.values, s.method + (" of the odometry and the prior" if s.inliers_only else " of every edge")
 
@@ -212,11 +213,11 @@ def reference_positions(pg) -> np.ndarray:
 
 def plant(pg, fraction, seed, kind="uniform"):
     """``pg``'s between graph with false loop closures (``kind``: uniform or clustered) and their slots."""
-    n_lc = len(pg.graph.loop_closures())
+    n_lc = len(pg.loop_closures())
     count = int(round(fraction * n_lc))
     planter = (outliers.plant_false_loop_closures if kind == "uniform"
                else outliers.plant_clustered_false_loop_closures)
-    return planter(pg.graph.factor_graph(), pg.graph.keys.tolist(), count, seed, pg.is3d)
+    return planter(pg.factor_graph(), pg.keys.tolist(), count, seed, pg.is3d)
 
 
 def prepare(name, fraction, seed, reference=True, start="file", kind="uniform"):
@@ -279,7 +280,7 @@ def store_native(cache, name, fraction, kind, seed, out, timeout):
 def consistent_planted(between, planted, ref_values, dim) -> np.ndarray:
     """The planted closures that fit the clean optimum: χ² = 2·error ≤ χ²_dim(0.95) under their
     own noise model (riSAM's rule: such a closure is not an outlier, whatever it was planted as)."""
-    from lie_factors.batch.losses import chi2_inlier_threshold
+    from lie_factors.robust.statistics import chi2_inlier_threshold
 
     limit = 2.0 * chi2_inlier_threshold(dim, 0.95)
     return np.array([k for k in planted.tolist() if 2.0 * between.at(int(k)).error(ref_values) <= limit],
@@ -312,7 +313,7 @@ def suite(args) -> int:
             for kind in args.kinds:
                 for seed in args.seeds:
                     between, planted = plant(base, fraction, seed, kind)
-                    consistent = consistent_planted(between, planted, ref_values, base.graph.info.dim)
+                    consistent = consistent_planted(between, planted, ref_values, base.info.dim)
                     pg = with_edges(base, between)
                     pg.initial, _ = start_values(pg, "auto")
                     best = {"ours": None, "gtsam": None}
@@ -358,18 +359,18 @@ def suite(args) -> int:
 
 def tails(args) -> int:
     """The true closures' leave-one-out statistics at each graph's clean optimum, against χ²."""
-    from lie_factors.batch.leave_out import leave_out_chi2
-    from lie_factors.batch.losses import chi2_inlier_threshold
-    from lie_factors.kernels.elements import matrices_from_values
+    from lie_factors.robust.leave_out import leave_out_chi2
+    from lie_factors.robust.statistics import chi2_inlier_threshold
+    from lie_factors.interop import matrices_from_values
 
     print("# leave-one-out statistic T of every loop closure at the clean optimum (batch LM, chordal start)")
     print("| graph | loop closures | median T / median χ²_n | T quantile 0.99 / median | largest T / median |")
     print("|---|---|---|---|---|")
     for name in args.graphs:
         base = load_graph(name)
-        pg = base.posed()
+        pg = base.with_first_prior()
         values = reference_values(base)
-        X = matrices_from_values(values, base.group, base.graph.keys)
+        X = matrices_from_values(values, base.group, base.keys)
         lc = pg.loop_closures()
         T = leave_out_chi2(pg, X, np.ones(len(pg.edge_keys) + len(pg.prior_keys)), [lc[k:k + 1] for k in range(lc.size)])
         med = float(np.nanmedian(T))
@@ -380,7 +381,7 @@ def tails(args) -> int:
 
 def clean(args) -> int:
     """Every suite graph without planted closures: lie-factors' --gnc tls against plain LM."""
-    from lie_factors.app.backends import build_graph
+    from lie_factors.backends import build_graph
     from lie_factors.app.run import run
 
     print("# the suite's graphs without false loop closures: --gnc tls (batch) against plain LM (batch)")
@@ -393,7 +394,7 @@ def clean(args) -> int:
         graph = build_graph(base, "native")
         e_gnc, e_lm = float(graph.error(result.values)), float(graph.error(plain.values))
         stages = stage_counts(record.rejected_by)
-        print(f"| {base.name} | {len(base.graph.loop_closures())} | {len(record.outliers)}"
+        print(f"| {base.name} | {len(base.loop_closures())} | {len(record.outliers)}"
               f"{f' ({stages})' if stages else ''} | {e_gnc:.8g} | {e_lm:.8g} | {abs(e_gnc - e_lm) / e_lm:.1e} |",
               flush=True)
     return 0
@@ -453,8 +454,8 @@ def main(argv=None) -> int:
         pg, planted, ref, start = prepare(name, args.fraction, args.seed, start=args.start)
         print(f"# {pg.name}: start {start}", flush=True)
         diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
-        label = f"{pg.name} ({pg.poses} poses, {len(planted)} false / " \
-                f"{len(pg.graph.loop_closures()) - len(planted)} true LC)"
+        label = f"{pg.name} ({pg.pose_count} poses, {len(planted)} false / " \
+                f"{len(pg.loop_closures()) - len(planted)} true LC)"
         for method in args.methods:
             # Repetitions alternate the backends, so both see the same machine load.
             best = {b: None for b in args.backends}

@@ -32,11 +32,11 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from lie_factors import atomic  # noqa: E402
+from lie_factors.util import atomic  # noqa: E402
 from lie_factors.app import run as P  # noqa: E402
-from lie_factors.app.backends import BACKENDS, build_graph  # noqa: E402
-from lie_factors.app.load import load  # noqa: E402
-from lie_factors.errors import PoseGraphError  # noqa: E402
+from lie_factors.backends import BACKENDS, build_graph  # noqa: E402
+from lie_factors.g2o import read_pose_graph  # noqa: E402
+from lie_factors.errors import InputError  # noqa: E402
 from lie_factors.initialization import METHODS as INIT_METHODS  # noqa: E402
 DEFAULT_DATASETS = ["parking-garage", "sphere2500", "torus3D", "intel", "MIT", "CSAIL", "smallGrid3D"]
 DEFAULT_BACKENDS = ["native", "dropin", "batch"]
@@ -56,16 +56,16 @@ def run_dataset(path: str, backends: list[str], max_iterations: int, log,
     The runs alternate (repeat ▸ start ▸ backend), so a slow spell of the shared
     machine hits every column alike.
     """
-    pg = load(path)
-    base = {"dataset": pg.name, "dim": "SE(3)" if pg.is3d else "SE(2)", "poses": pg.poses,
-            "factors": pg.edges + 1}
+    pg = read_pose_graph(path)
+    base = {"dataset": pg.name, "dim": "SE(3)" if pg.is3d else "SE(2)", "poses": pg.pose_count,
+            "factors": pg.edge_count + 1}
     rows = {init: dict(base, init=init) for init in inits}
     for backend in backends:
         try:
             # Warm-up outside the timing: the first call of each numba kernel
             # compiles it (~1 s), a one-off cost that is not per-iteration speed.
             build_graph(pg, backend).linearize(pg.initial)
-        except PoseGraphError as exc:  # e.g. our factors not importable
+        except InputError as exc:  # e.g. our factors not importable
             log(f"  {backend}: {exc}")
             for row in rows.values():
                 row[backend] = None
@@ -77,7 +77,7 @@ def run_dataset(path: str, backends: list[str], max_iterations: int, log,
                     continue
                 try:
                     record, _, _ = P.run(pg, backend, max_iterations, init=init)
-                except PoseGraphError as exc:
+                except InputError as exc:
                     log(f"  {backend} --init {init}: {exc}")
                     row[backend] = None
                     continue
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
     if args.output:
         try:
             atomic.check_writable(args.output)  # before spending minutes optimizing
-        except PoseGraphError as exc:
+        except InputError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     rows = []
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
         try:
             rows.extend(run_dataset(dataset_path(args.data_dir, name), args.backends, args.max_iterations,
                                     log, tuple(args.inits), args.repeat))
-        except PoseGraphError as exc:
+        except InputError as exc:
             log(f"  skipped: {exc}")
     table = markdown_table(rows, args.backends)
     print(table)

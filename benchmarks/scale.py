@@ -186,7 +186,7 @@ def _dense_flop_rate(k: int = 3000, repeats: int = 3) -> float:
     """CHOLMOD's flop rate on this machine: a dense SPD k×k matrix through batch.cholmod (FLOP/s)."""
     import numpy as np
 
-    from lie_factors.batch import cholmod
+    from lie_factors.sparse import cholmod
 
     M = np.random.default_rng(0).normal(size=(k, k))
     A = M @ M.T + k * np.eye(k)
@@ -218,10 +218,10 @@ def split(poses: int) -> dict:
     """The default command's steps in this process on the ``poses`` graph, with the peak RSS of each."""
     import gtsam
 
-    from lie_factors import memory
+    from lie_factors.util import memory
     from lie_factors.app import run
     from lie_factors.app.run import PoseGraphRun
-    from lie_factors.batch.cholmod import reuse_factor_memory
+    from lie_factors.sparse.cholmod import reuse_factor_memory
 
     run.PARALLEL_MIN_WORK = 0  # every size on all numba threads, so that per-factor costs compare
     path = graph_path(poses)

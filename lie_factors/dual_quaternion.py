@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 
 from lie_factors import quaternion as _quat
-from lie_factors.kernels import dispatch as _dispatch, public as _public, registry as _registry, validate as _validate
+from lie_factors.kernels import (dispatch as _dispatch, public as _public, registry as _registry, validate as _validate)
 from lie_factors.kernels.coeffs import a_theta, b_theta, c_theta, dot3, norm3
 from lie_factors.kernels.jit import kernel
 

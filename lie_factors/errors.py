@@ -1,9 +1,58 @@
-"""Exceptions shared by the pose-graph modules (kept apart so that none imports another for them)."""
+"""The exceptions lie_factors raises: one root, so that ``except lie_factors.LieFactorsError`` catches
+every failure the library reports on purpose (the command line maps them to exit status 2).
+
+- :class:`InputError` (also a ``ValueError``): bad input — a malformed file, arrays of
+  the wrong shape or values, an unknown option, key or backend. Its message is one
+  line naming what was expected.
+- :class:`InitializationError`: an initializer cannot run on this graph.
+- :class:`NotPositiveDefinite` (also a ``numpy.linalg.LinAlgError``): a matrix that must be
+  positive definite is not, numerically; :class:`IndeterminantLinearSystem`, GTSAM's name
+  for it, when the graph does not determine every variable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
 
 
-class PoseGraphError(Exception):
-    """A user-facing problem (bad file, unknown backend, ...): one clear line."""
+class LieFactorsError(Exception):
+    """Root of every exception lie_factors raises on purpose."""
 
 
-class InitializationError(PoseGraphError):
+class InputError(LieFactorsError, ValueError):
+    """Bad input (file, arrays, option, key, backend): one line naming what was expected."""
+
+
+class InitializationError(InputError):
     """An initializer cannot run on this graph; the message is the one-line reason."""
+
+
+class NotPositiveDefinite(LieFactorsError, np.linalg.LinAlgError):
+    """A matrix that must be positive definite is not, numerically.
+
+    ``column``: the column of the matrix, as factored, where it showed (None if unknown).
+    """
+
+    def __init__(self, message: str, column: int | None = None):
+        super().__init__(message)
+        self.column = column
+
+
+class IndeterminantLinearSystem(NotPositiveDefinite):
+    """The linear system does not determine every variable (GTSAM's
+    ``IndeterminantLinearSystemException``): no prior fixes the gauge, or a variable is not
+    constrained by the factors so far.
+
+    ``variable``: the index of a variable near where it showed (GTSAM's ``nearbyVariable``), or None.
+    """
+
+    def __init__(self, message: str, variable: int | None = None):
+        super().__init__(message)
+        self.variable = variable
+
+
+def first_line(exc: BaseException, limit: int = 200) -> str:
+    """The first line of ``exc``'s message, at most ``limit`` characters (its type's name if empty):
+    what a one-line report of a failure from GTSAM or numpy shows."""
+    text = str(exc).strip()
+    return text.splitlines()[0][:limit] if text else type(exc).__name__

@@ -48,7 +48,7 @@ import numpy as np
 from .kernels import checks as _check, dispatch as _dispatch, registry as _registry, validate as _validate
 # The codes of check_element (validate.defect words them).
 from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION  # noqa: F401
-from .kernels.elements import pose3_from_rows
+from .interop import pose3_from_rows
 from .kernels.jit import kernel
 from .kernels.registry import GroupInfo
 from .kernels.checks import ORTHONORMAL_TOL
@@ -224,7 +224,7 @@ GROUPS = {info.gtsam: GroupSpec(info.gtsam, getattr(gtsam, info.gtsam), info, f"
           for info in _registry.GROUPS.values()}
 
 
-def _element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: str) -> ValueError:
+def element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: str) -> ValueError:
     """The error for a failed :func:`check_element` ``code`` of ``what`` (``X``) in ``factor``."""
     return ValueError(f"{factor}: {what}: {_validate.defect(code, spec.group, np.asarray(X))}")
 
@@ -291,7 +291,7 @@ class _Factor(gtsam.CustomFactor):
         AdMinv = np.empty((group.dim, group.dim))
         code = between_setup(group, M, Minv, AdMinv)
         if code != OK:
-            raise _element_error(spec, M, code, what, type(self).__name__)
+            raise element_error(spec, M, code, what, type(self).__name__)
         _constructed.add(group)
         gtsam.CustomFactor.__init__(self, noise_model, [key2] if key1 is None else [key1, key2], self._evaluate)
         self._noise = noise_model  # the batch solver reads it without a C++ round trip

@@ -34,7 +34,7 @@ from typing import Callable
 import numpy as np
 from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
-from .timing import Stopwatch
+from .util.timing import Stopwatch
 
 __all__ = [
     "MIN_MODEL_FIDELITY", "MIN_DIAGONAL", "MAX_DIAGONAL", "VERBOSITY", "VERBOSITY_LM", "COUT",

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-from lie_factors.kernels import dispatch as _dispatch, public as _public, registry as _registry, validate as _validate
+from lie_factors.kernels import (dispatch as _dispatch, public as _public, registry as _registry, validate as _validate)
 from lie_factors.kernels.coeffs import a_theta, norm3
 from lie_factors.kernels.jit import kernel
 

@@ -51,7 +51,7 @@ C_TAYLOR = 1.0
 
 # c_θ = Σ_k (-1)^k θ^{2k}/(2k+3)!  (Eade, Eq. 81, second sum); 10 terms reach
 # θ^18/21! < 2e-20 at |θ| = 1.
-_C_SERIES = np.array([(-1.0) ** k / math.factorial(2 * k + 3) for k in range(10)])
+C_SERIES = np.array([(-1.0) ** k / math.factorial(2 * k + 3) for k in range(10)])
 
 
 @_jit.kernel
@@ -71,8 +71,8 @@ def _c(th):
     if abs(th) < C_TAYLOR:
         t = th * th
         s = 0.0
-        for k in range(_C_SERIES.shape[0] - 1, -1, -1):
-            s = s * t + _C_SERIES[k]
+        for k in range(C_SERIES.shape[0] - 1, -1, -1):
+            s = s * t + C_SERIES[k]
         return s
     return (th - math.sin(th)) / (th * th * th)
 

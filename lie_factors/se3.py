@@ -30,9 +30,7 @@ from __future__ import annotations
 
 from lie_factors import so3 as _so3
 from lie_factors.kernels import public as _public, registry as _registry
-from lie_factors.kernels.coeffs import (
-    a_theta, b_theta, c_theta, dot3, e_omega, ef_omega, norm3, qa_theta, qb_theta,
-)
+from lie_factors.kernels.coeffs import (a_theta, b_theta, c_theta, dot3, e_omega, ef_omega, norm3, qa_theta, qb_theta)
 from lie_factors.kernels.jit import kernel
 
 _info = _registry.SE3
@@ -44,13 +42,13 @@ DIM, MAT = _info.dim, _info.mat
 
 
 @kernel
-def _rod9(w0, w1, w2, p, q):
+def rod9(w0, w1, w2, p, q):
     """I + p ω× + q ω×² as a 9-tuple (ω×² = ωωᵀ − θ² I, Eade Eq. 47)."""
-    return _lin9(w0, w1, w2, 1.0, p, q)
+    return lin9(w0, w1, w2, 1.0, p, q)
 
 
 @kernel
-def _lin9(w0, w1, w2, d, p, q):
+def lin9(w0, w1, w2, d, p, q):
     """d I + p ω× + q ω×² as a 9-tuple."""
     q01 = q * w0 * w1
     q02 = q * w0 * w2
@@ -132,8 +130,8 @@ def _exp(x, out):
     a = a_theta(th)
     b = b_theta(th)
     c = c_theta(th)
-    R = _rod9(w0, w1, w2, a, b)
-    V = _rod9(w0, w1, w2, b, c)
+    R = rod9(w0, w1, w2, a, b)
+    V = rod9(w0, w1, w2, b, c)
     for i in range(3):
         out[i, 0] = R[3 * i]
         out[i, 1] = R[3 * i + 1]
@@ -149,7 +147,7 @@ def _log(X, out):
     # (Jackson's V⁻¹ expression = Eade, Eq. 55).
     _so3._log(X, out)
     w0, w1, w2 = out[0], out[1], out[2]
-    Vi = _rod9(w0, w1, w2, -0.5, e_omega(w0, w1, w2))
+    Vi = rod9(w0, w1, w2, -0.5, e_omega(w0, w1, w2))
     t0, t1, t2 = X[0, 3], X[1, 3], X[2, 3]
     out[3] = Vi[0] * t0 + Vi[1] * t1 + Vi[2] * t2
     out[4] = Vi[3] * t0 + Vi[4] * t1 + Vi[5] * t2
@@ -159,8 +157,8 @@ def _log(X, out):
 @kernel
 def _ad(x, out):
     # ad_x = [[ω×, 0], [v×, ω×]] (Eade Eq. 61 with blocks swapped to [ω, v]).
-    W = _rod9(x[0], x[1], x[2], 1.0, 0.0)
-    U = _rod9(x[3], x[4], x[5], 1.0, 0.0)
+    W = rod9(x[0], x[1], x[2], 1.0, 0.0)
+    U = rod9(x[3], x[4], x[5], 1.0, 0.0)
     W = (0.0, W[1], W[2], W[3], 0.0, W[5], W[6], W[7], 0.0)
     U = (0.0, U[1], U[2], U[3], 0.0, U[5], U[6], U[7], 0.0)
     _write_block_lower(W, U, out)
@@ -191,7 +189,7 @@ def _dexp(x, out):
     # D_exp(x) = [[J, 0], [B, J]]: Eade Eq. (71) transposed to [ω, v].
     w0, w1, w2 = x[0], x[1], x[2]
     th = norm3(w0, w1, w2)
-    J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
+    J = rod9(w0, w1, w2, b_theta(th), c_theta(th))
     B = _B9(w0, w1, w2, x[3], x[4], x[5], th)
     _write_block_lower(J, B, out)
 
@@ -211,7 +209,7 @@ def _dlog(x, out):
     g = dot3(w0, w1, w2, u0, u1, u2)
     gf = g * f
     gd = -2.0 * e * g
-    L = _lin9(w0, w1, w2, gd, 0.0, gf)
+    L = lin9(w0, w1, w2, gd, 0.0, gf)
     e01 = e * (w0 * u1 + u0 * w1)
     e02 = e * (w0 * u2 + u0 * w2)
     e12 = e * (w1 * u2 + u1 * w2)
@@ -220,7 +218,7 @@ def _dlog(x, out):
         L[3] + e01 - 0.5 * u2, L[4] + 2.0 * e * w1 * u1, L[5] + e12 + 0.5 * u0,
         L[6] + e02 + 0.5 * u1, L[7] + e12 - 0.5 * u0, L[8] + 2.0 * e * w2 * u2,
     )
-    _write_block_lower(_rod9(w0, w1, w2, -0.5, e), L, out)
+    _write_block_lower(rod9(w0, w1, w2, -0.5, e), L, out)
 
 
 @kernel

@@ -6,7 +6,7 @@ Shapes: ``hat``, ``exp`` (..., 4) → (..., 3, 3); ``vee``, ``log`` (..., 3, 3) 
 :mod:`lie_factors.kernels.public` builds these functions (validation, broadcasting, the
 single-element fast path) around the cores below, which the factors call directly.
 
-The same vector, matrices and scale convention as GTSAM 4.3 (checked in tests/test_sim2.py):
+The same vector, matrices and scale convention as GTSAM 4.3 (checked in tests/kernels/test_sim2.py):
 ``gtsam.Similarity2.Expmap(v).matrix() == sim2.exp(v)``, ``Similarity2.Logmap(S) ==
 sim2.log(S.matrix())``, ``Similarity2.Hat == hat``, ``S.AdjointMap() == Ad(S.matrix())``;
 GTSAM's ``scale()`` is s = 1/X[2, 2] = e^λ. GTSAM's Expmap/Logmap lose accuracy near

@@ -5,7 +5,7 @@ Shapes: ``hat``, ``exp`` (..., 7) → (..., 4, 4); ``vee``, ``log`` (..., 4, 4) 
 ``inverse`` (..., 4, 4) → (..., 4, 4); ``compose`` (..., 4, 4) × (..., 4, 4) → (..., 4, 4).
 :mod:`lie_factors.kernels.public` builds these functions (validation, broadcasting, the
 single-element fast path) around the cores below, which the factors call directly.
-Tangent ordering and matrices are exactly GTSAM 4.3's (checked in tests/test_sim3.py)::
+Tangent ordering and matrices are exactly GTSAM 4.3's (checked in tests/kernels/test_sim3.py)::
 
     x = [ω (3), u (3), λ]                                   shape (..., 7)
     hat(x) = [[ω×, u], [0, −λ]]                              shape (..., 4, 4)
@@ -82,13 +82,10 @@ import numpy as np
 
 from lie_factors import so3 as _so3
 from lie_factors.kernels import public as _public, registry as _registry
-from lie_factors.kernels.coeffs import (
-    _A_SERIES, _C_SERIES, _E_SERIES, _QA_SERIES, _QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR,
-    QA_TAYLOR, QB_TAYLOR, _horner, _horner4, a_theta, b_theta, c_theta, dot3, norm3, rounded, theta_dd,
-)
+from lie_factors.kernels.coeffs import (A_SERIES, C_SERIES, E_SERIES, QA_SERIES, QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR, QA_TAYLOR, QB_TAYLOR, horner, horner4, a_theta, b_theta, c_theta, dot3, norm3, rounded, theta_dd)
 from lie_factors.kernels.jit import kernel
 from lie_factors import se3 as _se3
-from lie_factors.se3 import _lin9, _rod9
+from lie_factors.se3 import lin9, rod9
 
 _info = _registry.SIM3
 DIM, MAT = _info.dim, _info.mat
@@ -140,8 +137,8 @@ def _theta_abc(th):
     h = 0.5 * th
     t = th * th
     if th < A_TAYLOR:
-        a = _horner(_A_SERIES, t)
-        ah = _horner(_A_SERIES, h * h)
+        a = horner(A_SERIES, t)
+        ah = horner(A_SERIES, h * h)
     else:
         sh = math.sin(h)
         ch = math.cos(h)
@@ -149,7 +146,7 @@ def _theta_abc(th):
         ah = sh / h
     b = 0.5 * ah * ah
     if th < C_TAYLOR:
-        c = _horner(_C_SERIES, t)
+        c = horner(C_SERIES, t)
     else:
         c = (1.0 - a) / t
     return a, b, c
@@ -162,11 +159,11 @@ def _theta5(th):
     a, b, c = _theta_abc(th)
     t = th * th
     if th < QA_TAYLOR:
-        qa = _horner(_QA_SERIES, t)
+        qa = horner(QA_SERIES, t)
     else:
         qa = (a - 2.0 * b) / t
     if th < QB_TAYLOR:
-        qb = _horner(_QB_SERIES, t)
+        qb = horner(QB_SERIES, t)
     else:
         qb = (b - 3.0 * c) / t
     return a, b, c, qa, qb
@@ -180,7 +177,7 @@ def _lam3(lam):
         # one transcendental: e^λ = 1 + expm1(λ) keeps its relative accuracy for |λ| < 1/2
         em = math.expm1(lam)
         A = em / lam if lam != 0.0 else 1.0
-        return 1.0 + em, A, _horner4(_DPHI1_SERIES, lam)
+        return 1.0 + em, A, horner4(_DPHI1_SERIES, lam)
     E = math.exp(lam)
     A = (E - 1.0) / lam  # |λ| ≥ L_TAYLOR: e^λ − 1 loses < 2 ulps
     return E, A, (E - A) / lam
@@ -350,7 +347,7 @@ def _winv_coefs(th, a1, b1, c1, r1):
 @kernel
 def _Winv(w0, w1, w2, th, a1, b1, c1, r1):
     al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
-    return _lin9(w0, w1, w2, al0, al1, al2)
+    return lin9(w0, w1, w2, al0, al1, al2)
 
 
 @kernel
@@ -400,7 +397,7 @@ def _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2
     f0 = al0 * d0 - al1 * os
     f1 = al0 * dd1 + al1 * d0 - t2 * (al1 * d2 + al2 * dd1) - al2 * os
     f2 = al0 * d2 + al1 * dd1 + al2 * d0 - t2 * al2 * d2
-    P = _lin9(w0, w1, w2, f0, f1, f2)
+    P = lin9(w0, w1, w2, f0, f1, f2)
     a0p0 = al0 * p0
     a0p1 = al0 * p1
     a0p2 = al0 * p2
@@ -442,10 +439,10 @@ def _exp(x, out):
     lam = x[6]
     th = norm3(w0, w1, w2)
     E, a1, b1, c1, a, b = _wcoefs(lam, th)
-    R = _rod9(w0, w1, w2, a, b)
+    R = rod9(w0, w1, w2, a, b)
     # t = ∫₀¹ e^{(1−τ)Ω} u e^{−τλ} dτ = e^{−λ} φ1(Ω + λI) u
     c = 1.0 / E
-    W = _lin9(w0, w1, w2, c * a1, c * b1, c * c1)
+    W = lin9(w0, w1, w2, c * a1, c * b1, c * c1)
     t = _mv(W, x[3], x[4], x[5])
     for i in range(3):
         out[i, 0] = R[3 * i]
@@ -573,7 +570,7 @@ def _L_spectral(w0, w1, w2, u0, u1, u2, th, gu, AB, CD, GH):
     k5 = H
     k6 = G - C
     o = _cross(w0, w1, w2, u0, u1, u2)
-    S = _lin9(w0, w1, w2, k3 * gu, k1 * gu, k2 * gu)
+    S = lin9(w0, w1, w2, k3 * gu, k1 * gu, k2 * gu)
     return (
         S[0] + k4 * u0 * w0 + k5 * w0 * u0 + k6 * o[0] * w0,
         -G * u2 + S[1] + k4 * u0 * w1 + k5 * w0 * u1 + k6 * o[0] * w1,
@@ -611,7 +608,7 @@ def _parts(x):
 @kernel
 def _fB(w0, w1, w2, th, fl, fz):
     """f(B) = f(λ) I + (Im f(z)/θ) Ω + ((f(λ) − Re f(z))/θ²) Ω², formula (F), as a 9-tuple."""
-    return _lin9(w0, w1, w2, fl, fz.imag / th, (fl - fz.real) / (th * th))
+    return lin9(w0, w1, w2, fl, fz.imag / th, (fl - fz.real) / (th * th))
 
 
 @kernel
@@ -619,14 +616,14 @@ def _dexp(x, out):
     w0, w1, w2, u0, u1, u2, lam, th = _parts(x)
     if th < SPECTRAL:
         a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
-        J = _rod9(w0, w1, w2, b_theta(th), c_theta(th))
-        W = _lin9(w0, w1, w2, a1, b1, c1)
+        J = rod9(w0, w1, w2, b_theta(th), c_theta(th))
+        W = lin9(w0, w1, w2, a1, b1, c1)
         if abs(lam) < LAM_SPECTRAL:
             Q = _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J)
         else:
             AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
             Q = _L_spectral(w0, w1, w2, u0, u1, u2, th, w0 * u0 + w1 * u1 + w2 * u2, AB, CD, GH)
-        q = _mv(_lin9(w0, w1, w2, -a2, -b2, -c2), u0, u1, u2)
+        q = _mv(lin9(w0, w1, w2, -a2, -b2, -c2), u0, u1, u2)
         _write_blocks(J, Q, W, q, out)
         return
     # θ ≥ SPECTRAL: |z| ≥ 1, the complex closed forms have no cancellation
@@ -639,7 +636,7 @@ def _dexp(x, out):
     f_z = complex(A * lam * co - omc, E * sn) / z
     p2_z = (f_z - 1.0) / z  # φ2(z)
     t2 = th * th
-    J = _rod9(w0, w1, w2, omc / t2, (th - sn) / (t2 * th))
+    J = rod9(w0, w1, w2, omc / t2, (th - sn) / (t2 * th))
     W = _fB(w0, w1, w2, th, A, f_z)
     p2 = _mv(_fB(w0, w1, w2, th, a2, p2_z), u0, u1, u2)
     q = (-p2[0], -p2[1], -p2[2])
@@ -655,11 +652,11 @@ def _dlog(x, out):
     w0, w1, w2, u0, u1, u2, lam, th = _parts(x)
     if th < SPECTRAL:
         # θ < SPECTRAL < E_TAYLOR: e_θ is its Taylor band; the θ computed above (no second norm)
-        ek = _horner4(_E_SERIES, th * th)
-        Ji = _rod9(w0, w1, w2, -0.5, ek)
+        ek = horner4(E_SERIES, th * th)
+        Ji = rod9(w0, w1, w2, -0.5, ek)
         a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
         al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
-        Wi = _lin9(w0, w1, w2, al0, al1, al2)
+        Wi = lin9(w0, w1, w2, al0, al1, al2)
         if abs(lam) < LAM_SPECTRAL:
             L = _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2)
         else:
@@ -671,7 +668,7 @@ def _dlog(x, out):
             CD = -g_z * CD
             GH = -g_it * GH / a1
             L = _L_spectral(w0, w1, w2, u0, u1, u2, th, dot3(w0, w1, w2, u0, u1, u2), AB, CD, GH)
-        q = _mv(_lin9(w0, w1, w2, a2, b2, c2), u0, u1, u2)
+        q = _mv(lin9(w0, w1, w2, a2, b2, c2), u0, u1, u2)
         p = _mv(Wi, q[0], q[1], q[2])
         _write_blocks(Ji, L, Wi, p, out)
         return
@@ -680,8 +677,8 @@ def _dlog(x, out):
     # e_θ = 1/θ² − cot(θ/2)/(2θ) (Eade, Eq. 57), cot(θ/2) = sin θ/(1 − cos θ) from the
     # (reflected) values above; its Taylor band below E_TAYLOR
     cot2 = sn / omc  # cot(θ/2)
-    ek = _horner4(_E_SERIES, t2) if th < E_TAYLOR else 1.0 / t2 - cot2 / (2.0 * th)
-    Ji = _rod9(w0, w1, w2, -0.5, ek)
+    ek = horner4(E_SERIES, t2) if th < E_TAYLOR else 1.0 / t2 - cot2 / (2.0 * th)
+    Ji = rod9(w0, w1, w2, -0.5, ek)
     E, A, I1 = _lam3(lam)
     a2 = A - I1 if abs(lam) < L_TAYLOR else (A - 1.0) / lam
     z = complex(lam, th)

@@ -8,7 +8,7 @@ import pytest
 @pytest.fixture(params=["direct", "cvxopt"])
 def cholmod_way(request, monkeypatch):
     """Both ways into CHOLMOD: direct (ctypes), and cvxopt's API."""
-    from lie_factors.batch import cholmod
+    from lie_factors.sparse import cholmod
 
     if request.param == "cvxopt":
         monkeypatch.setenv("LIE_FACTORS_CHOLMOD", "cvxopt")

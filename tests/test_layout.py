@@ -1,15 +1,18 @@
 """The package's layers: every import points down, and no module imports itself back.
 
-Layers, bottom up (docs/architecture.md):
+Ranks, bottom up (docs/architecture.md); a module takes the rank of the longest
+prefix listed, and may import only modules of its rank or below:
 
-0. utilities: ``errors``, ``stack``, ``atomic``, ``timing``, ``arrays``, ``memory``, ``lazy``;
-1. kernels: ``kernels.*`` and the group modules (``so3`` … ``sim3``, ``quaternion``,
+0. utilities: ``util``, ``errors``;
+1. kernels: ``kernels`` and the group modules (``so3`` … ``sim3``, ``quaternion``,
    ``dual_quaternion``);
-2. ``factors``;
-3. solvers: ``lm``, ``pose_graph``, ``topology``, ``batch``, ``incremental``, ``optimizers``,
-   ``initialization``, ``dropin``;
-4. g2o I/O: ``g2o``;
-5. the app: ``app``.
+2. ``interop`` (GTSAM objects ⇄ arrays); 3. ``factors``;
+4. the data model, ``posegraph``; 5. g2o files, ``g2o``;
+6. the solvers, ordered: ``lm`` < ``optimizers`` < ``dropin`` < ``sparse`` <
+   ``robust.losses`` and ``robust.statistics`` (the batch solver's robust costs) < ``batch`` <
+   ``initialization`` < ``incremental`` < the rest of ``robust`` < ``backends``;
+7. the front door (``solve``, ``result``, the package's ``__init__``);
+8. the app: ``app``.
 
 ``testing`` (oracles and generators) stands apart: no library module imports it; the app may
 (``lie-factors crosscheck`` prints the oracles' verdicts).  Every import counts, at module level
@@ -25,16 +28,19 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "lie_factors"
 
-LAYERS = {
-    "errors": 0, "stack": 0, "atomic": 0, "timing": 0, "arrays": 0, "memory": 0, "lazy": 0,
-    "kernels": 1, "so3": 1, "se3": 1, "se2": 1, "sim2": 1, "sim3": 1, "quaternion": 1,
-    "dual_quaternion": 1,
-    "factors": 2,
-    "lm": 3, "pose_graph": 3, "topology": 3, "batch": 3, "incremental": 3, "optimizers": 3,
-    "initialization": 3,
-    "dropin": 3,
-    "g2o": 4,
-    "app": 5,
+#: (module prefix, rank): the longest matching prefix gives a module's rank.
+RANKS = {
+    "util": 0, "errors": 0,
+    "kernels": 1, "so3": 1, "se3": 1, "se2": 1, "sim2": 1, "sim3": 1, "quaternion": 1, "dual_quaternion": 1,
+    "interop": 2,
+    "factors": 3,
+    "posegraph": 4,
+    "g2o": 5,
+    "lm": 6.0, "optimizers": 6.1, "dropin": 6.2, "sparse": 6.3,
+    "robust.losses": 6.4, "robust.statistics": 6.4,
+    "batch": 6.5, "initialization": 6.6, "incremental": 6.7, "robust": 6.8, "backends": 6.9,
+    "solve": 7, "result": 7, "": 7,
+    "app": 8,
 }
 APART = "testing"
 
@@ -79,16 +85,19 @@ def _unit(module: str) -> str:
 
 
 def _layer(module: str):
-    unit = _unit(module)
-    if unit == "":
-        return 0  # the package's own __init__
-    if unit == APART:
+    """The rank of ``module`` (None: the test oracles, apart)."""
+    if _unit(module) == APART:
         return None
-    return LAYERS[unit]
+    parts = module.split(".")[1:]
+    for k in range(len(parts), -1, -1):
+        prefix = ".".join(parts[:k])
+        if prefix in RANKS:
+            return RANKS[prefix]
+    raise KeyError(module)
 
 
 def test_every_module_has_a_layer():
-    unknown = sorted({_unit(m) for m in MODULES} - set(LAYERS) - {"", APART})
+    unknown = sorted({_unit(m) for m in MODULES} - set(RANKS) - {"", APART})
     assert not unknown, f"modules outside the layer table: {unknown}"
 
 
@@ -100,7 +109,7 @@ def test_imports_point_down(path):
     for target in sorted(_imports(path)):
         theirs = _layer(target)
         if theirs is None:  # testing: only the app and testing itself may import it
-            if mine is not None and mine < LAYERS["app"]:
+            if mine is not None and mine < RANKS["app"]:
                 wrong.append(f"{target} (test oracles stand apart)")
         elif mine is not None and theirs > mine:
             wrong.append(f"{target} (layer {theirs} above {mine})")
@@ -131,3 +140,58 @@ def test_no_import_cycles():
         if m not in seen:
             visit(m)
     assert not cycles, "import cycles: " + "; ".join(" → ".join(c) for c in cycles)
+
+
+#: The group modules are one part: each group's cores (``_exp``, ``_compose``, …, the compiled
+#: single-element functions behind the public ones) are built from the others'.
+GROUP_MODULES = {"so3", "se3", "se2", "sim2", "sim3", "quaternion", "dual_quaternion"}
+
+
+def _part(module: str) -> str:
+    unit = _unit(module)
+    return "groups" if unit in GROUP_MODULES else unit
+
+
+def _private_uses(path: Path) -> list[str]:
+    """Private names (``_x``, not dunders) of another part of the package that ``path`` uses:
+    imported by name, or read as an attribute of a module it imported."""
+    here = _module_name(path)
+    package = here if path.name == "__init__.py" else here.rpartition(".")[0]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    aliases = {}  # local name → module of another part
+    found = []
+
+    def private(name: str) -> bool:
+        return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] != "lie_factors":
+                continue
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                if sub in MODULES:
+                    if _part(sub) != _part(here):
+                        aliases[alias.asname or alias.name] = sub
+                elif private(alias.name) and _part(target) != _part(here):
+                    found.append(f"{target}.{alias.name}")
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name in MODULES and alias.asname and _part(alias.name) != _part(here):
+                    aliases[alias.asname] = alias.name
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                and node.value.id in aliases and private(node.attr)):
+            found.append(f"{aliases[node.value.id]}.{node.attr}")
+    return sorted(set(found))
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: _module_name(p))
+def test_no_private_name_crosses_a_package(path):
+    used = _private_uses(path)
+    assert not used, f"{_module_name(path)} uses private names of another part: {used}"

@@ -31,10 +31,6 @@ PROG = "lie-factors"
 EXIT_USAGE = 2
 
 
-class CLIError(Exception):
-    """Reported as ``lie-factors: error: <message>``, exit status 2."""
-
-
 # --------------------------------------------------------------------------- #
 # helpers
 # --------------------------------------------------------------------------- #
@@ -67,7 +63,7 @@ def _say(args, text: str) -> None:
 
 def _report_compile(args) -> None:
     """One stderr line if this process compiled numba kernels (a first run on this machine)."""
-    from lie_factors.timing import compile_seconds
+    from lie_factors.util.timing import compile_seconds
 
     seconds = compile_seconds()
     if seconds > 0 and not args.quiet:
@@ -104,7 +100,7 @@ def _bounded_int(option: str, low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
-#: lie_factors.app.backends.BACKENDS and ALIASES, spelled out so that building the parser
+#: lie_factors.backends.BACKENDS and ALIASES, spelled out so that building the parser
 #: does not import GTSAM (a test checks they agree).
 BACKENDS = ("native", "dropin", "batch")
 BACKEND_ALIASES = {"custom": "dropin"}
@@ -198,25 +194,29 @@ def _positive_float(text: str) -> float:
 
 
 def _refuse_batch_options(args) -> None:
+    from lie_factors.errors import InputError
+
     for option, value, default in (("--robust", args.robust, None), ("--robust-all", args.robust_all, False),
                                    ("--gnc", args.gnc, None), ("--init", args.init, "auto"),
                                    ("--max-iterations", args.max_iterations, 100)):
         if value != default:
-            raise CLIError(f"{option} does not apply to --incremental (ISAM2 replays the file "
+            raise InputError(f"{option} does not apply to --incremental (ISAM2 replays the file "
                            "online from its own estimates)")
 
 
 def _run_posegraph(args) -> int:
     """Parse → :class:`lie_factors.app.run.PoseGraphRun` (or, with ``--incremental``, its ISAM2
     replay) → print; the run owns every step."""
+    from lie_factors.errors import InputError
+
     import time
 
     if args.incremental:
         _refuse_batch_options(args)
     elif args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
-        raise CLIError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
+        raise InputError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
     if args.no_consistency and not args.gnc:
-        raise CLIError("--no-consistency applies to --gnc only")
+        raise InputError("--no-consistency applies to --gnc only")
     t = time.perf_counter()
     from lie_factors.app import run as pgm
 
@@ -225,7 +225,7 @@ def _run_posegraph(args) -> int:
     def progress_line(text: str) -> None:
         """A progress line on stderr: elapsed seconds, memory, what is done."""
         if not args.quiet:
-            from lie_factors import memory
+            from lie_factors.util import memory
 
             print(f"[{time.perf_counter() - t:8.2f} s, {memory.describe()}] {text}", file=sys.stderr, flush=True)
 
@@ -238,7 +238,7 @@ def _run_posegraph(args) -> int:
                            f"{args.relinearize_threshold:g}, skip {args.relinearize_skip}), backend {run.backend}")
                 return
             _say(args, f"{pg.describe()}"
-                       f"{' (no vertices in the file)' if pg.initialized_from_edges else ''}; "
+                       f"{' (no vertices in the file)' if pg.vertices is None else ''}; "
                        f"backend {run.backend}")
             if run.robust is not None:
                 what = "every edge" if args.robust_all else "the loop closures"
@@ -258,7 +258,7 @@ def _run_posegraph(args) -> int:
 
         def iteration(self, info):
             if not args.quiet:
-                from lie_factors import memory
+                from lie_factors.util import memory
                 from lie_factors.lm import format_iteration
 
                 print(f"{format_iteration(info)}  [{time.perf_counter() - t:8.2f} s, {memory.describe()}]",
@@ -286,7 +286,7 @@ def _run_posegraph(args) -> int:
             _report_compile(args)
             status = "converged" if record.converged else "stopped (not converged)"
             if args.gnc:
-                n_lc = len(run.pg.graph.loop_closures())
+                n_lc = len(run.pg.loop_closures())
                 stages = ""
                 if record.rejected_by is not None:
                     counts = {}
@@ -361,15 +361,17 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
 def _demo_files(args) -> tuple[str, str]:
     """The demo's (trajectory.png, optimized.g2o) in ``--output``, the directory created if missing,
     the g2o path checked writable."""
-    from lie_factors import atomic
+    from lie_factors.errors import InputError
+
+    from lie_factors.util import atomic
 
     out_dir = args.output
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise CLIError(f"{out_dir}: exists and is not a directory")
+        raise InputError(f"{out_dir}: exists and is not a directory")
     try:
         os.makedirs(out_dir, exist_ok=True)
     except OSError as exc:
-        raise CLIError(f"{out_dir}: cannot create directory ({exc.strerror})") from None
+        raise InputError(f"{out_dir}: cannot create directory ({exc.strerror})") from None
     files = os.path.join(out_dir, "trajectory.png"), os.path.join(out_dir, "optimized.g2o")
     atomic.check_writable(files[1])
     return files
@@ -377,7 +379,8 @@ def _demo_files(args) -> tuple[str, str]:
 
 def _write_demo(args, files: tuple[str, str], between, values, trajectories: dict, title: str) -> None:
     """The optimized graph (g2o) and the trajectories (png), each written atomically."""
-    from lie_factors import atomic, g2o
+    from lie_factors.util import atomic
+    from lie_factors import g2o
     from lie_factors.app.plotting import plot_trajectories
 
     png, g2o_path = files
@@ -395,7 +398,8 @@ def _demo_record(args, dataset: str, graph, result, ate0: float, ate1: float, sc
 
 
 def _run_demo(args) -> int:
-    from lie_factors.app import backends, demo
+    from lie_factors import backends
+    from lie_factors.app import demo
 
     if args.poses is None:
         args.poses = DEMO_SCENARIOS[args.scenario][0]
@@ -433,10 +437,13 @@ def _run_demo(args) -> int:
 def _run_demo_sim3(args) -> int:
     """The scale-drift scenario (:mod:`lie_factors.app.demo_sim3`): ours and GTSAM's native
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
-    from lie_factors.app import backends, demo_sim3
+    from lie_factors.errors import InputError
+
+    from lie_factors import backends
+    from lie_factors.app import demo_sim3
 
     if args.backend == "native":
-        raise CLIError("--scenario sim3 always runs GTSAM's native factors beside ours; "
+        raise InputError("--scenario sim3 always runs GTSAM's native factors beside ours; "
                        "choose --backend dropin or batch for ours")
     files = _demo_files(args)
     backends.load_factors(args.backend)  # a clear error now if ours are unavailable
@@ -503,13 +510,15 @@ OPTIONAL_SUBCOMMANDS: dict[str, tuple[str, str]] = {
 
 def _unavailable(name: str, exc: Exception) -> tuple[str, Callable, Callable]:
     """A stand-in for an optional subcommand whose module exists but fails to import."""
+    from lie_factors.errors import InputError
+
     reason = f"{type(exc).__name__}: {exc}"
 
     def add(parser):
         parser.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
 
     def run(args):
-        raise CLIError(f"{name} is unavailable ({reason})")
+        raise InputError(f"{name} is unavailable ({reason})")
 
     return (f"(unavailable: {reason})", add, run)
 
@@ -589,9 +598,9 @@ def build_parser(load=None) -> tuple[argparse.ArgumentParser, dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit status (the console script runs it through :func:`entry`)."""
-    from lie_factors.errors import PoseGraphError
+    """Run the CLI; returns the exit status (the console script runs it through :func:`entry`).
 
+    Every :class:`lie_factors.errors.LieFactorsError` is one line on stderr and exit status 2."""
     argv = sys.argv[1:] if argv is None else list(argv)
     # Import only the optional subcommand being run (none for --help).
     parser, commands = build_parser(load=argv[:1])
@@ -602,12 +611,16 @@ def main(argv: list[str] | None = None) -> int:
         else:
             args = parser.parse_args(argv)  # argparse itself exits 2 on usage errors
             status = commands[args.command][2](args)
-    except (CLIError, PoseGraphError) as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
     except KeyboardInterrupt:
         print(f"{PROG}: error: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        from lie_factors.errors import LieFactorsError  # here, not above: --help stays free of numpy
+
+        if not isinstance(exc, LieFactorsError):
+            raise
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     return 0 if status is None else int(status)
 
 

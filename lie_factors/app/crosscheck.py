@@ -27,7 +27,8 @@ from typing import Callable
 import gtsam
 import numpy as np
 
-from ..kernels import elements, registry
+from .. import interop
+from ..kernels import registry
 from ..testing import reference as ref
 
 #: Every group of the registry and its kernel module.
@@ -101,7 +102,7 @@ def _gtsam_functions() -> dict[tuple[str, str], Callable]:
     for group, info in registry.GROUPS.items():
         cls = getattr(gtsam, info.gtsam)
         f[(group, "exp")] = lambda x, cls=cls: np.asarray(cls.Expmap(x).matrix())
-        f[(group, "log")] = lambda X, cls=cls, group=group: np.asarray(cls.Logmap(elements.to_gtsam(group, X)))
+        f[(group, "log")] = lambda X, cls=cls, group=group: np.asarray(cls.Logmap(interop.to_gtsam(group, X)))
         if hasattr(cls, "ExpmapDerivative"):
             # GTSAM's derivatives are right Jacobians: ExpmapDerivative(x) = D_exp(-x)
             f[(group, "dexp")] = lambda x, cls=cls: np.asarray(cls.ExpmapDerivative(x))

@@ -171,10 +171,10 @@ class Comparison:
 def compare(problem: Problem, backend: str = "dropin", max_iterations: int = 100,
             progress=None) -> Comparison:
     """Optimize ``problem`` with our factors (``backend`` dropin or batch, of
-    :mod:`lie_factors.app.backends`) and with GTSAM's native ones, same start and
+    :mod:`lie_factors.backends`) and with GTSAM's native ones, same start and
     :func:`lm_params`; ``progress`` gets our iterations."""
     from .. import factors
-    from . import backends
+    from .. import backends
 
     graph = build_graph(problem, factors)
     native_graph = build_graph(problem, gtsam)

@@ -38,12 +38,13 @@ import numpy as np
 
 import gtsam
 
-from ..errors import PoseGraphError
+from ..errors import InputError
 from ..kernels import registry
-from ..kernels.elements import to_gtsam, values_from_matrices
-from ..timing import Stopwatch, warm_up_factors
-from .backends import build_graph
-from .load import Dataset, is_landmark_key
+from ..interop import to_gtsam, values_from_matrices
+from ..util.timing import Stopwatch, warm_up_factors
+from ..backends import build_graph
+from ..posegraph.graph import PoseGraph
+from ..posegraph.landmarks import is_landmark_key
 from .record import Record
 from .run import PoseGraphRun, RunEvents
 
@@ -65,27 +66,27 @@ class Step:
     odometry: tuple[int, bool] | None = None
 
 
-def schedule(ds: Dataset, factors) -> list[Step]:
+def schedule(ds: PoseGraph, factors) -> list[Step]:
     """The updates of the replay of ``factors``: a graph built by
-    :func:`lie_factors.app.backends.build_graph` from ``ds`` (file edge k is factor k, then the
+    :func:`lie_factors.backends.build_graph` from ``ds`` (file edge k is factor k, then the
     prior, then the landmark measurements), or the keys of those factors in that order."""
     if isinstance(factors, gtsam.NonlinearFactorGraph):
         factors = [[int(key) for key in factors.at(k).keys()] for k in range(factors.size())]
-    order = ds.graph.keys.tolist()
+    order = ds.keys.tolist()
     position = {k: n for n, k in enumerate(order)}
     steps = [Step(k, []) for k in order]
     seen_landmarks: set[int] = set()
     for k, keys in enumerate(factors):
         poses = [key for key in keys if not is_landmark_key(key)]
         if not poses:
-            raise PoseGraphError(f"factor {k} has no pose: it cannot be placed in the replay")
+            raise InputError(f"factor {k} has no pose: it cannot be placed in the replay")
         step = steps[max(position[key] for key in poses)]
         step.factors.append(k)
         for key in keys:
             if is_landmark_key(key) and key not in seen_landmarks:
                 seen_landmarks.add(key)
                 step.landmarks.append(key)
-    for k, (i, j) in enumerate(ds.graph.edge_keys.tolist()):
+    for k, (i, j) in enumerate(ds.edge_keys.tolist()):
         a, b = position[i], position[j]
         if abs(a - b) == 1:
             step = steps[max(a, b)]
@@ -93,7 +94,7 @@ def schedule(ds: Dataset, factors) -> list[Step]:
                 step.odometry = (k, a < b)
     for step in steps:
         if not step.factors:
-            raise PoseGraphError(
+            raise InputError(
                 f"pose {step.key} has no edge to an earlier pose (in id order) and no prior: "
                 "it cannot be added online (--incremental needs every pose constrained when it appears)")
     return steps
@@ -140,7 +141,7 @@ def isam2_class(backend: str) -> type:
     return ISAM2
 
 
-def _landmark_initial(ds: Dataset, f, key: int, poses: gtsam.Values):
+def _landmark_initial(ds: PoseGraph, f, key: int, poses: gtsam.Values):
     """A landmark's initial value: its file vertex, else where its measurement ``f`` puts it
     from its pose's initial value (``poses``)."""
     lm = ds.landmarks
@@ -168,7 +169,7 @@ def _stop_after(n: int, total: int, clock: Stopwatch, progress, max_seconds: flo
     return max_seconds is not None and n + 1 < total and clock.seconds() > max_seconds
 
 
-def replay(ds: Dataset, backend: str = "dropin",
+def replay(ds: PoseGraph, backend: str = "dropin",
            params: gtsam.ISAM2Params | None = None,
            progress: Callable[[int, int, float], None] | None = None,
            graph: gtsam.NonlinearFactorGraph | None = None,
@@ -208,7 +209,7 @@ def replay(ds: Dataset, backend: str = "dropin",
     for n, (step, new_factors) in enumerate(zip(steps, batches)):
         if step.odometry is not None and previous is not None:
             k, forward = step.odometry
-            measured = to_gtsam(group, ds.graph.measured[k])
+            measured = to_gtsam(group, ds.measured[k])
             guess = previous.compose(measured if forward else measured.inverse())
         else:
             guess = at(ds.initial, step.key)
@@ -226,7 +227,7 @@ def replay(ds: Dataset, backend: str = "dropin",
             previous = estimate(isam, step.key)
         except (RuntimeError, ValueError) as exc:
             what = "update" if backend == "batch" else "ISAM2 update"
-            raise PoseGraphError(f"{what} {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}") from None
+            raise InputError(f"{what} {n + 1} (pose {step.key}) failed: {_first_sentence(exc)}") from None
         times[n] = time.perf_counter() - t0
         relinearized += int(result.getVariablesRelinearized())
         if _stop_after(n, len(steps), clock, progress, max_seconds):
@@ -242,7 +243,7 @@ def replay(ds: Dataset, backend: str = "dropin",
                   reorderings=getattr(isam, "reorderings", None))
 
 
-def replay_arrays(ds: Dataset, params=None, progress: Callable[[int, int, float], None] | None = None,
+def replay_arrays(ds: PoseGraph, params=None, progress: Callable[[int, int, float], None] | None = None,
                   max_seconds: float | None = None) -> Replay:
     """The replay of a pose graph (no landmarks) through :class:`lie_factors.incremental.Smoother`
     on arrays: the same updates, initial values and figures as :func:`replay`, and no factor
@@ -251,7 +252,7 @@ def replay_arrays(ds: Dataset, params=None, progress: Callable[[int, int, float]
     from ..batch.graph import Problem
     from ..incremental import FactorArrays, Smoother
 
-    pg = ds.posed()
+    pg = ds.with_first_prior()
     E = len(pg.edge_keys)
     fa = FactorArrays(pg.group, pg.edge_keys, pg.measured, pg.information, pg.prior_keys, pg.prior_measured,
                       pg.prior_information)
@@ -277,7 +278,7 @@ def replay_arrays(ds: Dataset, params=None, progress: Callable[[int, int, float]
             smoother.update_prepared(fa, [step.key], guess[None], edges[n], priors[n])
             previous = smoother.estimate_matrix(step.key)
         except ValueError as exc:
-            raise PoseGraphError(f"update {n + 1} (pose {step.key}) failed: {str(exc).strip()}") from None
+            raise InputError(f"update {n + 1} (pose {step.key}) failed: {str(exc).strip()}") from None
         times[n] = time.perf_counter() - t0
         if _stop_after(n, len(steps), clock, progress, max_seconds):
             times = times[:n + 1]

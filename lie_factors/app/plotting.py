@@ -7,9 +7,14 @@ matplotlib is imported by :func:`plot_trajectories` only.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from .load import landmark_keys, pose_keys
+from ..posegraph.landmarks import landmark_keys, pose_keys
+
+if TYPE_CHECKING:
+    import gtsam
 
 _STYLES = {
     "ground truth": dict(color="black", lw=1.5, ls="--"),

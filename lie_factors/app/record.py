@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from .load import Dataset
+from ..posegraph.graph import PoseGraph
 
 #: Keys of ``RunRecord.timings`` (``--json``): the steps of a :class:`~lie_factors.app.run.PoseGraphRun`, in order.
 TIMING_KEYS = ("imports", "read", "init", "setup", "iterations", "write")
@@ -25,9 +25,9 @@ class Record:
     factors: int
 
     @staticmethod
-    def of(ds: Dataset, backend: str, factors: int) -> dict:
+    def of(ds: PoseGraph, backend: str, factors: int) -> dict:
         """The fields of :class:`Record` for a run of ``backend`` on ``ds`` with ``factors`` factors."""
-        return dict(backend=backend, dataset=ds.name, dimension=3 if ds.is3d else 2, poses=ds.poses,
+        return dict(backend=backend, dataset=ds.name, dimension=3 if ds.is3d else 2, poses=ds.pose_count,
                     landmarks=ds.landmark_count, factors=int(factors))
 
     def to_dict(self) -> dict:
@@ -50,7 +50,7 @@ class RunRecord(Record):
     weighted cost Σ w_k·½‖R_k e_k‖², ``outliers`` lists the rejected edges
     (0-based, in the file's edge order) and ``rejected_by`` maps each of them
     (as a string) to the stage that rejected it: ``gate``, ``clique``, ``gnc``
-    or ``final`` (:mod:`lie_factors.batch.rejection`; absent with
+    or ``final`` (:mod:`lie_factors.robust.rejection`; absent with
     ``--no-consistency``).
     """
 

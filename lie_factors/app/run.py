@@ -3,14 +3,14 @@
 ``lie-factors posegraph`` is one; :func:`run` is one without outputs.  Step by step:
 
 1. check the invocation (backend, robust loss, output paths) before any work;
-2. load the file (:func:`lie_factors.app.load.load`: checked, its pose graph on arrays);
+2. load the file (:func:`lie_factors.g2o.read_pose_graph`: checked, its pose graph on arrays);
 3. initialize (:func:`lie_factors.initialization.initialize` on the pose graph and a
    prior on its first pose): ours on the arrays for the ``batch`` backend, GTSAM's own
    initializers for the others (so ``--backend native`` never loads numba);
 4. optimize: ``batch`` on a plain pose graph builds
    :meth:`lie_factors.batch.Problem.from_pose_graph` (no factor object); otherwise the
-   backend's graph (:func:`lie_factors.app.backends.build_graph`) and its LM
-   (:mod:`lie_factors.app.backends`), or GNC;
+   backend's graph (:func:`lie_factors.backends.build_graph`) and its LM
+   (:mod:`lie_factors.backends`), or GNC;
 5. write the output files (g2o, png), each atomically.
 
 ``lie-factors posegraph --incremental`` replays the file through ISAM2 instead of
@@ -25,15 +25,16 @@ from typing import Callable
 import gtsam
 import numpy as np
 
-from ..errors import PoseGraphError
+from ..errors import InputError, first_line
 from ..initialization import Initialization, initialize
 from ..lm import IterationInfo, OptimizeResult
-from ..timing import Stopwatch
-from .backends import _optimize_batch_robust, backend_name, build_graph, get_backend, load_factors, optimize
-from .load import Dataset, load
+from ..util.timing import Stopwatch
+from ..backends import optimize_batch_robust, backend_name, build_graph, get_backend, load_factors, optimize
+from ..g2o import read_pose_graph
+from ..posegraph.graph import PoseGraph
 from .record import TIMING_KEYS, Record, RunRecord
 
-#: --robust LOSS names the command accepts (a subset of lie_factors.batch.robust.LOSSES)
+#: --robust LOSS names the command accepts (a subset of lie_factors.robust.losses.LOSSES)
 CLI_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
 
 #: Factors × (tangent dimension)² below which the default path runs the batch loops on one
@@ -48,27 +49,27 @@ PARALLEL_MIN_WORK = 500_000
 def parse_robust(robust, robust_all: bool = False, gnc: str | None = None):
     """The run's robust loss: None, a ``RobustLoss`` as given, or one parsed from ``LOSS[:K]``.
 
-    Raises :class:`PoseGraphError` with a one-line reason (unknown loss or GNC
+    Raises :class:`InputError` with a one-line reason (unknown loss or GNC
     loss, bad parameter, ``robust_all`` without a loss, both robust and GNC).
     """
     if gnc is not None and gnc not in ("tls", "gm"):
-        raise PoseGraphError(f"--gnc: unknown loss {gnc!r} (choose from tls, gm)")
+        raise InputError(f"--gnc: unknown loss {gnc!r} (choose from tls, gm)")
     if robust is None:
         if robust_all:
-            raise PoseGraphError("--robust-all needs --robust LOSS")
+            raise InputError("--robust-all needs --robust LOSS")
         return None
     if isinstance(robust, str):
         name = robust.partition(":")[0].strip().lower()
         if name not in CLI_LOSSES:
-            raise PoseGraphError(f"--robust: unknown loss {name!r} (choose from {', '.join(CLI_LOSSES)})")
-        from lie_factors.batch.robust import parse_loss  # numba: only runs with a loss load it
+            raise InputError(f"--robust: unknown loss {name!r} (choose from {', '.join(CLI_LOSSES)})")
+        from lie_factors.robust.losses import parse_loss  # numba: only runs with a loss load it
 
         try:
             robust = parse_loss(robust)
         except ValueError as exc:
-            raise PoseGraphError(f"--robust: {exc}") from None
+            raise InputError(f"--robust: {exc}") from None
     if gnc:
-        raise PoseGraphError("--robust and --gnc are alternatives (GNC replaces the loss); give one")
+        raise InputError("--robust and --gnc are alternatives (GNC replaces the loss); give one")
     return robust
 
 
@@ -105,7 +106,7 @@ class PoseGraphRun:
     """One pose-graph run from reading to writing: ``lie-factors posegraph`` is one of these.
 
     :meth:`execute` checks the invocation (backend, loss, output paths)
-    before any work, then reads the file (:func:`~lie_factors.app.load.load`),
+    before any work, then reads the file (:func:`~lie_factors.g2o.read_pose_graph`),
     initializes (:func:`lie_factors.initialization.initialize`), optimizes with
     the backend, and writes ``output`` (g2o) and ``plot`` (png); ``events``
     (:class:`RunEvents`) hears each step.  The default path — ``batch`` on a
@@ -115,7 +116,7 @@ class PoseGraphRun:
     After :meth:`execute`: ``record`` (:class:`~lie_factors.app.record.RunRecord`),
     ``result`` (:class:`OptimizeResult`; ``result.values`` is built on first use
     by :meth:`values` when ``lazy_values``), ``pg`` (the
-    :class:`~lie_factors.app.load.Dataset`), ``start``, and ``timings``
+    :class:`~lie_factors.posegraph.graph.PoseGraph`), ``start``, and ``timings``
     (seconds: ``imports`` of the backend's modules, ``read`` (resolve, check,
     arrays), ``init``, ``setup`` (graph or problem, linear system, symbolic
     analysis), ``iterations``, ``write``).
@@ -135,7 +136,7 @@ class PoseGraphRun:
         self.events = events if events is not None else RunEvents()
         self.lazy_values = lazy_values
         self.timings: dict[str, float] = {}
-        self.pg: Dataset | None = dataset if isinstance(dataset, Dataset) else None
+        self.pg: PoseGraph | None = dataset if isinstance(dataset, PoseGraph) else None
         self.record: Record | None = None
         self.result: OptimizeResult | None = None
         self.start: Initialization | None = None
@@ -150,7 +151,7 @@ class PoseGraphRun:
         self._checked = True
         for path in (self.output, self.plot):
             if path:
-                from ..atomic import check_writable
+                from ..util.atomic import check_writable
 
                 check_writable(path)
 
@@ -160,15 +161,15 @@ class PoseGraphRun:
         return (self.backend == "batch" and self.robust is None and self.gnc is None
                 and self.pg is not None and self.pg.landmarks is None)
 
-    def load(self) -> Dataset:
+    def load(self) -> PoseGraph:
         if not self._checked:
             self.check()
         t = time.perf_counter()
         if self.pg is None:
-            self.pg = load(self.dataset)
+            self.pg = read_pose_graph(self.dataset)
         self.timings["read"] = time.perf_counter() - t
-        if self.gnc is not None and self.pg.graph.loop_closures().size == 0:
-            raise PoseGraphError(f"{self.pg.name}: --gnc needs loop closures (edges between "
+        if self.gnc is not None and self.pg.loop_closures().size == 0:
+            raise InputError(f"{self.pg.name}: --gnc needs loop closures (edges between "
                                  "non-consecutive poses); this graph has none")
         t = time.perf_counter()
         if not self.uses_arrays:  # the array path needs no factor namespace
@@ -188,15 +189,15 @@ class PoseGraphRun:
         (torus3D, batch: peak RSS 394 → 343 MiB; native 253).
         """
         pg, t = self.pg, time.perf_counter()
-        if pg.edges == 0 and self.init in ("auto", "file"):
+        if pg.edge_count == 0 and self.init in ("auto", "file"):
             # Landmark measurements only (e.g. one pose seeing one landmark): no pose
             # graph for an initializer to relax; the file's values are the start.
-            self.start = Initialization("file", 0.0, poses=pg.start_poses, keys=pg.graph.keys, group=pg.group)
+            self.start = Initialization("file", 0.0, poses=pg.start_poses, keys=pg.keys, group=pg.group)
         else:
             # Robust and GNC runs doubt the loop closures: auto starts from the odometry and the prior.
             doubt = self.gnc is not None or self.robust is not None
-            inliers = np.setdiff1d(np.arange(pg.edges), pg.graph.loop_closures()) if doubt else None
-            self.start = initialize(pg.posed(), self.init, inliers=inliers,
+            inliers = np.setdiff1d(np.arange(pg.edge_count), pg.loop_closures()) if doubt else None
+            self.start = initialize(pg.with_first_prior(), self.init, inliers=inliers,
                                     engine="lie_factors" if self.backend == "batch" else "gtsam")
         self._start_values = None
         if not self.lazy_values:  # a Python caller gets gtsam.Values at once
@@ -223,7 +224,7 @@ class PoseGraphRun:
             return self.result
         opt = get_backend(backend).optimize or optimize
         if self.robust is not None and backend == "batch":
-            opt = _optimize_batch_robust
+            opt = optimize_batch_robust
         result = opt(graph, start, max_iterations=self.max_iterations, progress=self.events.iteration)
         result.start = start
         self.timings["iterations"] = result.seconds
@@ -236,7 +237,6 @@ class PoseGraphRun:
 
     def _optimize_arrays(self) -> OptimizeResult:
         from lie_factors.batch import BatchLevenbergMarquardt, Problem
-        from lie_factors.batch.graph import BatchError, first_line
 
         pg = self.pg
         # Compilation of the kernels (first run on a machine) is not optimization time.
@@ -247,17 +247,17 @@ class PoseGraphRun:
 
         threads = numba.get_num_threads()
         try:
-            problem = Problem.from_pose_graph(pg.posed(), self.start.poses)
+            problem = Problem.from_pose_graph(pg.with_first_prior(), self.start.poses)
             if problem.graph_size * problem.blocks[pg.group].spec.dim ** 2 < PARALLEL_MIN_WORK:
                 numba.set_num_threads(1)
             self._opt = opt = BatchLevenbergMarquardt(problem, None, params)
             self.timings["setup"] = clock.seconds()
             self.events.set_up(self)
             result = opt.optimize(self.events.iteration, values=not self.lazy_values)
-        except BatchError as exc:
-            raise PoseGraphError(f"batch backend: {exc}") from None
+        except InputError as exc:
+            raise InputError(f"batch backend: {exc}") from None
         except RuntimeError as exc:
-            raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
+            raise InputError(f"optimization failed: {first_line(exc)}") from None
         finally:
             numba.set_num_threads(threads)
         result.seconds = clock.seconds()
@@ -283,14 +283,14 @@ class PoseGraphRun:
 
     def write(self) -> None:
         """Write ``output`` (the optimized graph, g2o) and ``plot`` (png), each atomically."""
-        from .. import atomic
+        from ..util import atomic
         from ..g2o import write_g2o
         from .plotting import edge_segments, landmark_positions, positions
 
         pg = self.pg
         t = time.perf_counter()
         if self.output:
-            write_g2o(self.output, pg.native_graph(), self.values())
+            write_g2o(self.output, pg.factor_graph(), self.values())
             self.events.wrote(self.output)
         if self.plot:
             from .plotting import plot_trajectories
@@ -302,7 +302,7 @@ class PoseGraphRun:
                        result_points: landmark_positions(values, pg.is3d)} if pg.landmark_count else None)
             rejected = getattr(self.record, "outliers", None)
             # under --robust/--gnc: the loop closures set aside, drawn between their optimized poses
-            segments = ({"rejected loop closures": edge_segments(trajectories[result], pg.graph, rejected)}
+            segments = ({"rejected loop closures": edge_segments(trajectories[result], pg, rejected)}
                         if rejected else None)
             atomic.replace_atomically(self.plot, lambda tmp: plot_trajectories(
                 tmp, trajectories, title, three_d=pg.is3d, points=points, segments=segments), suffix=".png")
@@ -316,7 +316,7 @@ class PoseGraphRun:
 
     def execute(self) -> Record:
         """check → load → initialize → optimize → write; returns the record."""
-        from ..batch.cholmod import reuse_factor_memory
+        from ..sparse.cholmod import reuse_factor_memory
 
         self.check()
         self.load()
@@ -331,7 +331,7 @@ class PoseGraphRun:
 
 
 def run(
-    dataset: str | Dataset,
+    dataset: str | PoseGraph,
     backend: str = "native",
     max_iterations: int = 100,
     progress: Callable[[IterationInfo], None] | None = None,
@@ -341,8 +341,8 @@ def run(
     robust_all: bool = False,
     gnc: str | None = None,
     gnc_progress: Callable | None = None,
-) -> tuple[RunRecord, OptimizeResult, Dataset]:
-    """Load (unless given a :class:`~lie_factors.app.load.Dataset`), initialize, optimize with ``backend``.
+) -> tuple[RunRecord, OptimizeResult, PoseGraph]:
+    """Load (unless given a :class:`~lie_factors.posegraph.graph.PoseGraph`), initialize, optimize with ``backend``.
 
     ``init``: a method of :func:`lie_factors.initialization.initialize`, run on
     the file's pose graph and the prior (every backend starts from the same
@@ -354,7 +354,7 @@ def run(
     :class:`~lie_factors.initialization.Initialization` before LM starts.
     ``result.start`` holds the values LM started from.
 
-    ``robust``: a :class:`lie_factors.batch.robust.RobustLoss` (or its text,
+    ``robust``: a :class:`lie_factors.robust.losses.RobustLoss` (or its text,
     ``huber:1.345``) on the loop closures (all edges with ``robust_all``).
     ``gnc``: "tls" or "gm" runs graduated non-convexity instead of plain LM
     (odometry edges and the prior are known inliers; ``max_iterations``
@@ -380,7 +380,7 @@ def run(
     return record, job.result, job.pg
 
 
-def _record(pg: Dataset, backend: str, factors: int, start: Initialization, result: OptimizeResult,
+def _record(pg: PoseGraph, backend: str, factors: int, start: Initialization, result: OptimizeResult,
             **extra) -> RunRecord:
     """The run's :class:`~lie_factors.app.record.RunRecord`: its graph's size, start and
     ``result``'s figures, plus ``extra`` fields."""
@@ -390,18 +390,18 @@ def _record(pg: Dataset, backend: str, factors: int, start: Initialization, resu
                      init_seconds=start.seconds, **extra)
 
 
-def _run_gnc(pg: Dataset, graph, start: Initialization, values: gtsam.Values, backend: str,
+def _run_gnc(pg: PoseGraph, graph, start: Initialization, values: gtsam.Values, backend: str,
              max_iterations: int, loss: str, gnc_progress: Callable | None,
              consistency: bool = True) -> tuple[RunRecord, OptimizeResult]:
     """GNC per backend: native = gtsam.GncLMOptimizer; dropin = our outer loop over GTSAM's LM
     with lie_factors factors (GTSAM's GncOptimizer cannot clone CustomFactors); batch = our
     outer loop over the batch solver.  The odometry and the prior are known inliers.  With
     ``consistency``, the loop closures go through the consistency stage first and the final
-    χ² check after (:func:`lie_factors.batch.rejection.reject_false_closures`)."""
-    from lie_factors.batch import gnc as gncm
-    from lie_factors.batch.rejection import reject_false_closures
+    χ² check after (:func:`lie_factors.robust.rejection.reject_false_closures`)."""
+    from lie_factors.robust import gnc as gncm
+    from lie_factors.robust.rejection import reject_false_closures
 
-    known = np.setdiff1d(np.arange(graph.size()), pg.graph.loop_closures())
+    known = np.setdiff1d(np.arange(graph.size()), pg.loop_closures())
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(int(max_iterations))
     params = gncm.GncParams(loss=loss, known_inliers=known.tolist(), lm_params=lm,
@@ -432,26 +432,26 @@ def _run_gnc(pg: Dataset, graph, start: Initialization, values: gtsam.Values, ba
         return out if isinstance(out, gtsam.Values) else out.to_values()
 
     def poses(v):
-        from lie_factors.kernels.elements import matrices_from_values
+        from lie_factors.interop import matrices_from_values
 
-        return matrices_from_values(v, pg.group, pg.graph.keys)
+        return matrices_from_values(v, pg.group, pg.keys)
 
     try:
         if consistency:
-            rejection = reject_false_closures(pg.posed(), run_gnc, errors, refine, poses, params)
+            rejection = reject_false_closures(pg.with_first_prior(), run_gnc, errors, refine, poses, params)
             res, rejected_by = rejection.gnc, rejection.rejected_by
             seconds = rejection.seconds
         else:
             res = run_gnc(params)
             rejected_by, seconds = None, res.seconds
     except RuntimeError as exc:
-        raise PoseGraphError(f"optimization failed: {str(exc).strip().splitlines()[0]}") from None
+        raise InputError(f"optimization failed: {first_line(exc)}") from None
     initial_error = float(graph.error(values))
     result = OptimizeResult(res.values, res.iterations, [initial_error, res.cost], [], seconds,
                             res.stop != "maxIterations")
     result.start = values
     if rejected_by is None:
-        outliers = [int(k) for k in res.outliers if k < pg.edges]
+        outliers = [int(k) for k in res.outliers if k < pg.edge_count]
     else:
         outliers = sorted(int(k) for k in rejected_by)
         rejected_by = {str(k): v for k, v in rejected_by.items()}

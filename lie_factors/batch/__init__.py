@@ -21,18 +21,18 @@ Usage::
     result.values, result.iterations, result.errors, result.seconds, result.timings
 """
 
-from ..lazy import exports
+from ..util.lazy import exports
 
 #: Public name → the submodule defining it.  Imported on first use (PEP 562), so that
-#: importing one submodule (say ``lie_factors.batch.losses``) does not load every
+#: importing one submodule (say ``lie_factors.robust.losses``) does not load every
 #: other one, and ``import lie_factors.batch`` alone loads neither numba nor GTSAM.
 _EXPORTS = {
-    "BatchError": "graph", "Problem": "graph",
+    "Problem": "graph",
     "BatchLevenbergMarquardt": "optimizer", "OptimizeResult": "optimizer",
-    "IndeterminantLinearSystem": "optimizer", "TIMING_KEYS": "optimizer", "optimize": "optimizer",
+    "TIMING_KEYS": "optimizer", "optimize": "optimizer",
     "run_batch": "optimizer",
-    "LINEAR_SOLVERS": "solvers", "NotPositiveDefinite": "solvers", "cholmod_available": "solvers",
-    "LinearSystem": "system", "Pattern": "system",
+    "LINEAR_SOLVERS": "solvers", "cholmod_available": "solvers",
+    "LinearSystem": "system",
 }
 
 __all__ = sorted(_EXPORTS)

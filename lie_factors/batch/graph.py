@@ -25,28 +25,19 @@ import gtsam
 import numpy as np
 
 from .. import factors as _factors
-from ..arrays import sorted_unique
-from ..kernels import elements
+from ..errors import InputError, first_line
+from ..util.arrays import sorted_unique
+from .. import interop
 from ..kernels.jit import kernel
 from .loops import GroupLoops
-from .losses import from_gtsam
-
-
-class BatchError(ValueError):
-    """Bad input to the batch optimizer (unsupported factor, missing key, ...)."""
+from ..robust.losses import from_gtsam
 
 
 def key_name(key: int) -> str:
     return gtsam.DefaultKeyFormatter(int(key))
 
 
-def first_line(exc: BaseException, limit: int = 200) -> str:
-    """First line of an exception message, truncated (GTSAM messages can embed whole objects)."""
-    text = str(exc).strip().splitlines()
-    return (text[0] if text else type(exc).__name__)[:limit]
-
-
-def _whitening(noise_model):
+def noise_whitening(noise_model):
     """Upper-triangular R with ‖R e‖² = Mahalanobis², or None if GTSAM must linearize."""
     if isinstance(noise_model, (gtsam.noiseModel.Robust, gtsam.noiseModel.Constrained)):
         return None
@@ -231,14 +222,14 @@ class FactorGroup:
 
 
 def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
-    """(N, m, m) matrices of ``keys`` in ``values``; BatchError naming a missing/mistyped key."""
+    """(N, m, m) matrices of ``keys`` in ``values``; InputError naming a missing/mistyped key."""
     try:
-        return elements.matrices_from_values(values, spec.name, keys)
+        return interop.matrices_from_values(values, spec.name, keys)
     except KeyError as exc:
-        raise BatchError(f"key {key_name(exc.args[0])} is used by a {spec.name} factor "
+        raise InputError(f"key {key_name(exc.args[0])} is used by a {spec.name} factor "
                          "but is missing from the initial Values") from None
     except TypeError as exc:
-        raise BatchError(f"key {key_name(exc.args[0])} must hold a gtsam.{spec.name} "
+        raise InputError(f"key {key_name(exc.args[0])} must hold a gtsam.{spec.name} "
                          f"(it is used by a {spec.name} factor)") from None
 
 
@@ -249,7 +240,7 @@ def matrices_of(values: gtsam.Values, group: str, keys) -> np.ndarray:
 
 def to_gtsam(spec, M: np.ndarray):
     """The GTSAM object of the element matrix ``M``."""
-    return elements.to_gtsam(spec.name, M)
+    return interop.to_gtsam(spec.name, M)
 
 
 class Problem:
@@ -280,7 +271,7 @@ class Problem:
 
     @classmethod
     def from_pose_graph(cls, pg, X: np.ndarray) -> "Problem":
-        """A :class:`lie_factors.pose_graph.PoseGraph`'s factors, with no factor object: its between
+        """A :class:`lie_factors.posegraph.graph.PoseGraph`'s factors, with no factor object: its between
         factors, then its priors, starting from the elements ``X`` (P, m, m) in ``pg.keys`` order.
 
         Factor k < E is Between(key1, key2, M_k) with error Log(M⁻¹·X1⁻¹·X2),
@@ -302,14 +293,14 @@ class Problem:
         self.groups = []
         edge_keys = np.asarray(pg.edge_keys, dtype=np.int64).reshape(E, 2)
         if E and (edge_keys[:, 0] == edge_keys[:, 1]).any():
-            raise BatchError("from_pose_graph: an edge connects a key to itself")
+            raise InputError("from_pose_graph: an edge connects a key to itself")
 
         def constants(M, what):
             Minv, codes = block.loops.setup(M)
             bad = np.flatnonzero(codes != _factors.OK)
             if bad.size:
                 k = int(bad[0])
-                raise BatchError(str(_factors._element_error(spec, np.asarray(M[k]), int(codes[k]),
+                raise InputError(str(_factors.element_error(spec, np.asarray(M[k]), int(codes[k]),
                                                              f"{what} {k}", "from_pose_graph")))
             return Minv
 
@@ -339,7 +330,7 @@ class Problem:
         pos = np.searchsorted(keys, used)
         if len(used) and (pos.max() >= len(keys) or (keys[np.minimum(pos, len(keys) - 1)] != used).any()):
             missing = used[(pos >= len(keys)) | (keys[np.minimum(pos, len(keys) - 1)] != used)][0]
-            raise BatchError(f"key {key_name(missing)} is used by a {spec.name} factor "
+            raise InputError(f"key {key_name(missing)} is used by a {spec.name} factor "
                              "but has no initial element")
         X = np.asarray(X, dtype=np.float64)
         # every key used, in order: the start itself (never written in place), else its rows
@@ -413,11 +404,11 @@ class Problem:
                     self.robust.pop(i, None)
             if R is None:
                 if not isinstance(f, gtsam.NonlinearFactor):
-                    raise BatchError(f"factor {i}: unsupported type {type(f).__name__}")
+                    raise InputError(f"factor {i}: unsupported type {type(f).__name__}")
                 keys = [int(k) for k in f.keys()]
                 for k in keys:
                     if not initial.exists(k):
-                        raise BatchError(f"factor {i} ({type(f).__name__}): key {key_name(k)} "
+                        raise InputError(f"factor {i} ({type(f).__name__}): key {key_name(k)} "
                                          "is missing from the initial Values")
                 self.native.append((i, f, keys))
                 continue
@@ -435,13 +426,13 @@ class Problem:
         if type(nm) in (gtsam.noiseModel.Gaussian, gtsam.noiseModel.Diagonal,
                         gtsam.noiseModel.Isotropic, gtsam.noiseModel.Unit):
             return nm.R(), None
-        R = _whitening(nm)
+        R = noise_whitening(nm)
         if R is None and self._group_robust and isinstance(nm, gtsam.noiseModel.Robust):
             # Robust(Block estimator we vectorize, Gaussian): grouped by its Gaussian
             # part; the loss goes to self.robust (see batch.robust).
             loss = _robust_loss(nm)
             if loss is not None:
-                R = _whitening(nm.noise())
+                R = noise_whitening(nm.noise())
                 if R is not None:
                     return R, loss
         return R, None
@@ -451,7 +442,7 @@ class Problem:
         for name, block in self.blocks.items():
             for k in block.keys:
                 if k in managed:
-                    raise BatchError(f"key {key_name(k)} is used by both {managed[k]} and "
+                    raise InputError(f"key {key_name(k)} is used by both {managed[k]} and "
                                      f"{block.spec.name} factors")
                 managed[k] = name
             block.X = _read_matrices(initial, block.spec, block.keys)
@@ -615,9 +606,9 @@ class Problem:
             try:
                 f.error(nv)
             except Exception as e:
-                return BatchError(f"factor {i} ({type(f).__name__}) could not be {what}: "
+                return InputError(f"factor {i} ({type(f).__name__}) could not be {what}: "
                                   f"{type(e).__name__}: {first_line(e)}")
-        return BatchError(f"a native factor could not be {what}: {type(exc).__name__}: {first_line(exc)}")
+        return InputError(f"a native factor could not be {what}: {type(exc).__name__}: {first_line(exc)}")
 
     def linearize(self) -> float:
         """Whitened blocks of every factor at the current estimate; returns the error ½Σ‖b‖².
@@ -649,10 +640,10 @@ class Problem:
             for j in range(len(self.native)):
                 lf = lin.at(j)
                 if lf is None:
-                    raise BatchError(f"factor {self.native[j][0]} ({type(self.native[j][1]).__name__}) "
+                    raise InputError(f"factor {self.native[j][0]} ({type(self.native[j][1]).__name__}) "
                                      "did not linearize")
                 if isinstance(lf, gtsam.JacobianFactor) and lf.isConstrained():
-                    raise BatchError(f"factor {self.native[j][0]} has a constrained noise model: "
+                    raise InputError(f"factor {self.native[j][0]} has a constrained noise model: "
                                      "use linear_solver='gtsam'")
                 D1 = size[j] + 1
                 M = np.asarray(lf.augmentedInformation())

@@ -24,20 +24,15 @@ import gtsam
 import numpy as np
 
 from .. import lm
-from ..errors import PoseGraphError
 from ..lm import IterationInfo, OptimizeResult
-from ..timing import Stopwatch
+from ..util.timing import Stopwatch
 from . import solvers
-from .graph import BatchError, Problem, first_line
-from .solvers import NotPositiveDefinite
+from .graph import Problem
+from ..errors import IndeterminantLinearSystem, InputError, NotPositiveDefinite, first_line
 from .system import LinearSystem
 
 #: Keys of ``OptimizeResult.timings`` (seconds, summed over the run).
 TIMING_KEYS = ("setup", "linearize", "assemble", "factorize", "solve", "retract", "error", "values", "other")
-
-
-class IndeterminantLinearSystem(NotPositiveDefinite):
-    """Gauss–Newton's undamped system is not positive definite (e.g. no prior fixes the gauge)."""
 
 
 class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
@@ -150,7 +145,7 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
             sq = self.problem.linearized_sqnorms()
             w = np.asarray(self.reweight(sq), dtype=np.float64)
             if w.shape != sq.shape or not np.all(np.isfinite(w)) or np.any(w < 0):
-                raise BatchError(f"reweight must return {sq.shape[0]} finite non-negative weights")
+                raise InputError(f"reweight must return {sq.shape[0]} finite non-negative weights")
             self.system.weights[:] = w
         if self.reweight is not None or np.any(self.system.weights != 1.0):
             linear_error0 = 0.5 * float(self.system.weights @ self.problem.linearized_sqnorms())
@@ -289,7 +284,7 @@ def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iter
     :class:`BatchLevenbergMarquardt` (e.g. ``batch.robust.WeightedLevenbergMarquardt``).
     ``seconds``: the optimizer's construction and its run, numba compilation
     excluded.  Bad input and unsolvable systems raise
-    :class:`lie_factors.errors.PoseGraphError`.
+    :class:`lie_factors.errors.InputError`.
     """
     if params is None:
         params = gtsam.LevenbergMarquardtParams()
@@ -299,9 +294,9 @@ def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iter
     try:
         cls = BatchLevenbergMarquardt if optimizer_class is None else optimizer_class
         result = cls(graph, initial, params, linear_solver=linear_solver).optimize(progress)
-    except BatchError as exc:
-        raise PoseGraphError(f"batch backend: {exc}") from None
+    except InputError as exc:
+        raise InputError(f"batch backend: {exc}") from None
     except RuntimeError as exc:
-        raise PoseGraphError(f"optimization failed: {first_line(exc)}") from None
+        raise InputError(f"optimization failed: {first_line(exc)}") from None
     result.seconds = clock.seconds()
     return result

@@ -1,7 +1,7 @@
 """Linear-solver backends for the damped normal equations of :mod:`lie_factors.batch.system`.
 
 * ``"cholmod"`` (default): CHOLMOD's sparse Cholesky
-  (:mod:`lie_factors.batch.cholmod`; cvxopt's wheels bundle CHOLMOD and OpenBLAS).
+  (:mod:`lie_factors.sparse.cholmod`; cvxopt's wheels bundle CHOLMOD and OpenBLAS).
   The fill-reducing order of the variables (AMD on the block graph) and the
   symbolic analysis — elimination tree, supernodes — are done once per graph;
   every λ and every linearization is a numeric refactorization of the same
@@ -21,17 +21,13 @@ import warnings
 import gtsam
 import numpy as np
 
-from .. import stack
-from . import cholmod
-from .cholmod import Cholesky
-from .cholmod import available as cholmod_available
-from .graph import BatchError
+from ..util import stack
+
+from ..sparse.cholmod import Cholesky
+from ..sparse.cholmod import available as cholmod_available
+from ..errors import InputError, NotPositiveDefinite, first_line
 
 LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")
-
-
-class NotPositiveDefinite(BatchError):
-    """The (damped) normal equations are not positive definite (GTSAM: IndeterminantLinearSystem)."""
 
 
 _fallback_warned = False
@@ -43,12 +39,12 @@ def resolve(name: str) -> str:
     if name not in LINEAR_SOLVERS:
         raise ValueError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, got {name!r}")
     if name == "cholmod" and not cholmod_available():
-        raise BatchError("linear_solver='cholmod' needs cvxopt (pip install cvxopt)")
+        raise InputError("linear_solver='cholmod' needs cvxopt (pip install cvxopt)")
     if name == "pardiso":
         try:
             import pypardiso  # noqa: F401
         except ImportError:
-            raise BatchError("linear_solver='pardiso' needs pypardiso (pip install pypardiso)") from None
+            raise InputError("linear_solver='pardiso' needs pypardiso (pip install pypardiso)") from None
     if name != "auto":
         return name
     if cholmod_available():
@@ -65,7 +61,7 @@ def make(name: str, system):
 
 
 class CholmodSolver:
-    """Sparse Cholesky of ``system``'s pattern (:class:`lie_factors.batch.cholmod.Cholesky`):
+    """Sparse Cholesky of ``system``'s pattern (:class:`lie_factors.sparse.cholmod.Cholesky`):
     symbolic analysis once, a numeric factorization of ``system.data`` in place per solve."""
 
     name = "cholmod"
@@ -80,10 +76,7 @@ class CholmodSolver:
     def solve(self, scale: np.ndarray | None) -> np.ndarray:
         """δ solving (H + diag(scale)) δ = g."""
         sys_ = self.system
-        try:
-            self.factor.factorize(sys_.damp(scale))
-        except cholmod.NotPositiveDefinite as exc:
-            raise NotPositiveDefinite(f"the linear system is not positive definite ({exc.reason})") from None
+        self.factor.factorize(sys_.damp(scale))  # NotPositiveDefinite: CHOLMOD's own message
         t = time.perf_counter()
         delta = sys_.from_matrix_order(self.factor.solve(sys_.in_matrix_order(sys_.rhs)))
         self.solve_seconds += time.perf_counter() - t
@@ -216,7 +209,7 @@ class GtsamSolver:
             vv = stack.call(gfg.optimize, self._ordering_for(gfg))  # recursive elimination
         except RuntimeError as exc:
             raise NotPositiveDefinite(f"the linear system is not positive definite "
-                                      f"(GTSAM: {str(exc).strip().splitlines()[0][:120]})") from None
+                                      f"(GTSAM: {first_line(exc, 120)})") from None
         delta = np.empty(P.total_dim)
         for v, k in enumerate(P.var_keys):
             o, d = int(P.var_offsets[v]), int(P.var_dims[v])

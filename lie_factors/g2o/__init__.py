@@ -7,7 +7,9 @@
   reading garbage (:mod:`.check`); the bytes become typed arrays by a numba
   scan (:mod:`.scan`, numbers by :mod:`.strtod`) or, for small files in a
   process without numba, by numpy (lines grouped by tag) (:mod:`.parse`);
-* :func:`read_g2o` — ``gtsam.readG2o`` on a checked file, plus the records
+* :func:`read_pose_graph` — a file as one :class:`~lie_factors.posegraph.graph.PoseGraph`
+  (resolved, checked, read; landmarks as GTSAM's factors) (:mod:`.load`);
+* :func:`read_with_gtsam` — ``gtsam.readG2o`` on a checked file, plus the records
   GTSAM's reader skips (``LANDMARK2``, Sim(3)) as GTSAM-native factors;
   :func:`read_arrays` — a pose graph as arrays, no GTSAM object (:mod:`.read`);
 * :func:`write_g2o` — ``gtsam.writeG2o`` (+ the landmark records it drops, or
@@ -29,19 +31,18 @@ numba imports no numba (the scan is imported only where it pays), and
 
 from __future__ import annotations
 
-from ..errors import PoseGraphError
+from ..errors import InputError
 from .check import G2oSummary, check_g2o
-from .conventions import (bearing_range_information_2d, landmark_key, point_information_2d,
-                          similarity3_from_g2o, similarity3_to_g2o)
+from .conventions import (bearing_range_information_2d, landmark_key, point_information_2d, similarity3_from_g2o, similarity3_to_g2o)
 from .dataset import resolve_dataset
-from .read import arrays_supported, landmark2_factors, read_arrays, read_g2o, read_sim3_g2o
-from .records import (INFO_REL_EIG, LANDMARK_ISO_TOL, MAX_ID, RECORDS, SIM3_MAX_LOG_SCALE, Record,
-                      Rows, register)
+from .load import read_pose_graph
+from .read import arrays_supported, landmark2_factors, read_arrays, read_with_gtsam, read_sim3_g2o
+from .records import (INFO_REL_EIG, LANDMARK_ISO_TOL, MAX_ID, RECORDS, SIM3_MAX_LOG_SCALE, Record, Rows, register)
 from .write import write_g2o, write_sim3_g2o
 
 __all__ = [
-    "PoseGraphError", "G2oSummary", "check_g2o", "resolve_dataset",
-    "read_g2o", "read_arrays", "arrays_supported", "read_sim3_g2o", "landmark2_factors",
+    "InputError", "G2oSummary", "check_g2o", "resolve_dataset",
+    "read_pose_graph", "read_with_gtsam", "read_arrays", "arrays_supported", "read_sim3_g2o", "landmark2_factors",
     "write_g2o", "write_sim3_g2o",
     "landmark_key", "bearing_range_information_2d", "point_information_2d",
     "similarity3_from_g2o", "similarity3_to_g2o",

@@ -17,9 +17,9 @@ import numpy as np
 
 import gtsam
 
-from ..arrays import sorted_unique
-from ..errors import PoseGraphError
-from ..topology import components
+from ..util.arrays import sorted_unique
+from ..errors import InputError
+from ..posegraph.topology import components
 from .parse import parse_file
 from .records import RECORDS, Rows, first_true
 
@@ -32,7 +32,7 @@ class G2oSummary:
     of GTSAM's readers the file is for; ``comment_lines``: lines starting
     with ``#``; ``fragile_lines``: 2-D lines whose 2nd/3rd field GTSAM's
     second pass cannot read as an integer (it stops reading there, see
-    :func:`lie_factors.g2o.read.read_g2o`).
+    :func:`lie_factors.g2o.read.read_with_gtsam`).
     """
 
     path: str
@@ -115,7 +115,7 @@ class G2oSummary:
 
 
 def check_g2o(path: str) -> G2oSummary:
-    """Validate a g2o file; raise :class:`PoseGraphError` naming the first bad line.
+    """Validate a g2o file; raise :class:`InputError` naming the first bad line.
 
     Per line (:mod:`lie_factors.g2o.parse`): known tag (see
     :data:`~lie_factors.g2o.records.RECORDS`), one dimension per file, field
@@ -130,7 +130,7 @@ def check_g2o(path: str) -> G2oSummary:
     name = os.path.basename(path)
     rows, comments, fragile = parse_file(path)
     if not rows:
-        raise PoseGraphError(f"{name}: empty graph (no vertices and no edges)")
+        raise InputError(f"{name}: empty graph (no vertices and no edges)")
     is3d = RECORDS[next(iter(rows))].dim == 3
     summary = G2oSummary(path, is3d, rows, comments, fragile)
     _check_rows(name, summary)
@@ -154,7 +154,7 @@ def _check_rows(name: str, summary: G2oSummary) -> None:
                 break
     if problems:
         lineno, msg = min(problems)
-        raise PoseGraphError(f"{name}:{lineno}: {msg}")
+        raise InputError(f"{name}:{lineno}: {msg}")
 
 
 def _duplicates(ids: np.ndarray, lines: np.ndarray):
@@ -181,10 +181,10 @@ def _check_graph(name: str, s: G2oSummary) -> None:
         if dup is not None:
             vid, first, second = dup
             tail = " (GTSAM would keep the first)" if kind == "param" else ""
-            raise PoseGraphError(f"{name}:{second}: {label} {vid} already defined on line {first}{tail}")
+            raise InputError(f"{name}:{second}: {label} {vid} already defined on line {first}{tail}")
 
     if s.between_count + s.observation_count == 0:
-        raise PoseGraphError(f"{name}: empty graph (no edges, nothing to optimize)")
+        raise InputError(f"{name}: empty graph (no edges, nothing to optimize)")
 
     if s.is3d:
         _check_3d_references(name, s)
@@ -198,7 +198,7 @@ def _check_graph(name: str, s: G2oSummary) -> None:
                 bad = first_true(~np.isin(r.ids[:, col], pose_vertices))
                 if bad is not None:
                     i, j = r.ids[bad]
-                    raise PoseGraphError(
+                    raise InputError(
                         f"{name}:{r.lines[bad]}: edge {i}-{j} refers to pose {r.ids[bad, col]}, "
                         f"which has no vertex (gtsam.readG2o gives it no initial value in 3-D)")
     _check_connected(name, s)
@@ -213,7 +213,7 @@ def _check_3d_references(name: str, s: G2oSummary) -> None:
     bad = first_true(~np.isin(track.ids[:, 0], poses) | ~np.isin(track.ids[:, 1], lms))
     if bad is not None:
         p, l = track.ids[bad, :2]
-        raise PoseGraphError(f"{name}:{track.lines[bad]}: EDGE_SE3_TRACKXYZ refers to pose {p} and "
+        raise InputError(f"{name}:{track.lines[bad]}: EDGE_SE3_TRACKXYZ refers to pose {p} and "
                              f"landmark {l}, which need VERTEX_SE3:QUAT/VERTEX3 and VERTEX_TRACKXYZ "
                              f"lines (gtsam.readG2o refuses it too)")
     params = s.rows.get("PARAMS_SE3OFFSET")
@@ -226,16 +226,16 @@ def _check_3d_references(name: str, s: G2oSummary) -> None:
             identity[pid] = bool(offset.equals(gtsam.Pose3(), 1e-9))
     for row, pid in enumerate(track.ids[:, 2].tolist()):
         if pid not in identity:
-            raise PoseGraphError(f"{name}:{track.lines[row]}: EDGE_SE3_TRACKXYZ uses sensor offset "
+            raise InputError(f"{name}:{track.lines[row]}: EDGE_SE3_TRACKXYZ uses sensor offset "
                                  f"{pid}, but no PARAMS_SE3OFFSET {pid} line defines it")
         if not identity[pid]:
-            raise PoseGraphError(f"{name}:{track.lines[row]}: EDGE_SE3_TRACKXYZ uses sensor offset "
+            raise InputError(f"{name}:{track.lines[row]}: EDGE_SE3_TRACKXYZ uses sensor offset "
                                  f"{pid}, which is not the identity (gtsam.readG2o supports only "
                                  f"identity offsets)")
 
 
 def _check_connected(name: str, s: G2oSummary) -> None:
-    """One connected graph of poses and landmarks (:func:`lie_factors.topology.components`)."""
+    """One connected graph of poses and landmarks (:func:`lie_factors.posegraph.topology.components`)."""
     poses = s.pose_id_array
     lms = np.asarray(s.landmark_ids, dtype=np.int64)
     P = len(poses)
@@ -254,6 +254,6 @@ def _check_connected(name: str, s: G2oSummary) -> None:
     if lost.size:
         k = int(lost[0])
         what = f"pose {poses[k]}" if k < P else f"landmark {lms[k - P]}"
-        raise PoseGraphError(
+        raise InputError(
             f"{name}: graph is not connected: {what} cannot be reached from pose {poses[0]} "
             f"({lost.size} of {len(labels)} variables unreachable; only pose {poses[0]} gets a prior)")

@@ -6,24 +6,24 @@ import os
 
 import gtsam
 
-from ..errors import PoseGraphError
+from ..errors import InputError
 
 
-def _is_a_directory(path: str) -> PoseGraphError:
-    return PoseGraphError(f"{path}: is a directory, expected a g2o file")
+def _is_a_directory(path: str) -> InputError:
+    return InputError(f"{path}: is a directory, expected a g2o file")
 
 
-def _unreadable(path: str, exc: OSError) -> PoseGraphError:
+def _unreadable(path: str, exc: OSError) -> InputError:
     """The one-line error of a file that cannot be opened or read."""
     if isinstance(exc, IsADirectoryError):
         return _is_a_directory(path)
-    return PoseGraphError(f"{path}: cannot read ({exc.strerror or exc})")
+    return InputError(f"{path}: cannot read ({exc.strerror or exc})")
 
 
 def resolve_dataset(name: str) -> str:
     """Return a readable file path for ``name``: an existing path, else a GTSAM example.
 
-    Raises :class:`PoseGraphError` if it is neither.
+    Raises :class:`InputError` if it is neither.
     """
     if os.path.isdir(name):
         raise _is_a_directory(name)
@@ -36,15 +36,15 @@ def resolve_dataset(name: str) -> str:
             return gtsam.findExampleDataFile(name)
         except (RuntimeError, OSError, ValueError):  # the wrapper raises FileNotFoundError
             pass
-        raise PoseGraphError(
+        raise InputError(
             f"{name}: no such file, and not a dataset shipped with GTSAM "
             f"(gtsam.findExampleDataFile)"
         )
-    raise PoseGraphError(f"{name}: no such file")
+    raise InputError(f"{name}: no such file")
 
 
 def read_bytes(path: str) -> bytes:
-    """The whole file; :class:`PoseGraphError` (one line) if it cannot be read."""
+    """The whole file; :class:`InputError` (one line) if it cannot be read."""
     try:
         with open(path, "rb") as fh:
             return fh.read()

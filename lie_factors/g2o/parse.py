@@ -1,7 +1,7 @@
 """Parsing a g2o file's bytes into :class:`~lie_factors.g2o.records.Rows`, one per tag.
 
-Three parses that agree on every file (``tests/test_g2o_fuzz.py`` and
-``tests/test_g2o_scan.py`` check it):
+Three parses that agree on every file (``tests/g2o/test_g2o_fuzz.py`` and
+``tests/g2o/test_g2o_scan.py`` check it):
 
 * :func:`scan_parse` — the numba scan of the bytes (:mod:`.scan`): records
   straight into typed arrays, numbers correctly rounded by :mod:`.strtod`;
@@ -23,7 +23,7 @@ numbers C++ ``>>`` reads (no hex, no ``_``) and finite.  Errors name the line:
 
 Both also list the comment lines and the "fragile" 2-D lines: those whose 2nd
 or 3rd field GTSAM's ``load2D`` second pass cannot read as an integer (it
-stops reading there; :func:`lie_factors.g2o.read.read_g2o` hands GTSAM a
+stops reading there; :func:`lie_factors.g2o.read.read_with_gtsam` hands GTSAM a
 cleaned copy).
 """
 
@@ -36,7 +36,7 @@ import sys
 
 import numpy as np
 
-from ..errors import PoseGraphError
+from ..errors import InputError
 from .dataset import read_bytes
 from .records import MAX_ID, RECORDS, Record, Rows
 
@@ -64,7 +64,7 @@ def _expects(rec: Record) -> str:
     return f"{rec.tag} expects {rec.nfields} fields ({rec.field_text})"
 
 
-class _LineError(PoseGraphError):
+class _LineError(InputError):
     """A malformed line; ``lineno`` lets the earliest of several be reported."""
 
     def __init__(self, lineno: int, message: str):
@@ -133,7 +133,7 @@ def _as_float(tok: bytes) -> float | None:
 
 
 def _may_stop_gtsam(rec: Record) -> bool:
-    """Is this a 2-D line whose fields GTSAM's second pass reads as ``id1 id2`` (see read_g2o)?"""
+    """Is this a 2-D line whose fields GTSAM's second pass reads as ``id1 id2`` (see read_with_gtsam)?"""
     return rec.dim == 2 and not (rec.gtsam and rec.kind in ("between", "observation"))
 
 
@@ -152,7 +152,7 @@ def _rows(rec: Record, ids: list, values: list, lines) -> Rows:
 def slow_parse(name: str, data: bytes) -> tuple[dict[str, Rows], list[int], list[int]]:
     """Reference parse, line by line in file order: (rows, comment lines, fragile 2-D lines).
 
-    Raises :class:`PoseGraphError` at the first malformed line.
+    Raises :class:`InputError` at the first malformed line.
     """
     dim_of = [None]
     acc: dict[str, tuple[Record, list, list, list]] = {}
@@ -305,7 +305,7 @@ def fast_parse(name: str, data: bytes):
 
     A tag group that does not parse cleanly is re-parsed line by line (exact);
     unknown tags and a second dimension are located from the groups.  The
-    earliest problem line of all is the one reported (:class:`PoseGraphError`).
+    earliest problem line of all is the one reported (:class:`InputError`).
     """
     grouped = _fast_groups(data)
     if grouped is None:
@@ -340,7 +340,7 @@ def fast_parse(name: str, data: bytes):
         except _LineError as exc:
             problems.append((exc.lineno, str(exc)))
     if problems:
-        raise PoseGraphError(min(problems)[1])
+        raise InputError(min(problems)[1])
     fragile = []
     for r in rows.values():
         if r.fragile is not None and len(r.fragile):
@@ -430,7 +430,7 @@ def parse(name: str, data) -> tuple[dict[str, Rows], list[int], list[int]]:
     :data:`SCAN_MIN_BYTES`: smaller files are checked without importing
     numba); else, or where it gives up, the vectorized parse, or the exact one
     where that gives up (a line starting with whitespace).  All three give the
-    same rows.  Raises :class:`PoseGraphError` naming the first bad line.
+    same rows.  Raises :class:`InputError` naming the first bad line.
     """
     parsed = None
     # (the scan reads digits from little-endian words, see .strtod)

@@ -1,9 +1,9 @@
 """Reading a checked g2o file (:func:`lie_factors.g2o.check.check_g2o`'s summary).
 
-* :func:`read_g2o` — as GTSAM reads it: ``gtsam.readG2o`` on the file (or on a
+* :func:`read_with_gtsam` — as GTSAM reads it: ``gtsam.readG2o`` on the file (or on a
   cleaned copy of it), plus the factors of the records GTSAM's reader skips
   (``LANDMARK2``), or our Sim(3) reader for Sim(3) records;
-* :func:`read_arrays` — a pose graph as :class:`lie_factors.pose_graph.PoseGraph`,
+* :func:`read_arrays` — a pose graph as :class:`lie_factors.posegraph.graph.PoseGraph`,
   the same numbers with no GTSAM object.
 
 The numbers' conventions are in :mod:`lie_factors.g2o.conventions`.
@@ -19,11 +19,10 @@ import numpy as np
 
 import gtsam
 
-from ..errors import PoseGraphError
-from ..pose_graph import PoseGraph
+from ..errors import InputError, first_line
+from ..posegraph.graph import PoseGraph
 from .check import G2oSummary, check_g2o
-from .conventions import (bearing_range_information_2d, elements, information, landmark_key,
-                          similarity3_from_g2o)
+from .conventions import (bearing_range_information_2d, elements, information, landmark_key, similarity3_from_g2o)
 from .records import RECORDS, Rows
 
 
@@ -64,7 +63,7 @@ def _gtsam_copy(path: str, summary: G2oSummary) -> str | None:
     return tmp
 
 
-def read_g2o(path: str, summary: G2oSummary):
+def read_with_gtsam(path: str, summary: G2oSummary):
     """Read a checked file: (graph, initial) as ``gtsam.readG2o`` builds them, plus LANDMARK2 factors.
 
     Verifies that GTSAM read as many factors and vertices as the check found
@@ -78,14 +77,14 @@ def read_g2o(path: str, summary: G2oSummary):
         try:
             graph, initial = gtsam.readG2o(tmp or path, summary.is3d)
         except (RuntimeError, ValueError) as exc:
-            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise PoseGraphError(f"{os.path.basename(path)}: gtsam.readG2o refused it: {msg}") from None
+            msg = first_line(exc)
+            raise InputError(f"{os.path.basename(path)}: gtsam.readG2o refused it: {msg}") from None
     finally:
         if tmp is not None:
             os.unlink(tmp)
     expected = summary.gtsam_factor_count
     if graph.size() != expected:
-        raise PoseGraphError(f"{os.path.basename(path)}: gtsam.readG2o read {graph.size()} factors, "
+        raise InputError(f"{os.path.basename(path)}: gtsam.readG2o read {graph.size()} factors, "
                              f"the file has {expected}")
     rows = summary.rows.get("LANDMARK2")
     if rows is not None:
@@ -125,7 +124,7 @@ def read_sim3_g2o(path: str):
 def arrays_supported(summary: G2oSummary) -> bool:
     """Can :func:`read_arrays` represent this file?  Pose–pose files whose poses all have a
     vertex, or none has one (landmark records and 2-D files whose edges introduce
-    poses GTSAM chains from odometry are read by GTSAM, :func:`read_g2o`)."""
+    poses GTSAM chains from odometry are read by GTSAM, :func:`read_with_gtsam`)."""
     if any(RECORDS[t].kind not in ("pose", "between") for t in summary.rows):
         return False
     vertices = summary.pose_vertex_ids
@@ -136,13 +135,13 @@ def read_arrays(summary: G2oSummary) -> PoseGraph:
     """The checked file's poses and edges as :class:`PoseGraph`, with no GTSAM object.
 
     The same numbers as ``gtsam.readG2o`` (quaternions normalized, SE(3)
-    information permuted to [ω, v]; Sim(3) records as :func:`read_g2o`),
+    information permuted to [ω, v]; Sim(3) records as :func:`read_with_gtsam`),
     computed per record type on the arrays :func:`~lie_factors.g2o.check.check_g2o` parsed.
     Raises ``ValueError`` for files :func:`arrays_supported` refuses.
     """
     if not arrays_supported(summary):
         raise ValueError(f"{summary.path}: landmark records or poses without a vertex line: "
-                         "use read_g2o")
+                         "use read_with_gtsam")
     keys = summary.pose_id_array
     edges = summary.of_kind("between")
     # GTSAM's factor order is the file's line order (one tag: the rows are in it already)

@@ -1,7 +1,7 @@
 """The g2o record table: one :class:`Record` per tag, its fields and the checks of its rows.
 
 A new record type is one :func:`register` call here (plus, if GTSAM's reader
-does not build its factor, a branch in :func:`lie_factors.g2o.read.read_g2o`).
+does not build its factor, a branch in :func:`lie_factors.g2o.read.read_with_gtsam`).
 
 What GTSAM 4.3's ``readG2o`` accepts (its ``dataset.cpp``, checked against the
 wheel): in 2-D (``load2D``) ``VERTEX_SE2``/``VERTEX2``/``VERTEX``,

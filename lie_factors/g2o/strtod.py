@@ -21,7 +21,7 @@ methods:
 Everything else (more than 19 significant digits, an exponent out of the
 table, a subnormal or overflowing result, the undecidable products) is
 :data:`EXACT`: valid, and left to Python's ``float`` (exact, slow).  Zero is
-±0.0 whatever the exponent.  ``tests/test_g2o_strtod.py`` compares every
+±0.0 whatever the exponent.  ``tests/g2o/test_g2o_strtod.py`` compares every
 route with ``float`` on adversarial and random tokens.
 
 Digits are read eight at a time from 64-bit words (fast_float's SWAR

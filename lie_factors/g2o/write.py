@@ -1,4 +1,4 @@
-"""Writing g2o files, atomically (:func:`lie_factors.atomic.replace_atomically`).
+"""Writing g2o files, atomically (:func:`lie_factors.util.atomic.replace_atomically`).
 
 * :func:`write_g2o` — ``gtsam.writeG2o`` plus the landmark records it drops;
 * :func:`write_sim3_g2o` — Sim(3) records, which GTSAM does not know.
@@ -15,7 +15,7 @@ import numpy as np
 
 import gtsam
 
-from ..atomic import replace_atomically
+from ..util.atomic import replace_atomically
 from .conventions import point_information_2d, similarity3_to_g2o
 
 

@@ -13,10 +13,10 @@
 are imported on first use.
 """
 
-from ..lazy import exports
+from ..util.lazy import exports
 
 _EXPORTS = {
-    "BlockFactor": "cholesky", "IndeterminantLinearSystem": "cholesky", "UpdateStats": "cholesky",
+    "BlockFactor": "cholesky", "UpdateStats": "cholesky",
     "FactorArrays": "smoother", "Smoother": "smoother", "SmootherError": "smoother", "SmootherParams": "smoother",
     "UpdateResult": "smoother",
 }

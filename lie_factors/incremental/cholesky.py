@@ -30,17 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import IndeterminantLinearSystem
 from . import elimination as _el
-
-
-class IndeterminantLinearSystem(ValueError):
-    """The update leaves a variable undetermined (GTSAM: IndeterminantLinearSystemException).
-
-    ``variable``: the index of the variable whose pivot was not positive."""
-
-    def __init__(self, message: str, variable: int):
-        super().__init__(message)
-        self.variable = variable
 
 
 #: ISAM2's share of re-eliminated variables from which an update orders and eliminates everything.

@@ -40,11 +40,12 @@ import gtsam
 import numpy as np
 
 from .. import factors as _factors
-from ..batch.graph import _whitening, key_name, whitening
+from ..batch.graph import noise_whitening, key_name, whitening
 from ..batch.loops import GroupLoops
-from ..kernels.elements import to_gtsam
+from ..interop import to_gtsam
 from . import elimination as _el
-from .cholesky import BlockFactor, IndeterminantLinearSystem
+from .cholesky import BlockFactor
+from ..errors import IndeterminantLinearSystem
 
 
 class SmootherError(ValueError):
@@ -258,7 +259,7 @@ class FactorArrays:
             bad = np.flatnonzero(codes != _factors.OK)
             if bad.size:
                 q = int(bad[0])
-                raise SmootherError(str(_factors._element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
+                raise SmootherError(str(_factors.element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
                                                                 "update")))
             try:
                 R = whitening(info) if F else np.zeros((0, n, n))
@@ -373,11 +374,11 @@ class Smoother:
                 return None
             keys = tuple(int(k) for k in f.keys())
             nm = f.noiseModel()
-            R = _whitening(nm)
+            R = noise_whitening(nm)
             if R is None or (kind == "between" and keys[0] == keys[1]):
                 return None
             return kind, spec, keys, None, np.asarray(R, dtype=np.float64), spec.matrix(value)
-        R = _whitening(nm)
+        R = noise_whitening(nm)
         if R is None or (kind == "between" and keys[0] == keys[1]):
             return None
         return kind, spec, keys, f._Minv, np.asarray(R, dtype=np.float64), None
@@ -468,7 +469,7 @@ class Smoother:
         bad = np.flatnonzero(codes != _factors.OK)
         if bad.size:
             k = int(bad[0])
-            raise SmootherError(str(_factors._element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
+            raise SmootherError(str(_factors.element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
         return Minv
 
     def _elements(self, name: str) -> _Elements:

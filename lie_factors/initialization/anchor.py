@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InitializationError
-from ..pose_graph import PoseGraph
-from ..topology import reached
+from ..posegraph.graph import PoseGraph
+from ..posegraph.topology import reached
 
 #: ``initialize::kAnchorKey`` in GTSAM's InitializePose.h (not exposed to Python).
 ANCHOR_KEY = 99999999

@@ -2,8 +2,8 @@
 rotations, then one Gauss–Newton step on the poses.
 
 The same result as GTSAM's on the graph of between and prior factors the
-:class:`~lie_factors.pose_graph.PoseGraph` describes (to ~1e-10;
-tests/test_relaxation.py), with no factor object: numpy for the rotation
+:class:`~lie_factors.posegraph.graph.PoseGraph` describes (to ~1e-10;
+tests/initialization/test_relaxation.py), with no factor object: numpy for the rotation
 relaxation, the batch solver (:mod:`lie_factors.batch`: the factors' kernels,
 numba) for the Gauss–Newton step, CHOLMOD for the sparse solves.
 
@@ -36,11 +36,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..batch.graph import Problem
-from ..batch.solvers import CholmodSolver, NotPositiveDefinite
+from ..batch.solvers import CholmodSolver
 from ..batch.system import LinearSystem
-from ..errors import InitializationError
-from ..kernels.elements import pose2_matrices
-from ..pose_graph import PoseGraph
+from ..errors import InitializationError, NotPositiveDefinite
+from ..interop import pose2_matrices
+from ..posegraph.graph import PoseGraph
 from . import anchor, sparse
 
 

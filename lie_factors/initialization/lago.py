@@ -1,7 +1,7 @@
 """GTSAM's LAGO (``lago::initialize``, Carlone et al.) on arrays: Pose2 orientations, then positions.
 
-The same result as GTSAM's on the graph the :class:`~lie_factors.pose_graph.PoseGraph`
-describes (to ~1e-10; tests/test_relaxation.py), with no factor object: numpy and
+The same result as GTSAM's on the graph the :class:`~lie_factors.posegraph.graph.PoseGraph`
+describes (to ~1e-10; tests/initialization/test_relaxation.py), with no factor object: numpy and
 CHOLMOD, no numba.
 
 * A spanning tree: the odometric path k → k+1 by key (``findOdometricPath``), or
@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InitializationError
-from ..kernels.elements import pose2_matrices
-from ..pose_graph import PoseGraph
-from ..topology import along_tree, bfs_tree, first_spanning_forest
+from ..interop import pose2_matrices
+from ..posegraph.graph import PoseGraph
+from ..posegraph.topology import along_tree, bfs_tree, first_spanning_forest
 from . import anchor, sparse
 
 #: GTSAM's ``checkIfDiagonal``: an information matrix is diagonal when every entry above

@@ -13,8 +13,8 @@ import dataclasses
 
 import numpy as np
 
-from ..kernels.elements import pose2_matrices
-from ..pose_graph import PoseGraph
+from ..interop import pose2_matrices
+from ..posegraph.graph import PoseGraph
 
 
 def pose2_information_to_pose3(info2: np.ndarray) -> np.ndarray:

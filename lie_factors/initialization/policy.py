@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 
-from ..batch import cholmod
-from ..errors import InitializationError, PoseGraphError
-from ..kernels.elements import matrices_from_values, values_from_matrices
-from ..pose_graph import PoseGraph
+from ..sparse import cholmod
+from ..errors import InitializationError, InputError
+from ..interop import matrices_from_values, values_from_matrices
+from ..posegraph.graph import PoseGraph
 from . import anchor, lago, spanning_tree, with_gtsam
 
 #: ``--init`` choices, in the CLI's order.
@@ -77,7 +77,7 @@ def initialize(graph, method: str = "auto", initial=None, inliers=None,
                engine: str = "lie_factors") -> Initialization:
     """Initial poses for a pose graph: the first method of the order that runs.
 
-    ``graph``: a :class:`~lie_factors.pose_graph.PoseGraph`, or a
+    ``graph``: a :class:`~lie_factors.posegraph.graph.PoseGraph`, or a
     ``gtsam.NonlinearFactorGraph`` of Between/Prior factors on Pose2, Pose3 or
     Similarity3 (GTSAM's own or lie_factors.factors', :meth:`PoseGraph.from_gtsam`);
     ``method``: one of :data:`METHODS`; ``initial``: the poses ``file`` returns,
@@ -108,7 +108,7 @@ def initialize(graph, method: str = "auto", initial=None, inliers=None,
     else:
         try:
             pg = PoseGraph.from_gtsam(graph)
-        except PoseGraphError as exc:
+        except InputError as exc:
             if method == "file" and initial is not None:
                 return Initialization("file", time.perf_counter() - t0, values=initial)
             if method != "auto" or initial is None:

@@ -2,7 +2,7 @@
 
 A symmetric matrix is given by the triplets (row, column, value) of its lower
 triangle, duplicates summed; :func:`solve` hands it to CHOLMOD
-(:func:`lie_factors.batch.cholmod.solve_spd`).  :func:`solve_edges` takes the
+(:func:`lie_factors.sparse.cholmod.solve_spd`).  :func:`solve_edges` takes the
 rows of an edge list instead and assembles them into the batch solver's block
 pattern, which CHOLMOD factors in place (the large relaxations).
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..batch import cholmod
+from ..sparse import cholmod
 from ..errors import InitializationError
 
 
@@ -22,11 +22,11 @@ def solve_edges(count: int, ii: np.ndarray, jj: np.ndarray, A1: np.ndarray, A2: 
     Edge e joins blocks ``ii[e]`` and ``jj[e]`` (of ``count`` blocks of dimension d) with rows
     A1_e (r, d) on the first and A2_e (r, d) on the second; ``diagonal`` (count·d,) adds
     to the diagonal (priors); ``rhs`` (count·d, m).  Assembled by the batch solver's kernel
-    into its block pattern (:class:`lie_factors.batch.system.Pattern`, a fill-reducing
+    into its block pattern (:class:`lie_factors.sparse.pattern.Pattern`, a fill-reducing
     order) and factored there by CHOLMOD.  :class:`InitializationError` if the matrix is
     not positive definite.
     """
-    from ..batch.system import Pattern, add_binary  # numba: LAGO's and GTSAM's paths stay without it
+    from ..sparse.pattern import Pattern, add_binary  # numba: LAGO's and GTSAM's paths stay without it
 
     d = A1.shape[2]
     E = len(ii)
@@ -53,7 +53,7 @@ def solve_edges(count: int, ii: np.ndarray, jj: np.ndarray, A1: np.ndarray, A2: 
 
 
 def solve(n: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """:func:`lie_factors.batch.cholmod.solve_spd`, its failure an :class:`InitializationError`."""
+    """:func:`lie_factors.sparse.cholmod.solve_spd`, its failure an :class:`InitializationError`."""
     try:
         return cholmod.solve_spd(n, rows, cols, vals, rhs)
     except np.linalg.LinAlgError as exc:

@@ -8,7 +8,7 @@ where cvxopt's CHOLMOD is missing; ours (:mod:`~lie_factors.initialization.chord
 :mod:`~lie_factors.initialization.lago`) give the same poses to ~1e-10.
 
 GTSAM's elimination recurses once per level: it runs on a large-stack thread
-(:mod:`lie_factors.stack`).  A graph that uses GTSAM's anchor key 99999999 is
+(:mod:`lie_factors.util.stack`).  A graph that uses GTSAM's anchor key 99999999 is
 renumbered for the call and mapped back.
 """
 
@@ -17,10 +17,10 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from .. import stack
+from ..util import stack
 from ..errors import InitializationError
-from ..kernels.elements import matrices_from_values
-from ..pose_graph import PoseGraph
+from ..interop import matrices_from_values
+from ..posegraph.graph import PoseGraph
 from . import anchor, planar
 from .lago import check_diagonal, odometric_path_complete
 

@@ -8,5 +8,5 @@
   (numba): one rule per kind of argument, one message per defect.
 - :mod:`~lie_factors.kernels.coeffs`: the rotation coefficients a_θ, b_θ, … with their Taylor bands.
 - :mod:`~lie_factors.kernels.jit`: the ``kernel`` decorator, compiled entry points, compile time.
-- :mod:`~lie_factors.kernels.elements`: element matrices to and from ``gtsam.Values`` (no numba).
+- :mod:`~lie_factors.interop`: element matrices to and from ``gtsam.Values`` (no numba).
 """

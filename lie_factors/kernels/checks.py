@@ -21,9 +21,7 @@ import math
 from lie_factors.kernels.jit import kernel
 from lie_factors.kernels.registry import NO_CORNER, ONE
 # The tolerances, and the codes of element_code (defined, and worded, in the numba-free module).
-from lie_factors.kernels.validate import (  # noqa: F401
-    BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, ORTHONORMAL_TOL, REFLECTION, UNIT_TOL,
-)
+from lie_factors.kernels.validate import (BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, ORTHONORMAL_TOL, REFLECTION, UNIT_TOL)
 
 #: The fast path's bounds: the general path's less a margin far above the rounding of
 #: RᵀR or ‖q‖ (a few ulp of 1), far below anything a caller could mean.

@@ -64,20 +64,20 @@ def _abs_bernoulli_over_factorial(n: int) -> list:
 # Series in t = θ², from exact rationals rounded once:
 # a: Σ (−1)^k t^k/(2k+1)!   c: Σ (−1)^k t^k/(2k+3)!   e: Σ_{n≥1} |B_2n| t^(n−1)/(2n)!
 # qa: Σ_{k≥1} (−1)^k 2k t^(k−1)/(2k+2)!   qb: Σ_{k≥1} (−1)^k 2k t^(k−1)/(2k+3)!
-_A_SERIES = rounded(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(5))
-_C_SERIES = rounded(Fraction((-1) ** k, math.factorial(2 * k + 3)) for k in range(10))
-_E_COEFFS = _abs_bernoulli_over_factorial(38)
-_E_SERIES = rounded(_E_COEFFS[1:21])
-_QA_SERIES = rounded(Fraction((-1) ** k * 2 * k, math.factorial(2 * k + 2)) for k in range(1, 14))
-_QB_SERIES = rounded(Fraction((-1) ** k * 2 * k, math.factorial(2 * k + 3)) for k in range(1, 15))
+A_SERIES = rounded(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(5))
+C_SERIES = rounded(Fraction((-1) ** k, math.factorial(2 * k + 3)) for k in range(10))
+E_COEFFS = _abs_bernoulli_over_factorial(38)
+E_SERIES = rounded(E_COEFFS[1:21])
+QA_SERIES = rounded(Fraction((-1) ** k * 2 * k, math.factorial(2 * k + 2)) for k in range(1, 14))
+QB_SERIES = rounded(Fraction((-1) ** k * 2 * k, math.factorial(2 * k + 3)) for k in range(1, 15))
 # e_θ and f_θ = e_θ'/θ on [0, π] (ratio of terms → (θ/2π)² ≤ 1/4), 36 terms each (a
 # multiple of 4, for the 4-way Horner): f_θ = Σ_{n≥1} 2n e_(n+1) t^(n−1).
-_EF_E_SERIES = rounded(_E_COEFFS[1:37])
-_EF_F_SERIES = rounded(2 * n * _E_COEFFS[n + 1] for n in range(1, 37))
+EF_E_SERIES = rounded(E_COEFFS[1:37])
+EF_F_SERIES = rounded(2 * n * E_COEFFS[n + 1] for n in range(1, 37))
 
 
 @kernel
-def _horner(coeffs, t):
+def horner(coeffs, t):
     p = 0.0
     for i in range(len(coeffs) - 1, -1, -1):
         p = p * t + coeffs[i]
@@ -85,7 +85,7 @@ def _horner(coeffs, t):
 
 
 @kernel
-def _horner4(coeffs, t):
+def horner4(coeffs, t):
     """Σ coeffs[i] tⁱ as four interleaved Horner chains in t⁴ (len(coeffs) % 4 == 0).
 
     Same rounding behaviour as Horner for these positive series, a quarter of the
@@ -123,7 +123,7 @@ def norm3(x, y, z):
 def a_theta(theta):
     """a_θ = sin θ/θ, Eade Eq. (50)."""
     if theta < A_TAYLOR:
-        return _horner(_A_SERIES, theta * theta)
+        return horner(A_SERIES, theta * theta)
     return math.sin(theta) / theta
 
 
@@ -141,7 +141,7 @@ def b_theta(theta):
 def c_theta(theta):
     """c_θ = (1 − a_θ)/θ² = (θ − sin θ)/θ³, Eade Eq. (52)."""
     if theta < C_TAYLOR:
-        return _horner(_C_SERIES, theta * theta)
+        return horner(C_SERIES, theta * theta)
     return (theta - math.sin(theta)) / (theta * theta * theta)
 
 
@@ -153,7 +153,7 @@ def e_theta(theta):
     2 sin²(θ/2)); unlike Eq. (56) it has no 0/0 at θ = π where a_θ = 0.
     """
     if theta < E_TAYLOR:
-        return _horner(_E_SERIES, theta * theta)
+        return horner(E_SERIES, theta * theta)
     h = 0.5 * theta
     return 1.0 / (theta * theta) - math.cos(h) / (2.0 * theta * math.sin(h))
 
@@ -239,7 +239,7 @@ def ef_omega(w0, w1, w2):
     th = norm3(w0, w1, w2)
     if th <= EF_TAYLOR:
         t = th * th
-        return th, _horner4(_EF_E_SERIES, t), _horner4(_EF_F_SERIES, t)
+        return th, horner4(EF_E_SERIES, t), horner4(EF_F_SERIES, t)
     hi, lo = theta_dd(w0, w1, w2)
     d = 0.5 * ((_TWO_PI_HI - hi) + (_TWO_PI_LO - lo))
     s = math.sin(d)
@@ -254,7 +254,7 @@ def ef_omega(w0, w1, w2):
 def qa_theta(theta):
     """(a_θ − 2 b_θ)/θ², the ω× coefficient of Q(ω), Eade Eq. (64)."""
     if theta < QA_TAYLOR:
-        return _horner(_QA_SERIES, theta * theta)
+        return horner(QA_SERIES, theta * theta)
     return (a_theta(theta) - 2.0 * b_theta(theta)) / (theta * theta)
 
 
@@ -262,5 +262,5 @@ def qa_theta(theta):
 def qb_theta(theta):
     """(b_θ − 3 c_θ)/θ², the ω×² coefficient of Q(ω), Eade Eq. (64)."""
     if theta < QB_TAYLOR:
-        return _horner(_QB_SERIES, theta * theta)
+        return horner(QB_SERIES, theta * theta)
     return (b_theta(theta) - 3.0 * c_theta(theta)) / (theta * theta)

@@ -4,7 +4,7 @@ Everything that needs a fact about a group reads it here: the numba dispatch
 (:mod:`lie_factors.kernels.dispatch`, which makes each :class:`GroupInfo` the
 group's tag in numba kernels), the public functions
 (:mod:`lie_factors.kernels.public`), the factors, the batch reader, the
-conversions to and from ``gtsam.Values`` (:mod:`lie_factors.kernels.elements`),
+conversions to and from ``gtsam.Values`` (:mod:`lie_factors.interop`),
 the pose-graph type, the crosscheck and the test oracles.  This module imports
 neither numba nor GTSAM, so the numba-free paths (``--backend native``, the
 input check) can read it.

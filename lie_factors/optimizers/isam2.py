@@ -24,7 +24,7 @@ GTSAM runs and drop it afterwards (held permanently, the wrapper and the
 optimizer would keep each other alive through pybind11's ``keep_alive``, which
 the garbage collector cannot see).
 
-What a callback receives, then (``tests/test_optimizers_isam2.py`` counts it):
+What a callback receives, then (``tests/optimizers/test_optimizers_isam2.py`` counts it):
 
 - ``ISAM2.update``, ``marginalizeLeaves``: ISAM2's linearization point, the
   same object in every callback (with the default Gauss–Newton params).

@@ -1,7 +1,7 @@
 """False loop closures: which factors are loop closures, planting random wrong ones, scoring a classification.
 
 A *loop closure* is an edge between poses whose ids are not consecutive
-(:func:`lie_factors.pose_graph.is_loop_closure`); the consecutive ones are
+(:func:`lie_factors.posegraph.graph.is_loop_closure`); the consecutive ones are
 odometry.  The robust CLI options and GNC's known inliers use this split; the
 outlier benchmark and the tests plant false loop closures with
 :func:`plant_false_loop_closures`.
@@ -15,7 +15,7 @@ import numpy as np
 
 import gtsam
 
-from ..pose_graph import is_loop_closure
+from ..posegraph.graph import is_loop_closure
 
 __all__ = ["loop_closure_mask", "plant_false_loop_closures", "plant_clustered_false_loop_closures",
            "Classification", "classify"]

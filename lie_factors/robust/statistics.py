@@ -1,0 +1,130 @@
+"""The χ² and F quantiles the robust pipeline's thresholds come from.
+
+:func:`chi2_inlier_threshold`: GTSAM's GNC inlier threshold (½ of the χ²
+quantile, cephes' ``igami`` as GTSAM computes it); :func:`f_quantile`: the F
+distribution's quantile, by its regularized incomplete beta function.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_CHI2_CACHE: dict[tuple[int, float], float] = {}
+
+
+def chi2_inlier_threshold(dim: int, probability: float = 0.99) -> float:
+    """GTSAM's GNC inlier threshold for a factor of dimension ``dim``: ½·χ²_dim quantile at ``probability``.
+
+    ``GncOptimizer::setInlierCostThresholdsAtProbability(alpha)`` sets
+    ``barcSq = 0.5 * Chi2inv(alpha, dim)`` (½ because a factor's error is
+    ½‖R e‖²), with the quantile from cephes' ``igami``.  GTSAM's Python wrapper
+    does not expose ``Chi2inv``, so the value is read from a one-factor
+    ``GncLMOptimizer`` of that dimension: the same bits GTSAM uses, so every
+    backend classifies with identical thresholds (the tests check it against a
+    40-digit mpmath quantile).
+    """
+    key = (int(dim), float(probability))
+    if key not in _CHI2_CACHE:
+        if dim < 1 or not (0.0 < probability < 1.0):
+            raise ValueError(f"need dim >= 1 and 0 < probability < 1, got {dim}, {probability}")
+        import gtsam
+
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(gtsam.PriorFactorVector(0, np.zeros(dim), gtsam.noiseModel.Unit.Create(dim)))
+        values = gtsam.Values()
+        values.insert(0, np.zeros(dim))
+        gnc = gtsam.GncLMOptimizer(graph, values, gtsam.GncLMParams())
+        gnc.setInlierCostThresholdsAtProbability(float(probability))
+        _CHI2_CACHE[key] = float(np.asarray(gnc.getInlierCostThresholds())[0])
+    return _CHI2_CACHE[key]
+
+
+_F_CACHE: dict[tuple[float, float, float], float] = {}
+
+
+def _regularized_beta(mpmath, a, b, x):
+    """I_x(a, b), the regularized incomplete beta function, at mpmath's working precision.
+
+    The continued fraction of DLMF 8.17.22, evaluated by the modified Lentz
+    method, where it converges fast (x < (a + 1)/(a + b + 2)); elsewhere through
+    I_x(a, b) = 1 − I_{1−x}(b, a).  mpmath's own ``betainc`` sums a
+    hypergeometric series that stops converging for large a or b (tens of
+    thousands of degrees of freedom), and how far it gets depends on mpmath's
+    version.
+    """
+    if x <= 0:
+        return mpmath.mpf(0)
+    if x >= 1:
+        return mpmath.mpf(1)
+    if x > (a + 1) / (a + b + 2):
+        return 1 - _regularized_beta(mpmath, b, a, 1 - x)
+    tiny = mpmath.mpf(10) ** (-3 * mpmath.mp.dps)
+    eps = mpmath.mpf(10) ** (-mpmath.mp.dps)
+    c, d = mpmath.mpf(1), 1 - (a + b) * x / (a + 1)
+    d = 1 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 100000):
+        for num in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+                    -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+            d = 1 + num * d
+            d = 1 / (d if abs(d) > tiny else tiny)
+            c = 1 + num / c
+            c = c if abs(c) > tiny else tiny
+            h *= c * d
+        if abs(c * d - 1) < eps:
+            break
+    else:
+        raise ArithmeticError(f"the incomplete beta continued fraction did not converge at a={a}, b={b}, x={x}")
+    log_front = a * mpmath.log(x) + b * mpmath.log1p(-x) - mpmath.log(a) - mpmath.log(mpmath.beta(a, b))
+    return mpmath.exp(log_front) * h
+
+
+def f_quantile(d1: float, d2: float, probability: float) -> float:
+    """The quantile of Fisher's F distribution with (``d1``, ``d2``) degrees of freedom at ``probability``.
+
+    F(d1, d2) is (χ²_d1/d1)/(χ²_d2/d2); d1·F(d1, d2) is the squared Mahalanobis
+    norm of a d1-dimensional Student-t vector with d2 degrees of freedom (as
+    d2 → ∞, χ²_d1).  With y = d1·x/(d1·x + d2), P(F > x) = I_{1−y}(d2/2, d1/2)
+    (the regularized incomplete beta function by its continued fraction, at 25
+    digits, the upper tail taken directly so that probabilities near 1 keep their digits); the
+    quantile solves it for y by bisection to a bracket, then Newton's method with
+    the beta density, and x = d2·y/(d1·(1 − y)).
+    """
+    key = (float(d1), float(d2), float(probability))
+    if key not in _F_CACHE:
+        if not (d1 > 0 and d2 > 0 and 0.0 < probability < 1.0):
+            raise ValueError(f"need d1 > 0, d2 > 0 and 0 < probability < 1, got {d1}, {d2}, {probability}")
+        import mpmath
+
+        with mpmath.workdps(25):
+            a, b = mpmath.mpf(d1) / 2, mpmath.mpf(d2) / 2
+            q = 1 - mpmath.mpf(probability)
+            beta = mpmath.beta(a, b)
+
+            def upper(y):  # P(F > x(y)) = I_{1-y}(b, a), decreasing in y
+                return _regularized_beta(mpmath, b, a, 1 - y)
+
+            lo, hi = mpmath.mpf(0), mpmath.mpf(1)
+            for _ in range(12):
+                mid = (lo + hi) / 2
+                if upper(mid) > q:
+                    lo = mid
+                else:
+                    hi = mid
+            y = (lo + hi) / 2
+            for _ in range(60):
+                f = upper(y) - q
+                if f > 0:
+                    lo = y
+                else:
+                    hi = y
+                step = f / (y ** (a - 1) * (1 - y) ** (b - 1) / beta)
+                nxt = y + step
+                if not lo < nxt < hi:
+                    nxt = (lo + hi) / 2
+                if abs(nxt - y) <= mpmath.mpf(10) ** -20 * min(y, 1 - y):
+                    y = nxt
+                    break
+                y = nxt
+            _F_CACHE[key] = float(mpmath.mpf(d2) * y / (mpmath.mpf(d1) * (1 - y)))
+    return _F_CACHE[key]
