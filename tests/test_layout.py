@@ -7,11 +7,11 @@ prefix listed, and may import only modules of its rank or below:
 1. kernels: ``kernels`` and the group modules (``so3`` … ``sim3``, ``quaternion``,
    ``dual_quaternion``);
 2. ``interop`` (GTSAM objects ⇄ arrays); 3. ``factors``;
-4. the data model, ``posegraph``; 5. g2o files, ``g2o``;
+4. the data model, ``posegraph``; 5. g2o files, ``g2o``, then ``result`` (what the front door returns);
 6. the solvers, ordered: ``lm`` < ``optimizers`` < ``dropin`` < ``sparse`` <
    ``robust.losses`` and ``robust.statistics`` (the batch solver's robust costs) < ``batch`` <
    ``initialization`` < ``incremental`` < the rest of ``robust`` < ``backends``;
-7. the front door (``solve``, ``result``, the package's ``__init__``);
+7. the front door (``solve``, ``events``, the package's ``__init__``);
 8. the app: ``app``.
 
 ``testing`` (oracles and generators) stands apart: no library module imports it; the app may
@@ -39,7 +39,8 @@ RANKS = {
     "lm": 6.0, "optimizers": 6.1, "dropin": 6.2, "sparse": 6.3,
     "robust.losses": 6.4, "robust.statistics": 6.4,
     "batch": 6.5, "initialization": 6.6, "incremental": 6.7, "robust": 6.8, "backends": 6.9,
-    "solve": 7, "result": 7, "": 7,
+    "result": 5.5,
+    "events": 7, "solve": 7, "": 7,
     "app": 8,
 }
 APART = "testing"
