@@ -1,13 +1,49 @@
-"""lie-factors: closed-form Lie-group kernels and GTSAM factors built on them.
+"""lie-factors: closed-form Lie-group kernels, GTSAM factors built on them, and solvers that beat GTSAM's.
 
-Modules (tangent orderings are GTSAM's, see docs/conventions.md):
+The front door (``import lie_factors as lf``)::
+
+    pg = lf.read_g2o("intel.g2o")            # a PoseGraph: arrays, GTSAM's conventions
+    result = lf.optimize(pg)                   # the default command: start, then the batch solver
+    result = lf.optimize(pg, gnc="tls")        # false loop closures: result.outliers, result.rejected_by
+    result = lf.optimize(graph, initial, params)   # any gtsam.NonlinearFactorGraph
+    lf.write_g2o(result, "optimized.g2o")
+    replay = lf.replay(pg)                     # online, through the incremental smoother
+    isam = lf.Smoother()                       # gtsam.ISAM2's interface
+
+Every option of ``lie-factors posegraph`` is a keyword of the same name
+(``docs/api.md``). The kernels (tangent orderings are GTSAM's, ``docs/conventions.md``):
 
 - :mod:`lie_factors.so3` (Rot3, [ω]), :mod:`lie_factors.se3` (Pose3, [ω, v]),
   :mod:`lie_factors.se2` (Pose2, [x, y, θ]), :mod:`lie_factors.sim2`
   (Similarity2, [x, y, θ, λ]), :mod:`lie_factors.sim3` (Similarity3, [ω, u, λ]):
   hat, vee, exp, log, ad, Ad, dexp, dlog.
 - :mod:`lie_factors.quaternion`, :mod:`lie_factors.dual_quaternion`: exp/log.
-- :mod:`lie_factors.testing.series`: D_exp from its power series, the test oracle.
+- :mod:`lie_factors.factors`: Between/Prior factors; :mod:`lie_factors.optimizers` and
+  :mod:`lie_factors.dropin`: drop-ins for GTSAM's optimizers.
+
+Importing the package loads neither numba nor GTSAM: its names are imported on first use.
 """
 
+from .util.lazy import exports
+
 __version__ = "0.1.0"
+
+#: Public name → the submodule defining it.
+_EXPORTS = {
+    "read_g2o": "files", "write_g2o": "files",
+    "optimize": "solve", "replay": "solve",
+    "Result": "result", "ReplayResult": "result",
+    "PoseGraph": "posegraph.graph",
+    "Smoother": "incremental", "SmootherParams": "incremental",
+    "Events": "events",
+    "LieFactorsError": "errors", "InputError": "errors", "InitializationError": "errors",
+    "NotPositiveDefinite": "errors", "IndeterminantLinearSystem": "errors",
+}
+
+__all__ = sorted(_EXPORTS)
+
+__getattr__, _dir = exports(__name__, _EXPORTS)
+
+
+def __dir__() -> list[str]:
+    return sorted(set(__all__) | {"__version__"})

@@ -56,3 +56,13 @@ def first_line(exc: BaseException, limit: int = 200) -> str:
     what a one-line report of a failure from GTSAM or numpy shows."""
     text = str(exc).strip()
     return text.splitlines()[0][:limit] if text else type(exc).__name__
+
+
+def gtsam_failure(exc: BaseException, what: str = "optimization failed") -> LieFactorsError:
+    """The exception to raise for a ``RuntimeError`` GTSAM's C++ threw: its indeterminate-system
+    exception as :class:`IndeterminantLinearSystem`, anything else as :class:`InputError` (the
+    graph or its values are not what GTSAM can work with); ``what: <first line>``."""
+    text = f"{what}: {first_line(exc)}"
+    if "ndetermin" in str(exc):
+        return IndeterminantLinearSystem(text)
+    return InputError(text)

@@ -165,13 +165,11 @@ class ReplayResult(Result):
     reorderings: int | None = None
 
     def to_dict(self) -> dict:
-        d = {"incremental": True, "updates": int(self.updates), "update_seconds": float(self.update_seconds),
-             "update_p50": float(self.update_p50), "update_p99": float(self.update_p99),
-             "final_error": float(self.error), "seconds": float(self.seconds)}
-        if self.relinearizations is not None:
-            d["relinearizations"] = int(self.relinearizations)
-            d["reorderings"] = int(self.reorderings)
-        return d
+        return {"incremental": True, "updates": int(self.updates), "update_seconds": float(self.update_seconds),
+                "update_p50": float(self.update_p50), "update_p99": float(self.update_p99),
+                "seconds": float(self.seconds), "final_error": float(self.error),
+                "relinearizations": None if self.relinearizations is None else int(self.relinearizations),
+                "reorderings": None if self.reorderings is None else int(self.reorderings)}
 
     def __repr__(self) -> str:
         return (f"<ReplayResult: {self.updates} updates in {self.update_seconds:.3f} s "

@@ -43,16 +43,17 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(EXIT_USAGE)
 
 
-def _progress(args) -> Callable | None:
-    """Per-iteration progress printer on stderr, or None with --quiet."""
-    if args.quiet:
-        return None
+def _iterations(args):
+    """:class:`lie_factors.Events` printing each iteration on stderr (none with --quiet)."""
+    from lie_factors.events import Events
     from lie_factors.lm import format_iteration
 
-    def report(info):
-        print(format_iteration(info), file=sys.stderr, flush=True)
+    class Iterations(Events):
+        def iteration(self, info):
+            if not args.quiet:
+                print(format_iteration(info), file=sys.stderr, flush=True)
 
-    return report
+    return Iterations()
 
 
 def _say(args, text: str) -> None:
@@ -100,12 +101,11 @@ def _bounded_int(option: str, low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
-#: lie_factors.backends.BACKENDS and ALIASES, spelled out so that building the parser
-#: does not import GTSAM (a test checks they agree).
-BACKENDS = ("native", "dropin", "batch")
-BACKEND_ALIASES = {"custom": "dropin"}
-_BACKEND_HELP = ("dropin = lie_factors factors in lie_factors.optimizers' drop-in of GTSAM's LM "
-                 "(custom, its former name, still works)")
+#: lie_factors.backends.BACKENDS, spelled out so that building the parser does not import GTSAM
+#: (a test checks they agree); the first is the default.
+BACKENDS = ("batch", "dropin", "native")
+_BACKEND_HELP = ("batch = lie_factors factors in the vectorized solver; dropin = lie_factors factors in "
+                 "lie_factors.optimizers' drop-in of GTSAM's LM; native = GTSAM's own factors, the reference")
 
 
 # --------------------------------------------------------------------------- #
@@ -116,28 +116,14 @@ _BACKEND_HELP = ("dropin = lie_factors factors in lie_factors.optimizers' drop-i
 #: does not import GTSAM (a test checks they agree).
 INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
 
-INIT_DESCRIPTIONS = {
-    "chordal": "chordal relaxation (GTSAM's InitializePose3)",
-    "lago": "LAGO (GTSAM's lago)",
-    "spanning-tree": "measurements composed along a spanning tree",
-    "file": "vertices in the file",
-}
-
-#: Whose chordal/LAGO initializer ran (lie_factors.initialization.ENGINES), after its description.
-ENGINE_NOTES = {"lie_factors": ", ours on arrays", "gtsam": ", GTSAM's own"}
-
 
 def _add_posegraph(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", metavar="DATASET",
                    help="g2o file (2-D VERTEX_SE2/EDGE_SE2, 3-D VERTEX_SE3:QUAT/EDGE_SE3:QUAT, "
                         "EDGE3, or Sim(3) VERTEX_SIM3:EXPMAP/EDGE_SIM3:EXPMAP), or the name of a "
                         "file shipped with GTSAM, e.g. sphere2500.txt")
-    # batch is the default: it is the fast path (dropin runs GTSAM's LM algorithm from Python,
-    # lie_factors.optimizers, with GTSAM linearizing and eliminating; docs/benchmarks.md).
-    p.add_argument("--backend", default="batch", metavar="NAME",
-                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: batch = lie_factors "
-                        f"factors in the vectorized solver; {_BACKEND_HELP}; native = GTSAM's own "
-                        "factors, the reference)")
+    p.add_argument("--backend", default=BACKENDS[0], metavar="NAME",
+                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: {BACKENDS[0]}; {_BACKEND_HELP})")
     p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
                    default=100, metavar="K",
                    help="Levenberg-Marquardt iteration limit (default: 100)")
@@ -193,135 +179,14 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _refuse_batch_options(args) -> None:
-    from lie_factors.errors import InputError
-
-    for option, value, default in (("--robust", args.robust, None), ("--robust-all", args.robust_all, False),
-                                   ("--gnc", args.gnc, None), ("--init", args.init, "auto"),
-                                   ("--max-iterations", args.max_iterations, 100)):
-        if value != default:
-            raise InputError(f"{option} does not apply to --incremental (ISAM2 replays the file "
-                           "online from its own estimates)")
-
-
 def _run_posegraph(args) -> int:
-    """Parse → :class:`lie_factors.app.run.PoseGraphRun` (or, with ``--incremental``, its ISAM2
-    replay) → print; the run owns every step."""
-    from lie_factors.errors import InputError
-
+    """``lie-factors posegraph``: :mod:`lie_factors.app.posegraph` on the parsed ``args``."""
     import time
 
-    if args.incremental:
-        _refuse_batch_options(args)
-    elif args.relinearize_threshold != 0.1 or args.relinearize_skip != 10:
-        raise InputError("--relinearize-threshold and --relinearize-skip apply to --incremental only")
-    if args.no_consistency and not args.gnc:
-        raise InputError("--no-consistency applies to --gnc only")
     t = time.perf_counter()
-    from lie_factors.app import run as pgm
+    from lie_factors.app import posegraph
 
-    imports = time.perf_counter() - t
-
-    def progress_line(text: str) -> None:
-        """A progress line on stderr: elapsed seconds, memory, what is done."""
-        if not args.quiet:
-            from lie_factors.util import memory
-
-            print(f"[{time.perf_counter() - t:8.2f} s, {memory.describe()}] {text}", file=sys.stderr, flush=True)
-
-    class Printer(pgm.RunEvents):
-        def loaded(self, run):
-            progress_line(f"read and checked ({run.timings['read']:.2f} s)")
-            pg = run.pg
-            if args.incremental:
-                _say(args, f"{pg.describe()}; incremental (ISAM2, relinearize threshold "
-                           f"{args.relinearize_threshold:g}, skip {args.relinearize_skip}), backend {run.backend}")
-                return
-            _say(args, f"{pg.describe()}"
-                       f"{' (no vertices in the file)' if pg.vertices is None else ''}; "
-                       f"backend {run.backend}")
-            if run.robust is not None:
-                what = "every edge" if args.robust_all else "the loop closures"
-                _say(args, f"robust loss {run.robust} on {what}")
-
-        def started(self, start):
-            progress_line(f"initialized: {start.method} ({start.seconds:.2f} s)")
-            for method, reason in start.skipped:
-                _say(args, f"init {method} not applicable: {reason}")
-            only = (" of the odometry edges and the prior only (loop closures left out under "
-                    f"{'--gnc' if args.gnc else '--robust'})" if start.inliers_only else "")
-            _say(args, f"initial guess: {INIT_DESCRIPTIONS[start.method]}{ENGINE_NOTES.get(start.engine, '')}"
-                       f"{only} ({start.seconds:.3f} s)")
-
-        def set_up(self, run):
-            progress_line(f"set up ({run.timings['setup']:.2f} s)")
-
-        def iteration(self, info):
-            if not args.quiet:
-                from lie_factors.util import memory
-                from lie_factors.lm import format_iteration
-
-                print(f"{format_iteration(info)}  [{time.perf_counter() - t:8.2f} s, {memory.describe()}]",
-                      file=sys.stderr, flush=True)
-
-        def gnc_iteration(self, it, lam, cost, lm_iterations):
-            if not args.quiet:
-                print(f"gnc iter {it + 1:3d}  lambda {lam:.3e}  weighted cost {cost:.6e}  "
-                      f"({lm_iterations} LM iterations)", file=sys.stderr, flush=True)
-
-        def replayed(self, done, total, seconds):
-            if not args.quiet:
-                print(f"update {done}/{total}: {seconds:.3f} s", file=sys.stderr, flush=True)
-
-        def optimized(self, run):
-            if not args.incremental:
-                progress_line(f"optimized ({run.timings.get('iterations', 0.0):.2f} s)")
-            record = run.record
-            if args.incremental:
-                r = run.replay
-                _say(args, f"{r.updates} updates in {r.update_seconds:.3f} s (per update: median "
-                           f"{r.update_p50 * 1e3:.3f} ms, p99 {r.update_p99 * 1e3:.3f} ms); "
-                           f"final error {r.final_error:.6g}")
-                return
-            _report_compile(args)
-            status = "converged" if record.converged else "stopped (not converged)"
-            if args.gnc:
-                n_lc = len(run.pg.loop_closures())
-                stages = ""
-                if record.rejected_by is not None:
-                    counts = {}
-                    for stage in record.rejected_by.values():
-                        counts[stage] = counts.get(stage, 0) + 1
-                    stages = " (" + ", ".join(f"{counts.get(k, 0)} by {k}" for k in
-                                              ("gate", "clique", "gnc", "final")) + ")"
-                _say(args, f"GNC-{args.gnc.upper()}: rejected {len(record.outliers)} of {n_lc} loop "
-                           f"closures{stages}; error {record.initial_error:.6g} -> weighted "
-                           f"{record.final_error:.6g} after {record.iterations} GNC iterations, "
-                           f"{record.seconds:.3f} s (+ {record.init_seconds:.3f} s initialization), {status}")
-            else:
-                _say(args, f"error {record.initial_error:.6g} -> {record.final_error:.6g} after "
-                           f"{record.iterations} iterations, {record.seconds:.3f} s "
-                           f"(+ {record.init_seconds:.3f} s initialization), {status}")
-
-        def wrote(self, path):
-            progress_line(f"wrote {path}")
-            _say(args, f"wrote {path}")
-
-    if args.incremental:  # the online replay (ISAM2)
-        from lie_factors.app.incremental import IncrementalRun
-
-        job = IncrementalRun(args.dataset, args.backend, args.relinearize_threshold, args.relinearize_skip,
-                             output=args.output, plot=args.plot, events=Printer())
-    else:
-        job = pgm.PoseGraphRun(args.dataset, args.backend, args.max_iterations, args.init,
-                               robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
-                               output=args.output, plot=args.plot, events=Printer(), lazy_values=True,
-                               consistency=not args.no_consistency)
-    job.timings["imports"] = imports  # GTSAM and numpy, loaded with lie_factors.app.run
-    record = job.execute()
-    if args.json:
-        _emit_json(record.to_dict())
-    return 0
+    return posegraph.run(args, time.perf_counter() - t, t)
 
 
 # --------------------------------------------------------------------------- #
@@ -347,8 +212,8 @@ def _add_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output", default="lie-factors-demo", metavar="DIR",
                    help="directory for trajectory.png and optimized.g2o "
                         "(default: ./lie-factors-demo, created if missing)")
-    p.add_argument("--backend", default="dropin", metavar="NAME",
-                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: dropin; {_BACKEND_HELP}; "
+    p.add_argument("--backend", default=BACKENDS[0], metavar="NAME",
+                   help=f"factor implementation: {' | '.join(BACKENDS)} (default: {BACKENDS[0]}; {_BACKEND_HELP}; "
                         "sim3 runs native beside it anyway)")
     p.add_argument("--max-iterations", type=_bounded_int("--max-iterations", 0, MAX_ITERATIONS),
                    default=100, metavar="K",
@@ -393,33 +258,33 @@ def _demo_record(args, dataset: str, graph, result, ate0: float, ate1: float, sc
     """The ``--json`` record of a demo: its graph, ``result``'s figures and the ATE before and after."""
     return {"backend": args.backend, **({"scenario": scenario} if scenario else {}), "dataset": dataset,
             "dimension": 3, "poses": args.poses, "factors": int(graph.size()), "iterations": result.iterations,
-            "initial_error": result.initial_error, "final_error": result.final_error,
+            "initial_error": result.initial_error, "final_error": result.error,
             "seconds": result.seconds, "converged": result.converged, "ate_rmse_initial": ate0, "ate_rmse": ate1}
 
 
 def _run_demo(args) -> int:
-    from lie_factors import backends
+    import lie_factors as lf
     from lie_factors.app import demo
+    from lie_factors.backends import factor_namespace
 
     if args.poses is None:
         args.poses = DEMO_SCENARIOS[args.scenario][0]
-    args.backend = backends.backend_name(args.backend)
+    factors = factor_namespace(args.backend)  # a clear error now for an unknown backend
     if args.scenario == "sim3":
         return _run_demo_sim3(args)
     files = _demo_files(args)
-    factors = backends.load_factors(args.backend)
 
     problem = demo.simulate(args.poses, args.seed)
     graph = demo.build_graph(problem, factors)
     _say(args, f"demo: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
-    result = backends.get_backend(args.backend).optimize(graph, problem.initial, args.max_iterations,
-                                                         _progress(args))
+    result = lf.optimize(graph, problem.initial, backend=args.backend, max_iterations=args.max_iterations,
+                         events=_iterations(args))
     _report_compile(args)
     ate0 = demo.ate_rmse(problem.initial, problem.truth)
     ate1 = demo.ate_rmse(result.values, problem.truth)
     status = "converged" if result.converged else "stopped (not converged)"
-    _say(args, f"error       {result.initial_error:12.6g} -> {result.final_error:.6g} "
+    _say(args, f"error       {result.initial_error:12.6g} -> {result.error:.6g} "
                f"({result.iterations} iterations, {result.seconds:.3f} s, {status})")
     _say(args, f"ATE (RMSE)  {ate0:12.4f} m -> {ate1:.4f} m")
 
@@ -439,20 +304,18 @@ def _run_demo_sim3(args) -> int:
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
     from lie_factors.errors import InputError
 
-    from lie_factors import backends
     from lie_factors.app import demo_sim3
 
     if args.backend == "native":
         raise InputError("--scenario sim3 always runs GTSAM's native factors beside ours; "
                        "choose --backend dropin or batch for ours")
     files = _demo_files(args)
-    backends.load_factors(args.backend)  # a clear error now if ours are unavailable
 
     problem = demo_sim3.simulate(args.poses, args.seed)
     _say(args, f"demo sim3: {args.poses} poses, {len(problem.odometry)} odometry edges, "
                f"{len(problem.closures)} loop closures, scale drift e^{demo_sim3.DRIFT[6]:g} per step, "
                f"seed {args.seed}, backend {args.backend} beside native")
-    c = demo_sim3.compare(problem, args.backend, args.max_iterations, _progress(args))
+    c = demo_sim3.compare(problem, args.backend, args.max_iterations, _iterations(args))
     _report_compile(args)
     ours, native, graph = c.ours, c.native, c.graph
     ate0, ate_ours, ate_native = c.ate_initial, c.ate_ours, c.ate_native
@@ -463,7 +326,7 @@ def _run_demo_sim3(args) -> int:
 
     col = f"ours ({args.backend})"
     _say(args, f"{'':18s}{'initial':>14s}{col:>16s}{'GTSAM native':>16s}")
-    _say(args, f"{'error':18s}{ours.initial_error:14.6g}{ours.final_error:16.10g}{native.final_error:16.10g}")
+    _say(args, f"{'error':18s}{ours.initial_error:14.6g}{ours.error:16.10g}{native.error:16.10g}")
     _say(args, f"{'ATE (RMSE) [m]':18s}{ate0:14.4f}{ate_ours:16.4f}{ate_native:16.4f}")
     _say(args, f"{'|true gradient|':18s}{g0:14.3g}{g_ours:16.3g}{g_native:16.3g}")
     _say(args, f"{'  relative':18s}{1.0:14.3g}{g_ours / g0:16.3g}{g_native / g0:16.3g}")
@@ -485,7 +348,7 @@ def _run_demo_sim3(args) -> int:
     if args.json:
         _emit_json({**_demo_record(args, f"demo-sim3(poses={n}, seed={args.seed})", graph, ours, ate0, ate_ours,
                                    "sim3"),
-                    "native_ate_rmse": ate_native, "native_final_error": native.final_error,
+                    "native_ate_rmse": ate_native, "native_final_error": native.error,
                     "native_iterations": native.iterations, "native_converged": native.converged,
                     "gradient_norm_initial": g0, "gradient_norm": g_ours, "native_gradient_norm": g_native})
     return 0

@@ -147,7 +147,7 @@ def lm_params(max_iterations: int = 100) -> gtsam.LevenbergMarquardtParams:
 class Comparison:
     """Ours and GTSAM's native factors on one problem: results, ATEs, true gradient norms.
 
-    ``ours``/``native``: :class:`lie_factors.lm.OptimizeResult`; ``graph``: the
+    ``ours``/``native``: :class:`lie_factors.Result`; ``graph``: the
     graph ours optimized; gradients are ‖∇cost‖ at the start and at each result.
     """
 
@@ -168,20 +168,17 @@ class Comparison:
         return self.gradient_ours <= 1e-6 * self.gradient_initial
 
 
-def compare(problem: Problem, backend: str = "dropin", max_iterations: int = 100,
-            progress=None) -> Comparison:
-    """Optimize ``problem`` with our factors (``backend`` dropin or batch, of
-    :mod:`lie_factors.backends`) and with GTSAM's native ones, same start and
-    :func:`lm_params`; ``progress`` gets our iterations."""
+def compare(problem: Problem, backend: str = "batch", max_iterations: int = 100, events=None) -> Comparison:
+    """Optimize ``problem`` with our factors (``backend`` batch or dropin, :func:`lie_factors.optimize`)
+    and with GTSAM's native ones in GTSAM's optimizer, same start and :func:`lm_params`; ``events``
+    (:class:`lie_factors.Events`) hears our iterations."""
+    import lie_factors as lf
     from .. import factors
-    from .. import backends
 
     graph = build_graph(problem, factors)
     native_graph = build_graph(problem, gtsam)
-    optimize = backends.get_backend(backend).optimize
-    ours = optimize(graph, problem.initial, max_iterations=max_iterations, progress=progress,
-                    params=lm_params(max_iterations))
-    native = backends.optimize(native_graph, problem.initial, max_iterations, None, lm_params(max_iterations))
+    ours = lf.optimize(graph, problem.initial, lm_params(max_iterations), backend=backend, events=events)
+    native = lf.optimize(native_graph, problem.initial, lm_params(max_iterations), backend="native")
     return Comparison(
         problem, graph, ours, native,
         ate_rmse(problem.initial, problem.truth), ate_rmse(ours.values, problem.truth),

@@ -118,3 +118,23 @@ def landmark_positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
         else:
             out[n, :2] = values.atPoint2(k)
     return out
+
+
+def plot_result(path: str, pg, result, title: str, incremental: bool = False) -> None:
+    """The command's plot of a run on ``pg``: the start and the estimate (top view, and 3-D for a
+    3-D graph), the landmarks of each, and the loop closures rejected under ``--robust``/``--gnc``
+    drawn between their optimized poses."""
+    if incremental:
+        start, estimate, start_points, points = ("initial (online guesses)", "ISAM2 estimate", "initial landmarks",
+                                                 "estimated landmarks")
+    else:
+        start, estimate, start_points, points = (f"initial ({result.init})", "optimized", "initial landmarks",
+                                                 "optimized landmarks")
+    values, begin = result.values, result.start
+    trajectories = {start: positions(begin, pg.is3d, pg.group), estimate: positions(values, pg.is3d, pg.group)}
+    landmarks = ({start_points: landmark_positions(begin, pg.is3d), points: landmark_positions(values, pg.is3d)}
+                 if pg.landmark_count else None)
+    rejected = result.outliers
+    segments = ({"rejected loop closures": edge_segments(trajectories[estimate], pg, rejected)}
+                if rejected is not None and len(rejected) else None)
+    plot_trajectories(path, trajectories, title, three_d=pg.is3d, points=landmarks, segments=segments)

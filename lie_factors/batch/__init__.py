@@ -30,7 +30,6 @@ _EXPORTS = {
     "Problem": "graph",
     "BatchLevenbergMarquardt": "optimizer", "OptimizeResult": "optimizer",
     "TIMING_KEYS": "optimizer", "optimize": "optimizer",
-    "run_batch": "optimizer",
     "LINEAR_SOLVERS": "solvers", "cholmod_available": "solvers",
     "LinearSystem": "system",
 }

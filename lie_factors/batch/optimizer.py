@@ -28,7 +28,7 @@ from ..lm import IterationInfo, OptimizeResult
 from ..util.timing import Stopwatch
 from . import solvers
 from .graph import Problem
-from ..errors import IndeterminantLinearSystem, InputError, NotPositiveDefinite, first_line
+from ..errors import IndeterminantLinearSystem, InputError, NotPositiveDefinite
 from .system import LinearSystem
 
 #: Keys of ``OptimizeResult.timings`` (seconds, summed over the run).
@@ -266,37 +266,10 @@ def optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
              progress: Callable[[IterationInfo], None] | None = None,
              linear_solver: str = "auto", **hooks) -> OptimizeResult:
     """Batch Levenberg–Marquardt or Gauss–Newton (see :class:`BatchLevenbergMarquardt`;
-    ``hooks``: ``reweight``, ``cost``); ``seconds``: the whole call's wall time."""
-    t0 = time.perf_counter()
+    ``hooks``: ``reweight``, ``cost``); ``seconds``: the solver's construction and iterations,
+    numba compilation excluded (as :func:`lie_factors.optimize`'s)."""
+    clock = Stopwatch()
     opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=linear_solver, **hooks)
     result = opt.optimize(progress)
-    result.seconds = time.perf_counter() - t0
-    return result
-
-
-def run_batch(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int = 100,
-              progress: Callable[[IterationInfo], None] | None = None,
-              params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
-              linear_solver: str = "auto", optimizer_class=None) -> OptimizeResult:
-    """The CLI's ``--backend batch`` (the signature of its other backends' ``optimize``).
-
-    ``max_iterations=0`` runs none; ``optimizer_class``: a subclass of
-    :class:`BatchLevenbergMarquardt` (e.g. ``batch.robust.WeightedLevenbergMarquardt``).
-    ``seconds``: the optimizer's construction and its run, numba compilation
-    excluded.  Bad input and unsolvable systems raise
-    :class:`lie_factors.errors.InputError`.
-    """
-    if params is None:
-        params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
-    # Compilation of the loops (first run on a machine) is not optimization time.
-    clock = Stopwatch()
-    try:
-        cls = BatchLevenbergMarquardt if optimizer_class is None else optimizer_class
-        result = cls(graph, initial, params, linear_solver=linear_solver).optimize(progress)
-    except InputError as exc:
-        raise InputError(f"batch backend: {exc}") from None
-    except RuntimeError as exc:
-        raise InputError(f"optimization failed: {first_line(exc)}") from None
     result.seconds = clock.seconds()
     return result

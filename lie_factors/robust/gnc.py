@@ -43,6 +43,7 @@ below ½ (for TLS the weights end within ``weightsTol`` of 0 or 1).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -558,6 +559,43 @@ class BatchInner:
         P = self.lm.problem
         self.initial = _BatchState(self.lm, {n: b.X0 for n, b in P.blocks.items()},
                                    gtsam.Values(P.other))
+
+    @classmethod
+    def from_pose_graph(cls, pg, X: np.ndarray, lm_params=None, linear_solver: str = "auto",
+                        exclude=()) -> "BatchInner":
+        """The same solver on a :class:`~lie_factors.posegraph.graph.PoseGraph` (its edges, then its
+        priors, are the factor slots), starting from the poses ``X`` (P, m, m) in ``pg.keys``
+        order: the arrays become the batch problem directly, with no factor object."""
+        import gtsam
+
+        from ..batch.graph import Problem
+
+        E, Q = len(pg.edge_keys), len(pg.prior_keys)
+        size = E + Q
+        excluded = {int(k) for k in exclude}
+        if any(not 0 <= k < size for k in excluded):
+            raise ValueError(f"BatchInner: excluded slots must be factor slots (0..{size - 1})")
+        edge_out = {k for k in excluded if k < E}
+        prior_out = {k - E for k in excluded if k >= E}
+        ek, pk = pg.edge_keys.tolist(), pg.prior_keys.tolist()
+        held = {key for k in range(E) if k not in edge_out for key in ek[k]}
+        held |= {pk[q] for q in range(Q) if q not in prior_out}
+        # a left-out slot whose variables no other factor holds stays in (as for a graph)
+        edges = np.array([k for k in range(E) if k not in edge_out or not set(ek[k]) <= held], dtype=np.int64)
+        priors_in = np.array([q for q in range(Q) if q not in prior_out or pk[q] not in held], dtype=np.int64)
+        kept = dataclasses.replace(pg.with_edges(edges), prior_keys=pg.prior_keys[priors_in],
+                                   prior_measured=pg.prior_measured[priors_in],
+                                   prior_information=pg.prior_information[priors_in], landmarks=None)
+        self = cls.__new__(cls)
+        self.lm = _GncLevenbergMarquardt(Problem.from_pose_graph(kept, X), None, lm_params,
+                                         linear_solver=linear_solver)
+        self.size = size
+        self.slots = np.concatenate([edges, E + priors_in]).astype(np.int64)
+        self._left_out = np.setdiff1d(np.arange(size), self.slots)
+        self.dims = np.full(size, pg.info.dim, dtype=np.int64)
+        P = self.lm.problem
+        self.initial = _BatchState(self.lm, {n: b.X0 for n, b in P.blocks.items()}, gtsam.Values())
+        return self
 
     def factor_errors(self, state) -> np.ndarray:
         out = np.zeros(self.size)

@@ -48,7 +48,7 @@ from ..kernels.jit import kernel
 __all__ = [
     "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH",
     "LOSSES", "RobustLoss", "parse_loss", "from_gtsam", "weight", "loss",
-    "weights_and_losses", "chi2_inlier_threshold", "f_quantile",
+    "weights_and_losses",
 ]
 
 GAUSSIAN = 0

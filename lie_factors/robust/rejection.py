@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable
+from typing import Protocol
 
 import numpy as np
 
@@ -61,7 +61,7 @@ from .gnc import GncParams, GncResult
 from .statistics import f_quantile
 from .screening import STAGES, Screening, screen_closures
 
-__all__ = ["Rejection", "TailModel", "reject_false_closures", "closure_groups", "MAX_ROUNDS", "TAIL_DOF"]
+__all__ = ["Rejection", "Solver", "TailModel", "reject_false_closures", "closure_groups", "MAX_ROUNDS", "TAIL_DOF"]
 
 #: Rounds of the final check (each one re-solve).
 MAX_ROUNDS = 8
@@ -168,23 +168,34 @@ class Rejection:
         return np.array(sorted(self.rejected_by), dtype=np.int64)
 
 
-def reject_false_closures(graph: PoseGraph, run_gnc: Callable[[GncParams], GncResult],
-                          errors: Callable[[object], np.ndarray],
-                          refine: Callable[[object, np.ndarray], object],
-                          poses: Callable[[object], np.ndarray],
-                          params: GncParams, screen: bool = True, probability: float = 0.9999,
-                          final_probability: float = 0.9999) -> Rejection:
-    """The three stages of the module docstring on ``graph``: its edges, then its priors, are
-    the factor slots.
+class Solver(Protocol):
+    """What the three stages need from a backend, on one graph whose factor slots are a pose
+    graph's edges, then its priors (then any other factor).  An *estimate* is whatever the
+    backend keeps (poses on arrays, ``gtsam.Values``): opaque to the stages.
 
-    ``run_gnc(params)`` runs GNC (with ``params.known_outliers`` extended by the
-    first stage); ``errors(values)`` gives every factor slot's Gaussian error
-    ½‖R e‖² at ``values``; ``refine(values, weights)`` re-solves from
-    ``values`` with each slot's information scaled by ``weights``;
-    ``poses(values)`` (P, m, m) the poses in ``graph.keys`` order.
+    ``gnc(params)``: GNC (:class:`~lie_factors.robust.gnc.GncParams`, its known outliers
+    extended by the consistency stage); ``errors(estimate)``: every slot's Gaussian error
+    ½‖R e‖²; ``refine(estimate, weights)``: LM from ``estimate`` with each slot's information
+    scaled by ``weights``; ``poses(estimate)``: (P, m, m) the poses in the pose graph's key order.
+    """
+
+    def gnc(self, params: GncParams) -> GncResult: ...
+
+    def errors(self, estimate) -> np.ndarray: ...
+
+    def refine(self, estimate, weights: np.ndarray): ...
+
+    def poses(self, estimate) -> np.ndarray: ...
+
+
+def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncParams, screen: bool = True,
+                          probability: float = 0.9999, final_probability: float = 0.9999) -> Rejection:
+    """The three stages of the module docstring on ``graph``, solved by ``solver`` (:class:`Solver`).
+
     ``probability``: the consistency stage's χ² quantile; ``final_probability``:
     the final check's quantile of the tail model.
     """
+    run_gnc, errors, refine, poses = solver.gnc, solver.errors, solver.refine, solver.poses
     clock = Stopwatch()
     lc = graph.loop_closures()
     screening = screen_closures(graph, probability) if screen else None

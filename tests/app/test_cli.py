@@ -297,19 +297,21 @@ def test_help_imports_no_heavy_module():
     assert "crosscheck" in p.stdout  # deferred optional subcommands are still listed
 
 
-def test_backend_names_match_posegraph():
-    from lie_factors import backends
+def test_backend_names_match_the_library_and_one_default_everywhere():
+    from lie_factors import backends, solve
 
-    assert cli.BACKENDS == tuple(backends.BACKENDS)
-    assert cli.BACKEND_ALIASES == backends.ALIASES
+    assert cli.BACKENDS == backends.BACKENDS == solve.BACKENDS
+    assert cli.BACKENDS[0] == backends.DEFAULT_BACKEND == "batch"
+    parser, _ = cli.build_parser()
+    for command in ("posegraph", "demo"):
+        args = parser.parse_args([command] + (["x.g2o"] if command == "posegraph" else []))
+        assert args.backend == backends.DEFAULT_BACKEND
+    import inspect
 
+    import lie_factors as lf
 
-def test_custom_is_the_dropin_backend_by_its_former_name(capsys):
-    status, out, _ = run_main(capsys, "posegraph", SMALL, "--backend", "custom", "--json", "--max-iterations", "2")
-    assert status == 0 and last_json(out)["backend"] == "dropin"
-    assert "backend dropin" in out
-    p = run_module("posegraph", "--help")
-    assert "dropin" in p.stdout and "custom, its former name" in " ".join(p.stdout.split())
+    assert inspect.signature(lf.optimize).parameters["backend"].default == backends.DEFAULT_BACKEND
+    assert inspect.signature(lf.replay).parameters["backend"].default == backends.DEFAULT_BACKEND
 
 
 @pytest.mark.parametrize("argv, fragment", [

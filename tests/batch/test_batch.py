@@ -273,16 +273,22 @@ def test_bad_argument_types():
         batch.optimize(gtsam.NonlinearFactorGraph(), {})
 
 
-def test_run_batch_for_cli():
-    from lie_factors.lm import IterationInfo, OptimizeResult
+def test_front_door_runs_the_batch_solver_on_a_gtsam_graph():
+    import lie_factors as lf
+    from lie_factors.lm import IterationInfo
 
     lie, _, initial = make_problem("Pose2", seed=6)
     seen = []
-    res = batch.run_batch(lie, initial, max_iterations=50, progress=seen.append)
-    assert isinstance(res, OptimizeResult)
-    assert res.iterations == len(seen) and all(isinstance(s, IterationInfo) for s in seen)
-    assert res.final_error == pytest.approx(lie.error(res.values), rel=1e-9)
-    assert res.converged
+
+    class Events(lf.Events):
+        def iteration(self, info):
+            seen.append(info)
+
+    res = lf.optimize(lie, initial, max_iterations=50, events=Events())
+    ref = batch.optimize(lie, initial)
+    assert res.iterations == len(seen) == ref.iterations and all(isinstance(s, IterationInfo) for s in seen)
+    assert res.error == pytest.approx(lie.error(res.values), rel=1e-9)
+    assert res.error == ref.final_error and res.converged
 
 
 def _landmark_graph(is3d, seed=21, landmarks=5):
@@ -418,9 +424,10 @@ def test_gauss_newton_without_prior_is_indeterminant(linear_solver):
             gauge_free.add(lie.at(i))
     with pytest.raises(IndeterminantLinearSystem, match="not positive definite.*prior"):
         batch.optimize(gauge_free, initial, gtsam.GaussNewtonParams(), linear_solver=linear_solver)
-    from lie_factors.errors import LieFactorsError
-    with pytest.raises(LieFactorsError, match="positive definite"):
-        batch.run_batch(gauge_free, initial, params=gtsam.GaussNewtonParams(), linear_solver=linear_solver)
+    import lie_factors as lf
+
+    with pytest.raises(IndeterminantLinearSystem, match="not positive definite.*prior"):
+        lf.optimize(gauge_free, initial, gtsam.GaussNewtonParams(), linear_solver=linear_solver)
     # LM's damping makes the same system solvable; the result is finite.
     res = batch.optimize(gauge_free, initial, linear_solver=linear_solver)
     assert np.isfinite(res.final_error) and res.final_error < res.errors[0]

@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 
 from lie_factors import factors, g2o
-from lie_factors.app import run as P
+import lie_factors as lf
+from lie_factors.solve import PARALLEL_MIN_WORK
+from support.runs import run
 from lie_factors.backends import build_graph
 from lie_factors.g2o import read_pose_graph
 from lie_factors.batch import BatchLevenbergMarquardt, Problem
@@ -140,10 +142,10 @@ def test_one_information_matrix_for_every_edge_is_shared(tmp_path, is3d):
     path.write_text("\n".join(lines) + "\n")
     a, _ = _compare_with_readg2o(path, is3d)
     assert a.information.strides[0] == 0 and not a.information.flags.writeable
-    shared = P.run(str(path), backend="batch")[0]
+    shared = run(str(path), backend="batch")[0]
     other = read_pose_graph(str(path))
     other.information = np.array(other.information)  # separate copies
-    assert P.run(other, backend="batch")[0].final_error == shared.final_error
+    assert run(other, backend="batch")[0].final_error == shared.final_error
     lines[-1] = lines[-1].rsplit(" ", 1)[0] + " 1e4"
     path.write_text("\n".join(lines) + "\n")
     assert g2o.read_arrays(g2o.check_g2o(str(path))).information.strides[0] != 0
@@ -251,26 +253,32 @@ def test_default_run_builds_no_factor_object(monkeypatch, tmp_path):
     def refuse(*args, **kwargs):
         raise AssertionError("a factor object was constructed")
 
-    native, native_result, _ = P.run(str(path), "native")
+    native, native_result, _ = run(str(path), "native")
     monkeypatch.setattr(factors.BetweenFactor, "__init__", refuse)
     monkeypatch.setattr(factors.PriorFactor, "__init__", refuse)
-    job = P.PoseGraphRun(str(path), "batch", lazy_values=True)
-    record = job.execute()
+    pg = lf.read_g2o(str(path))
+    result = lf.optimize(pg)
     # No GTSAM graph was read and no Values made of the file: the arrays are the only copy.
-    assert job.pg.landmarks is None and "initial" not in vars(job.pg)
-    assert record.init == native.init == "chordal"
-    for k in job.pg.keys.tolist():  # the array initializer starts where GTSAM's does
-        np.testing.assert_allclose(job.start_values().atPose3(k).matrix(),
+    assert pg.landmarks is None and "initial" not in vars(pg) and result._values is None
+    assert result.init == native.init == "chordal"
+    for k in pg.keys.tolist():  # the array initializer starts where GTSAM's does
+        np.testing.assert_allclose(result.start.atPose3(k).matrix(),
                                    native_result.start.atPose3(k).matrix(), rtol=0, atol=1e-9)
-    job = P.PoseGraphRun(str(path), "batch", output=str(tmp_path / "out.g2o"), lazy_values=True)
-    record = job.execute()
-    assert record.factors == native.factors and record.iterations == native.iterations
-    assert record.final_error == pytest.approx(native.final_error, rel=1e-9)
-    assert set(record.timings) == set(P.TIMING_KEYS)
+    result = lf.optimize(pg)
+    lf.write_g2o(result, str(tmp_path / "out.g2o"))
+    assert result.factors == native.factors and result.iterations == native.iterations
+    assert result.error == pytest.approx(native.final_error, rel=1e-9)
+    assert set(result.timings) == {"init", "setup", "iterations"}
     # The Values built from the arrays' estimate (for the output file) have the same error.
-    assert build_graph(job.pg, "native").error(job.values()) == pytest.approx(record.final_error,
-                                                                              rel=1e-12)
-    assert read_pose_graph(str(tmp_path / "out.g2o")).pose_count == job.pg.pose_count
+    assert build_graph(pg, "native").error(result.values) == pytest.approx(result.error, rel=1e-12)
+    assert read_pose_graph(str(tmp_path / "out.g2o")).pose_count == pg.pose_count
+
+
+class _Start(lf.Events):
+    """Keeps the initialization a run started from."""
+
+    def started(self, start):
+        self.start = start
 
 
 @pytest.mark.parametrize("diagonal", [True, False])
@@ -278,23 +286,23 @@ def test_2d_array_initialization_matches_gtsams(tmp_path, diagonal):
     """auto in 2-D: LAGO (diagonal information) or, with the same reason as GTSAM's path, chordal."""
     path = tmp_path / "g.g2o"
     path.write_text(_file_2d(np.random.default_rng(11), n=30, diagonal=diagonal, consistent=True))
-    gtsam_job = P.PoseGraphRun(str(path), "native", max_iterations=0)
-    native, native_result = gtsam_job.execute(), gtsam_job.result
-    job = P.PoseGraphRun(str(path), "batch", max_iterations=0)
-    job.execute()
-    assert "initial" not in vars(job.pg)
-    assert job.start.method == native.init == ("lago" if diagonal else "chordal")
-    assert job.start.skipped == gtsam_job.start.skipped
-    assert len(job.start.skipped) == (0 if diagonal else 1)
+    pg = lf.read_g2o(str(path))
+    native_start, batch_start = _Start(), _Start()
+    native_result = lf.optimize(pg, backend="native", max_iterations=0, events=native_start)
+    lf.optimize(pg, max_iterations=0, events=batch_start)
+    assert "initial" not in vars(pg)
+    assert batch_start.start.method == native_result.init == ("lago" if diagonal else "chordal")
+    assert batch_start.start.skipped == native_start.start.skipped
+    assert len(batch_start.start.skipped) == (0 if diagonal else 1)
     # 1e-9 relative : to the size of the graph, ~10 here
     scale = max(1.0, max(np.abs(native_result.start.atPose2(k).translation()).max()
-                         for k in job.pg.keys.tolist()))
-    for k in job.pg.keys.tolist():
-        d = job.start_values().atPose2(k).localCoordinates(native_result.start.atPose2(k))
+                         for k in pg.keys.tolist()))
+    for k in pg.keys.tolist():
+        d = batch_start.start.values.atPose2(k).localCoordinates(native_result.start.atPose2(k))
         assert np.abs(d).max() < 1e-9 * scale
     # From starts that agree to 1e-9, LM reaches the same optimum.
-    done = P.PoseGraphRun(str(path), "batch").execute()
-    assert done.final_error == pytest.approx(P.run(str(path), "native")[0].final_error, rel=1e-9)
+    done = lf.optimize(pg)
+    assert done.error == pytest.approx(run(str(path), "native")[0].final_error, rel=1e-9)
 
 
 def _modules_after(code: str) -> str:
@@ -346,13 +354,13 @@ def test_small_graphs_run_the_batch_loops_on_one_thread(tmp_path):
     path.write_text(_file_3d(np.random.default_rng(9)))
     seen = []
 
-    class Events(P.RunEvents):
+    class Events(lf.Events):
         def iteration(self, info):
             seen.append(numba.get_num_threads())
 
     before = numba.get_num_threads()
-    job = P.PoseGraphRun(str(path), "batch", events=Events())
-    job.execute()
-    assert job.pg.edge_count * 36 < P.PARALLEL_MIN_WORK
+    pg = lf.read_g2o(str(path))
+    lf.optimize(pg, events=Events())
+    assert pg.edge_count * 36 < PARALLEL_MIN_WORK
     assert seen and set(seen) == {1}
     assert numba.get_num_threads() == before

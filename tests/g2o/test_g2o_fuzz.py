@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 from lie_factors import g2o
 import lie_factors.g2o.load as loading
 from lie_factors.g2o import parse
-from lie_factors.app import run as P
+from support.runs import run
 from lie_factors.g2o import read_pose_graph
 from lie_factors.errors import InputError
 
@@ -136,7 +136,7 @@ def _check_one(tmp_path: Path, content: bytes) -> None:
     assert pg.edge_count + pg.observation_count == factors
     assert pg.pose_count == poses and pg.landmark_count == landmarks
     try:
-        P.run(pg, "native", max_iterations=2)
+        run(pg, "native", max_iterations=2)
     except InputError as exc:  # e.g. a coordinate of 1e154 whose square overflows
         assert "\n" not in str(exc) and "initial error" in str(exc)
 

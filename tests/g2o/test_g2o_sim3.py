@@ -18,7 +18,7 @@ import pytest
 
 from lie_factors.app import cli, demo_sim3
 from lie_factors import g2o
-from lie_factors.app import run as P
+from support.runs import run
 from lie_factors.g2o import read_pose_graph
 from lie_factors.testing import reference as ref
 
@@ -205,7 +205,7 @@ def test_dropin_and_native_reach_the_same_optimum_from_dead_reckoning(tmp_path):
     problem = demo_sim3.simulate(40, 1)
     path = tmp_path / "start.g2o"
     g2o.write_g2o(str(path), demo_sim3.between_graph(problem), problem.initial)
-    records = {b: P.run(str(path), b, 100)[0] for b in ("native", "dropin", "batch")}
+    records = {b: run(str(path), b, 100)[0] for b in ("native", "dropin", "batch")}
     assert records["dropin"].final_error <= records["native"].final_error * (1 + 1e-9)
     assert records["batch"].final_error == pytest.approx(records["dropin"].final_error, rel=1e-9)
     assert records["dropin"].final_error < 1e-2 * records["dropin"].initial_error
@@ -217,11 +217,11 @@ def test_initialization_methods_on_a_sim3_file(tmp_path):
     problem = demo_sim3.simulate(20, 3)
     path = tmp_path / "start.g2o"
     g2o.write_g2o(str(path), demo_sim3.between_graph(problem), problem.initial)
-    record, result, _ = P.run(str(path), "dropin", 50, init="auto")
+    record, result, _ = run(str(path), "dropin", 50, init="auto")
     assert record.init == "file"
     assert ref.rel_err(result.start.atSimilarity3(19).matrix(), problem.initial.atSimilarity3(19).matrix()) <= 1e-13
-    record, result, _ = P.run(str(path), "dropin", 50, init="spanning-tree")
+    record, result, _ = run(str(path), "dropin", 50, init="spanning-tree")
     assert record.init == "spanning-tree" and result.start.atSimilarity3(19).scale() > 0
     for method in ("chordal", "lago"):
         with pytest.raises(g2o.InputError, match="Similarity3"):
-            P.run(str(path), "native", 50, init=method)
+            run(str(path), "native", 50, init=method)

@@ -451,9 +451,9 @@ def test_bad_arguments():
     both_raise(lambda mod: mod.LevenbergMarquardtOptimizer(graph, initial, p).optimize())
 
 
-def test_cli_custom_backend_runs_the_drop_in(monkeypatch):
-    """`lie-factors posegraph --backend custom` optimizes with the drop-in LM (same result as GTSAM's LM)."""
-    from lie_factors.app import run as posegraph
+def test_dropin_backend_runs_the_drop_in(monkeypatch):
+    """``backend="dropin"`` (``--backend dropin``) optimizes with the drop-in LM: GTSAM's result."""
+    import lie_factors as lf
 
     made = []
 
@@ -464,12 +464,12 @@ def test_cli_custom_backend_runs_the_drop_in(monkeypatch):
 
     monkeypatch.setattr(optimizers, "LevenbergMarquardtOptimizer", Spy)
     graph, initial = load(True, True)
-    res = posegraph.get_backend("custom").optimize(graph, initial)
+    res = lf.optimize(graph, initial, backend="dropin")
     assert len(made) == 1
     ref = gtsam.LevenbergMarquardtOptimizer(graph, initial)
     ref.optimize()
     assert res.iterations == ref.iterations()
-    assert res.final_error == pytest.approx(ref.error(), rel=1e-9)
+    assert res.error == pytest.approx(ref.error(), rel=1e-9)
 
 
 @pytest.mark.parametrize("is3d", [True, False], ids=["Pose3", "Pose2"])

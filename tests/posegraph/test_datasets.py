@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from lie_factors import factors, g2o
-from lie_factors.app import run as P
+from support.runs import run
 from lie_factors.backends import build_graph
 from lie_factors.g2o import read_pose_graph
 from lie_factors.posegraph.graph import PoseGraph
@@ -164,8 +164,8 @@ def test_every_dataset_runs_or_is_refused_truthfully(path: Path):
     graph_n = build_graph(pg, "native")
     work = int(graph_n.size()) * int(pg.initial.size())
     if work <= SMALL_WORK:
-        native, _, _ = P.run(pg, "native")
-        dropin, _, _ = P.run(pg, "dropin")
+        native, _, _ = run(pg, "native")
+        dropin, _, _ = run(pg, "dropin")
         assert native.converged and dropin.converged
         assert dropin.initial_error == pytest.approx(native.initial_error, rel=1e-9)
         assert dropin.final_error == pytest.approx(native.final_error, rel=REL, abs=1e-9)
@@ -177,12 +177,12 @@ def test_every_dataset_runs_or_is_refused_truthfully(path: Path):
     # seconds here and are tested elsewhere.
     init = "spanning-tree" if (pg.vertices is None) else "file"
     if work > MEDIUM_WORK:
-        native, _, _ = P.run(pg, "native", max_iterations=0, init=init)
-        batch, _, _ = P.run(pg, "batch", max_iterations=0, init=init)
+        native, _, _ = run(pg, "native", max_iterations=0, init=init)
+        batch, _, _ = run(pg, "batch", max_iterations=0, init=init)
         assert batch.initial_error == pytest.approx(native.initial_error, rel=1e-9)
         return
-    native, _, _ = P.run(pg, "native", max_iterations=BOUNDED_ITERATIONS, init=init)
-    batch, _, _ = P.run(pg, "batch", max_iterations=BOUNDED_ITERATIONS, init=init)
+    native, _, _ = run(pg, "native", max_iterations=BOUNDED_ITERATIONS, init=init)
+    batch, _, _ = run(pg, "batch", max_iterations=BOUNDED_ITERATIONS, init=init)
     assert batch.iterations == native.iterations
     assert batch.initial_error == pytest.approx(native.initial_error, rel=1e-9)
     assert batch.final_error == pytest.approx(native.final_error, rel=REL)
@@ -197,8 +197,8 @@ def test_landmark_graphs_in_every_backend(backend):
         assert pg.landmark_count > 0 and pg.observation_count > 0
         # custom LM on 1000 poses costs ~3 s per iteration (CustomFactor copies the Values): bounded.
         iters = 100 if backend != "dropin" or pg.pose_count < 100 else 2
-        native, _, _ = P.run(pg, "native", max_iterations=iters)
-        rec, res, _ = P.run(pg, backend, max_iterations=iters)
+        native, _, _ = run(pg, "native", max_iterations=iters)
+        rec, res, _ = run(pg, backend, max_iterations=iters)
         assert rec.landmarks == pg.landmark_count
         assert rec.factors == pg.edge_count + pg.observation_count + 1
         assert rec.final_error == pytest.approx(native.final_error, rel=REL)

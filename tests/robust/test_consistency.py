@@ -8,6 +8,8 @@ dense inverse of GTSAM's own linearization.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import dataclasses
 import itertools
 import json
@@ -22,7 +24,7 @@ from lie_factors.backends import build_graph
 from lie_factors.g2o import read_pose_graph
 from lie_factors.posegraph.graph import PoseGraph
 from lie_factors.app.plotting import positions
-from lie_factors.app.run import run
+from support.runs import run
 from lie_factors.robust import clique, consistency
 from lie_factors.robust import gnc as gncm
 from lie_factors.robust.leave_out import leave_out_chi2
@@ -526,9 +528,9 @@ def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_t
         values = refine(prob.initial, weights)
         return gncm.GncResult(values, weights.copy(), np.ones(graph.size()), 0.0, 1, 1, 1.0, "stub", 0.0)
 
-    rej = reject_false_closures(pg, run_gnc, lambda v: scorer.factor_errors(scorer.state(v)), refine,
-                                lambda v: np.array([v.atPose3(int(k)).matrix() for k in pg.keys]),
-                                gncm.GncParams(), screen=False)
+    stub = SimpleNamespace(gnc=run_gnc, refine=refine, errors=lambda v: scorer.factor_errors(scorer.state(v)),
+                           poses=lambda v: np.array([v.atPose3(int(k)).matrix() for k in pg.keys]))
+    rej = reject_false_closures(pg, stub, gncm.GncParams(), screen=False)
     assert rej.rejected_by == {int(e): ("final" if e == planted[0] else "gnc") for e in planted.tolist()}
     assert int(true[5]) in rej.readmitted
     assert set(np.unique(rej.gnc.weights[lc]).tolist()) == {0.0, 1.0}

@@ -11,7 +11,8 @@ import pytest
 from lie_factors.app import cli, demo
 from lie_factors.testing import outliers
 from lie_factors import factors as lf
-from lie_factors.app import run as P
+from lie_factors.backends import build_graph
+from support.runs import run
 from lie_factors.g2o import read_pose_graph
 from lie_factors.robust import gnc
 from lie_factors.robust.losses import parse_loss
@@ -335,7 +336,7 @@ def test_robust_default_init_starts_from_odometry(se3_outlier_file, capsys):
     path, _ = se3_outlier_file
     rec, _ = _cli_json(capsys, path, "--robust", "cauchy", "--backend", "native", "--quiet")
     assert rec["init"] == "spanning-tree" and rec["init_inliers_only"] is True
-    start = P.run(str(path), "native", max_iterations=0, robust=parse_loss("cauchy"))[1].start
+    start = run(str(path), "native", max_iterations=0, robust=parse_loss("cauchy"))[1].start
     between, values = gtsam.readG2o(str(path), True)
     pose = values.atPose3(0)
     for k in range(149):  # odometry edge k joins poses k and k + 1
@@ -350,9 +351,9 @@ def test_plain_default_init_is_unchanged(se3_outlier_file, capsys):
     path, _ = se3_outlier_file
     rec, _ = _cli_json(capsys, path, "--backend", "native", "--max-iterations", "0", "--quiet")
     assert rec["init"] == "chordal" and "init_inliers_only" not in rec
-    start = P.run(str(path), "native", max_iterations=0)[1].start
+    start = run(str(path), "native", max_iterations=0)[1].start
     pg = read_pose_graph(str(path))
-    expected = initialize(P.build_graph(pg, "native"), "chordal", engine="gtsam").values
+    expected = initialize(build_graph(pg, "native"), "chordal", engine="gtsam").values
     for k in range(150):
         np.testing.assert_allclose(start.atPose3(k).matrix(), expected.atPose3(k).matrix(), atol=1e-12)
 
