@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["LieFactorsError", "InputError", "InitializationError", "NotPositiveDefinite", "IndeterminantLinearSystem",
+           "first_line", "gtsam_failure"]
+
 
 class LieFactorsError(Exception):
     """Root of every exception lie_factors raises on purpose."""

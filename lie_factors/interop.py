@@ -15,6 +15,8 @@ import numpy as np
 
 from .kernels.registry import group as _group
 
+__all__ = ["pose2_matrices", "pose3_from_rows", "to_gtsam", "values_from_matrices", "matrices_from_values"]
+
 
 def pose2_matrices(x: np.ndarray) -> np.ndarray:
     """[x, y, θ] rows (N, 3) → Pose2 matrices (N, 3, 3), as ``Pose2(x, y, θ).matrix()``

@@ -196,3 +196,52 @@ def _private_uses(path: Path) -> list[str]:
 def test_no_private_name_crosses_a_package(path):
     used = _private_uses(path)
     assert not used, f"{_module_name(path)} uses private names of another part: {used}"
+
+
+def _declared_all(module: str) -> set[str] | None:
+    """The names of ``module``'s ``__all__`` (read from its source), None where it declares none."""
+    path = PACKAGE.parent / Path(*module.split("."))
+    path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
+            value = node.value
+            if isinstance(value, ast.Call):  # sorted(...) of a literal or of a dict's keys
+                value = value.args[0]
+            if isinstance(value, ast.Name):  # sorted(_EXPORTS): the dict's keys
+                value = next(n.value for n in ast.parse(path.read_text(encoding="utf-8")).body
+                             if isinstance(n, ast.Assign) and any(isinstance(t, ast.Name) and t.id == value.id
+                                                                  for t in n.targets))
+            if isinstance(value, ast.Dict):
+                return {k.value for k in value.keys}
+            return {e.value for e in value.elts}
+    return None
+
+
+APP_FILES = [p for p in FILES if _unit(_module_name(p)) == "app"]
+
+
+@pytest.mark.parametrize("path", APP_FILES, ids=lambda p: _module_name(p))
+def test_the_app_calls_only_public_names(path):
+    """The command line is a shell over the library: every name it imports from the library is in
+    that module's ``__all__`` (the app's own modules and the test oracles aside)."""
+    here = _module_name(path)
+    package = here if path.name == "__init__.py" else here.rpartition(".")[0]
+    wrong = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        if node.level:
+            base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+            target = ".".join(base + ([node.module] if node.module else []))
+        else:
+            target = node.module or ""
+        if target.split(".")[0] != "lie_factors" or _unit(target) in ("app", APART):
+            continue
+        public = _declared_all(target)
+        for alias in node.names:
+            if f"{target}.{alias.name}" in MODULES and _declared_all(f"{target}.{alias.name}") is not None:
+                continue
+            if alias.name == "__version__" or (public is not None and alias.name in public):
+                continue
+            wrong.append(f"{target}.{alias.name}")
+    assert not wrong, f"{here} imports names outside the library's __all__: {wrong}"

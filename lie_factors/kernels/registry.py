@@ -30,6 +30,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = [
+    "NO_CORNER", "ONE", "POSITIVE", "UNIT", "GroupInfo", "SO3", "SE3", "SE2", "SIM2", "SIM3", "QUATERNION",
+    "DUAL_QUATERNION", "GROUPS", "BY_GTSAM",
+    "QUATERNIONS", "group",
+]
+
 #: ``corner``: what makes an element valid beyond its shape and finite entries.
 #: NO_CORNER: the element is a bare rotation; ONE: a rotation block and the last row
 #: [0 … 0 1]; POSITIVE: a rotation block and the last row [0 … 0 1/s] with 1/s > 0;

@@ -22,6 +22,8 @@ from ..kernels import registry
 from ..kernels import validate as _validate
 from . import topology
 
+__all__ = ["PRIOR_VARIANCES", "GROUPS", "is_loop_closure", "prior_information", "PoseGraph"]
+
 if TYPE_CHECKING:
     import gtsam
 

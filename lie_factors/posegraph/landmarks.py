@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+__all__ = ["is_landmark_key", "pose_keys", "landmark_keys", "Landmarks"]
+
 
 def is_landmark_key(key: int) -> bool:
     return gtsam.Symbol(int(key)).chr() != 0

@@ -8,6 +8,8 @@ from typing import Callable
 
 from ..errors import InputError
 
+__all__ = ["check_writable", "replace_atomically"]
+
 
 def check_writable(path: str) -> None:
     """Raise :class:`InputError` unless a file can be created next to ``path``.

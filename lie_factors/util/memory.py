@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+__all__ = ["usage", "size", "describe"]
+
 
 def usage() -> tuple[int | None, int | None]:
     """(resident bytes now, peak resident bytes) of this process; None where the system does not say.

@@ -14,6 +14,8 @@ from __future__ import annotations
 import sys
 import time
 
+__all__ = ["compile_seconds", "warm_up_factors", "Stopwatch"]
+
 
 def compile_seconds() -> float:
     """Seconds numba has spent compiling in this process so far."""
