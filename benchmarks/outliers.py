@@ -79,6 +79,7 @@ from lie_factors.posegraph.graph import PoseGraph  # noqa: E402
 from lie_factors.testing import outliers  # noqa: E402
 from lie_factors.initialization import initialize  # noqa: E402
 from lie_factors.robust import gnc as gncm  # noqa: E402
+from lie_factors.robust import inner  # noqa: E402
 from lie_factors.robust.losses import LOSSES, RobustLoss  # noqa: E402
 from lie_factors.robust.weighted import WeightedLevenbergMarquardt  # noqa: E402
 
@@ -141,7 +142,7 @@ def run_lm(pg, backend, loss):
 def gnc_params(graph, pg):
     closures = set(pg.loop_closures().tolist())
     known = [k for k in range(graph.size()) if k not in closures]
-    return gncm.GncParams(loss="tls", known_inliers=known, lm_params=lm_params())
+    return gncm.GncSettings(loss="tls", known_inliers=known, lm_params=lm_params())
 
 
 def run_gnc(pg, backend):
@@ -149,10 +150,10 @@ def run_gnc(pg, backend):
     params = gnc_params(graph, pg)
     t = time.perf_counter()
     if backend == "native":
-        res = gncm.gtsam_gnc(graph, pg.initial, params)
+        res = inner.gtsam_gnc(graph, pg.initial, params)
         values = res.values
     else:
-        res = gncm.gnc_optimize(gncm.BatchInner(graph, pg.initial, lm_params()), params)
+        res = gncm.gnc_optimize(inner.BatchInner(graph, pg.initial, lm_params()), params)
         values = res.values.to_values()
     seconds = time.perf_counter() - t
     return values, res.iterations, seconds, res.outliers, res.cost

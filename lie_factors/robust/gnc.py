@@ -2,7 +2,7 @@
 
 Yang, Antonante, Tzoumas, Carlone, "Graduated Non-Convexity for Robust Spatial
 Perception", RA-L 2020, as GTSAM implements it (``GncOptimizer.h``,
-``GncParams.h``, the graduated weights of ``LossFunctions.cpp``):
+``GncSettings.h``, the graduated weights of ``LossFunctions.cpp``):
 
 1. weights ``w`` start at 1 (0 for known outliers); the inner solver minimizes
    the weighted least squares ``Σ w_k · f_k(x)`` from the *initial* values,
@@ -30,51 +30,53 @@ for GM):
   else ``(√(c̄/f) − μ)/(1 − μ)``;
 * GM (Eq. 12): ``(c̄/μ)²/(c̄/μ + f)²``.
 
-The inner solver is anything with the small interface of :class:`InnerSolver`;
-:class:`GtsamInner` runs GTSAM's own ``LevenbergMarquardtOptimizer`` on
-re-weighted copies of the graph (GTSAM's ``makeWeightedGraph``);
-:class:`BatchInner` runs the batch LM on one graph read once, with the weights
-as per-factor scales of its normal equations and a restart from the initial
-values per solve (the sparsity pattern and CHOLMOD's symbolic analysis are
-reused across all of GNC's solves); :func:`gtsam_gnc` is GTSAM's
-``GncLMOptimizer`` itself, the reference.  An outlier is a factor whose final weight is
+The inner solver is anything with the small interface of :class:`InnerSolver`
+(GTSAM's LM or the batch solver: :mod:`lie_factors.robust.inner`, with GTSAM's own
+``GncLMOptimizer`` as the reference).  An outlier is a factor whose final weight is
 below ½ (for TLS the weights end within ``weightsTol`` of 0 or 1).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import time
 from dataclasses import dataclass, field
+from enum import IntEnum
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
-from ..util import stack
 from ..kernels.jit import kernel
 from ..util.timing import Stopwatch
 from .statistics import chi2_inlier_threshold
-from .weighted import WeightedLevenbergMarquardt
 
-__all__ = [
-    "GncParams", "GncResult", "InnerSolver", "GtsamInner", "BatchInner", "gnc_optimize", "gnc_weights",
-    "gtsam_gnc",
-    "TLS", "GM", "LINEAR", "SUPERLINEAR",
-]
+__all__ = ["GncSettings", "GncResult", "InnerSolver", "gnc_optimize", "gnc_weights", "GncLoss", "Scheduler",
+           "TLS", "GM", "LINEAR", "SUPERLINEAR"]
 
-TLS = 0
-GM = 1
-LINEAR = 0
-SUPERLINEAR = 1
+
+class GncLoss(IntEnum):
+    """GNC's loss: truncated least squares or Geman–McClure (``"tls"``/``"gm"`` at the API)."""
+
+    TLS = 0
+    GM = 1
+
+
+class Scheduler(IntEnum):
+    """How TLS's control parameter grows: GTSAM's ``Linear`` (Yang's) or ``SuperLinear`` (Peng's)."""
+
+    LINEAR = 0
+    SUPERLINEAR = 1
+
+
+TLS, GM = GncLoss.TLS, GncLoss.GM
+LINEAR, SUPERLINEAR = Scheduler.LINEAR, Scheduler.SUPERLINEAR
 
 # factor types of GncOptimizer (``GncFactorType``)
 _NORMAL, _INLIER, _OUTLIER = 0, 1, 2
 
 
 @dataclass
-class GncParams:
-    """GTSAM's ``GncParams`` (defaults as in GTSAM 4.3).
+class GncSettings:
+    """GTSAM's ``GncSettings`` (defaults as in GTSAM 4.3).
 
     ``loss``: "tls" or "gm"; ``scheduler``: "linear" or "superlinear" (TLS only);
     ``known_inliers`` / ``known_outliers``: factor slots (graph indices);
@@ -270,7 +272,7 @@ def _initialize_lambda(loss: int, errors0: np.ndarray, thresholds: np.ndarray) -
     return lam if (lam > 0 and not math.isinf(lam)) else -1.0
 
 
-def _update_lambda(loss: int, scheduler: int, lam: float, p: GncParams) -> float:
+def _update_lambda(loss: int, scheduler: int, lam: float, p: GncSettings) -> float:
     if loss == GM:
         return max(1.0, lam / p.lambda_step)
     if scheduler == SUPERLINEAR:
@@ -280,7 +282,7 @@ def _update_lambda(loss: int, scheduler: int, lam: float, p: GncParams) -> float
     return lam * p.lambda_step
 
 
-def thresholds_for(dims: np.ndarray, params: GncParams) -> np.ndarray:
+def thresholds_for(dims: np.ndarray, params: GncSettings) -> np.ndarray:
     """Per-factor inlier thresholds c̄ (GTSAM's default: ½·χ²_dim at probability 0.99)."""
     F = len(dims)
     if params.inlier_thresholds is not None:
@@ -291,7 +293,7 @@ def thresholds_for(dims: np.ndarray, params: GncParams) -> np.ndarray:
     return np.array([chi2_inlier_threshold(int(d), params.inlier_probability) for d in dims])
 
 
-def factor_types(size: int, params: GncParams) -> np.ndarray:
+def factor_types(size: int, params: GncSettings) -> np.ndarray:
     """0 normal / 1 known inlier / 2 known outlier per slot; ValueError as GTSAM's constructor."""
     types = np.zeros(size, dtype=np.int64)
     inl = sorted({int(i) for i in params.known_inliers})
@@ -306,7 +308,7 @@ def factor_types(size: int, params: GncParams) -> np.ndarray:
     return types
 
 
-def gnc_optimize(inner: InnerSolver, params: GncParams | None = None,
+def gnc_optimize(inner: InnerSolver, params: GncSettings | None = None,
                  progress: Callable[[int, float, float, int], None] | None = None) -> GncResult:
     """GTSAM's ``GncOptimizer::optimize`` over ``inner``; see the module docstring.
 
@@ -314,9 +316,8 @@ def gnc_optimize(inner: InnerSolver, params: GncParams | None = None,
     outer iteration.
     """
     clock = Stopwatch()  # numba compilation is not optimization time
-    p = params if params is not None else GncParams()
-    loss = TLS if p.loss == "tls" else GM
-    sched = LINEAR if p.scheduler == "linear" else SUPERLINEAR
+    p = params if params is not None else GncSettings()
+    loss, sched = GncLoss[p.loss.upper()], Scheduler[p.scheduler.upper()]
     F = int(inner.size)
     dims = np.asarray(inner.dims)
     thresholds = thresholds_for(dims, p)
@@ -340,7 +341,7 @@ def gnc_optimize(inner: InnerSolver, params: GncParams | None = None,
     stop = "maxIterations"
     new_w = np.empty(F)
     for it in range(p.max_iterations):
-        gnc_weights(loss, sched, lam, inner.factor_errors(result), thresholds, types, new_w)
+        gnc_weights(int(loss), int(sched), lam, inner.factor_errors(result), thresholds, types, new_w)
         weights = new_w.copy()
         result, n = inner.optimize(weights)
         inner_its += n
@@ -362,267 +363,3 @@ def gnc_optimize(inner: InnerSolver, params: GncParams | None = None,
         prev_cost = cost
     return GncResult(result, weights, thresholds, cost, len(history), inner_its, lam, stop,
                      clock.seconds(), history)
-
-
-# --------------------------------------------------------------------------- #
-# Inner solver: GTSAM's own LM on re-weighted copies of the graph
-# --------------------------------------------------------------------------- #
-
-def _gaussian_part(noise):
-    import gtsam
-
-    if isinstance(noise, gtsam.noiseModel.Robust):
-        return noise.noise()
-    return noise
-
-
-def with_noise(factor, noise):
-    """``factor`` with noise model ``noise`` (GTSAM's ``cloneWithNewNoiseModel``).
-
-    GTSAM's ``CustomFactor`` cannot be cloned, so lie_factors' factors are
-    re-created from their measurement instead.
-    """
-    from .. import factors as F
-
-    if isinstance(factor, F.BetweenFactor):
-        k1, k2 = factor.keys()
-        return type(factor)(k1, k2, factor.measured(), noise)
-    if isinstance(factor, F.PriorFactor):
-        return type(factor)(factor.keys()[0], factor.prior(), noise)
-    return factor.cloneWithNewNoiseModel(noise)
-
-
-class GtsamInner:
-    """:class:`InnerSolver` running ``gtsam.LevenbergMarquardtOptimizer`` (GTSAM's ``GncLMOptimizer`` inner loop).
-
-    Builds ``nfg`` (robust noise replaced by its Gaussian part) once, and per
-    call the weighted graph as ``makeWeightedGraph`` does:
-    ``Gaussian.Information(w·Ω)``.
-    """
-
-    def __init__(self, graph, initial, lm_params=None):
-        import gtsam
-
-        self.gtsam = gtsam
-        self.lm_params = lm_params if lm_params is not None else gtsam.LevenbergMarquardtParams()
-        self.initial = initial
-        self.factors = []
-        self.noise = []
-        for k in range(graph.size()):
-            f = graph.at(k)
-            if f is None:
-                raise ValueError(f"GNC: factor slot {k} is empty")
-            noise = _gaussian_part(f.noiseModel())
-            if noise is not f.noiseModel():
-                f = with_noise(f, noise)
-            self.factors.append(f)
-            self.noise.append(noise)
-        self.size = len(self.factors)
-        self.dims = np.array([f.dim() for f in self.factors], dtype=np.int64)
-        self._info = [n.information() for n in self.noise]
-
-    def factor_errors(self, values) -> np.ndarray:
-        return np.array([f.error(values) for f in self.factors])
-
-    def weighted_graph(self, weights: np.ndarray):
-        gtsam = self.gtsam
-        g = gtsam.NonlinearFactorGraph()
-        for f, info, w in zip(self.factors, self._info, weights):
-            g.add(with_noise(f, gtsam.noiseModel.Gaussian.Information(float(w) * info)))
-        return g
-
-    def optimize(self, weights: np.ndarray):
-        opt = self.gtsam.LevenbergMarquardtOptimizer(self.weighted_graph(weights), self.initial,
-                                                     self.lm_params)
-        values = stack.call(opt.optimize)  # GTSAM's elimination recurses: a large stack for long chains
-        return values, int(opt.iterations())
-
-
-def _native_iterations(summary: str, max_iterations: int) -> int:
-    """Outer iterations from GncOptimizer's SUMMARY output (``final iterations: i``, the loop index)."""
-    for line in summary.splitlines():
-        if line.startswith("final iterations:"):
-            return min(int(line.split(":")[1]) + 1, int(max_iterations))
-    return 0  # GNC returned before its loop (λ ≤ 0 or no unknown factors)
-
-
-def gtsam_gnc(graph, initial, params: GncParams | None = None) -> GncResult:
-    """GTSAM's own ``GncLMOptimizer`` on ``graph`` (the reference), reported as a :class:`GncResult`.
-
-    Thresholds are set as ``params`` says (default: ``½·χ²_dim(0.99)``,
-    GTSAM's default too); the number of outer iterations is read from GTSAM's
-    SUMMARY output; ``cost`` is ``Σ w_k f_k`` at the result, as GTSAM's
-    convergence test computes it.  GTSAM's ``CustomFactor`` cannot be cloned,
-    which ``GncOptimizer`` needs, so this takes native factors only.
-    """
-    import gtsam
-
-    t0 = time.perf_counter()
-    p = params if params is not None else GncParams()
-    gp = p.to_gtsam()
-    gp.setVerbosityGNC(gtsam.GncLMParams.Verbosity.SUMMARY)
-    th = p.inlier_thresholds
-    if th is not None and np.ndim(th) != 0:
-        raise ValueError("gtsam's GncLMOptimizer (Python) takes one inlier threshold for all factors")
-    capture = gtsam.RedirectCout()
-    try:
-        opt = gtsam.GncLMOptimizer(graph, initial, gp)
-        if th is None:
-            opt.setInlierCostThresholdsAtProbability(float(p.inlier_probability))
-        else:
-            opt.setInlierCostThresholds(float(th))
-        thresholds = np.asarray(opt.getInlierCostThresholds(), dtype=np.float64).copy()
-        values = stack.call(opt.optimize)  # GTSAM's elimination recurses: a large stack for long chains
-    finally:
-        summary = capture.str()
-        del capture
-    seconds = time.perf_counter() - t0
-    weights = np.asarray(opt.getWeights(), dtype=np.float64).copy()
-    errors = np.array([_gaussian_error(graph.at(k), values) for k in range(graph.size())])
-    cost = float(np.dot(weights, errors))
-    iterations = _native_iterations(summary, p.max_iterations)
-    stop = ("binary weights" if "weightsConverged = true" in summary
-            else "relative cost change" if "checkCostConvergence = true" in summary
-            else "lambda reached 1" if "lambdaConverged = true" in summary
-            else "no GNC iterations" if iterations == 0 else "maxIterations")
-    return GncResult(values, weights, thresholds, cost, iterations, None, None, stop, seconds)
-
-
-def _gaussian_error(factor, values) -> float:
-    noise = factor.noiseModel()
-    if hasattr(noise, "noise") and type(noise).__name__ == "Robust":
-        return 0.5 * float(noise.noise().squaredMahalanobisDistance(factor.unwhitenedError(values)))
-    return float(factor.error(values))
-
-
-# --------------------------------------------------------------------------- #
-# Inner solver: the batch LM, one graph read for all of GNC
-# --------------------------------------------------------------------------- #
-
-class _BatchState:
-    """An estimate of the batch problem (element arrays + other Values); ``to_values()`` → gtsam.Values."""
-
-    def __init__(self, lm, Xs, other):
-        self._lm, self.Xs, self.other = lm, Xs, other
-
-    def to_values(self):
-        P = self._lm.problem
-        P.accept(dict(self.Xs), self.other)
-        return P.values()
-
-
-class _GncLevenbergMarquardt(WeightedLevenbergMarquardt):
-    # GNC converts only its final estimate to a gtsam.Values.
-    def values(self):
-        return None
-
-
-class BatchInner:
-    """:class:`InnerSolver` on :class:`~lie_factors.robust.weighted.WeightedLevenbergMarquardt`.
-
-    GNC's graph (robust noise models replaced by their Gaussian part, as
-    ``GncOptimizer``'s constructor does) is read once; each solve restarts LM
-    from the initial values with the GNC weights as per-factor scales ``s_f``:
-    the rows of factor f scaled by √s_f, i.e. information ``s_f·Ω_f`` — GTSAM's
-    ``makeWeightedGraph`` without building a graph.
-
-    ``exclude``: factor slots that weigh 0 in every solve (GNC's known
-    outliers), left out of the solver's graph: a false loop closure joins
-    far-apart poses, and its mere place in the sparsity pattern fills the
-    Cholesky factor of every solve (city10000 with 20 % random false closures:
-    20× the time of an iteration).  A slot whose variables no other factor
-    holds stays in.  Their :meth:`factor_errors` are reported as 0.
-    """
-
-    def __init__(self, graph, initial, lm_params=None, linear_solver: str = "auto", exclude=()):
-        import gtsam
-
-        size = int(graph.size())
-        excluded = {int(k) for k in exclude}
-        if any(not 0 <= k < size for k in excluded):
-            raise ValueError(f"BatchInner: excluded slots must be factor slots (0..{size - 1})")
-        held: set = set()
-        for k in range(size):
-            if k not in excluded:
-                held.update(graph.at(k).keys())
-        slots = [k for k in range(size) if k not in excluded or not set(graph.at(k).keys()) <= held]
-        stripped = gtsam.NonlinearFactorGraph()
-        for k in slots:
-            f = graph.at(k)
-            noise = _gaussian_part(f.noiseModel())
-            stripped.add(f if noise is f.noiseModel() else with_noise(f, noise))
-        self.lm = _GncLevenbergMarquardt(stripped, initial, lm_params, linear_solver=linear_solver)
-        self.size = size
-        self.slots = np.asarray(slots, dtype=np.int64)
-        self._left_out = np.setdiff1d(np.arange(size), self.slots)
-        self.dims = np.array([graph.at(k).dim() for k in range(size)], dtype=np.int64)
-        P = self.lm.problem
-        self.initial = _BatchState(self.lm, {n: b.X0 for n, b in P.blocks.items()},
-                                   gtsam.Values(P.other))
-
-    @classmethod
-    def from_pose_graph(cls, pg, X: np.ndarray, lm_params=None, linear_solver: str = "auto",
-                        exclude=()) -> "BatchInner":
-        """The same solver on a :class:`~lie_factors.posegraph.graph.PoseGraph` (its edges, then its
-        priors, are the factor slots), starting from the poses ``X`` (P, m, m) in ``pg.keys``
-        order: the arrays become the batch problem directly, with no factor object."""
-        import gtsam
-
-        from ..batch.graph import Problem
-
-        E, Q = len(pg.edge_keys), len(pg.prior_keys)
-        size = E + Q
-        excluded = {int(k) for k in exclude}
-        if any(not 0 <= k < size for k in excluded):
-            raise ValueError(f"BatchInner: excluded slots must be factor slots (0..{size - 1})")
-        edge_out = {k for k in excluded if k < E}
-        prior_out = {k - E for k in excluded if k >= E}
-        ek, pk = pg.edge_keys.tolist(), pg.prior_keys.tolist()
-        held = {key for k in range(E) if k not in edge_out for key in ek[k]}
-        held |= {pk[q] for q in range(Q) if q not in prior_out}
-        # a left-out slot whose variables no other factor holds stays in (as for a graph)
-        edges = np.array([k for k in range(E) if k not in edge_out or not set(ek[k]) <= held], dtype=np.int64)
-        priors_in = np.array([q for q in range(Q) if q not in prior_out or pk[q] not in held], dtype=np.int64)
-        kept = dataclasses.replace(pg.with_edges(edges), prior_keys=pg.prior_keys[priors_in],
-                                   prior_measured=pg.prior_measured[priors_in],
-                                   prior_information=pg.prior_information[priors_in], landmarks=None)
-        self = cls.__new__(cls)
-        self.lm = _GncLevenbergMarquardt(Problem.from_pose_graph(kept, X), None, lm_params,
-                                         linear_solver=linear_solver)
-        self.size = size
-        self.slots = np.concatenate([edges, E + priors_in]).astype(np.int64)
-        self._left_out = np.setdiff1d(np.arange(size), self.slots)
-        self.dims = np.full(size, pg.info.dim, dtype=np.int64)
-        P = self.lm.problem
-        self.initial = _BatchState(self.lm, {n: b.X0 for n, b in P.blocks.items()}, gtsam.Values())
-        return self
-
-    def factor_errors(self, state) -> np.ndarray:
-        out = np.zeros(self.size)
-        out[self.slots] = self.lm.factor_errors(state.Xs, state.other)
-        return out
-
-    def state(self, values) -> "_BatchState":
-        """An estimate of this problem read from ``gtsam.Values`` (every variable of the graph)."""
-        from ..batch.graph import matrices_of
-
-        import gtsam
-
-        P = self.lm.problem
-        Xs = {name: matrices_of(values, name, b.keys) for name, b in P.blocks.items()}
-        other = gtsam.Values()
-        if P.other.size():
-            other = gtsam.Values(values)
-            for b in P.blocks.values():
-                for k in b.keys:
-                    other.erase(int(k))
-        return _BatchState(self.lm, Xs, other)
-
-    def optimize(self, weights: np.ndarray):
-        weights = np.asarray(weights, dtype=np.float64)
-        if np.any(weights[self._left_out] != 0.0):
-            raise ValueError("BatchInner: an excluded factor slot has a nonzero weight")
-        self.lm.restart(weights[self.slots])
-        res = self.lm.optimize()
-        P = self.lm.problem
-        return _BatchState(self.lm, P.elements(), P.other), int(res.iterations)

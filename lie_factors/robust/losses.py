@@ -40,24 +40,32 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 
 from ..kernels.jit import kernel
 
 __all__ = [
-    "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH",
+    "Loss", "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH",
     "LOSSES", "RobustLoss", "parse_loss", "from_gtsam", "weight", "loss",
     "weights_and_losses",
 ]
 
-GAUSSIAN = 0
-HUBER = 1
-CAUCHY = 2
-TUKEY = 3
-GEMAN_MCCLURE = 4
-DCS = 5
-WELSCH = 6
+class Loss(IntEnum):
+    """The losses (names are strings at the API: ``huber``, ``cauchy``, …)."""
+
+    GAUSSIAN = 0
+    HUBER = 1
+    CAUCHY = 2
+    TUKEY = 3
+    GEMAN_MCCLURE = 4
+    DCS = 5
+    WELSCH = 6
+
+
+# The kernels compare plain integers (numba freezes them as constants).
+GAUSSIAN, HUBER, CAUCHY, TUKEY, GEMAN_MCCLURE, DCS, WELSCH = (int(m) for m in Loss)
 
 #: name → (id, gtsam mEstimator class name, default parameter).  Defaults: the
 #: 95 %-efficiency tuning constants for unit-variance residuals (Huber 1.345,
@@ -184,8 +192,8 @@ class RobustLoss:
             raise ValueError(f"robust loss {self.name}: parameter must be a positive number, got {self.k!r}")
 
     @property
-    def kind(self) -> int:
-        return LOSSES[self.name][0]
+    def kind(self) -> Loss:
+        return Loss(LOSSES[self.name][0])
 
     def weight(self, d) -> np.ndarray:
         """w(d) for an array of distances (shape preserved)."""
@@ -200,7 +208,7 @@ class RobustLoss:
         flat = np.ascontiguousarray(d.reshape(-1))
         w = np.empty_like(flat)
         r = np.empty_like(flat)
-        _eval_many(self.kind, float(self.k), flat, w, r)
+        _eval_many(int(self.kind), float(self.k), flat, w, r)
         return w.reshape(d.shape), r.reshape(d.shape)
 
     def to_gtsam(self):

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import gtsam_failure
 from ..posegraph.graph import PoseGraph
-from .gnc import GncParams, GncResult
+from .gnc import GncSettings, GncResult
 from .rejection import Solver, reject_false_closures
 
 __all__ = ["GNC_LOSSES", "RobustOutcome", "reject_and_optimize"]
@@ -53,7 +53,7 @@ def reject_and_optimize(graph: PoseGraph, solver: Solver, size: int, *, loss: st
     :class:`~lie_factors.errors.LieFactorsError`.
     """
     known = np.setdiff1d(np.arange(size), graph.loop_closures())
-    params = GncParams(loss=loss, known_inliers=known.tolist(), lm_params=lm_params,
+    params = GncSettings(loss=loss, known_inliers=known.tolist(), lm_params=lm_params,
                        first_solve_known_inliers=consistency and not gtsam_semantics)
     try:
         if consistency:

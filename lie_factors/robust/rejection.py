@@ -57,7 +57,7 @@ import numpy as np
 
 from ..posegraph.graph import PoseGraph
 from ..util.timing import Stopwatch
-from .gnc import GncParams, GncResult
+from .gnc import GncSettings, GncResult
 from .statistics import f_quantile
 from .screening import STAGES, Screening, screen_closures
 
@@ -173,13 +173,13 @@ class Solver(Protocol):
     graph's edges, then its priors (then any other factor).  An *estimate* is whatever the
     backend keeps (poses on arrays, ``gtsam.Values``): opaque to the stages.
 
-    ``gnc(params)``: GNC (:class:`~lie_factors.robust.gnc.GncParams`, its known outliers
+    ``gnc(params)``: GNC (:class:`~lie_factors.robust.gnc.GncSettings`, its known outliers
     extended by the consistency stage); ``errors(estimate)``: every slot's Gaussian error
     ½‖R e‖²; ``refine(estimate, weights)``: LM from ``estimate`` with each slot's information
     scaled by ``weights``; ``poses(estimate)``: (P, m, m) the poses in the pose graph's key order.
     """
 
-    def gnc(self, params: GncParams) -> GncResult: ...
+    def gnc(self, params: GncSettings) -> GncResult: ...
 
     def errors(self, estimate) -> np.ndarray: ...
 
@@ -188,7 +188,7 @@ class Solver(Protocol):
     def poses(self, estimate) -> np.ndarray: ...
 
 
-def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncParams, screen: bool = True,
+def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings, screen: bool = True,
                           probability: float = 0.9999, final_probability: float = 0.9999) -> Rejection:
     """The three stages of the module docstring on ``graph``, solved by ``solver`` (:class:`Solver`).
 

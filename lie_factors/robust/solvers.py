@@ -16,12 +16,13 @@ import numpy as np
 from ..interop import matrices_from_values
 from ..posegraph.graph import PoseGraph
 from . import gnc as gncm
+from .inner import BatchInner, GtsamInner, gtsam_gnc
 
 __all__ = ["ArraySolver", "GraphSolver"]
 
 
 class ArraySolver:
-    """The batch solver on a pose graph's arrays (:meth:`~lie_factors.robust.gnc.BatchInner.from_pose_graph`).
+    """The batch solver on a pose graph's arrays (:meth:`~lie_factors.robust.inner.BatchInner.from_pose_graph`).
 
     ``graph``: the pose graph with its priors (no landmarks); ``X0`` (P, m, m): the start
     in its key order; ``lm_params``: the inner LM's ``gtsam.LevenbergMarquardtParams``;
@@ -35,10 +36,10 @@ class ArraySolver:
         self.graph, self.X0, self.lm_params, self.progress = graph, X0, lm_params, progress
         self._scorer = None
 
-    def inner(self, X: np.ndarray, exclude=()) -> gncm.BatchInner:
-        return gncm.BatchInner.from_pose_graph(self.graph, X, self.lm_params, exclude=exclude)
+    def inner(self, X: np.ndarray, exclude=()) -> BatchInner:
+        return BatchInner.from_pose_graph(self.graph, X, self.lm_params, exclude=exclude)
 
-    def gnc(self, params: gncm.GncParams) -> gncm.GncResult:
+    def gnc(self, params: gncm.GncSettings) -> gncm.GncResult:
         return gncm.gnc_optimize(self.inner(self.X0, params.known_outliers), params, self.progress)
 
     def errors(self, state) -> np.ndarray:
@@ -73,17 +74,17 @@ class GraphSolver:
                  progress: Callable | None = None):
         self.graph, self.factors, self.initial = graph, factors, initial
         self.backend, self.lm_params, self.progress = backend, lm_params, progress
-        self._scorer = gncm.BatchInner(factors, initial, lm_params) if backend == "batch" else None
+        self._scorer = BatchInner(factors, initial, lm_params) if backend == "batch" else None
 
     def inner(self, start, exclude=()):
         if self.backend == "batch":
             # the batch solver leaves out what weighs 0 throughout (see BatchInner)
-            return gncm.BatchInner(self.factors, start, self.lm_params, exclude=exclude)
-        return gncm.GtsamInner(self.factors, start, self.lm_params)
+            return BatchInner(self.factors, start, self.lm_params, exclude=exclude)
+        return GtsamInner(self.factors, start, self.lm_params)
 
-    def gnc(self, params: gncm.GncParams) -> gncm.GncResult:
+    def gnc(self, params: gncm.GncSettings) -> gncm.GncResult:
         if self.backend == "native":
-            return gncm.gtsam_gnc(self.factors, self.initial, params)
+            return gtsam_gnc(self.factors, self.initial, params)
         res = gncm.gnc_optimize(self.inner(self.initial, params.known_outliers), params, self.progress)
         if self.backend == "batch":
             res.values = res.values.to_values()

@@ -27,6 +27,7 @@ from lie_factors.app.plotting import positions
 from support.runs import run
 from lie_factors.robust import clique, consistency
 from lie_factors.robust import gnc as gncm
+from lie_factors.robust import inner
 from lie_factors.robust.leave_out import leave_out_chi2
 from lie_factors.robust.statistics import chi2_inlier_threshold, f_quantile
 from lie_factors.robust.rejection import TailModel, closure_groups, reject_false_closures
@@ -484,19 +485,19 @@ def test_gnc_without_its_known_outliers_in_the_solver_is_the_same_gnc():
     graph = ds.with_first_prior().factor_graph()
     known = planted[: len(planted) // 2].tolist()
     lc = set(ds.loop_closures().tolist())
-    params = gncm.GncParams(known_inliers=[k for k in range(graph.size()) if k not in lc], known_outliers=known)
-    full = gncm.gnc_optimize(gncm.BatchInner(graph, prob.initial), params)
-    inner = gncm.BatchInner(graph, prob.initial, exclude=known)
-    assert inner.slots.size == graph.size() - len(known)
-    cut = gncm.gnc_optimize(inner, params)
+    params = gncm.GncSettings(known_inliers=[k for k in range(graph.size()) if k not in lc], known_outliers=known)
+    full = gncm.gnc_optimize(inner.BatchInner(graph, prob.initial), params)
+    cut_inner = inner.BatchInner(graph, prob.initial, exclude=known)
+    assert cut_inner.slots.size == graph.size() - len(known)
+    cut = gncm.gnc_optimize(cut_inner, params)
     np.testing.assert_array_equal(cut.weights, full.weights)
     assert cut.cost == pytest.approx(full.cost, rel=1e-9)
     a, b = full.values.to_values(), cut.values.to_values()
     assert max(np.max(np.abs(a.atPose3(k).localCoordinates(b.atPose3(k)))) for k in range(120)) < 1e-8
-    assert np.all(inner.factor_errors(inner.initial)[known] == 0.0)
+    assert np.all(cut_inner.factor_errors(cut_inner.initial)[known] == 0.0)
     w = np.ones(graph.size())
     with pytest.raises(ValueError, match="excluded factor slot has a nonzero weight"):
-        inner.optimize(w)
+        cut_inner.optimize(w)
     # a slot whose variable nothing else holds stays in the solver's graph
     lone = gtsam.NonlinearFactorGraph()
     lone.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1.0)))
@@ -504,7 +505,7 @@ def test_gnc_without_its_known_outliers_in_the_solver_is_the_same_gnc():
     values = gtsam.Values()
     values.insert(0, gtsam.Pose3())
     values.insert(1, gtsam.Pose3())
-    assert gncm.BatchInner(lone, values, exclude=[1]).slots.tolist() == [0, 1]
+    assert inner.BatchInner(lone, values, exclude=[1]).slots.tolist() == [0, 1]
 
 
 @pytest.mark.parametrize("rejected_weight", [0.0, 5e-6])
@@ -519,10 +520,10 @@ def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_t
     weights = np.ones(graph.size())
     weights[planted[1:]] = rejected_weight  # all false closures but the first rejected
     weights[true[5]] = rejected_weight      # and one true closure
-    scorer = gncm.BatchInner(graph, prob.initial)
+    scorer = inner.BatchInner(graph, prob.initial)
 
     def refine(v, w):
-        return gncm.BatchInner(graph, v, exclude=np.flatnonzero(w == 0)).optimize(w)[0].to_values()
+        return inner.BatchInner(graph, v, exclude=np.flatnonzero(w == 0)).optimize(w)[0].to_values()
 
     def run_gnc(params):
         values = refine(prob.initial, weights)
@@ -530,7 +531,7 @@ def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_t
 
     stub = SimpleNamespace(gnc=run_gnc, refine=refine, errors=lambda v: scorer.factor_errors(scorer.state(v)),
                            poses=lambda v: np.array([v.atPose3(int(k)).matrix() for k in pg.keys]))
-    rej = reject_false_closures(pg, stub, gncm.GncParams(), screen=False)
+    rej = reject_false_closures(pg, stub, gncm.GncSettings(), screen=False)
     assert rej.rejected_by == {int(e): ("final" if e == planted[0] else "gnc") for e in planted.tolist()}
     assert int(true[5]) in rej.readmitted
     assert set(np.unique(rej.gnc.weights[lc]).tolist()) == {0.0, 1.0}

@@ -15,6 +15,7 @@ from lie_factors.backends import build_graph
 from support.runs import run
 from lie_factors.g2o import read_pose_graph
 from lie_factors.robust import gnc
+from lie_factors.robust import inner
 from lie_factors.robust.losses import parse_loss
 from lie_factors.initialization import initialize
 
@@ -74,13 +75,13 @@ def test_known_inliers_and_outliers_keep_their_weights():
 
 def test_params_validation():
     with pytest.raises(ValueError, match="tls"):
-        gnc.GncParams(loss="huber")
+        gnc.GncSettings(loss="huber")
     with pytest.raises(ValueError, match="linear"):
-        gnc.GncParams(loss="gm", scheduler="superlinear")
+        gnc.GncSettings(loss="gm", scheduler="superlinear")
     with pytest.raises(ValueError, match="both"):
-        gnc.factor_types(4, gnc.GncParams(known_inliers=[1], known_outliers=[1]))
+        gnc.factor_types(4, gnc.GncSettings(known_inliers=[1], known_outliers=[1]))
     with pytest.raises(ValueError, match="slot"):
-        gnc.factor_types(4, gnc.GncParams(known_inliers=[4]))
+        gnc.factor_types(4, gnc.GncSettings(known_inliers=[4]))
 
 
 # --------------------------------------------------------------------------- #
@@ -131,7 +132,7 @@ OURS3 = (lf.BetweenFactorPose3, lf.PriorFactorPose3)
 
 def _params(graph, loss="tls"):
     lc = outliers.loop_closure_mask(graph)
-    return gnc.GncParams(loss=loss, known_inliers=np.flatnonzero(~lc).tolist())
+    return gnc.GncSettings(loss=loss, known_inliers=np.flatnonzero(~lc).tolist())
 
 
 @pytest.mark.parametrize("loss", ["tls", "gm"])
@@ -140,8 +141,8 @@ def test_outer_loop_with_gtsam_lm_is_gncLMOptimizer(loss):
     prior_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
     graph = _with_prior(between, NATIVE2, gtsam.Pose2(), prior_noise)
     params = _params(graph, loss)
-    ref = gnc.gtsam_gnc(graph, initial, params)
-    ours = gnc.gnc_optimize(gnc.GtsamInner(graph, initial), params)
+    ref = inner.gtsam_gnc(graph, initial, params)
+    ours = gnc.gnc_optimize(inner.GtsamInner(graph, initial), params)
     # Same loop on the same inner LM: the same numbers.
     np.testing.assert_array_equal(ours.weights, ref.weights)
     assert ours.iterations == ref.iterations
@@ -157,8 +158,8 @@ def test_batch_gnc_matches_gncLMOptimizer_se2(loss):
     native = _with_prior(between, NATIVE2, gtsam.Pose2(), prior_noise)
     ours = _with_prior(between, OURS2, gtsam.Pose2(), prior_noise)
     params = _params(native, loss)
-    ref = gnc.gtsam_gnc(native, initial, params)
-    res = gnc.gnc_optimize(gnc.BatchInner(ours, initial), params)
+    ref = inner.gtsam_gnc(native, initial, params)
+    res = gnc.gnc_optimize(inner.BatchInner(ours, initial), params)
     np.testing.assert_array_equal(res.outliers, ref.outliers)
     np.testing.assert_allclose(res.weights, ref.weights, atol=1e-6)
     assert res.iterations == ref.iterations
@@ -177,8 +178,8 @@ def test_batch_gnc_matches_gncLMOptimizer_se3_and_finds_the_planted_outliers():
     native = _with_prior(between, NATIVE3, gtsam.Pose3(), prior_noise)
     ours = _with_prior(between, OURS3, gtsam.Pose3(), prior_noise)
     params = _params(native)
-    ref = gnc.gtsam_gnc(native, prob.initial, params)
-    res = gnc.gnc_optimize(gnc.BatchInner(ours, prob.initial), params)
+    ref = inner.gtsam_gnc(native, prob.initial, params)
+    res = gnc.gnc_optimize(inner.BatchInner(ours, prob.initial), params)
     assert set(res.outliers.tolist()) == set(ref.outliers.tolist())
     assert set(planted.tolist()) <= set(res.outliers.tolist())  # recall 1
     assert res.cost == pytest.approx(ref.cost, rel=1e-4)
@@ -192,10 +193,10 @@ def test_robust_noise_models_are_replaced_by_their_gaussian_part():
     robust = gtsam.NonlinearFactorGraph()
     for k in range(plain.size()):
         f = plain.at(k)
-        robust.add(gnc.with_noise(f, gtsam.noiseModel.Robust.Create(M.Huber.Create(1.0), f.noiseModel())))
+        robust.add(inner.with_noise(f, gtsam.noiseModel.Robust.Create(M.Huber.Create(1.0), f.noiseModel())))
     params = _params(plain)
-    a = gnc.gnc_optimize(gnc.BatchInner(plain, initial), params)
-    b = gnc.gnc_optimize(gnc.BatchInner(robust, initial), params)
+    a = gnc.gnc_optimize(inner.BatchInner(plain, initial), params)
+    b = gnc.gnc_optimize(inner.BatchInner(robust, initial), params)
     np.testing.assert_array_equal(a.weights, b.weights)
     assert a.cost == b.cost
 
