@@ -495,8 +495,8 @@ def entry() -> int:
     prints the Python stack of every thread to stderr, so the crash says where it happened.
 
     Why: at exit Python sweeps every object it tracks for reference cycles; after a run has
-    loaded numba and GTSAM that sweep alone takes ≈ 0.2 s, a quarter of a small graph's
-    whole command. Frozen objects are left out of it. Nothing a run leaves depends on the
+    loaded numba and GTSAM that sweep is a visible part of a small graph's whole command
+    (docs/benchmarks.md, "Start-up"). Frozen objects are left out of it. Nothing a run leaves depends on the
     sweep: its output files are written and closed before :func:`main` returns, and the
     standard streams and ``atexit`` handlers are flushed and run at exit as usual. Only
     the console script does this: :func:`main`, called from Python, leaves the caller's

@@ -414,6 +414,6 @@ def _information(info, count: int, d: int, name: str) -> None:
         raise ValueError(f"{name}: information matrices must be symmetric")
     if count:
         try:
-            np.linalg.cholesky(arr)  # raises unless every one is positive definite (3× faster than eigvalsh)
+            np.linalg.cholesky(arr)  # raises unless every one is positive definite (cheaper than eigvalsh)
         except np.linalg.LinAlgError:
             raise ValueError(f"{name}: information matrices must be positive definite") from None

@@ -188,8 +188,7 @@ class BatchInner:
     ``exclude``: factor slots that weigh 0 in every solve (GNC's known
     outliers), left out of the solver's graph: a false loop closure joins
     far-apart poses, and its mere place in the sparsity pattern fills the
-    Cholesky factor of every solve (city10000 with 20 % random false closures:
-    20× the time of an iteration).  A slot whose variables no other factor
+    Cholesky factor of every solve.  A slot whose variables no other factor
     holds stays in.  Their :meth:`factor_errors` are reported as 0.
     """
 
