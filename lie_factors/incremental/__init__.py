@@ -1,10 +1,21 @@
 """Online smoothing: an incremental block Cholesky factor and a smoother with ISAM2's interface.
 
-* :mod:`~lie_factors.incremental.elimination`: the compiled kernels (marking the
-  columns an update changes, their re-elimination on top of the cached update
-  matrices of the subtrees below, wildfire back-substitution, marginals);
+The block factor:
+
 * :mod:`~lie_factors.incremental.cholesky`: :class:`BlockFactor`, the factor of a
   growing problem of whitened Jacobian blocks, updated all or nothing;
+* :mod:`~lie_factors.incremental.structures`: its state, namedtuples of arrays
+  the compiled kernels take whole;
+* the kernels: :mod:`~lie_factors.incremental.storage` (variables, factors,
+  pool compaction), :mod:`~lie_factors.incremental.marking` (the columns an
+  update changes, the graph they are ordered on),
+  :mod:`~lie_factors.incremental.elimination` (their re-elimination: the
+  :mod:`~lie_factors.incremental.symbolic` pass, then the numeric one on dense
+  :mod:`~lie_factors.incremental.fronts`), :mod:`~lie_factors.incremental.substitution`
+  (wildfire back-substitution, marginal covariances).
+
+The smoother:
+
 * :mod:`~lie_factors.incremental.smoother`: :class:`Smoother`, ISAM2's interface
   (``update``, ``calculateEstimate``, ``marginalCovariance``, …) on GTSAM graphs
   or on arrays.

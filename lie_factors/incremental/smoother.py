@@ -43,7 +43,6 @@ from .. import factors as _factors
 from ..batch.graph import noise_whitening, key_name, whitening
 from ..batch.loops import GroupLoops
 from ..interop import to_gtsam
-from . import elimination as _el
 from .cholesky import BlockFactor
 from ..errors import IndeterminantLinearSystem
 
@@ -536,7 +535,7 @@ class Smoother:
             raise SmootherError("estimate_matrices: the keys must all hold elements of one group")
         el = self.elements[names.pop()]
         out = np.empty((len(vs), el.spec.mat, el.spec.mat))
-        el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.bf.delta, self.bf.voff[vs], out)
+        el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.bf.delta, self.bf.tree.voff[vs], out)
         return out
 
     def estimate_matrix(self, key) -> np.ndarray:
@@ -727,7 +726,7 @@ class Smoother:
     def _relinearize_set(self) -> np.ndarray:
         bf = self.bf
         th = self.params.relinearizeThreshold
-        moved = _el_max_abs(bf.delta, bf.voff[:bf.nv], bf.dim[:bf.nv])
+        moved = bf.largest_steps()
         if self.params.relinearizePolicy == "global":
             return np.arange(bf.nv, dtype=np.int64) if moved.size and moved.max() >= th else moved[:0].astype(np.int64)
         return np.flatnonzero(moved >= th).astype(np.int64)
@@ -743,7 +742,7 @@ class Smoother:
             e = self.velem[vs]
             undo.theta(el, e)
             out = np.empty((len(e), el.spec.mat, el.spec.mat))
-            el.loops.retract(np.ascontiguousarray(el.X[e]), bf.delta, bf.voff[vs], out)
+            el.loops.retract(np.ascontiguousarray(el.X[e]), bf.delta, bf.tree.voff[vs], out)
             el.X[e] = out
         # the variables GTSAM holds: retracted one by one, in place (the old values kept for undo)
         for v in relin[codes < 0].tolist():
@@ -763,7 +762,7 @@ class Smoother:
             el = self.elements[name]
             undo.updated(self.native_theta, k, getattr(self.native_theta, f"at{name}")(k))
             self.native_theta.update(k, to_gtsam(name, el.X[self.velem[v]]))
-        fids = _el.factors_of(relin, bf.ahead, bf.anext, bf.afac, bf.nf)
+        fids = bf.factors_of(relin)
         fk, fl = self.fkind[fids], self.flocal[fids]
         out = []
         for store in self.kind_list:
@@ -799,7 +798,7 @@ class Smoother:
         el = self.elements[self.vgroup[v]]
         out = np.empty((1, el.spec.mat, el.spec.mat))
         e = self.velem[v:v + 1]
-        el.loops.retract(np.ascontiguousarray(el.X[e]), self.bf.delta, self.bf.voff[v:v + 1], out)
+        el.loops.retract(np.ascontiguousarray(el.X[e]), self.bf.delta, self.bf.tree.voff[v:v + 1], out)
         return out[0]
 
     def calculateEstimate(self, key=None):
@@ -815,7 +814,7 @@ class Smoother:
         bf = self.bf
         for name, el in self.elements.items():
             X = np.empty_like(el.X[:el.n])
-            el.loops.retract(np.ascontiguousarray(el.X[:el.n]), bf.delta, bf.voff[el.var[:el.n]], X)
+            el.loops.retract(np.ascontiguousarray(el.X[:el.n]), bf.delta, bf.tree.voff[el.var[:el.n]], X)
             spec = el.spec
             for v, M in zip(el.var[:el.n].tolist(), X):
                 out.insert(self.keys[v], to_gtsam(spec.name, M))
@@ -884,7 +883,7 @@ class Smoother:
         component is below ``tolerance``; returns the iterations taken."""
         bf = self.bf
         for it in range(1, max_iterations + 1):
-            self.bf.replaced[:bf.nv] = 1  # the exact solution of the current system
+            bf.replace_all()  # the exact solution of the current system
             self._fresh = False
             saved = self.params.wildfireThreshold
             self.params.wildfireThreshold = 0.0
@@ -979,7 +978,3 @@ class _Undo:
         for step in reversed(self.steps):
             step()
         self.steps = []
-
-
-def _el_max_abs(delta, voff, dim) -> np.ndarray:
-    return _el.max_abs_blocks(delta, voff, dim)
