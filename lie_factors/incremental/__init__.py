@@ -18,7 +18,16 @@ The smoother:
 
 * :mod:`~lie_factors.incremental.smoother`: :class:`Smoother`, ISAM2's interface
   (``update``, ``calculateEstimate``, ``marginalCovariance``, …) on GTSAM graphs
-  or on arrays.
+  or on arrays: the update path, relinearization, the estimate;
+* :mod:`~lie_factors.incremental.params`: :class:`SmootherParams` (ISAM2's, read
+  from a ``gtsam.ISAM2Params`` too) and :class:`UpdateResult`;
+* :mod:`~lie_factors.incremental.factor_arrays`: the smoother's variables and
+  factors as arrays, by group and kind (:class:`FactorArrays`: a replay's, set
+  up once);
+* :mod:`~lie_factors.incremental.gtsam_objects`: GTSAM's factor graphs and
+  Values read into those arrays, the factors GTSAM keeps linearized, GTSAM's
+  objects made back;
+* :mod:`~lie_factors.incremental.undo`: what an update changed, put back if it fails.
 
 ``import lie_factors.incremental`` alone loads neither numba nor GTSAM: its names
 are imported on first use.
@@ -28,8 +37,8 @@ from ..util.lazy import exports
 
 _EXPORTS = {
     "BlockFactor": "cholesky", "UpdateStats": "cholesky",
-    "FactorArrays": "smoother", "Smoother": "smoother", "SmootherError": "smoother", "SmootherParams": "smoother",
-    "UpdateResult": "smoother",
+    "FactorArrays": "factor_arrays", "Smoother": "smoother", "SmootherError": "params", "SmootherParams": "params",
+    "UpdateResult": "params",
 }
 
 __all__ = sorted(_EXPORTS)
