@@ -6,9 +6,9 @@ camelCase names so that ISAM2 code reads the same.
 
 from __future__ import annotations
 
-import os
+import contextlib
+import io
 import re
-import tempfile
 from dataclasses import dataclass
 
 import gtsam
@@ -51,47 +51,43 @@ class SmootherParams:
 
     @classmethod
     def from_isam2(cls, params: gtsam.ISAM2Params) -> "SmootherParams":
-        """The values of a ``gtsam.ISAM2Params`` (GTSAM's Python API has no getters for the
-        thresholds: they are read from its ``print`` output, 6 significant digits)."""
-        text = _captured_print(params)
+        """The values of a ``gtsam.ISAM2Params`` the smoother honours.
 
-        def number(name, default):
-            m = re.search(rf"^{name}:\s*(\S+)", text, re.M)
-            return float(m.group(1)) if m else default
-
-        if "ISAM2DoglegParams" in text:
+        ``relinearizeSkip`` and ``enableRelinearization`` are read through GTSAM's
+        accessors.  Its Python API has setters only for the relinearization threshold
+        (``setRelinearizeThreshold``) and the optimization parameters
+        (``setOptimizationParams``: their type and wildfire threshold): those are read from
+        what ``params.print()`` writes, to 6 significant digits (``std::cout``'s precision).
+        Refused: Dogleg parameters (the smoother takes Gauss–Newton steps) and per-type
+        thresholds (``ISAM2ThresholdMap``).  The other fields (``factorization``,
+        ``cacheLinearizedFactors``, ``evaluateNonlinearError``,
+        ``enablePartialRelinearizationCheck``, ``findUnusedFactorSlots``, …) concern how
+        ISAM2 computes, not what: the smoother has no counterpart to them.
+        """
+        fields = _printed_fields(params)
+        kind = fields.get("type")
+        if kind == "ISAM2DoglegParams":
             raise SmootherError("the smoother runs Gauss-Newton steps: ISAM2DoglegParams are not supported")
-        return cls(relinearizeThreshold=number("relinearizeThreshold", 0.1),
+        threshold = fields.get("relinearizeThreshold")
+        if threshold == "{mapped}":
+            raise SmootherError("per-type relinearization thresholds (ISAM2ThresholdMap) are not supported: "
+                                "give one threshold")
+        if kind != "ISAM2GaussNewtonParams" or threshold is None or "wildfireThreshold" not in fields:
+            raise SmootherError("could not read relinearizeThreshold and wildfireThreshold from "
+                                "gtsam.ISAM2Params.print(): give a SmootherParams instead")
+        return cls(relinearizeThreshold=float(threshold),
                    relinearizeSkip=int(params.relinearizeSkip),
                    enableRelinearization=bool(params.enableRelinearization),
-                   wildfireThreshold=number("wildfireThreshold", 0.001))
+                   wildfireThreshold=float(fields["wildfireThreshold"]))
 
 
-def _captured_print(params) -> str:
-    """What ``params.print()`` writes: GTSAM's wrapper sends C++'s ``std::cout`` to Python's
-    ``sys.stdout`` (caught here), or else to the process's standard output (caught on its
-    descriptor, C's buffer flushed before it is put back)."""
-    import contextlib
-    import ctypes
-    import io
-    import sys
-
-    libc = ctypes.CDLL(None)
-    sys.stdout.flush()
-    libc.fflush(None)
+def _printed_fields(params: gtsam.ISAM2Params) -> dict[str, str]:
+    """The ``name: value`` lines ``params.print()`` writes (GTSAM's wrapper sends C++'s
+    ``std::cout`` to ``sys.stdout``), the optimization parameters' included."""
     text = io.StringIO()
-    with tempfile.TemporaryFile(mode="w+b") as tmp:
-        saved = os.dup(1)
-        try:
-            os.dup2(tmp.fileno(), 1)
-            with contextlib.redirect_stdout(text):
-                params.print()
-            libc.fflush(None)
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
-        tmp.seek(0)
-        return text.getvalue() + tmp.read().decode(errors="replace")
+    with contextlib.redirect_stdout(text):
+        params.print()
+    return dict(re.findall(r"^(?:optimizationParams:\s*)?(\w+):\s*(\S+)", text.getvalue(), re.M))
 
 
 @dataclass

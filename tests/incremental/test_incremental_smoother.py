@@ -268,7 +268,7 @@ def test_refused_updates_leave_the_smoother_as_it_was():
     assert _max_diff(s.calculateEstimate(), t.calculateEstimate()) == 0.0
 
 
-def test_params_from_isam2_params():
+def test_params_from_isam2_params(capfd):
     p = gtsam.ISAM2Params()
     p.setRelinearizeThreshold(0.05)
     p.relinearizeSkip = 3
@@ -277,6 +277,19 @@ def test_params_from_isam2_params():
     p.setOptimizationParams(gn)
     q = Smoother(p).params
     assert (q.relinearizeThreshold, q.relinearizeSkip, q.wildfireThreshold) == (0.05, 3, 0.002)
+    p.enableRelinearization = False
+    assert SmootherParams.from_isam2(p).enableRelinearization is False
+    assert SmootherParams.from_isam2(gtsam.ISAM2Params()) == SmootherParams()
+    dogleg = gtsam.ISAM2Params()
+    dogleg.setOptimizationParams(gtsam.ISAM2DoglegParams())
+    with pytest.raises(SmootherError, match="Dogleg"):
+        Smoother(dogleg)
+    per_type = gtsam.ISAM2Params()
+    per_type.setRelinearizeThreshold(gtsam.ISAM2ThresholdMap())
+    with pytest.raises(SmootherError, match="per-type"):
+        Smoother(per_type)
+    # what GTSAM prints to be read reaches neither Python's stdout nor the process's
+    assert capfd.readouterr().out == ""
     with pytest.raises(SmootherError, match="relinearizeSkip"):
         SmootherParams(relinearizeSkip=0)
     with pytest.raises(SmootherError, match="relinearizeThreshold"):
