@@ -37,7 +37,7 @@ from ..util.lazy import exports
 
 _EXPORTS = {
     "BlockFactor": "cholesky", "UpdateStats": "cholesky",
-    "FactorArrays": "factor_arrays", "Smoother": "smoother", "SmootherError": "params", "SmootherParams": "params",
+    "FactorArrays": "factor_arrays", "Smoother": "smoother", "SmootherParams": "params",
     "UpdateResult": "params",
 }
 

@@ -18,7 +18,7 @@ import numpy as np
 from .. import factors as _factors
 from ..batch.graph import whitening
 from ..batch.loops import GroupLoops
-from .params import SmootherError
+from ..errors import InputError
 from .structures import grow
 
 
@@ -96,7 +96,7 @@ class FactorArrays:
 
     ``edge_keys`` (E, 2), ``measured`` (E, m, m), ``information`` (E, n, n); ``prior_keys``
     (Q,), ``prior_measured`` (Q, m, m), ``prior_information`` (Q, n, n).  Raises
-    :class:`SmootherError` for wrong shapes, non-finite numbers, a self-loop, an element that
+    :class:`~lie_factors.errors.InputError` for wrong shapes, non-finite numbers, a self-loop, an element that
     is not in the group, an information matrix that is not positive definite.
     """
 
@@ -104,7 +104,7 @@ class FactorArrays:
                  prior_measured=None, prior_information=None):
         spec = _factors.GROUPS.get(group)
         if spec is None:
-            raise SmootherError(f"unknown group {group!r} (choose from {', '.join(_factors.GROUPS)})")
+            raise InputError(f"unknown group {group!r} (choose from {', '.join(_factors.GROUPS)})")
         self.group, self.spec = group, spec
         loops = GroupLoops(spec, serial=True)
         m, n = spec.mat, spec.dim
@@ -116,22 +116,22 @@ class FactorArrays:
             M = np.zeros((0, m, m)) if M is None and F == 0 else np.asarray(M, dtype=np.float64)
             info = np.zeros((0, n, n)) if info is None and F == 0 else np.asarray(info, dtype=np.float64)
             if M.shape != (F, m, m) or info.shape != (F, n, n):
-                raise SmootherError(f"{kind} factors: expected measurements ({F}, {m}, {m}) and information "
+                raise InputError(f"{kind} factors: expected measurements ({F}, {m}, {m}) and information "
                                     f"({F}, {n}, {n}), got {M.shape} and {info.shape}")
             if not (np.all(np.isfinite(M)) and np.all(np.isfinite(info))):
-                raise SmootherError(f"{kind} factors: a measurement or information matrix is not finite")
+                raise InputError(f"{kind} factors: a measurement or information matrix is not finite")
             if kind == "between" and np.any(k[:, 0] == k[:, 1]):
-                raise SmootherError("between factors: a factor connects a key to itself")
+                raise InputError("between factors: a factor connects a key to itself")
             Minv, codes = loops.setup(M)
             bad = np.flatnonzero(codes != _factors.OK)
             if bad.size:
                 q = int(bad[0])
-                raise SmootherError(str(_factors.element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
+                raise InputError(str(_factors.element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
                                                                 "update")))
             try:
                 R = whitening(info) if F else np.zeros((0, n, n))
             except np.linalg.LinAlgError:
-                raise SmootherError(f"{kind} factors: an information matrix is not positive definite") from None
+                raise InputError(f"{kind} factors: an information matrix is not positive definite") from None
             parts[kind] = (k, Minv, R)
         self.edge_keys, self.Minv, self.R = parts["between"]
         pk, self.Pinv, self.prior_R = parts["prior"]

@@ -18,9 +18,9 @@ import numpy as np
 
 from .. import factors as _factors
 from ..batch.graph import key_name, noise_whitening
+from ..errors import InputError
 from ..interop import to_gtsam
 from .factor_arrays import FactorKind, NewFactors
-from .params import SmootherError
 
 #: The types a ``gtsam.Values`` can hold, by their ``at<Type>`` accessors (the common ones first).
 COMMON_TYPES = ("Point3", "Point2", "Pose3", "Pose2", "Rot3", "Rot2", "Similarity3", "Similarity2")
@@ -37,7 +37,7 @@ def value_type(values: gtsam.Values, key: int) -> str:
         except (RuntimeError, TypeError, ValueError):
             continue
         return t
-    raise SmootherError(f"key {key_name(key)}: its value has a type the smoother cannot read")
+    raise InputError(f"key {key_name(key)}: its value has a type the smoother cannot read")
 
 
 def insert_from(dest: gtsam.Values, src: gtsam.Values, key: int, type_name: str) -> None:
@@ -90,18 +90,18 @@ def _read_factors(newFactors: gtsam.NonlinearFactorGraph) -> tuple[dict, list, d
         c = classify(f)
         if c is None:
             if not isinstance(f, gtsam.NonlinearFactor):
-                raise SmootherError(f"factor {i}: unsupported type {type(f).__name__}")
+                raise InputError(f"factor {i}: unsupported type {type(f).__name__}")
             native.append((f, [int(k) for k in f.keys()]))
             continue
         kind, spec, keys, Minv, R, M = c
         if not np.all(np.isfinite(R)):
-            raise SmootherError(f"factor {i} ({type(f).__name__}): its noise model is not finite")
+            raise InputError(f"factor {i} ({type(f).__name__}): its noise model is not finite")
         if M is not None and not np.all(np.isfinite(M)):
-            raise SmootherError(f"factor {i} ({type(f).__name__}): its measurement is not finite")
+            raise InputError(f"factor {i} ({type(f).__name__}): its measurement is not finite")
         for k in keys:
             g = group_of.setdefault(k, spec.name)
             if g != spec.name:
-                raise SmootherError(f"key {key_name(k)} is used by both {g} and {spec.name} factors")
+                raise InputError(f"key {key_name(k)} is used by both {g} and {spec.name} factors")
         entry = arrays.setdefault((kind, spec.name), dict(keys=[], Minv=[], R=[], M=[], src=[]))
         entry["keys"].append(keys)
         entry["Minv"].append(Minv)
@@ -153,11 +153,11 @@ def read_update(newFactors, newTheta, setup: Callable) -> NewFactors:
             try:
                 value = getattr(newTheta, spec.at)(k)
             except RuntimeError:
-                raise SmootherError(f"key {key_name(k)} is used by a {name} factor but its new value is "
+                raise InputError(f"key {key_name(k)} is used by a {name} factor but its new value is "
                                     f"not a gtsam.{name}") from None
             X = spec.matrix(value)
             if not np.all(np.isfinite(X)):
-                raise SmootherError(f"the new value of key {key_name(k)} is not finite")
+                raise InputError(f"the new value of key {key_name(k)} is not finite")
             kinds.append(name)
             values.append(X)
             dims.append(spec.dim)
@@ -177,10 +177,10 @@ def native_jacobian(f, theta: gtsam.Values) -> np.ndarray:
     try:
         lf = f.linearize(theta)
     except RuntimeError as exc:
-        raise SmootherError(f"{type(f).__name__} could not be linearized: {str(exc).strip()[:200]}") from None
+        raise InputError(f"{type(f).__name__} could not be linearized: {str(exc).strip()[:200]}") from None
     if isinstance(lf, gtsam.JacobianFactor):
         if lf.isConstrained():
-            raise SmootherError(f"{type(f).__name__} has a constrained noise model: not supported")
+            raise InputError(f"{type(f).__name__} has a constrained noise model: not supported")
         A, b = lf.jacobian()
         J = np.concatenate([np.asarray(A), np.asarray(b).reshape(-1, 1)], axis=1)
     else:
@@ -189,7 +189,7 @@ def native_jacobian(f, theta: gtsam.Values) -> np.ndarray:
         J = np.sqrt(np.clip(w, 0.0, None))[:, None] * Q.T
         J[:, -1] *= 1.0  # [A b]ᵀ[A b] = M: b is the last column
     if not np.all(np.isfinite(J)):
-        raise SmootherError(f"{type(f).__name__} linearized to non-finite numbers")
+        raise InputError(f"{type(f).__name__} linearized to non-finite numbers")
     return J
 
 
@@ -213,7 +213,7 @@ def typed_estimate(type_name: str):
         if type(value).__name__ == type_name or (isinstance(value, np.ndarray) and (
                 type_name in ("Vector", "Matrix") or type_name == f"Point{value.shape[0]}")):
             return value
-        raise SmootherError(f"key {key_name(int(key))} holds a {type(value).__name__}, not a {type_name}")
+        raise InputError(f"key {key_name(int(key))} holds a {type(value).__name__}, not a {type_name}")
 
     typed.__name__ = typed.__qualname__ = f"calculateEstimate{type_name}"
     typed.__doc__ = f"The estimate of ``key``, a ``gtsam.{type_name}`` (ISAM2's typed form)."

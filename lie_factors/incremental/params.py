@@ -14,9 +14,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-
-class SmootherError(ValueError):
-    """Bad input to :class:`Smoother` (unknown or duplicate key, wrong type, non-finite numbers, …)."""
+from ..errors import InputError
 
 
 @dataclass
@@ -40,13 +38,13 @@ class SmootherParams:
 
     def __post_init__(self):
         if not (np.isfinite(self.relinearizeThreshold) and self.relinearizeThreshold >= 0):
-            raise SmootherError(f"relinearizeThreshold must be finite and >= 0, got {self.relinearizeThreshold}")
+            raise InputError(f"relinearizeThreshold must be finite and >= 0, got {self.relinearizeThreshold}")
         if int(self.relinearizeSkip) < 1:
-            raise SmootherError(f"relinearizeSkip must be >= 1, got {self.relinearizeSkip}")
+            raise InputError(f"relinearizeSkip must be >= 1, got {self.relinearizeSkip}")
         if not (np.isfinite(self.wildfireThreshold) and self.wildfireThreshold >= 0):
-            raise SmootherError(f"wildfireThreshold must be finite and >= 0, got {self.wildfireThreshold}")
+            raise InputError(f"wildfireThreshold must be finite and >= 0, got {self.wildfireThreshold}")
         if self.relinearizePolicy not in ("variable", "global"):
-            raise SmootherError(f"relinearizePolicy must be 'variable' or 'global', got {self.relinearizePolicy!r}")
+            raise InputError(f"relinearizePolicy must be 'variable' or 'global', got {self.relinearizePolicy!r}")
         self.relinearizeSkip = int(self.relinearizeSkip)
 
     @classmethod
@@ -67,13 +65,13 @@ class SmootherParams:
         fields = _printed_fields(params)
         kind = fields.get("type")
         if kind == "ISAM2DoglegParams":
-            raise SmootherError("the smoother runs Gauss-Newton steps: ISAM2DoglegParams are not supported")
+            raise InputError("the smoother runs Gauss-Newton steps: ISAM2DoglegParams are not supported")
         threshold = fields.get("relinearizeThreshold")
         if threshold == "{mapped}":
-            raise SmootherError("per-type relinearization thresholds (ISAM2ThresholdMap) are not supported: "
+            raise InputError("per-type relinearization thresholds (ISAM2ThresholdMap) are not supported: "
                                 "give one threshold")
         if kind != "ISAM2GaussNewtonParams" or threshold is None or "wildfireThreshold" not in fields:
-            raise SmootherError("could not read relinearizeThreshold and wildfireThreshold from "
+            raise InputError("could not read relinearizeThreshold and wildfireThreshold from "
                                 "gtsam.ISAM2Params.print(): give a SmootherParams instead")
         return cls(relinearizeThreshold=float(threshold),
                    relinearizeSkip=int(params.relinearizeSkip),

@@ -37,12 +37,12 @@ import numpy as np
 
 from .. import factors as _factors
 from ..batch.graph import key_name
-from ..errors import IndeterminantLinearSystem
+from ..errors import IndeterminantLinearSystem, InputError
 from ..interop import to_gtsam
 from .cholesky import BlockFactor
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
 from .gtsam_objects import VALUE_TYPES, insert_from, make_factor, native_jacobian, read_update, typed_estimate
-from .params import SmootherError, SmootherParams, UpdateResult
+from .params import SmootherParams, UpdateResult
 from .structures import grow
 from .undo import Undo
 
@@ -102,7 +102,7 @@ class Smoother:
         bad = np.flatnonzero(codes != _factors.OK)
         if bad.size:
             k = int(bad[0])
-            raise SmootherError(str(_factors.element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
+            raise InputError(str(_factors.element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
         return Minv
 
     def _elements(self, name: str) -> Elements:
@@ -143,9 +143,9 @@ class Smoother:
         P = len(keys)
         X = np.zeros((0, m, m)) if P == 0 and values is None else np.asarray(values, dtype=np.float64)
         if X.shape != (P, m, m):
-            raise SmootherError(f"values: expected shape ({P}, {m}, {m}), got {X.shape}")
+            raise InputError(f"values: expected shape ({P}, {m}, {m}), got {X.shape}")
         if not np.all(np.isfinite(X)):
-            raise SmootherError("values: not finite")
+            raise InputError("values: not finite")
         arrays = {}
         edges = np.asarray(edges, dtype=np.int64).reshape(-1)
         priors = np.asarray(priors, dtype=np.int64).reshape(-1)
@@ -163,7 +163,7 @@ class Smoother:
         vs = np.array([self._var_of(k) for k in np.asarray(keys).tolist()], dtype=np.int64)
         names = {self.vgroup[v] for v in vs.tolist()}
         if len(names) != 1 or None in names:
-            raise SmootherError("estimate_matrices: the keys must all hold elements of one group")
+            raise InputError("estimate_matrices: the keys must all hold elements of one group")
         el = self.elements[names.pop()]
         out = np.empty((len(vs), el.spec.mat, el.spec.mat))
         el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.bf.delta, self.bf.tree.voff[vs], out)
@@ -174,7 +174,7 @@ class Smoother:
         self._solve()
         v = self._var_of(key)
         if self.vgroup[v] is None:
-            raise SmootherError(f"key {key_name(int(key))} is not a group element")
+            raise InputError(f"key {key_name(int(key))} is not a group element")
         return self._estimate_matrix(v)
 
     def _validate(self, nf: NewFactors) -> None:
@@ -182,9 +182,9 @@ class Smoother:
         seen = set()
         for k in nf.keys:
             if k in var:
-                raise SmootherError(f"key {key_name(k)} is already a variable of the smoother")
+                raise InputError(f"key {key_name(k)} is already a variable of the smoother")
             if k in seen:
-                raise SmootherError(f"key {key_name(k)} is given twice")
+                raise InputError(f"key {key_name(k)} is given twice")
             seen.add(k)
         new_group = dict(zip(nf.keys, nf.kinds))
         used = set()
@@ -196,20 +196,20 @@ class Smoother:
                 elif k in var:
                     g = self.vgroup[var[k]]
                 else:
-                    raise SmootherError(f"a {name} factor uses key {key_name(k)}, which has no value "
+                    raise InputError(f"a {name} factor uses key {key_name(k)}, which has no value "
                                         "(neither new nor in the smoother)")
                 if g != name:
-                    raise SmootherError(f"key {key_name(k)} holds a {g or 'non-group value'}, "
+                    raise InputError(f"key {key_name(k)} holds a {g or 'non-group value'}, "
                                         f"not a {name} (used by a {name} factor)")
         for f, keys in nf.native:
             for k in keys:
                 used.add(k)
                 if k not in new_group and k not in var:
-                    raise SmootherError(f"a {type(f).__name__} uses key {key_name(k)}, which has no value "
+                    raise InputError(f"a {type(f).__name__} uses key {key_name(k)}, which has no value "
                                         "(neither new nor in the smoother)")
         for k in nf.keys:
             if k not in used:
-                raise SmootherError(f"new key {key_name(k)} is in no new factor: it would be unconstrained")
+                raise InputError(f"new key {key_name(k)} is in no new factor: it would be unconstrained")
 
     def _apply(self, nf: NewFactors) -> UpdateResult:
         self._validate(nf)
@@ -400,7 +400,7 @@ class Smoother:
     def _var_of(self, key) -> int:
         v = self.var.get(int(key))
         if v is None:
-            raise SmootherError(f"key {key_name(int(key))} is not a variable of the smoother")
+            raise InputError(f"key {key_name(int(key))} is not a variable of the smoother")
         return v
 
     def _estimate_matrix(self, v: int) -> np.ndarray:
