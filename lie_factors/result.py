@@ -170,6 +170,7 @@ class ReplayResult(Result):
              "final_error": float(self.error), "seconds": float(self.seconds)}
         if self.relinearizations is not None:
             d["relinearizations"] = int(self.relinearizations)
+        if self.reorderings is not None:  # the smoother's count; GTSAM's ISAM2 has none
             d["reorderings"] = int(self.reorderings)
         return d
 

@@ -281,7 +281,7 @@ def _run_posegraph(args) -> int:
                 r = run.replay
                 _say(args, f"{r.updates} updates in {r.update_seconds:.3f} s (per update: median "
                            f"{r.update_p50 * 1e3:.3f} ms, p99 {r.update_p99 * 1e3:.3f} ms); "
-                           f"final error {r.final_error:.6g}")
+                           f"final error {r.error:.6g}")
                 return
             _report_compile(args)
             status = "converged" if record.converged else "stopped (not converged)"

@@ -113,14 +113,13 @@ def test_every_update_is_one_gauss_newton_step_with_threshold_zero(group, factor
 
 
 def test_accuracy_against_isam2_at_every_tenth_of_a_replay():
-    from lie_factors.app import incremental
-    from lie_factors.backends import build_graph
     from lie_factors.g2o import read_pose_graph
+    from lie_factors.incremental.replay import factor_graph, isam2_params, schedule
 
     ds = read_pose_graph(str(ROOT / "data" / "smallGrid3D.g2o"))
-    graph = build_graph(ds, "native")
-    steps = incremental.schedule(ds, graph)
-    ours, ref = Smoother(), gtsam.ISAM2(incremental.isam2_params())
+    graph = factor_graph(ds, "native")
+    steps = schedule(ds, graph)
+    ours, ref = Smoother(), gtsam.ISAM2(isam2_params())
     so_far = gtsam.NonlinearFactorGraph()
     tenth = max(len(steps) // 10, 1)
     for n, step in enumerate(steps):
