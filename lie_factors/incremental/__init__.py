@@ -29,6 +29,11 @@ The smoother:
   objects made back;
 * :mod:`~lie_factors.incremental.undo`: what an update changed, put back if it fails.
 
+The replay: :mod:`~lie_factors.incremental.replay`, the online replay of a pose
+graph (``from lie_factors.incremental.replay import replay``: the function is
+not one of the package's names, which the submodule of the same name would
+replace once imported).
+
 ``import lie_factors.incremental`` alone loads neither numba nor GTSAM: its names
 are imported on first use.
 """

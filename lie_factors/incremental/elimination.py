@@ -4,8 +4,7 @@
 positions, separators, parents, the room needed), then the numeric one
 (:mod:`lie_factors.incremental.fronts`: dense fronts assembled and factored), and
 only then writes the new nodes into the tree.  A pool too small, or a pivot that
-fails, leaves the tree as it was.  The structures are
-:mod:`lie_factors.incremental.structures`'.
+fails, leaves the tree as it was.  Structures: :mod:`lie_factors.incremental.structures`.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ matrix of its first variable in the order.
 The kernels take these structures whole.  numba passes a namedtuple of arrays
 as the arrays it holds (by reference: a kernel writes into them), but cannot
 rebind a field: an array that grows is reallocated by the Python caller, which
-then builds the tuple again (:meth:`~lie_factors.incremental.cholesky.BlockFactor`
+then builds the tuple again (:class:`~lie_factors.incremental.cholesky.BlockFactor`
 keeps one of each).  Shapes: ``V`` variable capacity, ``F`` factor capacity.
 """
 
