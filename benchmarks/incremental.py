@@ -8,13 +8,15 @@
 - ``batch``: the incremental smoother, :class:`lie_factors.incremental.Smoother` on arrays
   (what ``lie-factors posegraph FILE --incremental`` runs by default).
 
-Each replay is :func:`lie_factors.app.incremental.replay` (poses in id order, one per update,
-GTSAM's default ISAM2Params).  The legs alternate (repeat ▸ dataset ▸ leg) and each reports
-its best of ``--repeat``.  Datasets: files (``--data-dir``, or a path) and ``helix``: a
-generated 10k-pose SE(3) helix that revisits a place every 100 poses, odometry between
-consecutive poses and, at every 10th pose, a loop closure to the pose 100 back; noise σ
-0.01 rad / 0.05 m (seeded); its ATE (RMSE of the positions against the ground truth, no
-alignment: the prior holds pose 0 at the truth) is reported.
+Each replay is :mod:`lie_factors.incremental.replay`'s (poses in id order, one per update,
+GTSAM's default ISAM2Params): :func:`~lie_factors.incremental.replay.replay` for ``batch``, and
+:func:`~lie_factors.incremental.replay.replay_graph` on graphs built once for the others.  The
+legs alternate (repeat ▸ dataset ▸ leg) and each reports its best of ``--repeat``.  Datasets:
+files (``--data-dir``, or a path) and ``helix``: a generated 10k-pose SE(3) helix that revisits
+a place every 100 poses, odometry between consecutive poses and, at every 10th pose, a loop
+closure to the pose 100 back; noise σ 0.01 rad / 0.05 m (seeded); its ATE (RMSE of the
+positions against the ground truth, no alignment: the prior holds pose 0 at the truth) is
+reported.
 
     python benchmarks/incremental.py [--data-dir DIR] [--datasets intel city10000 sphere2500 helix]
         [--legs native plain dropin batch] [--repeat 2] [--plain-limit 60] [--limit SECONDS]
@@ -50,10 +52,10 @@ if str(ROOT) not in sys.path:
 import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 
-from lie_factors import g2o
-from lie_factors.app import incremental  # noqa: E402
-from lie_factors.backends import build_graph  # noqa: E402
+from lie_factors import g2o  # noqa: E402
 from lie_factors.g2o import read_pose_graph as load_dataset  # noqa: E402
+from lie_factors.incremental.replay import (  # noqa: E402
+    factor_graph, isam2_params, new_isam, replay, replay_graph, schedule)
 
 DEFAULT_DATASETS = ["intel", "city10000", "sphere2500", "helix"]
 LEGS = ("native", "plain", "dropin", "batch")
@@ -107,13 +109,13 @@ def ate(values: gtsam.Values, truth) -> float:
 
 def run_leg(pg, leg: str, graphs: dict, plain_limit: float, limit: float | None = None):
     if leg == "native":
-        return incremental.replay(pg, "native", graph=graphs["native"], max_seconds=limit)
+        return replay_graph(pg, graphs["native"], new_isam("native"), backend="native", max_seconds=limit)
     if leg == "plain":
-        return incremental.replay(pg, "dropin", graph=graphs["dropin"], isam_class=gtsam.ISAM2,
-                                  max_seconds=plain_limit if limit is None else min(plain_limit, limit))
+        return replay_graph(pg, graphs["dropin"], gtsam.ISAM2(isam2_params()), backend="dropin",
+                            max_seconds=plain_limit if limit is None else min(plain_limit, limit))
     if leg == "batch":
-        return incremental.replay(pg, "batch", max_seconds=limit)
-    return incremental.replay(pg, "dropin", graph=graphs["dropin"], max_seconds=limit)
+        return replay(pg, backend="batch", max_seconds=limit)
+    return replay_graph(pg, graphs["dropin"], new_isam("dropin"), backend="dropin", max_seconds=limit)
 
 
 def _run_command(cmd: list) -> tuple[float, str | None, float]:
@@ -195,12 +197,12 @@ def accuracy_rows(datasets, data_dir: str, tmp: str, helix_poses: int) -> None:
     for name in datasets:
         ds, _ = load(name, data_dir, tmp, helix_poses)
         pg = ds.with_first_prior()
-        graph = build_graph(ds, "native")
+        graph = factor_graph(ds, "native")
         E = len(pg.edge_keys)
-        steps = incremental.schedule(ds, graph)
+        steps = schedule(ds, graph)
         fa = FactorArrays(pg.group, pg.edge_keys, pg.measured, pg.information, pg.prior_keys, pg.prior_measured,
                           pg.prior_information)
-        ref, ours = gtsam.ISAM2(incremental.isam2_params()), Smoother()
+        ref, ours = gtsam.ISAM2(isam2_params()), Smoother()
         at = getattr(gtsam.Values, f"at{pg.group}")
         so_far = gtsam.NonlinearFactorGraph()
         tenth = max(len(steps) // 10, 1)
@@ -285,7 +287,7 @@ def main(argv=None) -> int:
         loaded = {}
         for name in args.datasets:
             pg, truth = load(name, args.data_dir, tmp, args.helix_poses)
-            graphs = {"native": build_graph(pg, "native"), "dropin": build_graph(pg, "dropin")}
+            graphs = {"native": factor_graph(pg, "native"), "dropin": factor_graph(pg, "dropin")}
             loaded[name] = (pg, truth, graphs)
         best: dict = {}
         for r in range(args.repeat):
@@ -315,7 +317,7 @@ def main(argv=None) -> int:
                     ratio = f"{mine / ref:.2f}" + ("" if common == done == native.updates else
                                                    f" (first {common} updates)")
                 a = f"{ate(res.values, truth):.4f}" if truth is not None and done == pg.pose_count else ""
-                err = "" if math.isnan(res.final_error) else f"{res.final_error:.10g}"
+                err = "" if math.isnan(res.error) else f"{res.error:.10g}"
                 print(f"| {pg.name} | {pg.pose_count} | {res.factors} | {leg} | {done} | {res.update_seconds:.3f} "
                       f"| {res.update_p50 * 1e3:.3f} | {res.update_p99 * 1e3:.3f} | {err} | {a} | {ratio} |")
     return 0

@@ -17,6 +17,10 @@ prefix listed, and may import only modules of its rank or below:
 ``testing`` (oracles and generators) stands apart: no library module imports it; the app may
 (``lie-factors crosscheck`` prints the oracles' verdicts).  Every import counts, at module level
 or inside a function: a deferred import is still a dependency.
+
+Sizes (:mod:`support.code_size`), in the directories of :data:`SIZE_CHECKED`: a function has at
+most 150 lines and 12 parameters, a module at most 900 lines, and at most 600 unless it is in
+:data:`ONE_JOB`, with the reason it does one job that does not divide.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ import ast
 from pathlib import Path
 
 import pytest
+
+from support.code_size import oversized_functions, oversized_modules
 
 PACKAGE = Path(__file__).resolve().parents[1] / "lie_factors"
 
@@ -245,3 +251,36 @@ def test_the_app_calls_only_public_names(path):
                 continue
             wrong.append(f"{target}.{alias.name}")
     assert not wrong, f"{here} imports names outside the library's __all__: {wrong}"
+
+
+#: The directories of the package whose functions and modules the size limits cover.
+SIZE_CHECKED = ["incremental"]
+
+#: Modules allowed past the soft limit of 600 lines (never past 900): path → the one job each does.
+ONE_JOB: dict[Path, str] = {}
+
+
+@pytest.mark.parametrize("directory", SIZE_CHECKED)
+def test_functions_are_short_and_take_few_parameters(directory):
+    found = oversized_functions(PACKAGE / directory)
+    assert not found, "functions over 150 lines or 12 parameters: " + "; ".join(map(str, found))
+
+
+@pytest.mark.parametrize("directory", SIZE_CHECKED)
+def test_modules_are_small(directory):
+    found = oversized_modules(PACKAGE / directory, ONE_JOB)
+    assert not found, f"modules over 900 lines, or over 600 and not in ONE_JOB: {found}"
+
+
+def test_the_size_check_sees_long_functions_many_parameters_and_long_modules(tmp_path):
+    body = "\n".join(f"    x{i} = {i}" for i in range(150))
+    (tmp_path / "long.py").write_text(f"def long():\n{body}\n\n\ndef wide(a, b, c, d, e, f, g, h, i, j, k, l, *m):\n"
+                                      "    pass\n\n\nclass C:\n    def fine(self, a, b, c, d, e, f, g, h, i, j, k, l):\n"
+                                      "        pass\n")
+    (tmp_path / "big.py").write_text("x = 1\n" * 601)
+    names = sorted(f.name for f in oversized_functions(tmp_path))
+    assert names == ["long", "wide"]
+    assert oversized_modules(tmp_path) == ["big.py (601 lines)"]
+    assert oversized_modules(tmp_path, {tmp_path / "big.py": "one job"}) == []
+    (tmp_path / "big.py").write_text("x = 1\n" * 901)
+    assert oversized_modules(tmp_path, {tmp_path / "big.py": "one job"}) == ["big.py (901 lines)"]

@@ -3,7 +3,7 @@
 ``BlockFactor`` holds the linearized factors (whitened Jacobians ``[A | b]``,
 one block per variable) and the factor ``L`` of ``Λ = Σ AᵀA`` under an
 elimination order, as a tree of block columns
-(:mod:`lie_factors.incremental.elimination`).  An update adds variables and
+(:mod:`lie_factors.incremental.structures`).  An update adds variables and
 factors, replaces the Jacobians of relinearized factors, and re-eliminates
 only the columns whose entries change: the variables of the new factors, the
 nodes whose separator holds a relinearized variable, and their ancestors (the
@@ -18,6 +18,13 @@ batch step).
 The solution ``δ = Λ⁻¹ η`` (``η = Σ Aᵀb``) is kept up to date by ISAM2's
 wildfire back-substitution, exact when its threshold is 0.
 
+This class is the Python side: it keeps the state, grows it, orders the
+columns (GTSAM's CCOLAMD) and calls the compiled kernels once each per update:
+:mod:`~lie_factors.incremental.storage` (new variables and factors),
+:mod:`~lie_factors.incremental.marking` (the columns that change),
+:mod:`~lie_factors.incremental.elimination` (their re-elimination) and
+:mod:`~lie_factors.incremental.substitution` (δ, marginals).
+
 Every update is all or nothing: an update that leaves a variable without
 information (a pivot that is not positive) raises
 :class:`IndeterminantLinearSystem` and the factor is as it was before.
@@ -31,7 +38,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import IndeterminantLinearSystem
-from . import elimination as _el
+from . import structures as st
+from .elimination import KEEP_UPDATE, reeliminate
+from .marking import factors_of, mark_affected, marked_among, ordering_graph
+from .storage import append_factors, compact_pools, init_variables, link_adjacency
+from .substitution import back_substitute, marginal_covariance, max_abs_blocks
 
 
 #: ISAM2's share of re-eliminated variables from which an update orders and eliminates everything.
@@ -39,31 +50,8 @@ BATCH_SHARE = 0.65
 
 #: Sets this small are ordered as they were, the observed variables last (an odometry step:
 #: the previous pose and the new one, perhaps the one before), without building a graph for
-#: COLAMD (about 70 µs of Python and GTSAM calls).
+#: COLAMD (a graph and a GTSAM call cost more than the choice is worth there).
 SMALL_SET = 3
-
-
-def _grow(a: np.ndarray, n: int, fill=None) -> np.ndarray:
-    """``a`` with room for at least ``n`` entries along its first axis (capacity doubles)."""
-    if a.shape[0] >= n:
-        return a
-    cap = max(n, 2 * a.shape[0], 16)
-    out = np.empty((cap,) + a.shape[1:], dtype=a.dtype)
-    out[:a.shape[0]] = a
-    if fill is not None:
-        out[a.shape[0]:] = fill
-    return out
-
-
-def _grow_pool(a: np.ndarray, n: int) -> np.ndarray:
-    """The pool ``a`` with room for ``n`` entries and a quarter more, its entries kept.  Pools
-    are most of the factor's memory: they grow by less than doubling, and in place
-    (``ndarray.resize``: a large block is remapped, not copied, so the old and the new pool
-    are never both in memory); no view of a pool outlives a call."""
-    if a.shape[0] >= n:
-        return a
-    a.resize(n + n // 4, refcheck=False)
-    return a
 
 
 @dataclass
@@ -77,6 +65,13 @@ class UpdateStats:
     factors: int = 0
     batch: bool = False
 
+    def add(self, other: "UpdateStats") -> None:
+        self.columns += other.columns
+        self.orphans += other.orphans
+        self.extend_adds += other.extend_adds
+        self.factors += other.factors
+        self.batch += other.batch
+
 
 class BlockFactor:
     """Variables with block dimensions, factors as whitened Jacobians, and the incremental factor.
@@ -84,41 +79,32 @@ class BlockFactor:
     Variables and factors are numbered from 0 in the order they are added.
     ``keep_update``: the largest update matrix (floats) a clique member below the clique's
     last variable keeps (:data:`~lie_factors.incremental.elimination.KEEP_UPDATE`).
+
+    State (:mod:`lie_factors.incremental.structures`, each a namedtuple of arrays the kernels
+    take whole, built again when an array grows): ``tree`` (the nodes), ``store`` (the
+    factors), ``pools`` (what the nodes point into, filled to ``itop``/``ftop``), ``work``
+    (the kernels' scratch and counts), ``wildfire`` (back-substitution's flags).
     Attributes after an update: ``delta`` (solution, see :meth:`solve`),
     ``last`` (:class:`UpdateStats`), ``totals`` (the sums over all updates).
     """
 
-    _VAR_ARRAYS = ("dim", "voff", "pos", "parent", "first", "nxt", "nchild", "sep_start", "sep_len",
-                   "sep_dim", "cond", "ustart", "ahead", "aidx", "mark", "loc", "chead", "cnext", "flag",
-                   "replaced", "changed", "visited")
-    _FAC_ARRAYS = ("fnv", "fvstart", "frows", "fcols", "fjstart", "fstamp")
-
-    def __init__(self, keep_update: int = _el.KEEP_UPDATE):
+    def __init__(self, keep_update: int = KEEP_UPDATE):
         self.keep_update = int(keep_update)
         self.nv = 0
         self.nf = 0
         self.nscalar = 0
-        for name in self._VAR_ARRAYS:
-            setattr(self, name, np.zeros(0, dtype=np.int64))
-        for name in self._FAC_ARRAYS:
-            setattr(self, name, np.zeros(0, dtype=np.int64))
-        self.fvars = np.zeros(0, dtype=np.int64)
         self.nfv = 0
-        self.jac = np.zeros(0)
         self.njac = 0
-        # adjacency lists of the variables, one entry per (factor, variable) parallel to fvars
-        self.anext = np.zeros(0, dtype=np.int64)
-        self.afac = np.zeros(0, dtype=np.int64)
-        self.ipool = np.zeros(1 << 14, dtype=np.int64)
+        self.tree = st.empty_tree()
+        self.store = st.empty_store()
+        self.work = st.empty_workspace()
+        self.wildfire = st.empty_wildfire()
+        self.pools = st.Pools(np.zeros(1 << 14, dtype=np.int64), np.zeros(1 << 18))
         self.itop = 0
-        self.fpool = np.zeros(1 << 18)
         self.ftop = 0
-        self.roots = np.full(1, -1, dtype=np.int64)
-        self.stamps = np.zeros(1, dtype=np.int64)
         self.fstamp_box = 0
         self.next_pos = 0
         self.delta = np.zeros(0)
-        self.stats = np.zeros(7, dtype=np.int64)
         self.last = UpdateStats()
         self.totals = UpdateStats()
         self.updates = 0
@@ -130,24 +116,22 @@ class BlockFactor:
 
     # ------------------------------------------------------------------ storage
     def _reserve_vars(self, n: int) -> None:
-        if self.dim.shape[0] >= n:
+        if self.tree.dim.shape[0] >= n:
             return
-        for name in self._VAR_ARRAYS:
-            fill = -1 if name in ("parent", "first", "nxt", "ahead", "aidx", "cond", "ustart",
-                                  "chead", "cnext") else 0
-            setattr(self, name, _grow(getattr(self, name), n, fill))
+        self.tree = st.grown(self.tree, n, st.TREE_FILL)
+        self.work = st.grown(self.work, n, st.WORKSPACE_FILL)
+        self.wildfire = st.grown(self.wildfire, n, dict.fromkeys(st.Wildfire._fields, 0))
+        self.store = self.store._replace(ahead=st.grow(self.store.ahead, n, -1))
 
     def _reserve_factors(self, n: int, nfv: int, njac: int) -> None:
-        if self.fnv.shape[0] < n:
-            for name in self._FAC_ARRAYS:
-                setattr(self, name, _grow(getattr(self, name), n, 0))
-        self.fvars = _grow(self.fvars, nfv)
-        self.jac = _grow(self.jac, njac)
-        self.anext = _grow(self.anext, nfv)
-        self.afac = _grow(self.afac, nfv)
+        store = self.store
+        if store.fnv.shape[0] < n:
+            store = st.grown(store, n, dict.fromkeys(st.FACTOR_FIELDS, 0))
+        store = st.grown(store, nfv, dict.fromkeys(st.ENTRY_FIELDS))
+        self.store = store._replace(jac=st.grow(store.jac, njac))
 
     def _reserve_delta(self, n: int) -> None:
-        self.delta = _grow(self.delta, n, 0.0)
+        self.delta = st.grow(self.delta, n, 0.0)
 
     # ------------------------------------------------------------------ updates
     def update(self, new_dims=(), new_factors=(), refreshed=(), relinearized=(), observed=()) -> UpdateStats:
@@ -166,247 +150,279 @@ class BlockFactor:
         :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive.
         """
         new_dims = np.asarray(new_dims, dtype=np.int64).reshape(-1)
-        nv0, nf0, nfv0, njac0, ns0 = self.nv, self.nf, self.nfv, self.njac, self.nscalar
-        saved_heads = None
-        saved_jac = []
+        counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
+        undo = []  # (array, indices, old values) to put back if the update fails
         try:
-            P = new_dims.shape[0]
-            if P:
-                self._reserve_vars(nv0 + P)
-                self._reserve_delta(ns0 + int(new_dims.sum()))
-                self.nscalar = _el.init_variables(nv0, new_dims, ns0, self.dim, self.voff, self.parent, self.first,
-                                                  self.nxt, self.nchild, self.sep_len, self.sep_dim, self.cond,
-                                                  self.ustart, self.ahead, self.delta)
-                self.nv = nv0 + P
+            self._add_variables(new_dims)
             observed_parts = [np.asarray(observed, dtype=np.int64).reshape(-1),
-                              np.arange(nv0, self.nv, dtype=np.int64)]
-            touched_vars = []
-            for fvars, jac in new_factors:
-                fvars = np.ascontiguousarray(fvars, dtype=np.int64)
-                jac = np.ascontiguousarray(jac, dtype=np.float64)
-                F, k = fvars.shape
-                if F == 0:
-                    continue
-                r, D1 = jac.shape[1], jac.shape[2]
-                self._reserve_factors(self.nf + F, self.nfv + F * k, self.njac + F * r * D1)
-                _el.append_factors(fvars, jac, self.nf, self.nfv, self.njac, self.fnv, self.fvstart, self.fvars,
-                                   self.frows, self.fcols, self.fjstart, self.jac, self.fstamp)
-                touched_vars.append(fvars.ravel())
-                observed_parts.append(fvars.ravel())
-                self.nf += F
-                self.nfv += F * k
-                self.njac += F * r * D1
-            if touched_vars:
-                allv = np.concatenate(touched_vars)
-                saved_heads = (allv, self.ahead[allv].copy())  # repeated variables: equal heads
-                _el.link_adjacency(self.ahead, self.anext, self.afac, self.fvars, self.fnv, self.fvstart, nf0, self.nf)
-            for fids, jac in refreshed:
-                fids = np.asarray(fids, dtype=np.int64)
-                if fids.size == 0:
-                    continue
-                jac = np.ascontiguousarray(jac, dtype=np.float64)
-                r, D1 = jac.shape[1], jac.shape[2]
-                idx = (self.fjstart[fids][:, None] + np.arange(r * D1)[None, :])
-                saved_jac.append((idx, self.jac[idx].copy()))
-                self.jac[idx] = jac.reshape(len(fids), r * D1)
+                              np.arange(counts[0], self.nv, dtype=np.int64)]
+            observed_parts += self._add_factors(new_factors, undo)
+            self._refresh(refreshed, undo)
             observed_all = np.concatenate(observed_parts)  # repeats allowed
             relin = np.unique(np.asarray(relinearized, dtype=np.int64).reshape(-1)) if len(relinearized) else \
                 np.zeros(0, dtype=np.int64)
             self._reeliminate(observed_all, relin)
         except BaseException:
-            if saved_heads is not None:
-                self.ahead[saved_heads[0]] = saved_heads[1]
-            for idx, old in reversed(saved_jac):
-                self.jac[idx] = old
-            self.nv, self.nf, self.nfv, self.njac, self.nscalar = nv0, nf0, nfv0, njac0, ns0
+            for array, idx, old in reversed(undo):
+                array[idx] = old
+            self.nv, self.nf, self.nfv, self.njac, self.nscalar = counts
             raise
         self.updates += 1
         return self.last
 
-    def _reeliminate(self, observed: np.ndarray, relin: np.ndarray) -> None:
+    def _add_variables(self, new_dims: np.ndarray) -> None:
+        P = new_dims.shape[0]
+        if not P:
+            return
+        self._reserve_vars(self.nv + P)
+        self._reserve_delta(self.nscalar + int(new_dims.sum()))
+        self.nscalar = init_variables(self.nv, new_dims, self.nscalar, self.tree, self.store.ahead, self.delta)
+        self.nv += P
+
+    def _add_factors(self, new_factors, undo: list) -> list:
+        """Store the new factors and link them to their variables; returns their variables."""
+        nf0 = self.nf
+        touched = []
+        for fvars, jac in new_factors:
+            fvars = np.ascontiguousarray(fvars, dtype=np.int64)
+            jac = np.ascontiguousarray(jac, dtype=np.float64)
+            F, k = fvars.shape
+            if F == 0:
+                continue
+            r, D1 = jac.shape[1], jac.shape[2]
+            self._reserve_factors(self.nf + F, self.nfv + F * k, self.njac + F * r * D1)
+            append_factors(fvars, jac, (self.nf, self.nfv, self.njac), self.store)
+            touched.append(fvars.ravel())
+            self.nf += F
+            self.nfv += F * k
+            self.njac += F * r * D1
+        if touched:
+            allv = np.concatenate(touched)
+            undo.append((self.store.ahead, allv, self.store.ahead[allv].copy()))  # repeats: equal heads
+            link_adjacency(self.store, nf0, self.nf)
+        return touched
+
+    def _refresh(self, refreshed, undo: list) -> None:
+        """New Jacobians of existing factors (the old ones kept in ``undo``)."""
+        jac_all = self.store.jac
+        for fids, jac in refreshed:
+            fids = np.asarray(fids, dtype=np.int64)
+            if fids.size == 0:
+                continue
+            jac = np.ascontiguousarray(jac, dtype=np.float64)
+            r, D1 = jac.shape[1], jac.shape[2]
+            idx = (self.store.fjstart[fids][:, None] + np.arange(r * D1)[None, :])
+            undo.append((jac_all, idx, jac_all[idx].copy()))
+            jac_all[idx] = jac.reshape(len(fids), r * D1)
+
+    def _affected(self, observed: np.ndarray, relin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(affected, orphans): the variables to re-eliminate and the subtrees hanging from them."""
         nv = self.nv
         if self._marks.shape[0] < 2 * nv:
             self._marks = np.empty(4 * nv + 64, dtype=np.int64)
         affected = self._marks[:nv]
         orphans = self._marks[nv:2 * nv]
-        na, no = _el.mark_affected(observed, relin, self.parent, self.first, self.nxt, self.nchild,
-                                   self.sep_start, self.sep_len, self.ustart, self.ipool, self.flag, affected,
-                                   orphans)
-        affected, orphans = affected[:na].copy(), orphans[:no].copy()
-        batch = na >= BATCH_SHARE * nv
+        na, no = mark_affected(observed, relin, self.tree, self.pools.ipool, self.work.flag, affected, orphans)
+        return affected[:na].copy(), orphans[:no].copy()
+
+    def _reeliminate(self, observed: np.ndarray, relin: np.ndarray) -> None:
+        affected, orphans = self._affected(observed, relin)
+        batch = len(affected) >= BATCH_SHARE * self.nv
         if batch:
-            affected = np.arange(nv, dtype=np.int64)
+            affected = np.arange(self.nv, dtype=np.int64)
             orphans = orphans[:0]
         order = self._order(affected, orphans, observed)
-        st = self.stats
-        before = st.copy()
+        stats = self.work.stats
+        before = stats.copy()
         # a batch step rewrites every node: into new pools (nothing in the old ones is read),
         # which replace the old ones whole, with nothing freed left in them
         # (sized by the kernel's own count: it asks for the room after its symbolic pass)
-        ipool, itop = (np.empty(self.itop + 1024, dtype=np.int64), 0) if batch else (self.ipool, self.itop)
-        fpool, ftop = (np.empty(0), 0) if batch else (self.fpool, self.ftop)
+        pools, itop, ftop = (st.Pools(np.empty(self.itop + 1024, dtype=np.int64), np.empty(0)), 0, 0) if batch \
+            else (self.pools, self.itop, self.ftop)
         while True:
-            status, detail, it, ft = _el.reeliminate(
-                order, orphans, self.next_pos,
-                self.dim, self.pos, self.parent, self.first, self.nxt, self.nchild, self.sep_start,
-                self.sep_len, self.sep_dim, self.cond, self.ustart, self.roots, ipool, itop, fpool, ftop,
-                self.fnv, self.fvstart, self.fvars, self.frows, self.fjstart, self.fcols, self.jac,
-                self.ahead, self.anext, self.afac,
-                self.aidx, self.mark, self.stamps, self.loc, self.chead, self.cnext, st, self.keep_update)
-            if status == _el.OK:
+            status, detail, it, ft = reeliminate(order, orphans, self.next_pos, self.tree, pools, itop, ftop,
+                                                 self.store, self.work, self.keep_update)
+            if status == st.OK:
                 break
-            st[:] = before
-            if status == _el.NEED_INT:
-                if batch:
-                    ipool = _grow_pool(ipool, int(detail))
-                elif 2 * self.stats[5] > self.itop:
-                    self._compact()
-                else:
-                    self.ipool = _grow_pool(self.ipool, int(detail))
-            elif status == _el.NEED_FLOAT:
-                if batch:
-                    fpool = _grow_pool(fpool, int(detail))
-                elif 2 * self.stats[4] > self.ftop and int(detail) - self.stats[4] <= self.fpool.shape[0]:
-                    self._compact()
-                else:
-                    self.fpool = _grow_pool(self.fpool, int(detail))
-            else:
+            stats[:] = before
+            if status == st.NOT_POSITIVE:
                 raise IndeterminantLinearSystem(
                     f"the linear system is not positive definite at variable {int(detail)}: it is not "
                     "determined by the factors so far", int(detail))
-            if not batch:
-                ipool, itop, fpool, ftop = self.ipool, self.itop, self.fpool, self.ftop
-        self.ipool, self.fpool = ipool, fpool
+            if batch:
+                pools = self._grown_pools(pools, status, int(detail))
+            else:
+                self._make_room(status, int(detail))
+                pools, itop, ftop = self.pools, self.itop, self.ftop
+        self.pools = pools
         if batch:
-            st[4:6] = 0
+            stats[4:6] = 0
         self.itop, self.ftop = int(it), int(ft)
         self.next_pos += len(order)
-        self.replaced[order] = 1
-        done = st - before
-        self.last = UpdateStats(columns=int(done[0]), orphans=int(no if not batch else 0),
+        self.wildfire.replaced[order] = 1
+        done = stats - before
+        self.last = UpdateStats(columns=int(done[0]), orphans=0 if batch else len(orphans),
                                 extend_adds=int(done[1]), factors=int(done[2]), batch=bool(batch))
-        t = self.totals
-        t.columns += self.last.columns
-        t.orphans += self.last.orphans
-        t.extend_adds += self.last.extend_adds
-        t.factors += self.last.factors
-        t.batch += self.last.batch
+        self.totals.add(self.last)
+
+    @staticmethod
+    def _grown_pools(pools: st.Pools, status: int, size: int) -> st.Pools:
+        if status == st.NEED_INT:
+            return pools._replace(ipool=st.grow_pool(pools.ipool, size))
+        return pools._replace(fpool=st.grow_pool(pools.fpool, size))
+
+    def _make_room(self, status: int, size: int) -> None:
+        """Room in the pools for a re-elimination that asked for ``size`` entries: compacted in
+        place when most of the pool is freed (and that makes room), else grown."""
+        freed_floats, freed_ints = int(self.work.stats[4]), int(self.work.stats[5])
+        if status == st.NEED_INT:
+            if 2 * freed_ints > self.itop:
+                self._compact()
+            else:
+                self.pools = self._grown_pools(self.pools, status, size)
+        elif 2 * freed_floats > self.ftop and size - freed_floats <= self.pools.fpool.shape[0]:
+            self._compact()
+        else:
+            self.pools = self._grown_pools(self.pools, status, size)
 
     def _order(self, affected: np.ndarray, orphans: np.ndarray, observed: np.ndarray) -> np.ndarray:
         """The affected variables in elimination order: CCOLAMD on the factors inside them and the
         orphans' separators, the observed variables last (when some are not observed)."""
         na = len(affected)
+        flag = self.work.flag
         if na <= SMALL_SET:
             # no choice to make: the others (in their order so far), then the observed ones
             # (lists: for three variables or fewer, numpy's set routines cost more than the work)
-            obs = _el.marked_among(affected, observed, self.flag).tolist()
-            pos = self.pos
+            obs = marked_among(affected, observed, flag).tolist()
+            pos = self.tree.pos
             rest = sorted((v for v in affected.tolist() if v not in obs), key=lambda v: pos[v])
             return np.array(rest + obs, dtype=np.int64)
         import gtsam
 
-        nptr = self.nf + len(orphans) + 1 + na
-        nout = self.nfv + int(self.sep_len[orphans].sum()) + 1 + na
-        if self._graph_ptr.shape[0] < nptr:
-            self._graph_ptr = np.empty(2 * nptr, dtype=np.int64)
-        if self._graph_vars.shape[0] < nout:
-            self._graph_vars = np.empty(2 * nout, dtype=np.int64)
-        ptr, out = self._graph_ptr, self._graph_vars
-        self.fstamp_box += 1
-        n, m = _el.ordering_graph(affected, orphans, self.fnv, self.fvstart, self.fvars, self.ahead, self.anext,
-                                  self.afac, self.sep_start, self.sep_len, self.ipool, self.flag, self.fstamp,
-                                  self.fstamp_box, ptr, out)
-        obs = _el.marked_among(affected, observed, self.flag)
-        g = gtsam.SymbolicFactorGraph()
-        push = g.push_factor
-        # the two-variable factors (nearly all) pushed run by run through map(), in their order
-        starts = ptr[:n]
-        sizes = ptr[1:n + 1] - starts
-        firsts = out[starts].tolist()
-        seconds = out[np.minimum(starts + 1, max(m - 1, 0))].tolist()
-        flat = out[:m].tolist()
-        ptr = ptr[:n + 1].tolist()
-        done = 0
-        for i in np.flatnonzero(sizes != 2).tolist() + [n]:
-            if i > done:
-                deque(map(push, firsts[done:i], seconds[done:i]), maxlen=0)
-            if i < n:
-                a, b = ptr[i], ptr[i + 1]
-                if b - a <= 3:
-                    push(*flat[a:b])
-                else:
-                    g.push_back(gtsam.SymbolicFactor.FromKeys(flat[a:b]))
-            done = i + 1
+        n, m = self._ordering_graph(affected, orphans)
+        obs = marked_among(affected, observed, flag)
+        g = _symbolic_graph(self._graph_ptr, self._graph_vars, n, m)
         if 0 < len(obs) < na:
             ordering = gtsam.Ordering.ColamdConstrainedLastSymbolicFactorGraph(g, obs.tolist(), False)
         else:
             ordering = gtsam.Ordering.ColamdSymbolicFactorGraph(g)
         return np.fromiter(map(ordering.at, range(ordering.size())), dtype=np.int64, count=ordering.size())
 
+    def _ordering_graph(self, affected: np.ndarray, orphans: np.ndarray) -> tuple[int, int]:
+        """The graph the affected variables are ordered on, in ``_graph_ptr``/``_graph_vars``
+        (:func:`~lie_factors.incremental.marking.ordering_graph`); returns (lists, entries)."""
+        nptr = self.nf + len(orphans) + 1 + len(affected)
+        nout = self.nfv + int(self.tree.sep_len[orphans].sum()) + 1 + len(affected)
+        if self._graph_ptr.shape[0] < nptr:
+            self._graph_ptr = np.empty(2 * nptr, dtype=np.int64)
+        if self._graph_vars.shape[0] < nout:
+            self._graph_vars = np.empty(2 * nout, dtype=np.int64)
+        self.fstamp_box += 1
+        return ordering_graph(affected, orphans, self.store, self.tree, self.pools.ipool, self.work.flag,
+                              self.fstamp_box, self._graph_ptr, self._graph_vars)
+
     def _compact(self) -> None:
         """Move the live entries of the pools down over the freed ones, in place: when a pool is
         full and most of it is freed, instead of growing it."""
-        self.itop, self.ftop = _el.compact_pools(self.nv, self.dim, self.sep_start, self.sep_len, self.sep_dim,
-                                                 self.cond, self.ustart, self.ipool, self.fpool)
-        self.stats[4:6] = 0
+        self.itop, self.ftop = compact_pools(self.nv, self.tree, self.pools)
+        self.work.stats[4:6] = 0
         self.compactions += 1
 
     # ------------------------------------------------------------------ solving
     def solve(self, threshold: float = 0.0) -> int:
         """Bring ``delta`` up to date after updates (wildfire, see
-        :func:`~lie_factors.incremental.elimination.back_substitute`); returns the nodes solved."""
-        return int(_el.back_substitute(float(threshold), self.replaced, self.changed, self.roots, self.first,
-                                       self.nxt, self.dim, self.voff, self.sep_start, self.sep_len, self.sep_dim,
-                                       self.cond, self.ipool, self.fpool, self.delta, self.visited))
+        :func:`~lie_factors.incremental.substitution.back_substitute`); returns the nodes solved."""
+        return int(back_substitute(float(threshold), self.tree, self.pools, self.delta, self.wildfire))
+
+    def replace_all(self) -> None:
+        """Count every node as re-eliminated: the next :meth:`solve` solves them all (exactly)."""
+        self.wildfire.replaced[:self.nv] = 1
 
     def variable_delta(self, v: int) -> np.ndarray:
-        o = int(self.voff[v])
-        return self.delta[o:o + int(self.dim[v])]
+        o = int(self.tree.voff[v])
+        return self.delta[o:o + int(self.tree.dim[v])]
+
+    def largest_steps(self) -> np.ndarray:
+        """(nv,): max_i |δ_v[i]| of every variable v."""
+        return max_abs_blocks(self.delta, self.tree.voff[:self.nv], self.tree.dim[:self.nv])
+
+    def factors_of(self, variables: np.ndarray) -> np.ndarray:
+        """The factors on any of ``variables``, each once, increasing."""
+        return factors_of(variables, self.store, self.nf)
 
     def marginal_covariance(self, v: int) -> np.ndarray:
         """(d, d): the block of Λ⁻¹ of variable ``v`` (only the path from ``v`` to its root is read)."""
-        d = int(self.dim[v])
+        d = int(self.tree.dim[v])
         out = np.empty((d, d))
-        _el.marginal_information_root_path(int(v), self.parent, self.dim, self.voff, self.sep_start, self.sep_len,
-                                           self.cond, self.ipool, self.fpool, out)
+        marginal_covariance(int(v), self.tree, self.pools, out)
         return out
 
     # ------------------------------------------------------------------ inspection (tests, small problems)
     def ordering(self) -> np.ndarray:
         """Variable indices in elimination order."""
-        return np.argsort(self.pos[:self.nv], kind="stable")
+        return np.argsort(self.tree.pos[:self.nv], kind="stable")
 
     def dense_system(self) -> tuple[np.ndarray, np.ndarray]:
         """(Λ, η) = (Σ AᵀA, Σ Aᵀb) as dense arrays in variable-offset order, from the stored Jacobians."""
         n = self.nscalar
+        store, tree = self.store, self.tree
         H = np.zeros((n + 1, n + 1))
         for f in range(self.nf):
-            k, v0 = int(self.fnv[f]), int(self.fvstart[f])
-            vs = self.fvars[v0:v0 + k]
-            r, D1 = int(self.frows[f]), int(self.fcols[f])
-            J = self.jac[int(self.fjstart[f]):int(self.fjstart[f]) + r * D1].reshape(r, D1)
-            cols = np.concatenate([self.voff[v] + np.arange(self.dim[v]) for v in vs] + [[n]])
+            k, v0 = int(store.fnv[f]), int(store.fvstart[f])
+            vs = store.fvars[v0:v0 + k]
+            r, D1 = int(store.frows[f]), int(store.fcols[f])
+            J = store.jac[int(store.fjstart[f]):int(store.fjstart[f]) + r * D1].reshape(r, D1)
+            cols = np.concatenate([tree.voff[v] + np.arange(tree.dim[v]) for v in vs] + [[n]])
             H[np.ix_(cols, cols)] += J.T @ J
         return H[:n, :n], H[:n, n]
 
     def dense_factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(perm, L, y): scalar permutation of the elimination order, the lower-triangular
         L with L Lᵀ = Λ[perm][:, perm], and y = L⁻¹ η[perm], assembled from the nodes."""
+        tree, (ipool, fpool) = self.tree, self.pools
         order = self.ordering()
-        perm = np.concatenate([self.voff[v] + np.arange(self.dim[v]) for v in order]).astype(np.int64)
+        perm = np.concatenate([tree.voff[v] + np.arange(tree.dim[v]) for v in order]).astype(np.int64)
         where = np.empty(self.nscalar, dtype=np.int64)
         where[perm] = np.arange(self.nscalar)
         n = self.nscalar
         L = np.zeros((n, n))
         y = np.zeros(n)
         for v in order:
-            d = int(self.dim[v])
-            sep = self.ipool[int(self.sep_start[v]):int(self.sep_start[v]) + int(self.sep_len[v])]
-            s = int(self.sep_dim[v])
+            d = int(tree.dim[v])
+            sep = ipool[int(tree.sep_start[v]):int(tree.sep_start[v]) + int(tree.sep_len[v])]
+            s = int(tree.sep_dim[v])
             N = d + s + 1
-            C = self.fpool[int(self.cond[v]):int(self.cond[v]) + d * N].reshape(d, N)
-            rows = np.concatenate([where[self.voff[w] + np.arange(self.dim[w])] for w in [v, *sep]]).astype(np.int64)
-            cols = where[self.voff[v] + np.arange(d)]
+            C = fpool[int(tree.cond[v]):int(tree.cond[v]) + d * N].reshape(d, N)
+            rows = np.concatenate([where[tree.voff[w] + np.arange(tree.dim[w])] for w in [v, *sep]]).astype(np.int64)
+            cols = where[tree.voff[v] + np.arange(d)]
             L[np.ix_(rows, cols)] = C[:, :d + s].T
             y[cols] = C[:, N - 1]
         return perm, L, y
+
+
+def _symbolic_graph(ptr: np.ndarray, out: np.ndarray, n: int, m: int):
+    """The ``gtsam.SymbolicFactorGraph`` of the ``n`` lists in ``ptr``/``out`` (CSR, ``m``
+    entries): the two-variable factors (nearly all) pushed run by run through ``map()``, in
+    their order."""
+    import gtsam
+
+    g = gtsam.SymbolicFactorGraph()
+    push = g.push_factor
+    starts = ptr[:n]
+    sizes = ptr[1:n + 1] - starts
+    firsts = out[starts].tolist()
+    seconds = out[np.minimum(starts + 1, max(m - 1, 0))].tolist()
+    flat = out[:m].tolist()
+    ptr = ptr[:n + 1].tolist()
+    done = 0
+    for i in np.flatnonzero(sizes != 2).tolist() + [n]:
+        if i > done:
+            deque(map(push, firsts[done:i], seconds[done:i]), maxlen=0)
+        if i < n:
+            a, b = ptr[i], ptr[i + 1]
+            if b - a <= 3:
+                push(*flat[a:b])
+            else:
+                g.push_back(gtsam.SymbolicFactor.FromKeys(flat[a:b]))
+        done = i + 1
+    return g

@@ -19,9 +19,10 @@ factors and GTSAM's own Between/Prior factors on the registry's groups (Pose2,
 Pose3, Rot3, Similarity2, Similarity3) with Gaussian noise become arrays, and
 every kind's new and relinearized factors are linearized by one compiled call
 of :mod:`lie_factors.batch.loops`; any other factor (landmark measurements, a
-robust noise model, a user's ``CustomFactor``) is linearized by GTSAM.
-:meth:`Smoother.update_arrays` takes a pose graph's factors as arrays, with no
-factor object at all.
+robust noise model, a user's ``CustomFactor``) is linearized by GTSAM
+(:mod:`lie_factors.incremental.gtsam_objects`; the arrays:
+:mod:`lie_factors.incremental.factor_arrays`).  :meth:`Smoother.update_arrays`
+takes a pose graph's factors as arrays, with no factor object at all.
 
 Every update is validated before anything changes, and is all or nothing: an
 unknown or duplicate key, a key of the wrong type, a non-finite measurement,
@@ -31,275 +32,19 @@ leaves a variable undetermined raises, and the smoother is as it was.
 
 from __future__ import annotations
 
-import os
-import re
-import tempfile
-from dataclasses import dataclass
-
 import gtsam
 import numpy as np
 
 from .. import factors as _factors
-from ..batch.graph import noise_whitening, key_name, whitening
-from ..batch.loops import GroupLoops
+from ..batch.graph import key_name
+from ..errors import IndeterminantLinearSystem, InputError
 from ..interop import to_gtsam
-from . import elimination as _el
 from .cholesky import BlockFactor
-from ..errors import IndeterminantLinearSystem
-
-
-class SmootherError(ValueError):
-    """Bad input to :class:`Smoother` (unknown or duplicate key, wrong type, non-finite numbers, …)."""
-
-
-@dataclass
-class SmootherParams:
-    """ISAM2's parameters the smoother honours, under GTSAM's names.
-
-    ``relinearizeThreshold``: relinearize a variable whose δ has a component of
-    at least this size (``ISAM2Params.relinearizeThreshold``, 0.1); ``relinearizeSkip``:
-    check every this many updates (10); ``enableRelinearization``;
-    ``wildfireThreshold``: back-substitution stops below nodes that moved less
-    (``ISAM2GaussNewtonParams.wildfireThreshold``, 0.001; 0: the exact
-    solution); ``relinearizePolicy``: ``"variable"`` (ISAM2's, per variable) or
-    ``"global"`` (SLAM++'s: every variable, when the largest δ reaches the threshold).
-    """
-
-    relinearizeThreshold: float = 0.1
-    relinearizeSkip: int = 10
-    enableRelinearization: bool = True
-    wildfireThreshold: float = 0.001
-    relinearizePolicy: str = "variable"
-
-    def __post_init__(self):
-        if not (np.isfinite(self.relinearizeThreshold) and self.relinearizeThreshold >= 0):
-            raise SmootherError(f"relinearizeThreshold must be finite and >= 0, got {self.relinearizeThreshold}")
-        if int(self.relinearizeSkip) < 1:
-            raise SmootherError(f"relinearizeSkip must be >= 1, got {self.relinearizeSkip}")
-        if not (np.isfinite(self.wildfireThreshold) and self.wildfireThreshold >= 0):
-            raise SmootherError(f"wildfireThreshold must be finite and >= 0, got {self.wildfireThreshold}")
-        if self.relinearizePolicy not in ("variable", "global"):
-            raise SmootherError(f"relinearizePolicy must be 'variable' or 'global', got {self.relinearizePolicy!r}")
-        self.relinearizeSkip = int(self.relinearizeSkip)
-
-    @classmethod
-    def from_isam2(cls, params: gtsam.ISAM2Params) -> "SmootherParams":
-        """The values of a ``gtsam.ISAM2Params`` (GTSAM's Python API has no getters for the
-        thresholds: they are read from its ``print`` output, 6 significant digits)."""
-        text = _captured_print(params)
-
-        def number(name, default):
-            m = re.search(rf"^{name}:\s*(\S+)", text, re.M)
-            return float(m.group(1)) if m else default
-
-        if "ISAM2DoglegParams" in text:
-            raise SmootherError("the smoother runs Gauss-Newton steps: ISAM2DoglegParams are not supported")
-        return cls(relinearizeThreshold=number("relinearizeThreshold", 0.1),
-                   relinearizeSkip=int(params.relinearizeSkip),
-                   enableRelinearization=bool(params.enableRelinearization),
-                   wildfireThreshold=number("wildfireThreshold", 0.001))
-
-
-def _captured_print(params) -> str:
-    """What ``params.print()`` writes: GTSAM's wrapper sends C++'s ``std::cout`` to Python's
-    ``sys.stdout`` (caught here), or else to the process's standard output (caught on its
-    descriptor, C's buffer flushed before it is put back)."""
-    import contextlib
-    import ctypes
-    import io
-    import sys
-
-    libc = ctypes.CDLL(None)
-    sys.stdout.flush()
-    libc.fflush(None)
-    text = io.StringIO()
-    with tempfile.TemporaryFile(mode="w+b") as tmp:
-        saved = os.dup(1)
-        try:
-            os.dup2(tmp.fileno(), 1)
-            with contextlib.redirect_stdout(text):
-                params.print()
-            libc.fflush(None)
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
-        tmp.seek(0)
-        return text.getvalue() + tmp.read().decode(errors="replace")
-
-
-@dataclass
-class UpdateResult:
-    """What an update did (ISAM2Result's counts): variables re-eliminated, relinearized,
-    cliques (nodes) in the tree, and whether everything was reordered."""
-
-    variablesReeliminated: int
-    variablesRelinearized: int
-    cliques: int
-    reordered: bool
-
-    def getVariablesReeliminated(self) -> int:
-        return self.variablesReeliminated
-
-    def getVariablesRelinearized(self) -> int:
-        return self.variablesRelinearized
-
-    def getCliques(self) -> int:
-        return self.cliques
-
-
-def _grow(a: np.ndarray, n: int) -> np.ndarray:
-    if a.shape[0] >= n:
-        return a
-    out = np.empty((max(n, 2 * a.shape[0], 16),) + a.shape[1:], dtype=a.dtype)
-    out[:a.shape[0]] = a
-    return out
-
-
-class _Elements:
-    """The variables of one group: their elements θ (N, m, m) and variable indices."""
-
-    def __init__(self, spec):
-        self.spec = spec
-        self.loops = GroupLoops(spec, serial=True)
-        self.X = np.zeros((0, spec.mat, spec.mat))
-        self.var = np.zeros(0, dtype=np.int64)
-        self.n = 0
-
-    def append(self, X: np.ndarray, var: np.ndarray) -> np.ndarray:
-        k = len(X)
-        self.X = _grow(self.X, self.n + k)
-        self.var = _grow(self.var, self.n + k)
-        idx = np.arange(self.n, self.n + k)
-        self.X[idx] = X
-        self.var[idx] = var
-        self.n += k
-        return idx
-
-
-class _FactorKind:
-    """The array factors of one (kind, group): variables, element indices, constants, block-factor ids."""
-
-    def __init__(self, kind: str, spec, elements: _Elements):
-        self.kind, self.spec, self.elements = kind, spec, elements
-        m, n = spec.mat, spec.dim
-        self.v = np.zeros((0, 2 if kind == "between" else 1), dtype=np.int64)
-        self.e = np.zeros((0, 2 if kind == "between" else 1), dtype=np.int64)
-        self.C = np.zeros((0, m, m))
-        self.R = np.zeros((0, n, n))
-        self.fid = np.zeros(0, dtype=np.int64)
-        self.source: list = []  # the factor objects read (None: from arrays)
-        self.n = 0
-
-    def append(self, v, e, C, R, sources) -> np.ndarray:
-        k = len(v)
-        for name in ("v", "e", "C", "R", "fid"):
-            setattr(self, name, _grow(getattr(self, name), self.n + k))
-        idx = np.arange(self.n, self.n + k)
-        self.v[idx], self.e[idx], self.C[idx], self.R[idx] = v, e, C, R
-        self.source.extend(sources)
-        self.n += k
-        return idx
-
-    def truncate(self, n: int) -> None:
-        self.n = n
-        del self.source[n:]
-
-    def jacobians(self, idx: np.ndarray) -> np.ndarray:
-        """Whitened [A_1 (A_2) | b] of the factors ``idx`` at the current θ: (F, n, D + 1), one compiled call."""
-        n = self.spec.dim
-        idx = np.ascontiguousarray(idx, dtype=np.int64)
-        F = len(idx)
-        X = self.elements.X
-        b = np.empty((F, n))
-        sq = np.empty(F)
-        if self.kind == "between":
-            A1, A2 = np.empty((F, n, n)), np.empty((F, n, n))
-            e = self.e[idx]
-            self.elements.loops.between_lin(X, np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1]),
-                                            self.C[idx], self.R, idx, A1, A2, b, sq)
-            return np.concatenate([A1, A2, b[:, :, None]], axis=2)
-        A1 = np.empty((F, n, n))
-        self.elements.loops.prior_lin(X, np.ascontiguousarray(self.e[idx, 0]), self.C[idx], self.R, idx, A1, b, sq)
-        return np.concatenate([A1, b[:, :, None]], axis=2)
-
-
-class FactorArrays:
-    """A pose graph's between factors and priors, checked and set up once (M⁻¹, the whitening R
-    with RᵀR = Λ): :meth:`Smoother.update_prepared` adds any of them by index.
-
-    ``edge_keys`` (E, 2), ``measured`` (E, m, m), ``information`` (E, n, n); ``prior_keys``
-    (Q,), ``prior_measured`` (Q, m, m), ``prior_information`` (Q, n, n).  Raises
-    :class:`SmootherError` for wrong shapes, non-finite numbers, a self-loop, an element that
-    is not in the group, an information matrix that is not positive definite.
-    """
-
-    def __init__(self, group: str, edge_keys=None, measured=None, information=None, prior_keys=None,
-                 prior_measured=None, prior_information=None):
-        spec = _factors.GROUPS.get(group)
-        if spec is None:
-            raise SmootherError(f"unknown group {group!r} (choose from {', '.join(_factors.GROUPS)})")
-        self.group, self.spec = group, spec
-        loops = GroupLoops(spec, serial=True)
-        m, n = spec.mat, spec.dim
-        parts = {}
-        for kind, k, M, info, nk in (("between", edge_keys, measured, information, 2),
-                                     ("prior", prior_keys, prior_measured, prior_information, 1)):
-            k = np.zeros((0, nk), dtype=np.int64) if k is None else np.asarray(k, dtype=np.int64).reshape(-1, nk)
-            F = len(k)
-            M = np.zeros((0, m, m)) if M is None and F == 0 else np.asarray(M, dtype=np.float64)
-            info = np.zeros((0, n, n)) if info is None and F == 0 else np.asarray(info, dtype=np.float64)
-            if M.shape != (F, m, m) or info.shape != (F, n, n):
-                raise SmootherError(f"{kind} factors: expected measurements ({F}, {m}, {m}) and information "
-                                    f"({F}, {n}, {n}), got {M.shape} and {info.shape}")
-            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(info))):
-                raise SmootherError(f"{kind} factors: a measurement or information matrix is not finite")
-            if kind == "between" and np.any(k[:, 0] == k[:, 1]):
-                raise SmootherError("between factors: a factor connects a key to itself")
-            Minv, codes = loops.setup(M)
-            bad = np.flatnonzero(codes != _factors.OK)
-            if bad.size:
-                q = int(bad[0])
-                raise SmootherError(str(_factors.element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
-                                                                "update")))
-            try:
-                R = whitening(info) if F else np.zeros((0, n, n))
-            except np.linalg.LinAlgError:
-                raise SmootherError(f"{kind} factors: an information matrix is not positive definite") from None
-            parts[kind] = (k, Minv, R)
-        self.edge_keys, self.Minv, self.R = parts["between"]
-        pk, self.Pinv, self.prior_R = parts["prior"]
-        self.prior_keys = pk.reshape(-1)
-        self.E, self.Q = len(self.edge_keys), len(self.prior_keys)
-
-
-@dataclass
-class _NewFactors:
-    """A validated update: new variables (key, group name or None, value) and factors by kind."""
-
-    keys: list
-    kinds: list  # group name (array variable) or None (GTSAM's values)
-    values: list  # element matrix (m, m) or the gtsam value
-    dims: list
-    arrays: dict  # (kind, group) -> dict(keys, C, R, src)
-    native: list  # (factor, keys)
-
-
-#: The types a ``gtsam.Values`` can hold, by their ``at<Type>`` accessors (the common ones first).
-_COMMON_TYPES = ("Point3", "Point2", "Pose3", "Pose2", "Rot3", "Rot2", "Similarity3", "Similarity2")
-_VALUE_TYPES = _COMMON_TYPES + tuple(sorted(
-    n[2:] for n in dir(gtsam.Values) if n.startswith("at") and n[2:3].isupper()
-    and n[2:] not in _COMMON_TYPES + ("Vector", "Matrix", "Double"))) + ("Vector", "Matrix", "Double")
-
-
-def _value_type(values: gtsam.Values, key: int) -> str:
-    """The type name of the value of ``key`` (the first accessor that reads it)."""
-    for t in _VALUE_TYPES:
-        try:
-            getattr(values, f"at{t}")(key)
-        except (RuntimeError, TypeError, ValueError):
-            continue
-        return t
-    raise SmootherError(f"key {key_name(key)}: its value has a type the smoother cannot read")
+from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
+from .gtsam_objects import VALUE_TYPES, insert_from, make_factor, native_jacobian, read_update, typed_estimate
+from .params import SmootherParams, UpdateResult
+from .structures import grow
+from .undo import Undo
 
 
 class Smoother:
@@ -334,12 +79,12 @@ class Smoother:
         self.var: dict[int, int] = {}  # key -> variable index
         self.vgroup: list = []  # variable index -> group name or None
         self.velem = np.zeros(0, dtype=np.int64)  # variable index -> element index in its group
-        self.elements: dict[str, _Elements] = {}
+        self.elements: dict[str, Elements] = {}
         self.vcode = np.zeros(0, dtype=np.int64)  # variable index -> index in group_names, or -1
         self.vnative = np.zeros(0, dtype=bool)  # variable index -> a native factor uses it
         self.group_names: list[str] = []
-        self.kinds: dict[tuple, _FactorKind] = {}
-        self.kind_list: list[_FactorKind] = []
+        self.kinds: dict[tuple, FactorKind] = {}
+        self.kind_list: list[FactorKind] = []
         self.fkind = np.zeros(0, dtype=np.int64)  # factor id -> index in kind_list, or -1 (native)
         self.flocal = np.zeros(0, dtype=np.int64)  # factor id -> index in its kind (or in native)
         self.native: list = []  # (factor, var indices, factor id)
@@ -352,130 +97,18 @@ class Smoother:
         self._fresh = True  # δ up to date
 
     # ------------------------------------------------------------------ reading
-    def _classify(self, f):
-        """(kind, spec, keys, Minv, R, M) for an array factor, None for a native one."""
-        if isinstance(f, _factors.BetweenFactor):
-            kind, spec = "between", f.spec
-            keys = (f._key1, f._key2)
-            nm = f._noise
-        elif isinstance(f, _factors.PriorFactor):
-            kind, spec = "prior", f.spec
-            keys = (f._key2,)
-            nm = f._noise
-        else:
-            nk = len(f.keys()) if isinstance(f, gtsam.NonlinearFactor) else 0
-            value = None
-            if nk == 2 and hasattr(f, "measured"):
-                value, kind = f.measured(), "between"
-            elif nk == 1 and hasattr(f, "prior"):
-                value, kind = f.prior(), "prior"
-            spec = _factors.GROUPS.get(type(value).__name__) if value is not None else None
-            if spec is None or type(value) is not spec.cls:
-                return None
-            keys = tuple(int(k) for k in f.keys())
-            nm = f.noiseModel()
-            R = noise_whitening(nm)
-            if R is None or (kind == "between" and keys[0] == keys[1]):
-                return None
-            return kind, spec, keys, None, np.asarray(R, dtype=np.float64), spec.matrix(value)
-        R = noise_whitening(nm)
-        if R is None or (kind == "between" and keys[0] == keys[1]):
-            return None
-        return kind, spec, keys, f._Minv, np.asarray(R, dtype=np.float64), None
-
-    def _read(self, newFactors, newTheta) -> _NewFactors:
-        newFactors = gtsam.NonlinearFactorGraph() if newFactors is None else newFactors
-        newTheta = gtsam.Values() if newTheta is None else newTheta
-        if not isinstance(newFactors, gtsam.NonlinearFactorGraph):
-            raise TypeError(f"newFactors must be a gtsam.NonlinearFactorGraph, got {type(newFactors).__name__}")
-        if not isinstance(newTheta, gtsam.Values):
-            raise TypeError(f"newTheta must be a gtsam.Values, got {type(newTheta).__name__}")
-        arrays: dict = {}
-        native = []
-        group_of: dict[int, str] = {}
-        for i in range(newFactors.size()):
-            f = newFactors.at(i)
-            if f is None:
-                continue
-            c = self._classify(f)
-            if c is None:
-                if not isinstance(f, gtsam.NonlinearFactor):
-                    raise SmootherError(f"factor {i}: unsupported type {type(f).__name__}")
-                native.append((f, [int(k) for k in f.keys()]))
-                continue
-            kind, spec, keys, Minv, R, M = c
-            if not np.all(np.isfinite(R)):
-                raise SmootherError(f"factor {i} ({type(f).__name__}): its noise model is not finite")
-            if M is not None and not np.all(np.isfinite(M)):
-                raise SmootherError(f"factor {i} ({type(f).__name__}): its measurement is not finite")
-            for k in keys:
-                g = group_of.setdefault(k, spec.name)
-                if g != spec.name:
-                    raise SmootherError(f"key {key_name(k)} is used by both {g} and {spec.name} factors")
-            entry = arrays.setdefault((kind, spec.name), dict(keys=[], Minv=[], R=[], M=[], src=[]))
-            entry["keys"].append(keys)
-            entry["Minv"].append(Minv)
-            entry["R"].append(R)
-            entry["M"].append(M)
-            entry["src"].append(f)
-        # constants: lie_factors' factors carry them; GTSAM's are set up in one call per kind
-        out = {}
-        for (kind, name), entry in arrays.items():
-            spec = _factors.GROUPS[name]
-            F = len(entry["keys"])
-            Minv = np.empty((F, spec.mat, spec.mat))
-            need = [q for q in range(F) if entry["Minv"][q] is None]
-            for q in range(F):
-                if entry["Minv"][q] is not None:
-                    Minv[q] = entry["Minv"][q]
-            if need:
-                Minv[need] = self._setup(spec, np.array([entry["M"][q] for q in need]), "measurement")
-            keys = np.array(entry["keys"], dtype=np.int64).reshape(F, -1)
-            out[(kind, name)] = dict(keys=keys, C=Minv, R=np.array(entry["R"], dtype=np.float64), src=entry["src"])
-        new_keys = [int(k) for k in newTheta.keys()]
-        kinds, values, dims, types = [], [], [], {}
-        zero = None
-        for k in new_keys:
-            name = group_of.get(k)
-            if name is None and k in self.var:
-                name = None
-            if name is not None:
-                spec = _factors.GROUPS[name]
-                try:
-                    value = getattr(newTheta, spec.at)(k)
-                except RuntimeError:
-                    raise SmootherError(f"key {key_name(k)} is used by a {name} factor but its new value is "
-                                        f"not a gtsam.{name}") from None
-                X = spec.matrix(value)
-                if not np.all(np.isfinite(X)):
-                    raise SmootherError(f"the new value of key {key_name(k)} is not finite")
-                kinds.append(name)
-                values.append(X)
-                dims.append(spec.dim)
-            else:
-                if zero is None:
-                    zero = newTheta.zeroVectors()
-                types[k] = _value_type(newTheta, k)
-                kinds.append(None)
-                values.append(None)
-                dims.append(int(np.asarray(zero.at(k)).shape[0]))
-        nf = _NewFactors(new_keys, kinds, values, dims, out, native)
-        nf.theta = newTheta
-        nf.types = types
-        return nf
-
     def _setup(self, spec, M: np.ndarray, what: str):
         Minv, codes = self._elements(spec.name).loops.setup(M)
         bad = np.flatnonzero(codes != _factors.OK)
         if bad.size:
             k = int(bad[0])
-            raise SmootherError(str(_factors.element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
+            raise InputError(str(_factors.element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
         return Minv
 
-    def _elements(self, name: str) -> _Elements:
+    def _elements(self, name: str) -> Elements:
         el = self.elements.get(name)
         if el is None:
-            el = self.elements[name] = _Elements(_factors.GROUPS[name])
+            el = self.elements[name] = Elements(_factors.GROUPS[name])
             el.code = len(self.group_names)
             self.group_names.append(name)
         return el
@@ -487,7 +120,7 @@ class Smoother:
         if args or kwargs:
             raise TypeError("Smoother.update takes newFactors and newTheta only "
                             "(factor removal, constrained and extra keys are not supported)")
-        return self._apply(self._read(newFactors, newTheta))
+        return self._apply(read_update(newFactors, newTheta, self._setup))
 
     def update_arrays(self, group: str, keys=(), values=None, edge_keys=None, measured=None, information=None,
                       prior_keys=None, prior_measured=None, prior_information=None) -> UpdateResult:
@@ -510,9 +143,9 @@ class Smoother:
         P = len(keys)
         X = np.zeros((0, m, m)) if P == 0 and values is None else np.asarray(values, dtype=np.float64)
         if X.shape != (P, m, m):
-            raise SmootherError(f"values: expected shape ({P}, {m}, {m}), got {X.shape}")
+            raise InputError(f"values: expected shape ({P}, {m}, {m}), got {X.shape}")
         if not np.all(np.isfinite(X)):
-            raise SmootherError("values: not finite")
+            raise InputError("values: not finite")
         arrays = {}
         edges = np.asarray(edges, dtype=np.int64).reshape(-1)
         priors = np.asarray(priors, dtype=np.int64).reshape(-1)
@@ -522,10 +155,7 @@ class Smoother:
         if len(priors):
             arrays[("prior", fa.group)] = dict(keys=fa.prior_keys[priors, None], C=fa.Pinv[priors],
                                                R=fa.prior_R[priors], src=[None] * len(priors))
-        nf = _NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, [])
-        nf.theta = None
-        nf.types = {}
-        return self._apply(nf)
+        return self._apply(NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, []))
 
     def estimate_matrices(self, keys) -> np.ndarray:
         """(K, m, m): the estimates of the group variables ``keys`` (all of one group)."""
@@ -533,10 +163,10 @@ class Smoother:
         vs = np.array([self._var_of(k) for k in np.asarray(keys).tolist()], dtype=np.int64)
         names = {self.vgroup[v] for v in vs.tolist()}
         if len(names) != 1 or None in names:
-            raise SmootherError("estimate_matrices: the keys must all hold elements of one group")
+            raise InputError("estimate_matrices: the keys must all hold elements of one group")
         el = self.elements[names.pop()]
         out = np.empty((len(vs), el.spec.mat, el.spec.mat))
-        el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.bf.delta, self.bf.voff[vs], out)
+        el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.bf.delta, self.bf.tree.voff[vs], out)
         return out
 
     def estimate_matrix(self, key) -> np.ndarray:
@@ -544,17 +174,17 @@ class Smoother:
         self._solve()
         v = self._var_of(key)
         if self.vgroup[v] is None:
-            raise SmootherError(f"key {key_name(int(key))} is not a group element")
+            raise InputError(f"key {key_name(int(key))} is not a group element")
         return self._estimate_matrix(v)
 
-    def _validate(self, nf: _NewFactors) -> None:
+    def _validate(self, nf: NewFactors) -> None:
         var = self.var
         seen = set()
         for k in nf.keys:
             if k in var:
-                raise SmootherError(f"key {key_name(k)} is already a variable of the smoother")
+                raise InputError(f"key {key_name(k)} is already a variable of the smoother")
             if k in seen:
-                raise SmootherError(f"key {key_name(k)} is given twice")
+                raise InputError(f"key {key_name(k)} is given twice")
             seen.add(k)
         new_group = dict(zip(nf.keys, nf.kinds))
         used = set()
@@ -566,22 +196,22 @@ class Smoother:
                 elif k in var:
                     g = self.vgroup[var[k]]
                 else:
-                    raise SmootherError(f"a {name} factor uses key {key_name(k)}, which has no value "
+                    raise InputError(f"a {name} factor uses key {key_name(k)}, which has no value "
                                         "(neither new nor in the smoother)")
                 if g != name:
-                    raise SmootherError(f"key {key_name(k)} holds a {g or 'non-group value'}, "
+                    raise InputError(f"key {key_name(k)} holds a {g or 'non-group value'}, "
                                         f"not a {name} (used by a {name} factor)")
         for f, keys in nf.native:
             for k in keys:
                 used.add(k)
                 if k not in new_group and k not in var:
-                    raise SmootherError(f"a {type(f).__name__} uses key {key_name(k)}, which has no value "
+                    raise InputError(f"a {type(f).__name__} uses key {key_name(k)}, which has no value "
                                         "(neither new nor in the smoother)")
         for k in nf.keys:
             if k not in used:
-                raise SmootherError(f"new key {key_name(k)} is in no new factor: it would be unconstrained")
+                raise InputError(f"new key {key_name(k)} is in no new factor: it would be unconstrained")
 
-    def _apply(self, nf: _NewFactors) -> UpdateResult:
+    def _apply(self, nf: NewFactors) -> UpdateResult:
         self._validate(nf)
         p = self.params
         count = self.update_count + 1
@@ -589,7 +219,7 @@ class Smoother:
         if p.enableRelinearization and count % p.relinearizeSkip == 0 and self.bf.nv:
             self._solve()
             relin_vars = self._relinearize_set()
-        undo = _Undo(self)
+        undo = Undo(self)
         try:
             new_vars = self._add_variables(nf, undo)
             refreshed = self._relinearize(relin_vars, undo) if len(relin_vars) else []
@@ -614,16 +244,16 @@ class Smoother:
         self._fresh = False
         return UpdateResult(self.bf.last.columns, len(relin_vars), self.bf.nv, self.bf.last.batch)
 
-    def _add_variables(self, nf: _NewFactors, undo) -> list:
+    def _add_variables(self, nf: NewFactors, undo) -> list:
         nv0 = len(self.keys)
         P = len(nf.keys)
         if not P:
             return []
         ids = list(range(nv0, nv0 + P))
         undo.vars(nv0)
-        self.velem = _grow(self.velem, nv0 + P)
-        self.vcode = _grow(self.vcode, nv0 + P)
-        self.vnative = _grow(self.vnative, nv0 + P)
+        self.velem = grow(self.velem, nv0 + P)
+        self.vcode = grow(self.vcode, nv0 + P)
+        self.vnative = grow(self.vnative, nv0 + P)
         self.vcode[nv0:nv0 + P] = -1
         self.vnative[nv0:nv0 + P] = False
         by_group: dict = {}
@@ -662,16 +292,16 @@ class Smoother:
         return ids
 
     def _insert_from(self, dest: gtsam.Values, src: gtsam.Values, key: int) -> None:
-        """Copy the value of ``key`` (a type GTSAM holds, :meth:`_read` found which) from ``src``."""
-        dest.insert(key, getattr(src, f"at{self.other_types[key]}")(key))
+        """Copy the value of ``key`` (a type GTSAM holds) from ``src``."""
+        insert_from(dest, src, key, self.other_types[key])
 
-    def _add_factors(self, nf: _NewFactors, undo) -> list:
+    def _add_factors(self, nf: NewFactors, undo) -> list:
         out = []
         var = self.var
         for (kind, name), entry in nf.arrays.items():
             store = self.kinds.get((kind, name))
             if store is None:
-                store = self.kinds[(kind, name)] = _FactorKind(kind, _factors.GROUPS[name], self._elements(name))
+                store = self.kinds[(kind, name)] = FactorKind(kind, _factors.GROUPS[name], self._elements(name))
                 store.code = len(self.kind_list)
                 self.kind_list.append(store)
             undo.kind(store)
@@ -690,44 +320,22 @@ class Smoother:
                 vs = np.array([var[k] for k in keys], dtype=np.int64)
                 self.native.append((f, vs, base + q))
                 self._register(np.array([base + q]), -1, np.array([len(self.native) - 1]))
-                out.append((vs[None, :], self._native_jacobian(f)[None]))
+                out.append((vs[None, :], native_jacobian(f, self.native_theta)[None]))
         return out
 
     def _register(self, fids: np.ndarray, code: int, local: np.ndarray) -> None:
         """Factor ids ``fids`` are entries ``local`` of kind ``code`` (−1: native factors).  (Ids
         past the block factor's count are dropped with it if the update fails.)"""
         n = int(fids.max()) + 1
-        self.fkind = _grow(self.fkind, n)
-        self.flocal = _grow(self.flocal, n)
+        self.fkind = grow(self.fkind, n)
+        self.flocal = grow(self.flocal, n)
         self.fkind[fids] = code
         self.flocal[fids] = local
 
-    def _native_jacobian(self, f) -> np.ndarray:
-        """[A | b] of a factor GTSAM linearizes at θ (rows: a JacobianFactor's, or a square root of
-        a HessianFactor's augmented information)."""
-        try:
-            lf = f.linearize(self.native_theta)
-        except RuntimeError as exc:
-            raise SmootherError(f"{type(f).__name__} could not be linearized: {str(exc).strip()[:200]}") from None
-        if isinstance(lf, gtsam.JacobianFactor):
-            if lf.isConstrained():
-                raise SmootherError(f"{type(f).__name__} has a constrained noise model: not supported")
-            A, b = lf.jacobian()
-            J = np.concatenate([np.asarray(A), np.asarray(b).reshape(-1, 1)], axis=1)
-        else:
-            M = np.asarray(lf.augmentedInformation())
-            w, Q = np.linalg.eigh(M)
-            J = np.sqrt(np.clip(w, 0.0, None))[:, None] * Q.T
-            J[:, -1] *= 1.0  # [A b]ᵀ[A b] = M: b is the last column
-        if not np.all(np.isfinite(J)):
-            raise SmootherError(f"{type(f).__name__} linearized to non-finite numbers")
-        return J
-
-    # ------------------------------------------------------------------ relinearization
     def _relinearize_set(self) -> np.ndarray:
         bf = self.bf
         th = self.params.relinearizeThreshold
-        moved = _el_max_abs(bf.delta, bf.voff[:bf.nv], bf.dim[:bf.nv])
+        moved = bf.largest_steps()
         if self.params.relinearizePolicy == "global":
             return np.arange(bf.nv, dtype=np.int64) if moved.size and moved.max() >= th else moved[:0].astype(np.int64)
         return np.flatnonzero(moved >= th).astype(np.int64)
@@ -743,7 +351,7 @@ class Smoother:
             e = self.velem[vs]
             undo.theta(el, e)
             out = np.empty((len(e), el.spec.mat, el.spec.mat))
-            el.loops.retract(np.ascontiguousarray(el.X[e]), bf.delta, bf.voff[vs], out)
+            el.loops.retract(np.ascontiguousarray(el.X[e]), bf.delta, bf.tree.voff[vs], out)
             el.X[e] = out
         # the variables GTSAM holds: retracted one by one, in place (the old values kept for undo)
         for v in relin[codes < 0].tolist():
@@ -763,7 +371,7 @@ class Smoother:
             el = self.elements[name]
             undo.updated(self.native_theta, k, getattr(self.native_theta, f"at{name}")(k))
             self.native_theta.update(k, to_gtsam(name, el.X[self.velem[v]]))
-        fids = _el.factors_of(relin, bf.ahead, bf.anext, bf.afac, bf.nf)
+        fids = bf.factors_of(relin)
         fk, fl = self.fkind[fids], self.flocal[fids]
         out = []
         for store in self.kind_list:
@@ -772,7 +380,7 @@ class Smoother:
                 out.append((store.fid[idx], store.jacobians(idx)))
         for local in fl[fk < 0].tolist():
             f, _, fid = self.native[local]
-            out.append((np.array([fid]), self._native_jacobian(f)[None]))
+            out.append((np.array([fid]), native_jacobian(f, self.native_theta)[None]))
         return out
 
     # ------------------------------------------------------------------ solving and reading
@@ -792,14 +400,14 @@ class Smoother:
     def _var_of(self, key) -> int:
         v = self.var.get(int(key))
         if v is None:
-            raise SmootherError(f"key {key_name(int(key))} is not a variable of the smoother")
+            raise InputError(f"key {key_name(int(key))} is not a variable of the smoother")
         return v
 
     def _estimate_matrix(self, v: int) -> np.ndarray:
         el = self.elements[self.vgroup[v]]
         out = np.empty((1, el.spec.mat, el.spec.mat))
         e = self.velem[v:v + 1]
-        el.loops.retract(np.ascontiguousarray(el.X[e]), self.bf.delta, self.bf.voff[v:v + 1], out)
+        el.loops.retract(np.ascontiguousarray(el.X[e]), self.bf.delta, self.bf.tree.voff[v:v + 1], out)
         return out[0]
 
     def calculateEstimate(self, key=None):
@@ -815,7 +423,7 @@ class Smoother:
         bf = self.bf
         for name, el in self.elements.items():
             X = np.empty_like(el.X[:el.n])
-            el.loops.retract(np.ascontiguousarray(el.X[:el.n]), bf.delta, bf.voff[el.var[:el.n]], X)
+            el.loops.retract(np.ascontiguousarray(el.X[:el.n]), bf.delta, bf.tree.voff[el.var[:el.n]], X)
             spec = el.spec
             for v, M in zip(el.var[:el.n].tolist(), X):
                 out.insert(self.keys[v], to_gtsam(spec.name, M))
@@ -856,18 +464,9 @@ class Smoother:
             store = self.kind_list[code]
             f = store.source[local]
             if f is None:
-                f = self._make_factor(store, local)
+                f = make_factor(store, local, self.keys)
             graph.push_back(f)
         return graph
-
-    def _make_factor(self, store: _FactorKind, local: int):
-        spec = store.spec
-        M = to_gtsam(spec.name, np.linalg.inv(store.C[local]))
-        R = store.R[local]
-        model = gtsam.noiseModel.Gaussian.Information(R.T @ R)
-        keys = [self.keys[v] for v in store.v[local].tolist()]
-        cls = getattr(gtsam, f"{'BetweenFactor' if store.kind == 'between' else 'PriorFactor'}{spec.name}")
-        return cls(*keys, M, model)
 
     def marginalCovariance(self, key) -> np.ndarray:
         """The marginal covariance of ``key`` at θ, (d, d): its block of Λ⁻¹, from the path of
@@ -884,7 +483,7 @@ class Smoother:
         component is below ``tolerance``; returns the iterations taken."""
         bf = self.bf
         for it in range(1, max_iterations + 1):
-            self.bf.replaced[:bf.nv] = 1  # the exact solution of the current system
+            bf.replace_all()  # the exact solution of the current system
             self._fresh = False
             saved = self.params.wildfireThreshold
             self.params.wildfireThreshold = 0.0
@@ -894,7 +493,7 @@ class Smoother:
                 self.params.wildfireThreshold = saved
             step = float(np.max(np.abs(bf.delta[:bf.nscalar]))) if bf.nscalar else 0.0
             relin = np.arange(bf.nv, dtype=np.int64)
-            undo = _Undo(self)
+            undo = Undo(self)
             try:
                 refreshed = self._relinearize(relin, undo)
                 bf.update(refreshed=refreshed, relinearized=relin)
@@ -909,77 +508,5 @@ class Smoother:
         return max_iterations
 
 
-def _typed_estimate(type_name: str):
-    def typed(self, key):
-        value = self.calculateEstimate(key)
-        if type(value).__name__ == type_name or (isinstance(value, np.ndarray) and (
-                type_name in ("Vector", "Matrix") or type_name == f"Point{value.shape[0]}")):
-            return value
-        raise SmootherError(f"key {key_name(int(key))} holds a {type(value).__name__}, not a {type_name}")
-
-    typed.__name__ = typed.__qualname__ = f"calculateEstimate{type_name}"
-    typed.__doc__ = f"The estimate of ``key``, a ``gtsam.{type_name}`` (ISAM2's typed form)."
-    return typed
-
-
-for _type in _VALUE_TYPES:
-    setattr(Smoother, f"calculateEstimate{_type}", _typed_estimate(_type))
-
-
-class _Undo:
-    """What an update changed in the smoother's Python state, to put back if it fails
-    (the block factor restores itself)."""
-
-    def __init__(self, s: Smoother):
-        self.s = s
-        self.steps: list = []
-
-    def vars(self, nv0):
-        s = self.s
-        n_keys = len(s.keys)
-
-        def back():
-            for k in s.keys[nv0:]:
-                s.var.pop(k, None)
-            del s.keys[n_keys:]
-            del s.vgroup[n_keys:]
-        self.steps.append(back)
-
-    def elements(self, el):
-        n = el.n
-        self.steps.append(lambda: setattr(el, "n", n))
-
-    def inserted(self, values: gtsam.Values, key: int):
-        self.steps.append(lambda: values.erase(key))
-
-    def updated(self, values: gtsam.Values, key: int, old):
-        self.steps.append(lambda: values.update(key, old))
-
-    def theta(self, el, e):
-        X = el.X[e].copy()
-
-        def back():
-            el.X[e] = X
-        self.steps.append(back)
-
-    def kind(self, store):
-        n = store.n
-        self.steps.append(lambda: store.truncate(n))
-
-    def vnative(self):
-        s = self.s
-        saved = s.vnative.copy()
-        self.steps.append(lambda: setattr(s, "vnative", saved))
-
-    def native(self, n):
-        s = self.s
-        self.steps.append(lambda: s.native.__delitem__(slice(n, None)))
-
-    def run(self):
-        for step in reversed(self.steps):
-            step()
-        self.steps = []
-
-
-def _el_max_abs(delta, voff, dim) -> np.ndarray:
-    return _el.max_abs_blocks(delta, voff, dim)
+for _type in VALUE_TYPES:
+    setattr(Smoother, f"calculateEstimate{_type}", typed_estimate(_type))

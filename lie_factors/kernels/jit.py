@@ -34,6 +34,13 @@ dense_kernel = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reas
 #: Like :data:`kernel`, with ``prange`` loops run on numba's threads.
 parallel_kernel = njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 
+#: A part of a larger kernel, written apart to be read apart: numba inlines its code into each
+#: caller's (``inline="always"``), where it is compiled with the caller's options (a
+#: :data:`dense_kernel` caller's fast-math flags included).  It is not compiled on its own, so
+#: it adds nothing to numba's fixed cost per compiled function, which is most of a first run's
+#: compilation.
+inline_kernel = njit(cache=True, nogil=True, error_model="numpy", inline="always")
+
 
 class _CompileClock(_event.Listener):
     """Wall time numba spends compiling in this process (outermost compilations only;

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lie_factors.incremental.cholesky import BlockFactor
+from lie_factors.incremental.structures import Pools, Tree
 from lie_factors.errors import IndeterminantLinearSystem
 
 
@@ -40,8 +41,7 @@ class RandomProblem:
         self.rng = np.random.default_rng(seed)
         self.bf = BlockFactor() if keep_update is None else BlockFactor(keep_update)
         if small_pools:  # every update grows or compacts them
-            self.bf.ipool = np.zeros(8, dtype=np.int64)
-            self.bf.fpool = np.zeros(64)
+            self.bf.pools = Pools(np.zeros(8, dtype=np.int64), np.zeros(64))
         self.dims = []
         self.factors = []  # (vars,)
         self.dim_choices = dims
@@ -55,11 +55,11 @@ class RandomProblem:
             new.append((np.array([[v]]), _jacobians(rng, [d], d + 1)[None]))
         else:
             prev = v - 1
-            dp = bf.dim[prev]
+            dp = bf.tree.dim[prev]
             new.append((np.array([[prev, v]]), _jacobians(rng, [dp, d], d + 2)[None]))
             for _ in range(loops):
                 a = int(rng.integers(0, v))
-                new.append((np.array([[a, v]]), _jacobians(rng, [bf.dim[a], d], 2)[None]))
+                new.append((np.array([[a, v]]), _jacobians(rng, [bf.tree.dim[a], d], 2)[None]))
         bf.update(new_dims=[d], new_factors=new)
         for fv, _ in new:
             self.factors.append(fv[0])
@@ -72,8 +72,8 @@ class RandomProblem:
         refreshed = []
         for f in fids:
             vs = self.factors[f]
-            r = int(bf.frows[f])
-            refreshed.append((np.array([f]), _jacobians(rng, bf.dim[vs], r)[None]))
+            r = int(bf.store.frows[f])
+            refreshed.append((np.array([f]), _jacobians(rng, bf.tree.dim[vs], r)[None]))
         bf.update(refreshed=refreshed, relinearized=vars_)
         return vars_
 
@@ -135,7 +135,7 @@ def test_refused_update_leaves_the_factor_as_it_was():
     # a new variable with a rank-deficient factor: 2 rows for a 3-vector
     with pytest.raises(IndeterminantLinearSystem):
         bf.update(new_dims=[3], new_factors=[(np.array([[bf.nv - 1, bf.nv]]),
-                                              _jacobians(p.rng, [bf.dim[bf.nv - 1], 3], 2)[None])])
+                                              _jacobians(p.rng, [bf.tree.dim[bf.nv - 1], 3], 2)[None])])
     after = (bf.dense_factor(), bf.delta[:bf.nscalar].copy(), bf.nv, bf.nf)
     assert after[2:] == before[2:]
     for a, b in zip(after[0], before[0]):
@@ -154,7 +154,7 @@ def test_marginal_covariance_is_the_block_of_the_inverse():
     H, _ = bf.dense_system()
     Sigma = np.linalg.inv(H)
     for v in (0, 17, bf.nv - 1):
-        idx = bf.voff[v] + np.arange(bf.dim[v])
+        idx = bf.tree.voff[v] + np.arange(bf.tree.dim[v])
         ref = Sigma[np.ix_(idx, idx)]
         assert np.allclose(bf.marginal_covariance(v), ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
 
@@ -163,7 +163,7 @@ def _pool_layout(data, nv):
     """A random factor's pools: each node's separator, conditional and update matrix (or none)
     placed at shuffled addresses with gaps of freed entries between them."""
     from hypothesis import strategies as st
-    from lie_factors.incremental.elimination import packed
+    from lie_factors.incremental.structures import packed
 
     dim = np.array(data.draw(st.lists(st.integers(1, 4), min_size=nv, max_size=nv)), dtype=np.int64)
     live = np.array(data.draw(st.lists(st.booleans(), min_size=nv, max_size=nv)))
@@ -200,7 +200,7 @@ def test_compact_pools_keeps_every_live_segment_and_packs_them_in_address_order(
     former address order, and the tops are their total sizes."""
     from hypothesis import given, settings
     from hypothesis import strategies as st
-    from lie_factors.incremental.elimination import compact_pools
+    from lie_factors.incremental.storage import compact_pools
 
     @settings(max_examples=200, deadline=None)
     @given(data=st.data(), nv=st.integers(1, 12))
@@ -211,7 +211,10 @@ def test_compact_pools_keeps_every_live_segment_and_packs_them_in_address_order(
         fbefore = {j: fpool[fstart(j):fstart(j) + n].copy() for j, n in fsizes.items()}
         iorder = sorted(isizes, key=lambda j: sep_start[j])
         forder = sorted(fsizes, key=fstart)
-        itop, ftop = compact_pools(len(dim), dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool)
+        zeros = np.zeros(len(dim), dtype=np.int64)
+        tree = Tree(dim, zeros, zeros, zeros, zeros, zeros, zeros, sep_start, sep_len, sep_dim, cond, ustart,
+                    np.full(1, -1, dtype=np.int64))
+        itop, ftop = compact_pools(len(dim), tree, Pools(ipool, fpool))
         assert (itop, ftop) == (sum(isizes.values()), sum(fsizes.values()))
         at = 0
         for j in iorder:

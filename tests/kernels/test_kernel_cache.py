@@ -143,7 +143,8 @@ def test_the_batch_and_incremental_kernels_cached_apart_run_together(tmp_path):
     compact = textwrap.dedent("""
         import numpy as np
         from lie_factors.robust import leave_out as lo
-        from lie_factors.incremental import elimination as el
+        from lie_factors.incremental import storage
+        from lie_factors.incremental.structures import Pools, Tree
         if {load_batch}:
             i8 = lambda n: np.zeros(n, dtype=np.int64)
             f8 = lambda *s: np.zeros(s)
@@ -152,7 +153,10 @@ def test_the_batch_and_incremental_kernels_cached_apart_run_together(tmp_path):
         sep_start, sep_len, sep_dim = np.array([8, 2, -1]), np.array([1, 1, 0]), np.array([1, 1, 0])
         cond, ustart = np.array([20, 4, 12]), np.full(3, -1)
         ipool, fpool = np.arange(10) * 100, np.arange(30.0)
-        tops = el.compact_pools(3, dim, sep_start, sep_len, sep_dim, cond, ustart, ipool, fpool)
+        zeros = np.zeros(3, dtype=np.int64)
+        tree = Tree(dim, zeros, zeros, zeros, zeros, zeros, zeros, sep_start, sep_len, sep_dim, cond, ustart,
+                    np.full(1, -1))
+        tops = storage.compact_pools(3, tree, Pools(ipool, fpool))
         print(tops, sep_start.tolist(), cond.tolist(), ipool[:2].tolist(), fpool[:3].tolist())
     """)
     assert _python(batch, tmp_path, env) == "1"  # compiled here, written to the cache

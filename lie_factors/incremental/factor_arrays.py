@@ -1,0 +1,153 @@
+"""The smoother's variables and factors as arrays: a group's elements, a kind's factors, an update's.
+
+:class:`Elements` holds the variables of one group (their elements θ), and
+:class:`FactorKind` the factors of one (kind, group) — their variables,
+constants (M⁻¹, the whitening R) and block-factor ids — linearized by one
+compiled call of :mod:`lie_factors.batch.loops` per kind.
+:class:`FactorArrays` is a replay's factors checked and set up once;
+:class:`NewFactors` is one update, read from arrays or from GTSAM's objects
+(:mod:`lie_factors.incremental.gtsam_objects`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import factors as _factors
+from ..batch.graph import whitening
+from ..batch.loops import GroupLoops
+from ..errors import InputError
+from .structures import grow
+
+
+class Elements:
+    """The variables of one group: their elements θ (N, m, m) and variable indices."""
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.loops = GroupLoops(spec, serial=True)
+        self.X = np.zeros((0, spec.mat, spec.mat))
+        self.var = np.zeros(0, dtype=np.int64)
+        self.n = 0
+
+    def append(self, X: np.ndarray, var: np.ndarray) -> np.ndarray:
+        k = len(X)
+        self.X = grow(self.X, self.n + k)
+        self.var = grow(self.var, self.n + k)
+        idx = np.arange(self.n, self.n + k)
+        self.X[idx] = X
+        self.var[idx] = var
+        self.n += k
+        return idx
+
+
+class FactorKind:
+    """The array factors of one (kind, group): variables, element indices, constants, block-factor ids."""
+
+    def __init__(self, kind: str, spec, elements: Elements):
+        self.kind, self.spec, self.elements = kind, spec, elements
+        m, n = spec.mat, spec.dim
+        self.v = np.zeros((0, 2 if kind == "between" else 1), dtype=np.int64)
+        self.e = np.zeros((0, 2 if kind == "between" else 1), dtype=np.int64)
+        self.C = np.zeros((0, m, m))
+        self.R = np.zeros((0, n, n))
+        self.fid = np.zeros(0, dtype=np.int64)
+        self.source: list = []  # the factor objects read (None: from arrays)
+        self.n = 0
+
+    def append(self, v, e, C, R, sources) -> np.ndarray:
+        k = len(v)
+        for name in ("v", "e", "C", "R", "fid"):
+            setattr(self, name, grow(getattr(self, name), self.n + k))
+        idx = np.arange(self.n, self.n + k)
+        self.v[idx], self.e[idx], self.C[idx], self.R[idx] = v, e, C, R
+        self.source.extend(sources)
+        self.n += k
+        return idx
+
+    def truncate(self, n: int) -> None:
+        self.n = n
+        del self.source[n:]
+
+    def jacobians(self, idx: np.ndarray) -> np.ndarray:
+        """Whitened [A_1 (A_2) | b] of the factors ``idx`` at the current θ: (F, n, D + 1), one compiled call."""
+        n = self.spec.dim
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        F = len(idx)
+        X = self.elements.X
+        b = np.empty((F, n))
+        sq = np.empty(F)
+        if self.kind == "between":
+            A1, A2 = np.empty((F, n, n)), np.empty((F, n, n))
+            e = self.e[idx]
+            self.elements.loops.between_lin(X, np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1]),
+                                            self.C[idx], self.R, idx, A1, A2, b, sq)
+            return np.concatenate([A1, A2, b[:, :, None]], axis=2)
+        A1 = np.empty((F, n, n))
+        self.elements.loops.prior_lin(X, np.ascontiguousarray(self.e[idx, 0]), self.C[idx], self.R, idx, A1, b, sq)
+        return np.concatenate([A1, b[:, :, None]], axis=2)
+
+
+class FactorArrays:
+    """A pose graph's between factors and priors, checked and set up once (M⁻¹, the whitening R
+    with RᵀR = Λ): :meth:`Smoother.update_prepared` adds any of them by index.
+
+    ``edge_keys`` (E, 2), ``measured`` (E, m, m), ``information`` (E, n, n); ``prior_keys``
+    (Q,), ``prior_measured`` (Q, m, m), ``prior_information`` (Q, n, n).  Raises
+    :class:`~lie_factors.errors.InputError` for wrong shapes, non-finite numbers, a self-loop, an element that
+    is not in the group, an information matrix that is not positive definite.
+    """
+
+    def __init__(self, group: str, edge_keys=None, measured=None, information=None, prior_keys=None,
+                 prior_measured=None, prior_information=None):
+        spec = _factors.GROUPS.get(group)
+        if spec is None:
+            raise InputError(f"unknown group {group!r} (choose from {', '.join(_factors.GROUPS)})")
+        self.group, self.spec = group, spec
+        loops = GroupLoops(spec, serial=True)
+        m, n = spec.mat, spec.dim
+        parts = {}
+        for kind, k, M, info, nk in (("between", edge_keys, measured, information, 2),
+                                     ("prior", prior_keys, prior_measured, prior_information, 1)):
+            k = np.zeros((0, nk), dtype=np.int64) if k is None else np.asarray(k, dtype=np.int64).reshape(-1, nk)
+            F = len(k)
+            M = np.zeros((0, m, m)) if M is None and F == 0 else np.asarray(M, dtype=np.float64)
+            info = np.zeros((0, n, n)) if info is None and F == 0 else np.asarray(info, dtype=np.float64)
+            if M.shape != (F, m, m) or info.shape != (F, n, n):
+                raise InputError(f"{kind} factors: expected measurements ({F}, {m}, {m}) and information "
+                                    f"({F}, {n}, {n}), got {M.shape} and {info.shape}")
+            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(info))):
+                raise InputError(f"{kind} factors: a measurement or information matrix is not finite")
+            if kind == "between" and np.any(k[:, 0] == k[:, 1]):
+                raise InputError("between factors: a factor connects a key to itself")
+            Minv, codes = loops.setup(M)
+            bad = np.flatnonzero(codes != _factors.OK)
+            if bad.size:
+                q = int(bad[0])
+                raise InputError(str(_factors.element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
+                                                                "update")))
+            try:
+                R = whitening(info) if F else np.zeros((0, n, n))
+            except np.linalg.LinAlgError:
+                raise InputError(f"{kind} factors: an information matrix is not positive definite") from None
+            parts[kind] = (k, Minv, R)
+        self.edge_keys, self.Minv, self.R = parts["between"]
+        pk, self.Pinv, self.prior_R = parts["prior"]
+        self.prior_keys = pk.reshape(-1)
+        self.E, self.Q = len(self.edge_keys), len(self.prior_keys)
+
+
+@dataclass
+class NewFactors:
+    """An update read: new variables (key, group name or None, value) and factors by kind."""
+
+    keys: list
+    kinds: list  # group name (array variable) or None (GTSAM's values)
+    values: list  # element matrix (m, m) or the gtsam value
+    dims: list
+    arrays: dict  # (kind, group) -> dict(keys, C, R, src)
+    native: list  # (factor, keys)
+    theta: object = None  # the gtsam.Values the variables GTSAM holds come from
+    types: dict = field(default_factory=dict)  # their keys -> type names (``Values.at<Type>``)

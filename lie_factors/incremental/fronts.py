@@ -1,0 +1,349 @@
+"""The numeric pass of re-elimination (compiled kernels): dense fronts, assembled and factored.
+
+Elimination is by supernodes: a variable and the chain of parents that each
+have it as only child with a separator one shorter (a clique) are eliminated
+from one dense *front*.  The front is assembled from the update matrices of
+the first member's children (extend-add) and, member by member, from the
+factors whose first variable the member is; the trailing update matrix is
+computed with all of a block's rows at once.  The clique's last member keeps
+its update matrix, and so does every member whose update matrix is at most
+``keep_update`` floats.
+
+Everything is written to fresh pool space and to the
+:data:`~lie_factors.incremental.structures.Columns` of the symbolic pass
+(:mod:`lie_factors.incremental.symbolic`); the tree is not touched, so a pivot
+that fails leaves it as it was.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+
+from ..kernels.jit import dense_kernel, inline_kernel  # dense_kernel keeps IEEE NaN, which the pivot test relies on
+from .structures import NOT_POSITIVE, OK, packed
+
+#: A pivot is refused when it is not above this fraction of its diagonal entry before
+#: elimination (a pivot is 1/(Λ⁻¹)_pp in units of Λ_pp: this refuses a condition number
+#: above 1e13, where the variable is not determined to double precision).
+PIVOT_TOLERANCE = 1e-13
+
+#: One supernode's front: ``phi`` (N, N), symmetric, upper triangle used (its last row below
+#: the diagonal holds the diagonal before elimination, for the pivot test; its last column is
+#: the right-hand side); ``diag`` (N,) the diagonal as assembled; ``colmap`` scratch of at
+#: least N entries; ``members`` the clique's variables, in order.
+Front = namedtuple("Front", ["phi", "diag", "colmap", "members"])
+
+
+@dense_kernel
+def _row_update(Phi, i, q0, q1):
+    """Φ[i, i:] −= Σ_{q0 ≤ q < q1} Φ[q, i]·Φ[q, i:] (upper triangle), four rows q at a time: the
+    row of i is read and written once per four."""
+    N = Phi.shape[0]
+    ri = Phi[i]
+    q = q0
+    while q + 3 < q1:
+        w0 = Phi[q, i]
+        w1 = Phi[q + 1, i]
+        w2 = Phi[q + 2, i]
+        w3 = Phi[q + 3, i]
+        r0 = Phi[q]
+        r1 = Phi[q + 1]
+        r2 = Phi[q + 2]
+        r3 = Phi[q + 3]
+        for c in range(i, N):
+            ri[c] -= w0 * r0[c] + w1 * r1[c] + w2 * r2[c] + w3 * r3[c]
+        q += 4
+    while q < q1:
+        w = Phi[q, i]
+        rq = Phi[q]
+        for c in range(i, N):
+            ri[c] -= w * rq[c]
+        q += 1
+
+
+@dense_kernel
+def eliminate_columns(Phi, o, D):
+    """Eliminate the scalars o … o + D − 1 of the symmetric frontal ``Phi`` (N × N, upper
+    triangle read and written, the first o already eliminated; ``Phi[N − 1, :]`` below the
+    diagonal holds the diagonal before elimination): rows o … o + D − 1 become [R | T | d]
+    (R upper triangular, RᵀR = Φ₁₁, T = R⁻ᵀΦ₁₂), and the trailing upper triangle becomes the
+    update matrix Φ₂₂ − [T d]ᵀ[T d].  Row by row (left-looking): each row takes the updates of
+    all the pivot rows above it at once, then, if it is a pivot row, is scaled by its pivot's
+    square root.  Returns −1, or the first pivot that is not positive (relative to
+    :data:`PIVOT_TOLERANCE`)."""
+    N = Phi.shape[0]
+    e = o + D
+    for i in range(o, N):
+        _row_update(Phi, i, o, min(i, e))
+        if i < e:
+            a = Phi[i, i]
+            if not (a > PIVOT_TOLERANCE * Phi[N - 1, i] and a < np.inf):
+                return i
+            r = np.sqrt(a)
+            inv = 1.0 / r
+            Phi[i, i] = r
+            for c in range(i + 1, N):
+                Phi[i, c] *= inv
+    return -1
+
+
+@inline_kernel
+def _chain(j, k, new, work, members):
+    """The clique ``j`` (index ``k``) starts: ``j`` and the parents that each have the previous
+    member as only child and nest its separator, written to ``members``; returns their count,
+    0 when ``j`` is itself such a parent (its child's clique holds it)."""
+    c = work.chead[j]
+    if new.nchild[k] == 1 and work.aidx[c] >= 0 and new.sep_len[work.aidx[c]] == new.sep_len[k] + 1:
+        return 0
+    members[0] = j
+    nm = 1
+    top = j
+    while True:
+        ti = work.aidx[top]
+        p = new.parent[ti]
+        if p < 0:
+            break
+        pi = work.aidx[p]
+        if new.nchild[pi] != 1 or new.sep_len[ti] != new.sep_len[pi] + 1:
+            break
+        members[nm] = p
+        nm += 1
+        top = p
+    return nm
+
+
+@inline_kernel
+def _locate(members, new, dim, ipool, work):
+    """The front's columns: the members' first (``work.loc``), then the last member's
+    separator's, then the right-hand side; returns the members' scalars D."""
+    D = 0
+    for q in range(members.shape[0]):
+        v = members[q]
+        work.loc[v] = D
+        D += dim[v]
+    topk = work.aidx[members[members.shape[0] - 1]]
+    o = D
+    for t in range(new.sep_start[topk], new.sep_start[topk] + new.sep_len[topk]):
+        v = ipool[t]
+        work.loc[v] = o
+        o += dim[v]
+    return D
+
+
+@inline_kernel
+def _cleared_front(scratch, N):
+    """The front (N, N) at the start of ``scratch``, its upper triangle zero (all that is read),
+    and the N entries after it (the diagonal as assembled) zero."""
+    Phi = scratch[:N * N].reshape((N, N))
+    for i in range(N):
+        for c in range(i, N):
+            Phi[i, c] = 0.0
+    scratch[N * N:N * N + N] = 0.0
+    return Phi
+
+
+@inline_kernel
+def _add_packed(front, S1, fpool, u):
+    """Add the packed update matrix at ``fpool[u]`` (side ``S1``) to the front's rows and
+    columns ``front.colmap[:S1]`` (extend-add)."""
+    Phi, diag0, colmap = front.phi, front.diag, front.colmap
+    for a in range(S1):
+        ta = colmap[a]
+        diag0[ta] += fpool[u]
+        for b in range(a, S1):
+            tb = colmap[b]
+            if ta <= tb:
+                Phi[ta, tb] += fpool[u]
+            else:
+                Phi[tb, ta] += fpool[u]
+            u += 1
+
+
+@inline_kernel
+def _extend_add(j, front, new, tree, pools, work):
+    """The update matrices of ``j``'s children (re-eliminated ones from ``new``, orphans from the
+    tree) added to the front.  Returns (child, count): child −1, or a child without an update
+    matrix (never: such a child shares its parent's clique)."""
+    N = front.phi.shape[0]
+    colmap = front.colmap
+    nu = 0
+    c = work.chead[j]
+    while c >= 0:
+        ci = work.aidx[c]
+        s0 = new.sep_start[ci] if ci >= 0 else tree.sep_start[c]
+        sl = new.sep_len[ci] if ci >= 0 else tree.sep_len[c]
+        u0 = new.ustart[ci] if ci >= 0 else tree.ustart[c]
+        if u0 < 0:
+            return c, nu
+        S1 = (new.sep_dim[ci] if ci >= 0 else tree.sep_dim[c]) + 1
+        cc = 0
+        for t in range(s0, s0 + sl):
+            v = pools.ipool[t]
+            for i in range(tree.dim[v]):
+                colmap[cc] = work.loc[v] + i
+                cc += 1
+        colmap[cc] = N - 1
+        _add_packed(front, S1, pools.fpool, u0)
+        nu += 1
+        c = work.cnext[c]
+    return -1, nu
+
+
+@inline_kernel
+def _assemble(f, front, store, dim, loc):
+    """Add factor ``f``'s AᵀA (augmented with Aᵀb) to the front's upper triangle and diagonal."""
+    Phi, diag0, colmap = front.phi, front.diag, front.colmap
+    N = Phi.shape[0]
+    jac = store.jac
+    D1 = store.fcols[f]
+    cc = 0
+    for u in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
+        w = store.fvars[u]
+        for i in range(dim[w]):
+            colmap[cc] = loc[w] + i
+            cc += 1
+    colmap[cc] = N - 1
+    J0 = store.fjstart[f]
+    r = store.frows[f]
+    for c1 in range(D1):
+        t1 = colmap[c1]
+        for c2 in range(D1):
+            t2 = colmap[c2]
+            if t1 > t2:
+                continue
+            acc = 0.0
+            for rr in range(r):
+                acc += jac[J0 + rr * D1 + c1] * jac[J0 + rr * D1 + c2]
+            Phi[t1, t2] += acc
+            if t1 == t2:
+                diag0[t1] += acc
+
+
+@inline_kernel
+def _write_update(Phi, e, at, fpool):
+    """The trailing update matrix Φ[e:, e:] written packed to ``fpool`` from ``at``; returns its end."""
+    N = Phi.shape[0]
+    for a in range(e, N):
+        for b in range(a, N):
+            fpool[at] = Phi[a, b]
+            at += 1
+    return at
+
+
+@inline_kernel
+def _eliminate_members(front, fall, new, fpool, ux, store, dim, work, keep_update):
+    """The members' factors assembled and their columns eliminated, in blocks each ending at a
+    member that keeps its update matrix (the last always does; the others when it is at most
+    ``keep_update`` floats: a later update that re-eliminates only the members above starts
+    from it).  A member's factors enter just before its block (they touch no column before
+    it), so that each update matrix kept is its subtree's alone; those of the members below the
+    last are written from ``ux``.  Returns (bad column or −1, factors assembled, new ux)."""
+    Phi, diag0, members = front.phi, front.diag, front.members
+    N = Phi.shape[0]
+    nm = members.shape[0]
+    b0 = 0
+    nf = 0
+    for q in range(nm):
+        v = members[q]
+        mk = work.aidx[v]
+        for t in range(new.fstart[mk], new.fstart[mk + 1]):
+            _assemble(fall[t], front, store, dim, work.loc)
+            nf += 1
+        e = work.loc[v] + dim[v]
+        last = q == nm - 1
+        if not last and packed(N - e) > keep_update:
+            continue
+        for p in range(b0, e):
+            Phi[N - 1, p] = diag0[p]
+        bad = eliminate_columns(Phi, b0, e - b0)
+        if bad >= 0:
+            return bad, nf, ux
+        b0 = e
+        if not last:
+            new.ustart[mk] = ux
+            ux = _write_update(Phi, e, ux, fpool)
+    return -1, nf, ux
+
+
+@inline_kernel
+def _write_conditionals(front, ft, new, fpool, dim, work):
+    """Each member's conditional, its rows of the front from its own columns on (zero below
+    the diagonal), written to ``fpool`` from ``ft``; returns the end."""
+    Phi, members = front.phi, front.members
+    N = Phi.shape[0]
+    for q in range(members.shape[0]):
+        v = members[q]
+        o = work.loc[v]
+        W = N - o
+        new.cond[work.aidx[v]] = ft
+        for p in range(dim[v]):
+            for qq in range(W):
+                cidx = o + qq
+                fpool[ft + p * W + qq] = Phi[o + p, cidx] if cidx >= o + p else 0.0
+        ft += dim[v] * W
+    return ft
+
+
+@inline_kernel
+def _variable_of(members, column, dim, loc):
+    """The member whose columns hold ``column``."""
+    found = -1
+    for q in range(members.shape[0]):
+        v = members[q]
+        if loc[v] <= column < loc[v] + dim[v]:
+            found = v
+    return found
+
+
+@inline_kernel
+def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
+    """Eliminate ``order``'s variables clique by clique (see the module docstring), writing
+    conditionals and update matrices to ``pools.fpool`` from ``ftop`` (room counted by
+    :func:`~lie_factors.incremental.symbolic.float_room`) and their places to ``new``.
+
+    Returns (status, detail, new ftop): :data:`OK`, or :data:`NOT_POSITIVE` with the variable
+    whose pivot failed.  ``work.stats`` += [columns eliminated, update matrices extend-added,
+    factors assembled, frontal scalars², …, Σ D·N² over fronts (the work of their dense
+    elimination, in multiply-adds up to a constant)] (entries 0–3 and 6).
+    """
+    K = order.shape[0]
+    members = np.empty(K, dtype=np.int64)
+    colmap = np.empty(64, dtype=np.int64)
+    scratch = np.empty(4096)  # the fronts, reused (grown to the largest)
+    stats = work.stats
+    dim = tree.dim
+    ft = ftop
+    for k in range(K):
+        j = order[k]
+        nm = _chain(j, k, new, work, members)
+        if nm == 0:
+            continue
+        D = _locate(members[:nm], new, dim, pools.ipool, work)
+        topk = work.aidx[members[nm - 1]]
+        N = D + new.sep_dim[topk] + 1
+        need_f = packed(N - D)  # the conditionals and the last member's update matrix
+        for q in range(nm):
+            need_f += dim[members[q]] * (N - work.loc[members[q]])
+        if N * N + N > scratch.shape[0]:
+            scratch = np.empty(2 * (N * N + N))
+        if N > colmap.shape[0]:
+            colmap = np.empty(2 * N, dtype=np.int64)
+        front = Front(_cleared_front(scratch, N), scratch[N * N:N * N + N], colmap, members[:nm])
+        child, nu = _extend_add(j, front, new, tree, pools, work)
+        if child >= 0:
+            return NOT_POSITIVE, child, ftop
+        bad, nf, ux = _eliminate_members(front, fall, new, pools.fpool, ft + need_f, store, dim, work, keep_update)
+        if bad >= 0:
+            return NOT_POSITIVE, _variable_of(front.members, bad, dim, work.loc), ftop
+        ft = _write_conditionals(front, ft, new, pools.fpool, dim, work)
+        new.ustart[topk] = ft
+        _write_update(front.phi, D, ft, pools.fpool)
+        ft = ux
+        stats[0] += nm
+        stats[1] += nu
+        stats[2] += nf
+        stats[3] += N * N
+        stats[6] += D * N * N
+    return OK, 0, ft

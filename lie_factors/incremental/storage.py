@@ -1,0 +1,143 @@
+"""Storing variables and factors in the block factor, and compacting its pools (compiled kernels).
+
+Structures: :mod:`lie_factors.incremental.structures`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.jit import inline_kernel, kernel
+from .structures import packed
+
+
+@kernel
+def init_variables(nv0, dims, ns0, tree, ahead, delta):
+    """Variables nv0, nv0 + 1, … of dimensions ``dims``: no node yet, no factor (``ahead``),
+    δ = 0, scalar offsets from ``ns0``; returns the new scalar count."""
+    o = ns0
+    for q in range(dims.shape[0]):
+        j = nv0 + q
+        tree.dim[j] = dims[q]
+        tree.voff[j] = o
+        for i in range(dims[q]):
+            delta[o + i] = 0.0
+        o += dims[q]
+        tree.parent[j] = -1
+        tree.first[j] = -1
+        tree.nxt[j] = -1
+        tree.nchild[j] = 0
+        tree.sep_len[j] = 0
+        tree.sep_dim[j] = 0
+        tree.cond[j] = -1
+        tree.ustart[j] = -1
+        ahead[j] = -1
+    return o
+
+
+@kernel
+def append_factors(fv, J, counts, store):
+    """Factors ``counts`` = (nf, nfv, njac), nf + 1, … on the variables ``fv`` (F, k) with
+    Jacobians ``J`` (F, r, D + 1), stored from entry ``nfv`` of ``store.fvars`` and ``njac`` of
+    ``store.jac``."""
+    nf, nfv, njac = counts
+    F, k = fv.shape
+    r, D1 = J.shape[1], J.shape[2]
+    for q in range(F):
+        f = nf + q
+        store.fnv[f] = k
+        store.fvstart[f] = nfv + q * k
+        for t in range(k):
+            store.fvars[nfv + q * k + t] = fv[q, t]
+        store.frows[f] = r
+        store.fcols[f] = D1
+        store.fjstart[f] = njac + q * r * D1
+        for a in range(r):
+            for b in range(D1):
+                store.jac[njac + q * r * D1 + a * D1 + b] = J[q, a, b]
+        store.fstamp[f] = 0
+
+
+@kernel
+def link_adjacency(store, f0, f1):
+    """Prepend factors f0..f1-1 to their variables' adjacency lists (entry t of ``fvars`` is entry t)."""
+    for f in range(f0, f1):
+        for t in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
+            v = store.fvars[t]
+            store.afac[t] = f
+            store.anext[t] = store.ahead[v]
+            store.ahead[v] = t
+
+
+@kernel
+def _move_down(pool, segments, starts, sizes, order):
+    """Move the segments of ``pool`` (``starts``, ``sizes``) down to be contiguous, in order of
+    address (each moves to where it is or below, over entries already moved or freed);
+    ``segments[k]`` receives segment k's new start.  Returns the new top."""
+    top = 0
+    for q in range(order.shape[0]):
+        k = order[q]
+        s0 = starts[k]
+        for t in range(sizes[k]):
+            pool[top + t] = pool[s0 + t]
+        segments[k] = top
+        top += sizes[k]
+    return top
+
+
+@inline_kernel
+def _compact_separators(nv, tree, ipool):
+    """Move every live separator down over the freed entries of ``ipool``; returns the new top."""
+    starts = np.empty(nv, dtype=np.int64)
+    sizes = np.empty(nv, dtype=np.int64)
+    nodes = np.empty(nv, dtype=np.int64)
+    n = 0
+    for j in range(nv):
+        if tree.cond[j] >= 0 and tree.sep_len[j] > 0:
+            starts[n] = tree.sep_start[j]
+            sizes[n] = tree.sep_len[j]
+            nodes[n] = j
+            n += 1
+    moved = np.empty(n, dtype=np.int64)
+    it = _move_down(ipool, moved, starts[:n], sizes[:n], np.argsort(starts[:n]))
+    for k in range(n):
+        tree.sep_start[nodes[k]] = moved[k]
+    return it
+
+
+@inline_kernel
+def _compact_floats(nv, tree, fpool):
+    """Move every conditional and update matrix down over the freed entries of ``fpool``;
+    returns the new top."""
+    starts = np.empty(2 * nv, dtype=np.int64)
+    sizes = np.empty(2 * nv, dtype=np.int64)
+    nodes = np.empty(2 * nv, dtype=np.int64)
+    n = 0
+    for j in range(nv):
+        s = tree.sep_dim[j]
+        if tree.cond[j] >= 0:
+            starts[n] = tree.cond[j]
+            sizes[n] = tree.dim[j] * (tree.dim[j] + s + 1)
+            nodes[n] = j
+            n += 1
+        if tree.ustart[j] >= 0:
+            starts[n] = tree.ustart[j]
+            sizes[n] = packed(s + 1)
+            nodes[n] = -1 - j
+            n += 1
+    moved = np.empty(n, dtype=np.int64)
+    ft = _move_down(fpool, moved, starts[:n], sizes[:n], np.argsort(starts[:n]))
+    for k in range(n):
+        j = nodes[k]
+        if j >= 0:
+            tree.cond[j] = moved[k]
+        else:
+            tree.ustart[-1 - j] = moved[k]
+    return ft
+
+
+@kernel
+def compact_pools(nv, tree, pools):
+    """Move every node's separator, conditional and update matrix down over the freed entries of
+    the pools, in place, and point the node there; returns the new tops."""
+    return _compact_separators(nv, tree, pools.ipool), _compact_floats(nv, tree, pools.fpool)

@@ -1,0 +1,219 @@
+"""Solving with the block factor (compiled kernels): wildfire back-substitution and marginal covariances.
+
+δ = Λ⁻¹η is brought up to date by ISAM2's wildfire back-substitution from the
+roots (:func:`back_substitute`); the marginal covariance of a variable is read
+from the path of its column to its root (:func:`marginal_covariance`).
+Structures: :mod:`lie_factors.incremental.structures`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.jit import dense_kernel, inline_kernel, kernel
+from .structures import push
+
+
+@dense_kernel
+def _solve_node(j, tree, pools, delta, x, xs):
+    """x = R_j⁻¹ (d_j − T_j δ_S): the node's variable given its separator's values in ``delta``
+    (gathered once into ``xs``, so that each row is one contiguous dot product)."""
+    dim, voff, ipool, fpool = tree.dim, tree.voff, pools.ipool, pools.fpool
+    d = dim[j]
+    c0 = tree.cond[j]
+    s = 0
+    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
+        v = ipool[t]
+        o = voff[v]
+        for i in range(dim[v]):
+            xs[s] = delta[o + i]
+            s += 1
+    N = d + s + 1
+    for p in range(d):
+        row = c0 + p * N + d
+        acc = fpool[c0 + p * N + N - 1]
+        for k in range(s):
+            acc -= fpool[row + k] * xs[k]
+        x[p] = acc
+    for p in range(d - 1, -1, -1):
+        acc = x[p]
+        for q in range(p + 1, d):
+            acc -= fpool[c0 + p * N + q] * x[q]
+        x[p] = acc / fpool[c0 + p * N + p]
+
+
+@inline_kernel
+def _push_list(pending, npend, head, nxt):
+    """Push the list ``head``, ``nxt[head]``, … (children or roots) on the stack; returns it."""
+    c = head
+    while c >= 0:
+        pending = push(pending, npend, c)
+        npend += 1
+        c = nxt[c]
+    return pending, npend
+
+
+@inline_kernel
+def _dirty(j, tree, ipool, wildfire):
+    """Whether node ``j`` was re-eliminated or a variable of its separator changed."""
+    if wildfire.replaced[j] != 0:
+        return True
+    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
+        if wildfire.changed[ipool[t]] != 0:
+            return True
+    return False
+
+
+@inline_kernel
+def _moved(x, delta, o, d):
+    """max_p |x[p] − δ[o + p]|: how far a solved node moved."""
+    m = 0.0
+    for p in range(d):
+        a = abs(x[p] - delta[o + p])
+        if a > m:
+            m = a
+    return m
+
+
+@dense_kernel
+def back_substitute(threshold, tree, pools, delta, wildfire):
+    """ISAM2's wildfire back-substitution (Kaess et al., IJRR 2012, Alg. 5), from the roots down.
+
+    A node is solved again when it was re-eliminated (``wildfire.replaced``) or a variable
+    of its separator changed; its new value is kept, and the node counts as
+    changed, when it was re-eliminated or moved by ``threshold`` or more (max
+    norm), else its old value stays.  Children are visited below solved nodes only.
+    ``threshold`` ≤ 0: every change propagates (the exact solution).  ``replaced``
+    and ``changed`` are cleared on return (every re-eliminated node is below a
+    re-eliminated root, so all are visited).  Returns the number of nodes solved.
+    """
+    x = np.empty(64)
+    xs = np.empty(256)
+    pending, npend = _push_list(np.empty(64, dtype=np.int64), 0, tree.roots[0], tree.nxt)
+    replaced, changed, visited = wildfire
+    solved = 0
+    cleared = 0
+    while npend > 0:
+        npend -= 1
+        j = pending[npend]
+        if not _dirty(j, tree, pools.ipool, wildfire):
+            continue
+        d = tree.dim[j]
+        if d > x.shape[0]:
+            x = np.empty(2 * d)
+        if tree.sep_dim[j] > xs.shape[0]:
+            xs = np.empty(2 * tree.sep_dim[j])
+        _solve_node(j, tree, pools, delta, x, xs)
+        solved += 1
+        o = tree.voff[j]
+        keep = replaced[j] != 0 or _moved(x, delta, o, d) >= threshold
+        if keep:
+            for p in range(d):
+                delta[o + p] = x[p]
+            changed[j] = 1
+            visited[cleared] = j
+            cleared += 1
+        replaced[j] = 0
+        pending, npend = _push_list(pending, npend, tree.first[j], tree.nxt)
+    for q in range(cleared):
+        changed[visited[q]] = 0
+    return solved
+
+
+@inline_kernel
+def _root_path(v, parent):
+    """The nodes from ``v`` up to its root."""
+    plen = 0
+    j = v
+    while j >= 0:
+        plen += 1
+        j = parent[j]
+    path = np.empty(plen, dtype=np.int64)
+    j = v
+    q = 0
+    while j >= 0:
+        path[q] = j
+        q += 1
+        j = parent[j]
+    return path
+
+
+@inline_kernel
+def _forward_node(q, path, start, where, Y, tree, pools):
+    """Path node ``q``'s rows of Y = R⁻ᵀ(E − the contributions already subtracted), then Tᵀ
+    times them subtracted from the rows of its separator (all on the path)."""
+    dim, ipool, fpool = tree.dim, pools.ipool, pools.fpool
+    dv = Y.shape[1]
+    j = path[q]
+    d = dim[j]
+    c0 = tree.cond[j]
+    s = 0
+    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
+        s += dim[ipool[t]]
+    N = d + s + 1
+    y0 = start[q]
+    for col in range(dv):
+        for p in range(d):
+            acc = Y[y0 + p, col]
+            for t in range(p):
+                acc -= fpool[c0 + t * N + p] * Y[y0 + t, col]
+            Y[y0 + p, col] = acc / fpool[c0 + p * N + p]
+    cc = d
+    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
+        w = ipool[t]
+        dw = dim[w]
+        if w in where:
+            yw = start[where[w]]
+            for i in range(dw):
+                for col in range(dv):
+                    acc = 0.0
+                    for p in range(d):
+                        acc += fpool[c0 + p * N + cc + i] * Y[y0 + p, col]
+                    Y[yw + i, col] -= acc
+        cc += dw
+
+
+@kernel
+def marginal_covariance(v, tree, pools, out):
+    """Σ_v = YᵀY with Y = R⁻ᵀ E_v, nonzero only on the path from ``v`` to its root
+    (``out`` (d_v, d_v) receives the marginal covariance of ``v``).
+
+    Forward substitution Rᵀ Y = E_v visiting only that path: a node's rows of Y
+    take the contributions of the path nodes below it through their blocks T."""
+    dv = tree.dim[v]
+    path = _root_path(v, tree.parent)
+    plen = path.shape[0]
+    tot = 0
+    start = np.empty(plen, dtype=np.int64)
+    for q in range(plen):
+        start[q] = tot
+        tot += tree.dim[path[q]]
+    Y = np.zeros((tot, dv))
+    where = {}
+    for q in range(plen):
+        where[path[q]] = q
+    for i in range(dv):
+        Y[i, i] = 1.0
+    for q in range(plen):
+        _forward_node(q, path, start, where, Y, tree, pools)
+    for a in range(dv):
+        for b in range(dv):
+            acc = 0.0
+            for r in range(tot):
+                acc += Y[r, a] * Y[r, b]
+            out[a, b] = acc
+
+
+@kernel
+def max_abs_blocks(delta, voff, dim):
+    """max_i |δ_v[i]| of every variable v: (V,)."""
+    V = voff.shape[0]
+    out = np.empty(V)
+    for v in range(V):
+        m = 0.0
+        for i in range(dim[v]):
+            a = abs(delta[voff[v] + i])
+            if a > m:
+                m = a
+        out[v] = m
+    return out
