@@ -34,6 +34,15 @@ broadcasting functions run); the batch solver loops over the same two kernels.
 one call of :func:`between_many` (a loop over :func:`between`) per group, for
 a ``Values`` object an optimizer holds; the factors' callbacks, handed that
 object, return their rows (used by :mod:`lie_factors.optimizers`).
+
+Printing: a factor prints (``print()``, ``str``, ``repr``) what GTSAM's own
+factor of the same class, keys, value and noise model prints, by asking that
+factor (:meth:`as_gtsam`). A graph is printed by GTSAM's C++ code, which calls
+C++'s ``CustomFactor::print`` ("CustomFactor on 0", no value) whatever Python
+defines; so importing this module also makes ``gtsam.NonlinearFactorGraph``'s
+``print`` and ``repr`` print a graph that holds factors of this module as the
+graph with GTSAM's own in their places. A graph without any prints exactly as
+before (GTSAM's own methods run on the graph itself).
 """
 
 from __future__ import annotations
@@ -44,6 +53,7 @@ from types import ModuleType
 
 import gtsam
 import numpy as np
+from gtsam import gtsam as _native  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 from .kernels import checks as _check, dispatch as _dispatch, registry as _registry, validate as _validate
 # The codes of check_element (validate.defect words them).
@@ -300,6 +310,25 @@ class _Factor(gtsam.CustomFactor):
         self._Minv = Minv
         self._AdMinv = AdMinv
 
+    def as_gtsam(self):
+        """GTSAM's own factor of this class (``gtsam.BetweenFactorPose3`` ...): the same keys,
+        the measured (or prior) value and the same noise model object, so the same error."""
+        if self._key1 is None:
+            return getattr(_native, f"PriorFactor{self.spec.name}")(self._key2, self._prior, self._noise)
+        return getattr(_native, f"BetweenFactor{self.spec.name}")(self._key1, self._key2, self._measured,
+                                                                   self._noise)
+
+    def print(self, s: str = "Factor\n", keyFormatter=_native.DefaultKeyFormatter) -> None:
+        """Print as GTSAM's own factor prints (its keys, value and noise model), to standard output."""
+        self.as_gtsam().print(s, keyFormatter)
+
+    def __repr__(self, s: str = "Factor\n", keyFormatter=_native.DefaultKeyFormatter) -> str:
+        """What :meth:`print` prints (``str`` too), as GTSAM's factors' ``repr`` does."""
+        if not hasattr(self, "_measured" if isinstance(self, BetweenFactor) else "_prior"):
+            # construction failed or did not run: there is no value to print
+            return object.__repr__(self)
+        return self.as_gtsam().__repr__(s, keyFormatter)
+
     def _evaluate(self, this, values, H):
         plan = _prepared
         slot = plan.slots.get(self) if plan is not None and plan.values is values else None
@@ -386,6 +415,48 @@ BetweenFactorPose3, PriorFactorPose3 = _named("Pose3")
 BetweenFactorPose2, PriorFactorPose2 = _named("Pose2")
 BetweenFactorSimilarity2, PriorFactorSimilarity2 = _named("Similarity2")
 BetweenFactorSimilarity3, PriorFactorSimilarity3 = _named("Similarity3")
+
+
+# --------------------------------------------------------------------------- #
+# Printing a graph that holds factors of this module
+# --------------------------------------------------------------------------- #
+
+def as_printed(graph):
+    """``graph`` with each factor of this module replaced by GTSAM's own (:meth:`_Factor.as_gtsam`),
+    removed (null) slots kept so that the indices are the graph's; ``graph`` itself if it holds none."""
+    factors = [graph.at(i) for i in range(graph.size())]
+    if not any(isinstance(f, _Factor) for f in factors):
+        return graph
+    out = _native.NonlinearFactorGraph()
+    for f in factors:
+        out.add(f.as_gtsam() if isinstance(f, _Factor) else f)
+    return out
+
+
+def _print_graphs_as_gtsam() -> None:
+    """Make ``gtsam.NonlinearFactorGraph``'s ``print`` and ``repr`` (so ``str``) print :func:`as_printed`
+    graphs. GTSAM's C++ prints a graph's factors through C++'s virtual ``print``, which a Python
+    subclass of ``CustomFactor`` cannot override; GTSAM's own methods still do the printing."""
+    cls = _native.NonlinearFactorGraph
+    if getattr(cls.print, "_gtsam_method", None) is not None:  # this module imported again (reload)
+        return
+    gtsam_print, gtsam_repr = cls.print, cls.__repr__
+
+    def print(self, s: str = "NonlinearFactorGraph: ", keyFormatter=_native.DefaultKeyFormatter) -> None:
+        gtsam_print(as_printed(self), s, keyFormatter)
+
+    def __repr__(self, s: str = "NonlinearFactorGraph: ", keyFormatter=_native.DefaultKeyFormatter) -> str:
+        return gtsam_repr(as_printed(self), s, keyFormatter)
+
+    for method, original in ((print, gtsam_print), (__repr__, gtsam_repr)):
+        method.__doc__ = (f"GTSAM's ``NonlinearFactorGraph.{method.__name__}`` of the graph with "
+                          f"lie_factors' factors as GTSAM's own (:func:`{__name__}.as_printed`).\n\n"
+                          + (original.__doc__ or ""))
+        method._gtsam_method = original
+        setattr(cls, method.__name__, method)
+
+
+_print_graphs_as_gtsam()
 
 
 # --------------------------------------------------------------------------- #

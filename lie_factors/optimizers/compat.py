@@ -74,14 +74,9 @@ def to_gtsam(factor):
     Same keys, same measured (or prior) value, and the same noise model object
     (a robust model stays robust), so GTSAM's factor has the same error.
     """
-    if not _ours_exist():
+    if not _ours_exist() or type(factor) not in _table("to"):
         return factor
-    cls = _table("to").get(type(factor))
-    if cls is None:
-        return factor
-    if len(factor.keys()) == 2:
-        return cls(factor._key1, factor._key2, factor.measured(), factor._noise)
-    return cls(factor._key, factor.prior(), factor._noise)
+    return factor.as_gtsam()
 
 
 def from_gtsam(factor):
