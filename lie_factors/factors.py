@@ -452,7 +452,7 @@ def _print_graphs_as_gtsam() -> None:
         method.__doc__ = (f"GTSAM's ``NonlinearFactorGraph.{method.__name__}`` of the graph with "
                           f"lie_factors' factors as GTSAM's own (:func:`{__name__}.as_printed`).\n\n"
                           + (original.__doc__ or ""))
-        method._gtsam_method = original
+        setattr(method, "_gtsam_method", original)
         setattr(cls, method.__name__, method)
 
 
@@ -485,7 +485,7 @@ class _GroupEvaluation:
         self.i2 = np.array([index[f._key2] for f in members], dtype=np.int64)
         self.X = np.empty((len(keys) + 1, m, m))
         self.X[identity] = np.eye(m)
-        self.rows = None  # Pose3: rows of extractPose3's output for self.keys
+        self.rows: np.ndarray | None = None  # Pose3: rows of extractPose3's output for self.keys
         self.total = 0
         self.e = np.empty((count, n))
         self.H1 = np.empty((count, n, n))
@@ -542,7 +542,7 @@ class EvaluationPlan:
             if isinstance(f, (BetweenFactor, PriorFactor)):
                 members.setdefault(f.spec.name, []).append(f)
         self.groups = [_GroupEvaluation(GROUPS[name], fs) for name, fs in members.items()]
-        self.slots = {}  # factor → views (e, H1, H2) of its rows
+        self.slots: dict = {}  # factor → views (e, H1, H2) of its rows
         for res, fs in zip(self.groups, members.values()):
             self.slots.update(zip(fs, zip(res.e, res.H1, res.H2)))
         self.values = None
