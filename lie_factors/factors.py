@@ -58,6 +58,7 @@ from gtsam import gtsam as _native  # the compiled extension: GTSAM's own classe
 from .kernels import checks as _check, dispatch as _dispatch, registry as _registry, validate as _validate
 # The codes of check_element (validate.defect words them).
 from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION  # noqa: F401
+from .errors import InputError
 from .interop import pose3_from_rows
 from .kernels.jit import kernel
 from .kernels.registry import GroupInfo
@@ -234,9 +235,9 @@ GROUPS = {info.gtsam: GroupSpec(info.gtsam, getattr(gtsam, info.gtsam), info, f"
           for info in _registry.GROUPS.values()}
 
 
-def element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: str) -> ValueError:
+def element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: str) -> InputError:
     """The error for a failed :func:`check_element` ``code`` of ``what`` (``X``) in ``factor``."""
-    return ValueError(f"{factor}: {what}: {_validate.defect(code, spec.group, np.asarray(X))}")
+    return InputError(f"{factor}: {what}: {_validate.defect(code, spec.group, np.asarray(X))}")
 
 
 def _check_type(spec: GroupSpec, value, what: str, factor: str) -> None:
@@ -254,7 +255,7 @@ def _checked_noise(spec: GroupSpec, noise_model, factor: str):
     if not isinstance(noise_model, gtsam.noiseModel.Base):
         raise TypeError(f"{factor}: noise_model must be a gtsam.noiseModel, got {type(noise_model).__name__}")
     if noise_model.dim() != spec.dim:
-        raise ValueError(
+        raise InputError(
             f"{factor}: noise model has dimension {noise_model.dim()}, "
             f"but {spec.name} has dimension {spec.dim}"
         )

@@ -24,9 +24,9 @@ is Fortran-ordered) is checked and computed in ONE numba call, the entry point
 (:func:`lie_factors.kernels.jit.entry_point`) of :func:`one` or :func:`one_pair`
 specialized for the group and the operation. That kernel returns False when the
 input must take the general path, whose checks (:mod:`lie_factors.kernels.validate`,
-:func:`elements`) raise the ValueError naming the problem (the fast path's checks,
-:mod:`lie_factors.kernels.checks`, are the same tests, never accepting what they
-reject). Batches, lists, other dtypes and refused inputs take the general path:
+:func:`elements`) raise the :class:`~lie_factors.errors.InputError` (a ``ValueError``)
+naming the problem (the fast path's checks, :mod:`lie_factors.kernels.checks`, are
+the same tests, never accepting what they reject). Batches, lists, other dtypes and refused inputs take the general path:
 validation, then :func:`many` over the flattened batch. Both paths run the same
 cores, so a single element gives the batch path's result bit for bit.
 ``np.ascontiguousarray`` copies the input (at most 16 numbers, ≈0.02 µs) so that
@@ -49,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from . import checks as _check, dispatch as _dispatch, jit as _jit, validate as _validate
 from .jit import kernel
 from .registry import UNIT, GroupInfo
@@ -185,20 +186,20 @@ def _names(op: Operation, info: GroupInfo) -> tuple:
 
 def elements(X, info: GroupInfo, name: str = "X") -> np.ndarray:
     """The general path's check of group elements: ``X`` as float64 elements of ``info`` (shape
-    ``(...,) + info.element``), or ValueError naming the first defect, in the order of
-    :func:`lie_factors.kernels.checks.element_code`, that some element has."""
+    ``(...,) + info.element``), or :class:`~lie_factors.errors.InputError` naming the first
+    defect, in the order of :func:`lie_factors.kernels.checks.element_code`, that some element has."""
     if info.corner == UNIT:
         return _validate.unit(X, info, name)
     arr = _validate.square(X, info.mat, name)
     flat = np.ascontiguousarray(arr.reshape((-1, info.mat, info.mat)))
     code = _check.worst_code(flat, info.rot_dim, info.corner) if flat.shape[0] else _check.OK
     if code != _check.OK:
-        raise ValueError(f"{name}: {_validate.defect(code, info, arr)}")
+        raise InputError(f"{name}: {_validate.defect(code, info, arr)}")
     return arr
 
 
 def _validator(kind: str, info: GroupInfo):
-    """The general path's check of one argument: ``check(a, name)`` → float64 array or ValueError."""
+    """The general path's check of one argument: ``check(a, name)`` → float64 array or InputError."""
     if kind == TANGENT:
         return functools.partial(_validate.tangent, n=info.dim)
     if kind == ALGEBRA:
@@ -225,7 +226,7 @@ def _doc(op: Operation, info: GroupInfo, names: tuple) -> str:
     else:
         raises = f"{names[0]} has shape {text(kind)} and finite entries"
     return (f"{op.name}({', '.join(names)}): {' × '.join(text(k) for k in op.args)} → {text(op.result)}, "
-            f"{op.doc.format(*names)}\n\nRaises ValueError unless {raises}. "
+            f"{op.doc.format(*names)}\n\nRaises InputError (a ValueError) unless {raises}. "
             f"The closed form and its sources: :mod:`{info.module}`.")
 
 

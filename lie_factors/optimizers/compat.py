@@ -42,6 +42,7 @@ from types import SimpleNamespace
 
 from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
+from ..errors import InputError
 from ..kernels.registry import BY_GTSAM
 
 _OURS = "lie_factors.factors"
@@ -134,11 +135,11 @@ def from_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactor
 # g2o files
 # --------------------------------------------------------------------------- #
 
-class G2oWriteError(ValueError):
+class G2oWriteError(InputError):
     """:func:`writeG2o` cannot write a factor or a value, or a robust noise model.
 
-    A ValueError, the class GTSAM's own writer raises for a noise model it
-    cannot write.
+    An :class:`~lie_factors.errors.InputError`, so a ``ValueError``: the class GTSAM's own
+    writer raises for a noise model it cannot write.
     """
 
 

@@ -34,7 +34,7 @@ import weakref
 
 import numpy as np
 
-from ..errors import NotPositiveDefinite
+from ..errors import InputError, NotPositiveDefinite
 from ..util.arrays import sorted_unique
 
 
@@ -253,7 +253,7 @@ def _release_values(array: np.ndarray) -> None:
 
 def _as_int32(a: np.ndarray, what: str) -> np.ndarray:
     if a.size and int(a.max()) > np.iinfo(np.int32).max:
-        raise ValueError(f"{what}: more entries than CHOLMOD's int32 interface holds")
+        raise InputError(f"{what}: more entries than CHOLMOD's int32 interface holds")
     return np.ascontiguousarray(a, dtype=np.int32)
 
 
@@ -317,7 +317,7 @@ class Cholesky:
         Raises :class:`NotPositiveDefinite` (a pivot that is not > 0) or ``MemoryError``.
         """
         if values.dtype != np.float64 or values.shape != (self.nnz,) or not values.flags.c_contiguous:
-            raise ValueError(f"values: expected a contiguous ({self.nnz},) float64 array")
+            raise InputError(f"values: expected a contiguous ({self.nnz},) float64 array")
         if self._lib is None:
             self._impl.factorize(values)
             return

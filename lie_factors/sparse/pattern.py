@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..kernels.jit import kernel
 from ..util.arrays import sorted_unique
 from .cholmod import order_blocks
@@ -74,7 +75,7 @@ class Pattern:
         np.cumsum(pdims * T - pdims * (pdims - 1) // 2, out=colstart[1:])
         self.nnz = int(colstart[-1])
         if self.nnz > np.iinfo(np.int32).max:
-            raise ValueError(f"the linear system has {self.nnz} stored entries, more than CHOLMOD's "
+            raise InputError(f"the linear system has {self.nnz} stored entries, more than CHOLMOD's "
                              "int32 interface holds")
         self._base = colstart[bcol] + rowoff
         self._stride = T[bcol]
