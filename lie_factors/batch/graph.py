@@ -371,7 +371,7 @@ class Problem:
         """The current estimate as a gtsam.Values (all keys of the initial Values).
 
         Built in C++ as ``initial.retract(ξ)`` with ξ = Log(X₀⁻¹·X) per
-        variable (vectorized on the kernels): ~5× faster than constructing
+        variable (vectorized on the kernels): faster than constructing
         every pose from Python, and exact to rounding (checked in the tests).
         """
         if self._managed_initial is None:  # from_pose_graph: no initial Values to retract

@@ -88,8 +88,8 @@ class CholmodSolver:
 class PardisoSolver:
     """MKL PARDISO (pypardiso, optional): symmetric positive definite, analysis once, numeric per solve.
 
-    Measured against CHOLMOD inside the loop (docs/benchmarks.md); not the default
-    (MKL is a ~300 MB dependency and was not faster here).
+    Not the default: MKL is a large dependency, and it is not faster than CHOLMOD inside
+    the loop (docs/benchmarks.md).
     """
 
     name = "pardiso"

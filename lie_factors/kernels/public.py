@@ -29,7 +29,7 @@ naming the problem (the fast path's checks, :mod:`lie_factors.kernels.checks`, a
 the same tests, never accepting what they reject). Batches, lists, other dtypes and refused inputs take the general path:
 validation, then :func:`many` over the flattened batch. Both paths run the same
 cores, so a single element gives the batch path's result bit for bit.
-``np.ascontiguousarray`` copies the input (at most 16 numbers, ≈0.02 µs) so that
+``np.ascontiguousarray`` copies the input (at most 16 numbers) so that
 the cores only ever see, and are only compiled for, C-ordered arrays.
 
 :func:`one`, :func:`one_pair`, :func:`many` and :func:`many_pairs` are generic in
