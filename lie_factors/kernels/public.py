@@ -31,6 +31,7 @@ validation, then :func:`many` over the flattened batch. Both paths run the same
 cores, so a single element gives the batch path's result bit for bit.
 ``np.ascontiguousarray`` copies the input (at most 16 numbers) so that
 the cores only ever see, and are only compiled for, C-ordered arrays.
+Arguments are positional only (``se3.log(X)``, ``quaternion.compose(p, q)``).
 
 :func:`one`, :func:`one_pair`, :func:`many` and :func:`many_pairs` are generic in
 the group and the operation (their tags, :mod:`lie_factors.kernels.dispatch`), so
@@ -41,10 +42,8 @@ it was compiled from).
 
 from __future__ import annotations
 
-import builtins
 import functools
-import sys
-import types
+import inspect
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,52 +229,42 @@ def _doc(op: Operation, info: GroupInfo, names: tuple) -> str:
             f"The closed form and its sources: :mod:`{info.module}`.")
 
 
-# The public functions run the code of these two templates, each with globals of its own
-# (:func:`_function`; the capitalized names and ``fast`` are defined there, not here): the
-# group's and the operation's constants, and ``fast``, the fast path's call, bound on first
-# use. Globals, not a closure: Python 3.11 copies a closure's cells into every call's frame,
-# ≈15 ns of a ≈0.5 µs call.
-
-
-def _one_argument(x):
-    if type(x) is _ND and x.shape == ARG and x.dtype is _F64:
-        out = _empty(OUT)
-        if fast(G, OP, x, out):
-            return out
-    return _public.apply(G, OP, CHECK(x, name=NAME[0]), NDIM, OUT)
-
-
-def _two_arguments(X, Y):
-    if (type(X) is _ND and type(Y) is _ND and X.shape == ARG and Y.shape == ARG
-            and X.dtype is _F64 and Y.dtype is _F64):
-        out = _empty(OUT)
-        if fast(G, OP, X, Y, out):
-            return out
-    return _public.apply2(G, OP, CHECK(X, name=NAME[0]), CHECK(Y, name=NAME[1]), NDIM, OUT)
-
-
 def _function(info: GroupInfo, op: Operation):
+    """The public function ``op`` of group ``info``: the fast path, else the general one.
+
+    Its arguments are positional (``__signature__`` names them as the docstring does)."""
     names = _names(op, info)
     arg_shape = shape(op.args[0], info)
-    namespace = {
-        "__builtins__": builtins, "_ND": _ND, "_F64": _F64, "_empty": _empty, "_public": sys.modules[__name__],
-        "G": info, "OP": op.tag, "ARG": arg_shape, "OUT": shape(op.result, info), "NDIM": len(arg_shape),
-        "CHECK": _validator(op.args[0], info), "NAME": names,
-    }
+    G, OP, ARG, OUT, NDIM = info, op.tag, arg_shape, shape(op.result, info), len(arg_shape)
+    check = _validator(op.args[0], info)
 
-    def compile_then_call(*args):
-        namespace["fast"] = _fast(info, op)
-        return namespace["fast"](*args)
+    def compile_then_call(*args):  # the fast path's call, compiled (or loaded) on first use
+        nonlocal fast
+        fast = _fast(info, op)
+        return fast(*args)
 
-    namespace["fast"] = compile_then_call
-    template = (_one_argument if len(op.args) == 1 else _two_arguments).__code__
-    renamed = {"co_name": op.name, "co_varnames": names + template.co_varnames[len(names):]}
-    if hasattr(template, "co_qualname"):  # Python ≥ 3.11
-        renamed["co_qualname"] = op.name
-    function = types.FunctionType(template.replace(**renamed), namespace, op.name)
-    function.__qualname__ = op.name
+    fast = compile_then_call
+    if len(op.args) == 1:
+        def function(a, /):
+            if type(a) is _ND and a.shape == ARG and a.dtype is _F64:
+                out = _empty(OUT)
+                if fast(G, OP, a, out):
+                    return out
+            return apply(G, OP, check(a, name=names[0]), NDIM, OUT)
+    else:
+        def function(a, b, /):
+            if (type(a) is _ND and type(b) is _ND and a.shape == ARG and b.shape == ARG
+                    and a.dtype is _F64 and b.dtype is _F64):
+                out = _empty(OUT)
+                if fast(G, OP, a, b, out):
+                    return out
+            return apply2(G, OP, check(a, name=names[0]), check(b, name=names[1]), NDIM, OUT)
+
+    function.__name__ = function.__qualname__ = op.name
     function.__module__ = info.module
     function.__doc__ = _doc(op, info, names)
+    function.__signature__ = inspect.Signature(  # type: ignore[attr-defined]
+        [inspect.Parameter(n, inspect.Parameter.POSITIONAL_ONLY) for n in names])
     return function
 
 

@@ -16,6 +16,7 @@ across its own branch thresholds, GTSAM, errata) is in its own test file.
 from __future__ import annotations
 
 import importlib
+import inspect
 import math
 
 import mpmath as mp
@@ -134,6 +135,10 @@ def test_functions_are_named_documented_and_of_the_group(name):
         shapes = [public.shape(kind, info) for kind in op.args + (op.result,)]
         assert all(f"(..., {', '.join(map(str, s))})" in f.__doc__ for s in shapes), (op.name, f.__doc__)
         assert f"lie_factors.{name}" in f.__doc__ and "Raises InputError" in f.__doc__
+        params = inspect.signature(f).parameters.values()
+        assert [p.name for p in params] == list(public._names(op, info))
+        assert all(p.kind is inspect.Parameter.POSITIONAL_ONLY for p in params)
+        assert f.__doc__.startswith(f"{op.name}({', '.join(p.name for p in params)}): ")
 
 
 def _arguments(name, batch, seed=0):
