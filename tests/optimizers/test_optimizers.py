@@ -451,8 +451,8 @@ def test_bad_arguments():
     both_raise(lambda mod: mod.LevenbergMarquardtOptimizer(graph, initial, p).optimize())
 
 
-def test_cli_custom_backend_runs_the_drop_in(monkeypatch):
-    """`lie-factors posegraph --backend custom` optimizes with the drop-in LM (same result as GTSAM's LM)."""
+def test_cli_dropin_backend_runs_the_drop_in(monkeypatch):
+    """`lie-factors posegraph --backend dropin` optimizes with the drop-in LM (same result as GTSAM's LM)."""
     from lie_factors.app import run as posegraph
 
     made = []
@@ -464,7 +464,7 @@ def test_cli_custom_backend_runs_the_drop_in(monkeypatch):
 
     monkeypatch.setattr(optimizers, "LevenbergMarquardtOptimizer", Spy)
     graph, initial = load(True, True)
-    res = posegraph.get_backend("custom").optimize(graph, initial)
+    res = posegraph.get_backend("dropin").optimize(graph, initial)
     assert len(made) == 1
     ref = gtsam.LevenbergMarquardtOptimizer(graph, initial)
     ref.optimize()
