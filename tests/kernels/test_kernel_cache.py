@@ -134,7 +134,7 @@ def test_the_batch_and_incremental_kernels_cached_apart_run_together(tmp_path):
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     batch = textwrap.dedent("""
         import numpy as np
-        from lie_factors.batch import leave_out as lo
+        from lie_factors.robust import leave_out as lo
         i8 = lambda n: np.zeros(n, dtype=np.int64)
         f8 = lambda *s: np.zeros(s)
         lo._group_gram(i8(2), i8(1), f8(1), f8(1), i8(1), i8(0), i8(0), f8(0, 1, 1), f8(0, 1, 1), i8(1), i8(0), i8(1), f8(0))
@@ -142,7 +142,7 @@ def test_the_batch_and_incremental_kernels_cached_apart_run_together(tmp_path):
     """)
     compact = textwrap.dedent("""
         import numpy as np
-        from lie_factors.batch import leave_out as lo
+        from lie_factors.robust import leave_out as lo
         from lie_factors.incremental import elimination as el
         if {load_batch}:
             i8 = lambda n: np.zeros(n, dtype=np.int64)
