@@ -34,6 +34,15 @@ broadcasting functions run); the batch solver loops over the same two kernels.
 one call of :func:`between_many` (a loop over :func:`between`) per group, for
 a ``Values`` object an optimizer holds; the factors' callbacks, handed that
 object, return their rows (used by :mod:`lie_factors.optimizers`).
+
+Printing: a factor prints (``print()``, ``str``, ``repr``) what GTSAM's own
+factor of the same class, keys, value and noise model prints, by asking that
+factor (:meth:`as_gtsam`). A graph is printed by GTSAM's C++ code, which calls
+C++'s ``CustomFactor::print`` ("CustomFactor on 0", no value) whatever Python
+defines; so importing this module also makes ``gtsam.NonlinearFactorGraph``'s
+``print`` and ``repr`` print a graph that holds factors of this module as the
+graph with GTSAM's own in their places. A graph without any prints exactly as
+before (GTSAM's own methods run on the graph itself).
 """
 
 from __future__ import annotations
@@ -44,10 +53,12 @@ from types import ModuleType
 
 import gtsam
 import numpy as np
+from gtsam import gtsam as _native  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 from .kernels import checks as _check, dispatch as _dispatch, registry as _registry, validate as _validate
 # The codes of check_element (validate.defect words them).
 from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION  # noqa: F401
+from .errors import InputError
 from .interop import pose3_from_rows
 from .kernels.jit import kernel
 from .kernels.registry import GroupInfo
@@ -224,9 +235,9 @@ GROUPS = {info.gtsam: GroupSpec(info.gtsam, getattr(gtsam, info.gtsam), info, f"
           for info in _registry.GROUPS.values()}
 
 
-def element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: str) -> ValueError:
+def element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: str) -> InputError:
     """The error for a failed :func:`check_element` ``code`` of ``what`` (``X``) in ``factor``."""
-    return ValueError(f"{factor}: {what}: {_validate.defect(code, spec.group, np.asarray(X))}")
+    return InputError(f"{factor}: {what}: {_validate.defect(code, spec.group, np.asarray(X))}")
 
 
 def _check_type(spec: GroupSpec, value, what: str, factor: str) -> None:
@@ -244,7 +255,7 @@ def _checked_noise(spec: GroupSpec, noise_model, factor: str):
     if not isinstance(noise_model, gtsam.noiseModel.Base):
         raise TypeError(f"{factor}: noise_model must be a gtsam.noiseModel, got {type(noise_model).__name__}")
     if noise_model.dim() != spec.dim:
-        raise ValueError(
+        raise InputError(
             f"{factor}: noise model has dimension {noise_model.dim()}, "
             f"but {spec.name} has dimension {spec.dim}"
         )
@@ -299,6 +310,25 @@ class _Factor(gtsam.CustomFactor):
         self._key2 = key2
         self._Minv = Minv
         self._AdMinv = AdMinv
+
+    def as_gtsam(self):
+        """GTSAM's own factor of this class (``gtsam.BetweenFactorPose3`` ...): the same keys,
+        the measured (or prior) value and the same noise model object, so the same error."""
+        if self._key1 is None:
+            return getattr(_native, f"PriorFactor{self.spec.name}")(self._key2, self._prior, self._noise)
+        return getattr(_native, f"BetweenFactor{self.spec.name}")(self._key1, self._key2, self._measured,
+                                                                   self._noise)
+
+    def print(self, s: str = "Factor\n", keyFormatter=_native.DefaultKeyFormatter) -> None:
+        """Print as GTSAM's own factor prints (its keys, value and noise model), to standard output."""
+        self.as_gtsam().print(s, keyFormatter)
+
+    def __repr__(self, s: str = "Factor\n", keyFormatter=_native.DefaultKeyFormatter) -> str:
+        """What :meth:`print` prints (``str`` too), as GTSAM's factors' ``repr`` does."""
+        if not hasattr(self, "_measured" if isinstance(self, BetweenFactor) else "_prior"):
+            # construction failed or did not run: there is no value to print
+            return object.__repr__(self)
+        return self.as_gtsam().__repr__(s, keyFormatter)
 
     def _evaluate(self, this, values, H):
         plan = _prepared
@@ -389,6 +419,48 @@ BetweenFactorSimilarity3, PriorFactorSimilarity3 = _named("Similarity3")
 
 
 # --------------------------------------------------------------------------- #
+# Printing a graph that holds factors of this module
+# --------------------------------------------------------------------------- #
+
+def as_printed(graph):
+    """``graph`` with each factor of this module replaced by GTSAM's own (:meth:`_Factor.as_gtsam`),
+    removed (null) slots kept so that the indices are the graph's; ``graph`` itself if it holds none."""
+    factors = [graph.at(i) for i in range(graph.size())]
+    if not any(isinstance(f, _Factor) for f in factors):
+        return graph
+    out = _native.NonlinearFactorGraph()
+    for f in factors:
+        out.add(f.as_gtsam() if isinstance(f, _Factor) else f)
+    return out
+
+
+def _print_graphs_as_gtsam() -> None:
+    """Make ``gtsam.NonlinearFactorGraph``'s ``print`` and ``repr`` (so ``str``) print :func:`as_printed`
+    graphs. GTSAM's C++ prints a graph's factors through C++'s virtual ``print``, which a Python
+    subclass of ``CustomFactor`` cannot override; GTSAM's own methods still do the printing."""
+    cls = _native.NonlinearFactorGraph
+    if getattr(cls.print, "_gtsam_method", None) is not None:  # this module imported again (reload)
+        return
+    gtsam_print, gtsam_repr = cls.print, cls.__repr__
+
+    def print(self, s: str = "NonlinearFactorGraph: ", keyFormatter=_native.DefaultKeyFormatter) -> None:
+        gtsam_print(as_printed(self), s, keyFormatter)
+
+    def __repr__(self, s: str = "NonlinearFactorGraph: ", keyFormatter=_native.DefaultKeyFormatter) -> str:
+        return gtsam_repr(as_printed(self), s, keyFormatter)
+
+    for method, original in ((print, gtsam_print), (__repr__, gtsam_repr)):
+        method.__doc__ = (f"GTSAM's ``NonlinearFactorGraph.{method.__name__}`` of the graph with "
+                          f"lie_factors' factors as GTSAM's own (:func:`{__name__}.as_printed`).\n\n"
+                          + (original.__doc__ or ""))
+        setattr(method, "_gtsam_method", original)
+        setattr(cls, method.__name__, method)
+
+
+_print_graphs_as_gtsam()
+
+
+# --------------------------------------------------------------------------- #
 # Evaluating every factor of a graph at once, for one Values object
 # --------------------------------------------------------------------------- #
 
@@ -414,7 +486,7 @@ class _GroupEvaluation:
         self.i2 = np.array([index[f._key2] for f in members], dtype=np.int64)
         self.X = np.empty((len(keys) + 1, m, m))
         self.X[identity] = np.eye(m)
-        self.rows = None  # Pose3: rows of extractPose3's output for self.keys
+        self.rows: np.ndarray | None = None  # Pose3: rows of extractPose3's output for self.keys
         self.total = 0
         self.e = np.empty((count, n))
         self.H1 = np.empty((count, n, n))
@@ -471,7 +543,7 @@ class EvaluationPlan:
             if isinstance(f, (BetweenFactor, PriorFactor)):
                 members.setdefault(f.spec.name, []).append(f)
         self.groups = [_GroupEvaluation(GROUPS[name], fs) for name, fs in members.items()]
-        self.slots = {}  # factor → views (e, H1, H2) of its rows
+        self.slots: dict = {}  # factor → views (e, H1, H2) of its rows
         for res, fs in zip(self.groups, members.values()):
             self.slots.update(zip(fs, zip(res.e, res.H1, res.H2)))
         self.values = None

@@ -200,7 +200,7 @@ def _dlog(x, out):
     # J⁻¹ = I − ½ω× + e_θ ω×² from Eq. (55). The product is not formed: L is the
     # derivative of J⁻¹(ω) along u = v (verified symbolically and in the tests),
     #   L = −½ u× + e_θ (ω×u× + u×ω×) + (ωᵀu) f_θ ω×²,   f_θ = e_θ'/θ,
-    # with ω×u× + u×ω× = ωuᵀ + uωᵀ − 2(ωᵀu) I (Eq. 67). Besides being ~5× cheaper,
+    # with ω×u× + u×ω× = ωuᵀ + uωᵀ − 2(ωᵀu) I (Eq. 67). Besides being cheaper,
     # the product form amplifies the rounding of B by (e_θ θ²)² ~ (2π/(2π − θ))²
     # as θ → 2π, this form does not. ωᵀu is compensated: it multiplies f_θ ~ 1/(2π − θ)².
     w0, w1, w2 = x[0], x[1], x[2]

@@ -109,8 +109,8 @@ L_TERMS = 16
 #: closed forms in z and the spectral form (L) of the lower-left block from it on.
 SPECTRAL = 1.0
 #: θ < SPECTRAL: the lower-left blocks of D_exp and D_log from (L) too when |λ| ≥ LAM_SPECTRAL,
-#: where Q's terms cancel to ~1/|λ| of their size (a1 − b1 ~ e^λ/λ²): measured 2.4e-15 at
-#: λ = 4.99, |u| = 100 with the switch at 5, ≤ 8.7e-16 below 2.
+#: where Q's terms cancel to ~1/|λ| of their size (a1 − b1 ~ e^λ/λ²): switching at 2 rather
+#: than near 5 keeps that loss well inside the bound the tests hold |λ| ≤ 5 to (docs/conventions.md).
 LAM_SPECTRAL = 2.0
 # D_log's θ < SPECTRAL branch takes e_θ from its Taylor band without testing θ against E_TAYLOR
 assert SPECTRAL <= E_TAYLOR
@@ -122,7 +122,7 @@ _TWO_PI_LO = 2.4492935982947064e-16
 _DPHI1_SERIES = rounded(Fraction(1, math.factorial(k) * (k + 2)) for k in range(L_TERMS))
 _INV_FACT = rounded(Fraction(1, math.factorial(n + 1)) for n in range(Z_TERMS + 1))
 # the same as a frozen array: indexing a global tuple with the loop counter costs a branch
-# table per load inside the series loops (measured 41.7 → 38.7 ns per _zseries call)
+# table per load inside the series loops
 _INV_FACT_ARR = np.array(_INV_FACT)
 
 
@@ -351,8 +351,11 @@ def _Winv(w0, w1, w2, th, a1, b1, c1, r1):
 
 
 @kernel
-def _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2):
+def _L_product(w, u, th, ek, coefs, winv):
     """D_log's lower-left block L = −W⁻¹ Q J⁻¹ without a 3×3 product (docs/sim3.md §5).
+
+    ``w``, ``u``: ω and u as 3-tuples; ``coefs``: :func:`_coefs`' 9-tuple (a1, b1, c1, d1,
+    e1 used here); ``winv``: :func:`_winv_coefs`' (al0, al1, al2).
 
     J⁻¹ = I − ½Ω + e Ω² (ek = e_θ), W⁻¹ = al0 I + al1 Ω + al2 Ω². With Q = K + (W u)× J,
     K = ∂(W u)/∂ω (§4): Q J⁻¹ = K J⁻¹ + (W u)×, and since ωᵀ J⁻¹ = ωᵀ, U Ω = ω uᵀ − g I,
@@ -365,6 +368,10 @@ def _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2
     and W⁻¹ s× = al0 s× + (al1 s + al2 ω × s) ωᵀ − (ω·s)(al1 I + al2 Ω) (Ω s× = s ωᵀ − (ω·s) I),
     W⁻¹ ω = al0 ω, W⁻¹ (d0 I + d1′ Ω + d2 Ω²) by Ω³ = −θ² Ω.
     """
+    w0, w1, w2 = w
+    u0, u1, u2 = u
+    a1, b1, c1, d1, e1 = coefs[0], coefs[1], coefs[2], coefs[3], coefs[4]
+    al0, al1, al2 = winv
     g = w0 * u0 + w1 * u1 + w2 * u2
     o0, o1, o2 = _cross(w0, w1, w2, u0, u1, u2)
     q0, q1, q2 = _cross(w0, w1, w2, o0, o1, o2)
@@ -654,11 +661,12 @@ def _dlog(x, out):
         # θ < SPECTRAL < E_TAYLOR: e_θ is its Taylor band; the θ computed above (no second norm)
         ek = horner4(E_SERIES, th * th)
         Ji = rod9(w0, w1, w2, -0.5, ek)
-        a1, b1, c1, d1, e1, r1, a2, b2, c2 = _coefs(lam, th)
-        al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
-        Wi = lin9(w0, w1, w2, al0, al1, al2)
+        coefs = _coefs(lam, th)
+        a1, b1, c1, d1, e1, r1, a2, b2, c2 = coefs
+        winv = _winv_coefs(th, a1, b1, c1, r1)
+        Wi = lin9(w0, w1, w2, winv[0], winv[1], winv[2])
         if abs(lam) < LAM_SPECTRAL:
-            L = _L_product(w0, w1, w2, u0, u1, u2, th, a1, b1, c1, d1, e1, ek, al0, al1, al2)
+            L = _L_product((w0, w1, w2), (u0, u1, u2), th, ek, coefs, winv)
         else:
             AB, CD, GH = _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2)
             # g[a, b] = −g(a) g(b) φ1[a, b]

@@ -1,7 +1,7 @@
 """Batch Levenberg–Marquardt / Gauss–Newton: the whole graph as arrays, normal equations, sparse Cholesky.
 
 Why: GTSAM's Python ``CustomFactor`` converts the whole ``Values`` on every
-callback from inside a C++ optimizer (~30× slower than native GTSAM), and
+callback from inside a C++ optimizer (many times slower than native GTSAM), and
 GTSAM's elimination redoes its symbolic work every iteration.  Here
 
 * :mod:`~lie_factors.batch.graph` reads the graph into arrays (lie_factors

@@ -8,7 +8,9 @@ and Jacobians) and their ``*_error`` halves, so no formula is repeated here.
 
 Arrays: ``X`` (N, m, m) elements of one group; ``i1``, ``i2`` (F,) indices into
 ``X``; ``Minv``/``Pinv`` (F, m, m); ``R`` (U, n, n) whitening matrices and ``ridx``
-(F,) the one of each factor; outputs ``A1``, ``A2`` (F, n, n), ``b`` (F, n) and ``sq`` (F,), the
+(F,) the one of each factor (a group's factors are handed to the linearizations as one
+:class:`Between` or :class:`Prior` of these arrays); outputs ``A1``, ``A2`` (F, n, n),
+``b`` (F, n) and ``sq`` (F,), the
 squared whitened residual norm ‖R·e‖² of every factor (the per-factor array a
 robust reweighting needs; the Gaussian error is ½·Σ sq).
 
@@ -20,6 +22,7 @@ only its own outputs, so there are no races.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -34,6 +37,26 @@ CHUNK = 256
 
 #: ``i1`` of a group of priors: no first variable.
 _NO_INDEX = np.zeros(0, dtype=np.int64)
+
+
+class Between(NamedTuple):
+    """A group's between factors, as the linearization kernels take them: factor f joins
+    ``X[i1[f]]`` to ``X[i2[f]]``, measured M with ``Minv[f]`` = M⁻¹, whitened by ``R[ridx[f]]``."""
+
+    i1: np.ndarray
+    i2: np.ndarray
+    Minv: np.ndarray
+    R: np.ndarray
+    ridx: np.ndarray
+
+
+class Prior(NamedTuple):
+    """A group's priors: factor f on ``X[i1[f]]``, ``Pinv[f]`` = P⁻¹, whitened by ``R[ridx[f]]``."""
+
+    i1: np.ndarray
+    Pinv: np.ndarray
+    R: np.ndarray
+    ridx: np.ndarray
 
 
 @kernel
@@ -62,49 +85,50 @@ def _whiten_jacobian(Rf, H, out):
 
 
 @kernel
-def _between_lin_range(g, X, i1, i2, Minv, R, ridx, A1, A2, b, sq, f0, f1):
-    """:func:`_between_lin` on the factors f0 … f1 − 1."""
-    n = R.shape[1]
+def _between_lin_range(g, X, fs, A1, A2, b, sq, f0, f1):
+    """:func:`_between_lin` on the factors f0 … f1 − 1 of ``fs`` (a :class:`Between`)."""
+    n = fs.R.shape[1]
     e = np.empty(n)
     H1 = np.empty((n, n))
     H2 = np.empty((n, n))
     Ad = np.empty((n, n))
     for f in range(f0, f1):
-        _dispatch.Ad(g, Minv[f], Ad)
-        _factors.between(g, Minv[f], Ad, X[i1[f]], X[i2[f]], e, H1, H2)
-        Rf = R[ridx[f]]
+        _dispatch.Ad(g, fs.Minv[f], Ad)
+        _factors.between(g, fs.Minv[f], Ad, X[fs.i1[f]], X[fs.i2[f]], e, H1, H2)
+        Rf = fs.R[fs.ridx[f]]
         sq[f] = _whiten_residual(Rf, e, b[f])
         _whiten_jacobian(Rf, H1, A1[f])
         _whiten_jacobian(Rf, H2, A2[f])
 
 
 @parallel_kernel
-def _between_lin(g, X, i1, i2, Minv, R, ridx, A1, A2, b, sq):
-    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e and sq = ‖R e‖² for every between factor
-    (R = R[ridx[f]]; Ad(M⁻¹) from M⁻¹ by the factors' own construction core)."""
-    F = i1.shape[0]
+def _between_lin(g, X, fs, A1, A2, b, sq):
+    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e and sq = ‖R e‖² for every between factor of
+    ``fs`` (a :class:`Between`; R = R[ridx[f]]; Ad(M⁻¹) from M⁻¹ by the factors' own
+    construction core)."""
+    F = fs.i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
-        _between_lin_range(g, X, i1, i2, Minv, R, ridx, A1, A2, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
+        _between_lin_range(g, X, fs, A1, A2, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
 
 
 @kernel
-def _prior_lin_range(g, X, i1, Pinv, R, ridx, A1, b, sq, f0, f1):
-    """:func:`_prior_lin` on the factors f0 … f1 − 1."""
-    n = R.shape[1]
+def _prior_lin_range(g, X, fs, A1, b, sq, f0, f1):
+    """:func:`_prior_lin` on the factors f0 … f1 − 1 of ``fs`` (a :class:`Prior`)."""
+    n = fs.R.shape[1]
     e = np.empty(n)
     H = np.empty((n, n))
     for f in range(f0, f1):
-        _factors.prior(g, Pinv[f], X[i1[f]], e, H)
-        Rf = R[ridx[f]]
+        _factors.prior(g, fs.Pinv[f], X[fs.i1[f]], e, H)
+        Rf = fs.R[fs.ridx[f]]
         sq[f] = _whiten_residual(Rf, e, b[f])
         _whiten_jacobian(Rf, H, A1[f])
 
 
 @parallel_kernel
-def _prior_lin(g, X, i1, Pinv, R, ridx, A1, b, sq):
-    F = i1.shape[0]
+def _prior_lin(g, X, fs, A1, b, sq):
+    F = fs.i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
-        _prior_lin_range(g, X, i1, Pinv, R, ridx, A1, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
+        _prior_lin_range(g, X, fs, A1, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
 
 
 @parallel_kernel
@@ -176,20 +200,36 @@ def _setup(g, M, Minv, codes):
 
 class GroupLoops:
     """The loops above bound to one group (``spec.group``, a :mod:`lie_factors.kernels.dispatch` tag):
-    ``between_lin(*a)`` is ``_between_lin(g, *a)``, and so on; ``between_err`` and ``prior_err``
-    are :func:`_errors`.  ``serial=True``: the linearizations and the retraction run on the
-    calling thread, one compiled call with no fork and join (for the few factors of an
-    incremental update, where starting numba's threads costs more than the work)."""
+    ``between_lin(X, i1, i2, Minv, R, ridx, A1, A2, b, sq)`` is :func:`_between_lin` on
+    ``Between(i1, i2, Minv, R, ridx)``, ``prior_lin(X, i1, Pinv, R, ridx, A1, b, sq)``
+    :func:`_prior_lin` on ``Prior(i1, Pinv, R, ridx)``, ``retract(*a)`` ``_retract(g, *a)``,
+    and so on; ``between_err`` and ``prior_err`` are :func:`_errors`.  ``serial=True``: the
+    linearizations and the retraction run on the calling thread, one compiled call with no
+    fork and join (for the few factors of an incremental update, where starting numba's
+    threads costs more than the work)."""
 
     def __init__(self, spec, serial: bool = False):
         self.g = spec.group
-        for name in ("between_lin", "prior_lin", "retract", "relative_log"):
+        self._serial = serial
+        for name in ("retract", "relative_log"):
             setattr(self, name, functools.partial(globals()[f"_{name}"], self.g))
         if serial:
             g = self.g
-            self.between_lin = lambda X, i1, *a: _between_lin_range(g, X, i1, *a, 0, i1.shape[0])
-            self.prior_lin = lambda X, i1, *a: _prior_lin_range(g, X, i1, *a, 0, i1.shape[0])
             self.retract = lambda X, *a: _retract_range(g, X, *a, 0, X.shape[0])
+
+    def between_lin(self, X, i1, i2, Minv, R, ridx, A1, A2, b, sq):
+        fs = Between(i1, i2, Minv, R, ridx)
+        if self._serial:
+            _between_lin_range(self.g, X, fs, A1, A2, b, sq, 0, i1.shape[0])
+        else:
+            _between_lin(self.g, X, fs, A1, A2, b, sq)
+
+    def prior_lin(self, X, i1, Pinv, R, ridx, A1, b, sq):
+        fs = Prior(i1, Pinv, R, ridx)
+        if self._serial:
+            _prior_lin_range(self.g, X, fs, A1, b, sq, 0, i1.shape[0])
+        else:
+            _prior_lin(self.g, X, fs, A1, b, sq)
 
     def between_err(self, X, i1, i2, Minv, R, ridx, sq):
         _errors(self.g, X, i1, i2, Minv, R, ridx, sq)

@@ -37,7 +37,7 @@ def resolve(name: str) -> str:
     """``"auto"`` → ``"cholmod"`` if cvxopt imports, else ``"gtsam"`` (with one warning per process)."""
     global _fallback_warned
     if name not in LINEAR_SOLVERS:
-        raise ValueError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, got {name!r}")
+        raise InputError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, got {name!r}")
     if name == "cholmod" and not cholmod_available():
         raise InputError("linear_solver='cholmod' needs cvxopt (pip install cvxopt)")
     if name == "pardiso":
@@ -88,8 +88,8 @@ class CholmodSolver:
 class PardisoSolver:
     """MKL PARDISO (pypardiso, optional): symmetric positive definite, analysis once, numeric per solve.
 
-    Measured against CHOLMOD inside the loop (docs/benchmarks.md); not the default
-    (MKL is a ~300 MB dependency and was not faster here).
+    Not the default: MKL is a large dependency, and it is not faster than CHOLMOD inside
+    the loop (docs/benchmarks.md).
     """
 
     name = "pardiso"

@@ -18,7 +18,8 @@ import time
 
 import numpy as np
 
-from ..sparse.pattern import Pattern, add_binary, add_information, add_unary, quadratic_change, set_diagonal
+from ..sparse.pattern import (NativeBlocks, Pattern, add_binary, add_information, add_unary, quadratic_change,
+                              set_diagonal)
 
 #: Factors per batch of :meth:`LinearSystem.linearize_assemble`: its buffer (8192 SE(3) factors:
 #: 5 MB) stays in cache between the linearization and the assembly that reads it.
@@ -48,11 +49,9 @@ class LinearSystem:
         self.weights = np.ones(P.graph_size)
         self._diagonal = None  # diag(H) of the last assembly, in δ's order
         self._damped = False
-        for g in P.groups:
-            g.base11, g.stride11, _ = pat.lookup(g.v1, g.v1)
-            if g.kind == "between":
-                g.base22, g.stride22, _ = pat.lookup(g.v2, g.v2)
-                g.base12, g.stride12, g.one_is_row = pat.lookup(g.v1, g.v2)
+        #: each factor group's scatter map (pattern.scatter)
+        self._scatter = {g: pat.scatter(g.v1, g.v2 if g.kind == "between" else None) for g in P.groups}
+        self._native = None
         nat = P.native_arrays
         if nat is not None:
             kv = nat.key_var
@@ -65,9 +64,10 @@ class LinearSystem:
             pa = np.concatenate(pa)
             pb = np.concatenate(pb)
             base, stride, a_is_row = pat.lookup(pa, pb)
-            nat.pair_base = np.where(a_is_row.astype(bool), base, -1)
-            nat.pair_stride = stride
-            nat.key_offset = pat.offsets[kv]
+            # nat.info is the array the native linearization writes into, in place
+            self._native = NativeBlocks(nat.info, nat.info_start, nat.size, nat.key_start, nat.key_local,
+                                        nat.key_dim, pat.offsets[kv], nat.pair_start,
+                                        np.where(a_is_row.astype(bool), base, -1), stride)
 
     def assemble(self) -> None:
         """H and g of the current linearization (``problem.linearize`` must have run)."""
@@ -113,19 +113,19 @@ class LinearSystem:
         """Add factors ``start:stop`` of group ``g`` (their blocks ``A1``, ``A2``, ``b``) to H and g."""
         s = slice(start, stop)
         w = self.weights[g.fidx[s]]
+        at = self._scatter[g]
+        if start or stop < g.E:
+            at = at.part(s)
         if g.kind == "between":
-            add_binary(A1, A2, b, w, g.o1[s], g.o2[s], g.base11[s], g.stride11[s], g.base22[s],
-                       g.stride22[s], g.base12[s], g.stride12[s], g.one_is_row[s], self.data, self.rhs)
+            add_binary(A1, A2, b, w, at, self.data, self.rhs)
         else:
-            add_unary(A1, b, w, g.o1[s], g.base11[s], g.stride11[s], self.data, self.rhs)
+            add_unary(A1, b, w, at, self.data, self.rhs)
 
     def _add_native(self) -> None:
         """Add the natively linearized factors, and keep H's undamped diagonal."""
         nat = self.problem.native_arrays
         if nat is not None:
-            add_information(nat.info, nat.info_start, nat.size, nat.key_start, nat.key_local,
-                            nat.key_dim, nat.key_offset, nat.pair_start, nat.pair_base,
-                            nat.pair_stride, self.weights[nat.fidx], self.data, self.rhs)
+            add_information(self._native, self.weights[nat.fidx], self.data, self.rhs)
         self._diagonal = self.data[self.pattern.diagpos]
         self._damped = False
 

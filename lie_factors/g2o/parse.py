@@ -416,9 +416,9 @@ def _line_from(data: bytes, start: int) -> bytes:
     return data[start:end if end >= 0 else len(data)]
 
 
-#: From this size on the numba scan parses a file even when numba is not loaded yet:
-#: importing numba and loading the scan's cached code (≈ 0.3 s) costs what the numpy
-#: parse spends on about 8 MB; the scan itself reads ten times faster (docs/benchmarks.md).
+#: From this size on the numba scan parses a file even when numba is not loaded yet: the
+#: size at which importing numba and loading the scan's cached code costs what the numpy
+#: parse spends (the scan itself reads several times faster; docs/benchmarks.md).
 SCAN_MIN_BYTES = 8 << 20
 
 

@@ -137,10 +137,10 @@ def read_arrays(summary: G2oSummary) -> PoseGraph:
     The same numbers as ``gtsam.readG2o`` (quaternions normalized, SE(3)
     information permuted to [ω, v]; Sim(3) records as :func:`read_with_gtsam`),
     computed per record type on the arrays :func:`~lie_factors.g2o.check.check_g2o` parsed.
-    Raises ``ValueError`` for files :func:`arrays_supported` refuses.
+    Raises :class:`~lie_factors.errors.InputError` for files :func:`arrays_supported` refuses.
     """
     if not arrays_supported(summary):
-        raise ValueError(f"{summary.path}: landmark records or poses without a vertex line: "
+        raise InputError(f"{summary.path}: landmark records or poses without a vertex line: "
                          "use read_with_gtsam")
     keys = summary.pose_id_array
     edges = summary.of_kind("between")

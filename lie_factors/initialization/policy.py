@@ -100,7 +100,7 @@ def initialize(graph, method: str = "auto", initial=None, inliers=None,
     if method not in METHODS:
         raise InitializationError(f"unknown initialization {method!r} (choose from {', '.join(METHODS)})")
     if engine not in ENGINES:
-        raise ValueError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+        raise InputError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     t0 = time.perf_counter()
     if isinstance(graph, PoseGraph):
         pg = graph

@@ -31,13 +31,9 @@ def solve_edges(count: int, ii: np.ndarray, jj: np.ndarray, A1: np.ndarray, A2: 
     d = A1.shape[2]
     E = len(ii)
     pattern = Pattern(np.full(count, d), np.stack([ii, jj], axis=1))
-    b11, s11, _ = pattern.lookup(ii, ii)
-    b22, s22, _ = pattern.lookup(jj, jj)
-    b12, s12, first_is_row = pattern.lookup(ii, jj)
     data, g = np.zeros(pattern.nnz), np.zeros(pattern.n)
     add_binary(np.ascontiguousarray(A1, dtype=np.float64), np.ascontiguousarray(A2, dtype=np.float64),
-               np.zeros((E, A1.shape[1])), np.ones(E), d * ii, d * jj, b11, s11, b22, s22, b12, s12,
-               first_is_row, data, g)
+               np.zeros((E, A1.shape[1])), np.ones(E), pattern.scatter(ii, jj), data, g)
     data[pattern.diagpos] += diagonal
     try:
         factor = cholmod.Cholesky(pattern.colptr, pattern.rowind)

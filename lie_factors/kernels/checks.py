@@ -8,7 +8,7 @@ functions' fast path (one float64 array of the element's exact shape, validated
 and computed in one numba call) checks with :func:`finite`, :func:`element_ok`
 and :func:`unit_ok`. They only *accept or
 refuse*: a refused input goes on to the general path, which raises the
-``ValueError`` that names the problem. So these must never accept what it
+:class:`~lie_factors.errors.InputError` that names the problem. So these must never accept what it
 rejects: they are the same tests, with bounds 1e-15 stricter (and the unit
 quaternion test, which the general path runs in numpy, in another summation
 order: the margin covers that).

@@ -36,7 +36,7 @@ Adding a group is its facts in :mod:`lie_factors.kernels.registry` and a module
 ``lie_factors.<name>`` with the cores ``_inverse, _compose, _log, _exp, _dlog,
 _Ad`` (and ``_hat, _vee, _ad, _dexp`` for the public functions).
 
-The tag costs ≈1 µs per call from Python over an integer (numba reads its
+A tag costs more than an integer in a call from Python (numba reads its
 ``_numba_type_`` attribute instead of a fast-path type check); numba-to-numba
 calls cost nothing extra, the dispatch having happened at compile time.
 """
@@ -131,8 +131,8 @@ def _group(g) -> GroupInfo:
 # The functions below are numba intrinsics: typing one looks up the group's
 # core (or constant) and the call compiles to a direct call of that core, as if
 # the kernel had named ``se3._inverse`` itself. (An ``overload`` would do the
-# same through a small wrapper function compiled once per group and core, which
-# costs ≈0.1 s apiece on a first run.) They are callable from numba only;
+# same through a small wrapper function compiled once per group and core, each one
+# more compilation on a first run.) They are callable from numba only;
 # Python code calls ``lie_factors.se3._inverse`` ... directly.
 
 

@@ -89,8 +89,8 @@ def entry_point(wrapper, argtypes: tuple):
     what ``Dispatcher.compile`` returns, the function the dispatcher itself ends up
     calling.
 
-    Why: calling the entry point skips the dispatcher's argument typing, ≈0.1 µs
-    of a ≈0.3 µs call on two arrays, and one signature with arrays of any memory
+    Why: calling the entry point skips the dispatcher's argument typing, a good part
+    of a call on two small arrays, and one signature with arrays of any memory
     order (:data:`ANY`) serves every layout. The price is that nothing checks the
     arguments: callers pass exactly these types (the public functions check
     ``type``, ``shape`` and ``dtype`` first, and pass ``out`` they allocated with

@@ -24,13 +24,14 @@ is Fortran-ordered) is checked and computed in ONE numba call, the entry point
 (:func:`lie_factors.kernels.jit.entry_point`) of :func:`one` or :func:`one_pair`
 specialized for the group and the operation. That kernel returns False when the
 input must take the general path, whose checks (:mod:`lie_factors.kernels.validate`,
-:func:`elements`) raise the ValueError naming the problem (the fast path's checks,
-:mod:`lie_factors.kernels.checks`, are the same tests, never accepting what they
-reject). Batches, lists, other dtypes and refused inputs take the general path:
+:func:`elements`) raise the :class:`~lie_factors.errors.InputError` (a ``ValueError``)
+naming the problem (the fast path's checks, :mod:`lie_factors.kernels.checks`, are
+the same tests, never accepting what they reject). Batches, lists, other dtypes and refused inputs take the general path:
 validation, then :func:`many` over the flattened batch. Both paths run the same
 cores, so a single element gives the batch path's result bit for bit.
-``np.ascontiguousarray`` copies the input (at most 16 numbers, ≈0.02 µs) so that
+``np.ascontiguousarray`` copies the input (at most 16 numbers) so that
 the cores only ever see, and are only compiled for, C-ordered arrays.
+Arguments are positional only (``se3.log(X)``, ``quaternion.compose(p, q)``).
 
 :func:`one`, :func:`one_pair`, :func:`many` and :func:`many_pairs` are generic in
 the group and the operation (their tags, :mod:`lie_factors.kernels.dispatch`), so
@@ -41,14 +42,13 @@ it was compiled from).
 
 from __future__ import annotations
 
-import builtins
 import functools
-import sys
-import types
+import inspect
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import InputError
 from . import checks as _check, dispatch as _dispatch, jit as _jit, validate as _validate
 from .jit import kernel
 from .registry import UNIT, GroupInfo
@@ -185,20 +185,20 @@ def _names(op: Operation, info: GroupInfo) -> tuple:
 
 def elements(X, info: GroupInfo, name: str = "X") -> np.ndarray:
     """The general path's check of group elements: ``X`` as float64 elements of ``info`` (shape
-    ``(...,) + info.element``), or ValueError naming the first defect, in the order of
-    :func:`lie_factors.kernels.checks.element_code`, that some element has."""
+    ``(...,) + info.element``), or :class:`~lie_factors.errors.InputError` naming the first
+    defect, in the order of :func:`lie_factors.kernels.checks.element_code`, that some element has."""
     if info.corner == UNIT:
         return _validate.unit(X, info, name)
     arr = _validate.square(X, info.mat, name)
     flat = np.ascontiguousarray(arr.reshape((-1, info.mat, info.mat)))
     code = _check.worst_code(flat, info.rot_dim, info.corner) if flat.shape[0] else _check.OK
     if code != _check.OK:
-        raise ValueError(f"{name}: {_validate.defect(code, info, arr)}")
+        raise InputError(f"{name}: {_validate.defect(code, info, arr)}")
     return arr
 
 
 def _validator(kind: str, info: GroupInfo):
-    """The general path's check of one argument: ``check(a, name)`` → float64 array or ValueError."""
+    """The general path's check of one argument: ``check(a, name)`` → float64 array or InputError."""
     if kind == TANGENT:
         return functools.partial(_validate.tangent, n=info.dim)
     if kind == ALGEBRA:
@@ -225,56 +225,46 @@ def _doc(op: Operation, info: GroupInfo, names: tuple) -> str:
     else:
         raises = f"{names[0]} has shape {text(kind)} and finite entries"
     return (f"{op.name}({', '.join(names)}): {' × '.join(text(k) for k in op.args)} → {text(op.result)}, "
-            f"{op.doc.format(*names)}\n\nRaises ValueError unless {raises}. "
+            f"{op.doc.format(*names)}\n\nRaises InputError (a ValueError) unless {raises}. "
             f"The closed form and its sources: :mod:`{info.module}`.")
 
 
-# The public functions run the code of these two templates, each with globals of its own
-# (:func:`_function`; the capitalized names and ``fast`` are defined there, not here): the
-# group's and the operation's constants, and ``fast``, the fast path's call, bound on first
-# use. Globals, not a closure: Python 3.11 copies a closure's cells into every call's frame,
-# ≈15 ns of a ≈0.5 µs call.
-
-
-def _one_argument(x):
-    if type(x) is _ND and x.shape == ARG and x.dtype is _F64:
-        out = _empty(OUT)
-        if fast(G, OP, x, out):
-            return out
-    return _public.apply(G, OP, CHECK(x, name=NAME[0]), NDIM, OUT)
-
-
-def _two_arguments(X, Y):
-    if (type(X) is _ND and type(Y) is _ND and X.shape == ARG and Y.shape == ARG
-            and X.dtype is _F64 and Y.dtype is _F64):
-        out = _empty(OUT)
-        if fast(G, OP, X, Y, out):
-            return out
-    return _public.apply2(G, OP, CHECK(X, name=NAME[0]), CHECK(Y, name=NAME[1]), NDIM, OUT)
-
-
 def _function(info: GroupInfo, op: Operation):
+    """The public function ``op`` of group ``info``: the fast path, else the general one.
+
+    Its arguments are positional (``__signature__`` names them as the docstring does)."""
     names = _names(op, info)
     arg_shape = shape(op.args[0], info)
-    namespace = {
-        "__builtins__": builtins, "_ND": _ND, "_F64": _F64, "_empty": _empty, "_public": sys.modules[__name__],
-        "G": info, "OP": op.tag, "ARG": arg_shape, "OUT": shape(op.result, info), "NDIM": len(arg_shape),
-        "CHECK": _validator(op.args[0], info), "NAME": names,
-    }
+    G, OP, ARG, OUT, NDIM = info, op.tag, arg_shape, shape(op.result, info), len(arg_shape)
+    check = _validator(op.args[0], info)
 
-    def compile_then_call(*args):
-        namespace["fast"] = _fast(info, op)
-        return namespace["fast"](*args)
+    def compile_then_call(*args):  # the fast path's call, compiled (or loaded) on first use
+        nonlocal fast
+        fast = _fast(info, op)
+        return fast(*args)
 
-    namespace["fast"] = compile_then_call
-    template = (_one_argument if len(op.args) == 1 else _two_arguments).__code__
-    renamed = {"co_name": op.name, "co_varnames": names + template.co_varnames[len(names):]}
-    if hasattr(template, "co_qualname"):  # Python ≥ 3.11
-        renamed["co_qualname"] = op.name
-    function = types.FunctionType(template.replace(**renamed), namespace, op.name)
-    function.__qualname__ = op.name
+    fast = compile_then_call
+    if len(op.args) == 1:
+        def function(a, /):
+            if type(a) is _ND and a.shape == ARG and a.dtype is _F64:
+                out = _empty(OUT)
+                if fast(G, OP, a, out):
+                    return out
+            return apply(G, OP, check(a, name=names[0]), NDIM, OUT)
+    else:
+        def function(a, b, /):
+            if (type(a) is _ND and type(b) is _ND and a.shape == ARG and b.shape == ARG
+                    and a.dtype is _F64 and b.dtype is _F64):
+                out = _empty(OUT)
+                if fast(G, OP, a, b, out):
+                    return out
+            return apply2(G, OP, check(a, name=names[0]), check(b, name=names[1]), NDIM, OUT)
+
+    function.__name__ = function.__qualname__ = op.name
     function.__module__ = info.module
     function.__doc__ = _doc(op, info, names)
+    function.__signature__ = inspect.Signature(  # type: ignore[attr-defined]
+        [inspect.Parameter(n, inspect.Parameter.POSITIONAL_ONLY) for n in names])
     return function
 
 

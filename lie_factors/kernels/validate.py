@@ -5,8 +5,8 @@ with :func:`tangent` (a tangent vector), :func:`square` (a Lie-algebra matrix,
 for ``vee``) or, for a group element, :func:`square` followed by the numba test
 :func:`lie_factors.kernels.checks.element_code` worded by :func:`defect` (unit
 quaternions: :func:`unit`), so wrong shapes, non-finite values and non-members
-raise ``ValueError`` naming the expected shape or the defect instead of
-returning garbage. The factors word their messages with :func:`defect` too.
+raise :class:`~lie_factors.errors.InputError` (a ``ValueError``) naming the
+expected shape or the defect instead of returning garbage. The factors word their messages with :func:`defect` too.
 
 This module imports no numba: :func:`rotation_block` and :func:`bottom_row` are
 the element test in numpy, with the same wording, for the numba-free callers
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from .registry import NO_CORNER, ONE, POSITIVE, UNIT, GroupInfo
 
 #: Largest accepted max|RᵀR − I| for a rotation block.
@@ -34,20 +35,20 @@ def _as_float(a, name: str) -> np.ndarray:
     try:
         arr = np.asarray(a, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: cannot convert {type(a).__name__} to a float64 array") from exc
+        raise InputError(f"{name}: cannot convert {type(a).__name__} to a float64 array") from exc
     return arr
 
 
 def _check_finite(arr: np.ndarray, name: str) -> None:
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: {defect(NOT_FINITE)}")
+        raise InputError(f"{name}: {defect(NOT_FINITE)}")
 
 
 def tangent(x, n: int, name: str = "x") -> np.ndarray:
     """Return ``x`` as a finite float64 array of shape ``(..., n)``."""
     arr = _as_float(x, name)
     if arr.ndim < 1 or arr.shape[-1] != n:
-        raise ValueError(f"{name}: expected shape (..., {n}), got {arr.shape}")
+        raise InputError(f"{name}: expected shape (..., {n}), got {arr.shape}")
     _check_finite(arr, name)
     return arr
 
@@ -56,7 +57,7 @@ def square(X, m: int, name: str = "X") -> np.ndarray:
     """Return ``X`` as a finite float64 array of shape ``(..., m, m)``."""
     arr = _as_float(X, name)
     if arr.ndim < 2 or arr.shape[-2:] != (m, m):
-        raise ValueError(f"{name}: expected shape (..., {m}, {m}), got {arr.shape}")
+        raise InputError(f"{name}: expected shape (..., {m}, {m}), got {arr.shape}")
     _check_finite(arr, name)
     return arr
 
@@ -99,22 +100,23 @@ def defect(code: int, info: GroupInfo | None = None, X: np.ndarray | None = None
 
 
 def rotation_block(R: np.ndarray, name: str, d: int) -> None:
-    """Raise ``ValueError`` unless every ``R[..., :d, :d]`` of the finite ``R`` is a rotation."""
+    """Raise :class:`~lie_factors.errors.InputError` unless every ``R[..., :d, :d]`` of the finite ``R``
+    is a rotation."""
     if _orthonormality(R, d) > ORTHONORMAL_TOL:
-        raise ValueError(f"{name}: {_not_orthonormal(R, d)}")
+        raise InputError(f"{name}: {_not_orthonormal(R, d)}")
     B = R[..., :d, :d]
     if B.size and np.any(np.linalg.det(B) < 0):
-        raise ValueError(f"{name}: {_REFLECTION}")
+        raise InputError(f"{name}: {_REFLECTION}")
 
 
 def bottom_row(X: np.ndarray, name: str, expected: str, last_positive: bool = False) -> None:
     """Check the last row of homogeneous matrices: zeros, then 1 (or any s > 0); ``expected``
     is how the message writes the row (:func:`last_row`)."""
     if X[..., -1, :-1].size and np.any(X[..., -1, :-1] != 0.0):
-        raise ValueError(f"{name}: {_bad_last_row(expected, False)}")
+        raise InputError(f"{name}: {_bad_last_row(expected, False)}")
     corner = X[..., -1, -1]
     if np.any(corner <= 0.0) if last_positive else np.any(corner != 1.0):
-        raise ValueError(f"{name}: {_bad_last_row(expected, last_positive)}")
+        raise InputError(f"{name}: {_bad_last_row(expected, last_positive)}")
 
 
 def unit(q, info: GroupInfo, name: str = "q") -> np.ndarray:
@@ -127,7 +129,7 @@ def unit(q, info: GroupInfo, name: str = "q") -> np.ndarray:
     dev = float(np.max(np.abs(np.linalg.norm(q[..., :4], axis=-1) - 1.0)))
     if n == 4:
         if dev > UNIT_TOL:
-            raise ValueError(f"{name}: expected {info.label} of shape (..., 4) (max | |q| - 1 | = {dev:.3g})")
+            raise InputError(f"{name}: expected {info.label} of shape (..., 4) (max | |q| - 1 | = {dev:.3g})")
         return q
     qr, qd = q[..., :4], q[..., 4:]
     # |q_r·q_d| / max(1, ‖q_d‖), computed on u = q_d / max(1, max|q_d|): the same ratio,
@@ -135,7 +137,7 @@ def unit(q, info: GroupInfo, name: str = "q") -> np.ndarray:
     u = qd / np.maximum(1.0, np.max(np.abs(qd), axis=-1, keepdims=True))
     orth = float(np.max(np.abs(np.sum(qr * u, axis=-1)) / np.maximum(1.0, np.linalg.norm(u, axis=-1))))
     if max(dev, orth) > UNIT_TOL:
-        raise ValueError(f"{name}: expected {info.label} of shape (..., 8) "
+        raise InputError(f"{name}: expected {info.label} of shape (..., 8) "
                          f"(| |q_r| - 1 | = {dev:.3g}, |q_r . q_d| = {orth:.3g})")
     return q
 

@@ -42,6 +42,7 @@ from types import SimpleNamespace
 
 from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
+from ..errors import InputError
 from ..kernels.registry import BY_GTSAM
 
 _OURS = "lie_factors.factors"
@@ -74,14 +75,9 @@ def to_gtsam(factor):
     Same keys, same measured (or prior) value, and the same noise model object
     (a robust model stays robust), so GTSAM's factor has the same error.
     """
-    if not _ours_exist():
+    if not _ours_exist() or type(factor) not in _table("to"):
         return factor
-    cls = _table("to").get(type(factor))
-    if cls is None:
-        return factor
-    if len(factor.keys()) == 2:
-        return cls(factor._key1, factor._key2, factor.measured(), factor._noise)
-    return cls(factor._key, factor.prior(), factor._noise)
+    return factor.as_gtsam()
 
 
 def from_gtsam(factor):
@@ -139,11 +135,11 @@ def from_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactor
 # g2o files
 # --------------------------------------------------------------------------- #
 
-class G2oWriteError(ValueError):
+class G2oWriteError(InputError):
     """:func:`writeG2o` cannot write a factor or a value, or a robust noise model.
 
-    A ValueError, the class GTSAM's own writer raises for a noise model it
-    cannot write.
+    An :class:`~lie_factors.errors.InputError`, so a ``ValueError``: the class GTSAM's own
+    writer raises for a noise model it cannot write.
     """
 
 

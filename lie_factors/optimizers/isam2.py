@@ -96,7 +96,7 @@ def _wrap(cls, base, names):
 
 def _estimate_methods(base) -> list[str]:
     # calculateEstimate reads the delta, which ISAM2 may refresh first (with
-    # Dogleg params that refresh evaluates factors); holding θ costs ~0.2 µs.
+    # Dogleg params that refresh evaluates factors); holding θ costs little.
     return [n for n in dir(base) if n.startswith("calculate") and callable(getattr(base, n))]
 
 

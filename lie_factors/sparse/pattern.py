@@ -19,8 +19,11 @@ chordal initializer's (:mod:`lie_factors.initialization.sparse`) are stored so.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
+from ..errors import InputError
 from ..kernels.jit import kernel
 from ..util.arrays import sorted_unique
 from .cholmod import order_blocks
@@ -74,7 +77,7 @@ class Pattern:
         np.cumsum(pdims * T - pdims * (pdims - 1) // 2, out=colstart[1:])
         self.nnz = int(colstart[-1])
         if self.nnz > np.iinfo(np.int32).max:
-            raise ValueError(f"the linear system has {self.nnz} stored entries, more than CHOLMOD's "
+            raise InputError(f"the linear system has {self.nnz} stored entries, more than CHOLMOD's "
                              "int32 interface holds")
         self._base = colstart[bcol] + rowoff
         self._stride = T[bcol]
@@ -90,6 +93,19 @@ class Pattern:
         """The column of every stored entry (nnz,): with ``rowind``, the pattern as triplets."""
         return np.repeat(np.arange(self.n, dtype=np.int64), np.diff(self.colptr))
 
+    def scatter(self, v1: np.ndarray, v2: np.ndarray | None = None):
+        """Where the blocks of factors on the variables ``v1`` (and ``v2``) go: the
+        :class:`UnaryScatter` of one-variable factors, the :class:`BinaryScatter` of two-variable ones."""
+        v1 = np.asarray(v1, dtype=np.int64)
+        base11, stride11, _ = self.lookup(v1, v1)
+        if v2 is None:
+            return UnaryScatter(self.offsets[v1], base11, stride11)
+        v2 = np.asarray(v2, dtype=np.int64)
+        base22, stride22, _ = self.lookup(v2, v2)
+        base12, stride12, one_is_row = self.lookup(v1, v2)
+        return BinaryScatter(self.offsets[v1], self.offsets[v2], base11, stride11, base22, stride22,
+                             base12, stride12, one_is_row)
+
     def lookup(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(base, stride, a_is_row) of the blocks {a, b} (arrays of variable indices)."""
         pa = self.position[np.asarray(a, dtype=np.int64)]
@@ -99,6 +115,63 @@ class Pattern:
         idx = np.searchsorted(self._codes, code)
         assert np.all(self._codes[np.minimum(idx, len(self._codes) - 1)] == code)
         return self._base[idx], self._stride[idx], (pa >= pb).astype(np.int64)
+
+
+class UnaryScatter(NamedTuple):
+    """Where each one-variable factor's blocks go (:meth:`Pattern.scatter`): ``o1`` its variable's
+    offset in the right-hand side, ``base11``/``stride11`` its block of ``data``."""
+
+    o1: np.ndarray
+    base11: np.ndarray
+    stride11: np.ndarray
+
+    def part(self, rows: slice) -> "UnaryScatter":
+        """The scatter of the factors ``rows``."""
+        return UnaryScatter(*(a[rows] for a in self))
+
+
+class BinaryScatter(NamedTuple):
+    """Where each two-variable factor's blocks go (:meth:`Pattern.scatter`): ``o1``, ``o2`` its
+    variables' offsets in the right-hand side; (base, stride) of its blocks (1, 1), (2, 2)
+    and (1, 2) in ``data``; ``one_is_row``: the (1, 2) block is stored as A1ᵀA2 (variable 1
+    the row), else as A2ᵀA1."""
+
+    o1: np.ndarray
+    o2: np.ndarray
+    base11: np.ndarray
+    stride11: np.ndarray
+    base22: np.ndarray
+    stride22: np.ndarray
+    base12: np.ndarray
+    stride12: np.ndarray
+    one_is_row: np.ndarray
+
+    def part(self, rows: slice) -> "BinaryScatter":
+        """The scatter of the factors ``rows``."""
+        return BinaryScatter(*(a[rows] for a in self))
+
+
+class NativeBlocks(NamedTuple):
+    """Augmented information matrices [AᵀA Aᵀb; bᵀA bᵀb] of factors GTSAM linearized, and
+    where their blocks go (:func:`add_information`).
+
+    Factor f: matrix ``info[info_start[f]:...]`` of side ``size[f] + 1``; its keys
+    ``key_start[f]:key_start[f+1]`` with local column ``key_local``, dimension ``key_dim``
+    and offset ``key_offset`` in the right-hand side; block (p, q) of its keys at
+    ``pair_base``/``pair_stride`` ``[pair_start[f] + p·k + q]`` (base −1: an upper block,
+    skipped; p = q: the diagonal block, its lower triangle).
+    """
+
+    info: np.ndarray
+    info_start: np.ndarray
+    size: np.ndarray
+    key_start: np.ndarray
+    key_local: np.ndarray
+    key_dim: np.ndarray
+    key_offset: np.ndarray
+    pair_start: np.ndarray
+    pair_base: np.ndarray
+    pair_stride: np.ndarray
 
 
 @kernel
@@ -155,44 +228,42 @@ def _add_rhs(A, b, w, o, rhs):
 
 
 @kernel
-def add_binary(A1, A2, b, w, o1, o2, base11, stride11, base22, stride22, base12, stride12,
-               one_is_row, data, rhs):
-    """Accumulate w_f·[A1 A2]ᵀ[A1 A2] and w_f·[A1 A2]ᵀb_f of every two-variable factor."""
+def add_binary(A1, A2, b, w, at, data, rhs):
+    """Accumulate w_f·[A1 A2]ᵀ[A1 A2] and w_f·[A1 A2]ᵀb_f of every two-variable factor
+    (``at``: their :class:`BinaryScatter`)."""
     for f in range(A1.shape[0]):
         wf = w[f]
         if wf == 0.0:
             continue
-        _add_gram(A1[f], A1[f], wf, base11[f], stride11[f], True, data)
-        _add_gram(A2[f], A2[f], wf, base22[f], stride22[f], True, data)
-        if one_is_row[f]:
-            _add_gram(A1[f], A2[f], wf, base12[f], stride12[f], False, data)
+        _add_gram(A1[f], A1[f], wf, at.base11[f], at.stride11[f], True, data)
+        _add_gram(A2[f], A2[f], wf, at.base22[f], at.stride22[f], True, data)
+        if at.one_is_row[f]:
+            _add_gram(A1[f], A2[f], wf, at.base12[f], at.stride12[f], False, data)
         else:
-            _add_gram(A2[f], A1[f], wf, base12[f], stride12[f], False, data)
-        _add_rhs(A1[f], b[f], wf, o1[f], rhs)
-        _add_rhs(A2[f], b[f], wf, o2[f], rhs)
+            _add_gram(A2[f], A1[f], wf, at.base12[f], at.stride12[f], False, data)
+        _add_rhs(A1[f], b[f], wf, at.o1[f], rhs)
+        _add_rhs(A2[f], b[f], wf, at.o2[f], rhs)
 
 
 @kernel
-def add_unary(A1, b, w, o1, base11, stride11, data, rhs):
-    """Accumulate w_f·A1ᵀA1 and w_f·A1ᵀb_f of every one-variable factor."""
+def add_unary(A1, b, w, at, data, rhs):
+    """Accumulate w_f·A1ᵀA1 and w_f·A1ᵀb_f of every one-variable factor (``at``: their
+    :class:`UnaryScatter`)."""
     for f in range(A1.shape[0]):
         wf = w[f]
         if wf == 0.0:
             continue
-        _add_gram(A1[f], A1[f], wf, base11[f], stride11[f], True, data)
-        _add_rhs(A1[f], b[f], wf, o1[f], rhs)
+        _add_gram(A1[f], A1[f], wf, at.base11[f], at.stride11[f], True, data)
+        _add_rhs(A1[f], b[f], wf, at.o1[f], rhs)
 
 
 @kernel
-def add_information(info, info_start, size, key_start, key_local, key_dim, key_offset,
-                    pair_start, pair_base, pair_stride, w, data, rhs):
-    """Accumulate GTSAM's augmented information [AᵀA Aᵀb; bᵀA bᵀb] of natively linearized factors.
-
-    Factor f: matrix ``info[info_start[f]:...]`` of side ``size[f] + 1``; its
-    keys ``key_start[f]:key_start[f+1]`` with local column, dimension and
-    global offset; block (p, q) of its keys at ``pair_base/pair_stride[pair_start[f] + p·k + q]``
-    (base −1: upper block, skipped; p = q: the diagonal block, its lower triangle).
-    """
+def add_information(nat, w, data, rhs):
+    """Accumulate GTSAM's augmented information [AᵀA Aᵀb; bᵀA bᵀb] of natively linearized factors
+    (``nat``: a :class:`NativeBlocks`), factor f weighted by ``w[f]``."""
+    info, info_start, size, key_start = nat.info, nat.info_start, nat.size, nat.key_start
+    key_local, key_dim, key_offset = nat.key_local, nat.key_dim, nat.key_offset
+    pair_start, pair_base, pair_stride = nat.pair_start, nat.pair_base, nat.pair_stride
     for f in range(size.shape[0]):
         wf = w[f]
         if wf == 0.0:

@@ -20,11 +20,11 @@ from typing import Callable, TypeVar
 
 T = TypeVar("T")
 
-#: Stack of the worker thread.  Measured on a 100k-pose SE(3) chain (GTSAM 4.3,
-#: x86-64): ``InitializePose3.initialize`` and one LM iteration both crash with an
-#: 8 MiB stack and run with 16 MiB, so they need at most ~170 bytes per pose;
-#: 1 GiB covers chains of 6·10⁶ poses.  Reserved address space, committed only
-#: as the recursion touches it.
+#: Stack of the worker thread.  GTSAM's recursion (``InitializePose3.initialize``, an LM
+#: iteration's elimination) needs stack in proportion to a chain's length, and a
+#: 100k-pose SE(3) chain overflows the default 8 MiB (tests/util/test_stack.py); this is
+#: reserved address space, committed only as the recursion touches it, so it can be
+#: far larger than any chain needs.
 STACK_BYTES = 1 << 30
 
 _local = threading.local()

@@ -435,7 +435,7 @@ def test_gauss_newton_without_prior_is_indeterminant(linear_solver):
 
 def test_unknown_linear_solver_rejected():
     lie, _, initial = make_problem("Pose2", n=5, seed=1)
-    with pytest.raises(ValueError, match="linear_solver"):
+    with pytest.raises(InputError, match="linear_solver"):
         batch.optimize(lie, initial, linear_solver="lu")
 
 

@@ -13,6 +13,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from lie_factors.errors import InputError
 from lie_factors.kernels import dispatch as _dispatch, registry, validate as _validate
 from lie_factors import factors
 from lie_factors.testing import reference as ref
@@ -425,24 +426,24 @@ def test_similarity2_scale_drift_graph_exact_jacobians_pay_off():
 
 def test_nan_measured_rejected():
     bad = gtsam.Pose3(gtsam.Rot3(), np.array([np.nan, 0.0, 0.0]))
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(InputError, match="NaN"):
         factors.BetweenFactorPose3(1, 2, bad, noise("Pose3"))
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(InputError, match="NaN"):
         factors.PriorFactorPose2(1, gtsam.Pose2(np.inf, 0.0, 0.0), noise("Pose2"))
 
 
 def test_noise_dimension_mismatch_rejected():
-    with pytest.raises(ValueError, match="dimension 3"):
+    with pytest.raises(InputError, match="dimension 3"):
         factors.BetweenFactorPose3(1, 2, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(3, 1.0))
-    with pytest.raises(ValueError, match="dimension"):
+    with pytest.raises(InputError, match="dimension"):
         factors.PriorFactorSimilarity2(1, gtsam.Similarity2(), gtsam.noiseModel.Isotropic.Sigma(3, 1.0))
 
 
 def test_non_orthonormal_rotation_rejected():
     R = gtsam.Rot3(np.diag([1.0, 1.0, 1.1]))
-    with pytest.raises(ValueError, match="orthonormal"):
+    with pytest.raises(InputError, match="orthonormal"):
         factors.BetweenFactorRot3(1, 2, R, noise("Rot3"))
-    with pytest.raises(ValueError, match="orthonormal"):
+    with pytest.raises(InputError, match="orthonormal"):
         factors.PriorFactorPose3(1, gtsam.Pose3(R, np.zeros(3)), noise("Pose3"))
 
 
@@ -510,7 +511,7 @@ def test_check_element_codes_straddle_the_tolerance(tag, m, d):
 
 
 def test_negative_similarity_scale_rejected():
-    with pytest.raises(ValueError, match="non-positive scale"):
+    with pytest.raises(InputError, match="non-positive scale"):
         factors.BetweenFactorSimilarity2(1, 2, gtsam.Similarity2(gtsam.Rot2(0.1), np.zeros(2), -2.0),
                                          noise("Similarity2"))
 
@@ -528,7 +529,7 @@ def test_keys_numpy_ints_accepted_bools_and_negatives_rejected():
 def test_noise_model_check_is_not_skipped_for_another_dimension():
     shared = gtsam.noiseModel.Isotropic.Sigma(6, 1.0)
     factors.BetweenFactorPose3(1, 2, gtsam.Pose3(), shared)  # checked and remembered for dim 6
-    with pytest.raises(ValueError, match="dimension 6"):
+    with pytest.raises(InputError, match="dimension 6"):
         factors.BetweenFactorPose2(1, 2, gtsam.Pose2(), shared)
     with pytest.raises(TypeError, match="noiseModel"):
         factors.PriorFactorPose3(1, gtsam.Pose3(), None)

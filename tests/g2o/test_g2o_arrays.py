@@ -17,6 +17,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from lie_factors.errors import InputError
 from lie_factors import factors, g2o
 import lie_factors as lf
 from lie_factors.solve import PARALLEL_MIN_WORK
@@ -193,7 +194,7 @@ def test_files_arrays_do_not_represent_are_read_by_gtsam(tmp_path, text):
     path.write_text(text)
     summary = g2o.check_g2o(str(path))
     assert not g2o.arrays_supported(summary)
-    with pytest.raises(ValueError, match="read_with_gtsam"):
+    with pytest.raises(InputError, match="read_with_gtsam"):
         g2o.read_arrays(summary)
     pg = read_pose_graph(str(path))
     assert pg.edge_count + pg.observation_count == 2
@@ -236,12 +237,12 @@ def test_from_pose_graph_refuses_bad_input():
         return Problem.from_pose_graph(PoseGraph("Pose2", np.array(keys), np.array(edge_keys), measured,
                                                  np.eye(3)[None], None, None), X)
 
-    with pytest.raises(ValueError, match="itself"):
+    with pytest.raises(InputError, match="itself"):
         problem([0], [[0, 0]], M, M)
-    with pytest.raises(ValueError, match="no initial element"):
+    with pytest.raises(InputError, match="no initial element"):
         problem([0], [[0, 1]], M, M)
     bad = np.eye(3)[None] * 1.01
-    with pytest.raises(ValueError, match="measured 0: rotation block is not orthonormal"):
+    with pytest.raises(InputError, match="measured 0: rotation block is not orthonormal"):
         problem([0, 1], [[0, 1]], bad, np.stack([np.eye(3)] * 2))
 
 

@@ -17,9 +17,7 @@ iterative linear solver); GTSAM's Python utilities keyed by GTSAM's classes
 factors by their C++ class (fastSync, ShonanAveraging from a list of factors)
 or return GTSAM's (``parse3DFactors``).
 
-Time: 4 s of CPU, 4 s of wall time on a shared 2-core machine at load average
-1.8 (gtsam 4.3.0: 36 files, 172 tests; 0.6 s as shipped, 1.4 s and 1.6 s with
-ours, most of it starting lie_factors).  The runs are marked slow.
+The runs are marked slow (with ours, most of their time is starting lie_factors).
 """
 
 from __future__ import annotations

@@ -6,6 +6,7 @@ import mpmath as mp
 import numpy as np
 import pytest
 
+from lie_factors.errors import InputError
 from lie_factors.kernels import coeffs as C
 from lie_factors import dual_quaternion as DQ
 from lie_factors.testing import reference as ref
@@ -171,9 +172,9 @@ def test_to_matrix_broadcasts(batch):
 
 
 def test_to_matrix_rejects_non_unit():
-    with pytest.raises(ValueError, match="unit"):
+    with pytest.raises(InputError, match="unit"):
         DQ.to_matrix(np.r_[1.1, 0, 0, 0, 0, 0, 0, 0])
-    with pytest.raises(ValueError, match="unit"):
+    with pytest.raises(InputError, match="unit"):
         DQ.to_matrix(np.r_[1.0, 0, 0, 0, 0.5, 0, 0, 0])  # q_r . q_d != 0
 
 
@@ -196,5 +197,5 @@ def test_non_orthogonal_dual_part_rejected_even_when_huge():
     dq = DQ.exp(np.array([0.1, 0.2, 0.3, 1e200, 0.0, 0.0]))
     bad = dq.copy()
     bad[4:] += 1e-3 * np.abs(bad[4:]).max() * bad[:4]  # q_r·q_d no longer 0
-    with pytest.raises(ValueError, match="unit dual quaternions"):
+    with pytest.raises(InputError, match="unit dual quaternions"):
         DQ.log(bad)

@@ -7,6 +7,7 @@ import mpmath as mp
 import numpy as np
 import pytest
 
+from lie_factors.errors import InputError
 from lie_factors.kernels import coeffs as C
 from lie_factors import quaternion as Q
 from lie_factors.testing import reference as ref
@@ -137,11 +138,11 @@ def test_rotation_conversions_broadcast(batch):
 
 
 def test_rotation_conversions_reject_bad_input():
-    with pytest.raises(ValueError, match="unit"):
+    with pytest.raises(InputError, match="unit"):
         Q.to_rotation(np.array([2.0, 0, 0, 0]))
-    with pytest.raises(ValueError, match="orthonormal"):
+    with pytest.raises(InputError, match="orthonormal"):
         Q.from_rotation(np.eye(3) * 1.01)
-    with pytest.raises(ValueError, match=r"\(\.\.\., 3, 3\)"):
+    with pytest.raises(InputError, match=r"\(\.\.\., 3, 3\)"):
         Q.from_rotation(np.eye(4))
 
 

@@ -8,8 +8,8 @@ together (λ = ±θ, and λ² + θ² → 0 along other directions), translations
 random directions, nearly parallel and perpendicular to ω. Every branch threshold of the
 module (Z_BAND and Z_BAND_W in several directions of z, L_TAYLOR, SPECTRAL, LAM_SPECTRAL) and of the SO(3)
 coefficient functions it evaluates is straddled by ×(1 ± 1e-9). Each point's 50-digit D_exp
-is computed once and serves both dexp and dlog. The whole file takes 35–55 s on the shared
-2-core machine (the dexp/dlog sweep ~20 s, the log sweep ~10 s).
+is computed once and serves both dexp and dlog (the 50-digit references are most of the
+file's time).
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ def test_deep_c_recursion_needs_the_large_stack(through_stack):
     """Comparing two 300000-deep nested lists recurses in C: SIGSEGV on the main thread's 8 MiB, fine through call."""
     code = (
         "import sys; sys.setrecursionlimit(10**7);"
-        "from lie_factors import stack;"
+        "from lie_factors.util import stack;"
         "x = []; y = []\nfor _ in range(300000): x = [x]; y = [y]\n"
         "f = lambda: x == y;"
         f"print(stack.call(f) if {through_stack} else f())"
