@@ -201,10 +201,9 @@ def start_values(pg, how: str):
 
 def reference_values(pg):
     """The outlier-free optimum: the default command's solver (chordal start, batch LM)."""
-    from lie_factors.app.run import run
+    import lie_factors as lf
 
-    _, result, _ = run(pg, backend="batch")
-    return result.values
+    return lf.optimize(pg).values
 
 
 def reference_positions(pg) -> np.ndarray:
@@ -244,10 +243,11 @@ SUITE_GRAPHS = ("intel", "manhattan", "CSAIL", "city10000", "sphere2500", "parki
 def run_ours(planted_pg):
     """What ``lie-factors posegraph FILE --gnc tls`` runs (batch backend, consistency stage on):
     (positions, seconds, rejected edges, rejected_by)."""
-    from lie_factors.app.run import run
+    import lie_factors as lf
 
-    record, result, _ = run(planted_pg, backend="batch", gnc="tls")
-    return positions(result.values, planted_pg), record.seconds, record.outliers, record.rejected_by
+    result = lf.optimize(planted_pg, gnc="tls")
+    return (positions(result.values, planted_pg), result.seconds, result.outliers.tolist(),
+            {str(k): v for k, v in result.rejected_by.items()})
 
 
 NATIVE_CACHE = os.path.join(tempfile.gettempdir(), "lie_factors_outliers_native")
@@ -382,20 +382,20 @@ def tails(args) -> int:
 
 def clean(args) -> int:
     """Every suite graph without planted closures: lie-factors' --gnc tls against plain LM."""
+    import lie_factors as lf
     from lie_factors.backends import build_graph
-    from lie_factors.app.run import run
 
     print("# the suite's graphs without false loop closures: --gnc tls (batch) against plain LM (batch)")
     print("| graph | loop closures | rejected (by stage) | GNC final error | LM final error | relative difference |")
     print("|---|---|---|---|---|---|")
     for name in args.graphs:
         base = load_graph(name)
-        _, plain, _ = run(base, backend="batch")
-        record, result, _ = run(base, backend="batch", gnc="tls")
+        plain = lf.optimize(base)
+        result = lf.optimize(base, gnc="tls")
         graph = build_graph(base, "native")
         e_gnc, e_lm = float(graph.error(result.values)), float(graph.error(plain.values))
-        stages = stage_counts(record.rejected_by)
-        print(f"| {base.name} | {len(base.loop_closures())} | {len(record.outliers)}"
+        stages = stage_counts({str(k): v for k, v in result.rejected_by.items()})
+        print(f"| {base.name} | {len(base.loop_closures())} | {len(result.outliers)}"
               f"{f' ({stages})' if stages else ''} | {e_gnc:.8g} | {e_lm:.8g} | {abs(e_gnc - e_lm) / e_lm:.1e} |",
               flush=True)
     return 0

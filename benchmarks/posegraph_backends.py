@@ -1,7 +1,7 @@
 """Pose-graph optimization through the CLI's backends: native, dropin, batch.
 
 For each dataset and each start (``--init``; default: the file's vertices and
-``auto``): load once (lie_factors.app.run.load), build the graph with each
+``auto``): read once (lie_factors.read_g2o), build the graph with each
 backend, initialize and run that backend's Levenberg-Marquardt
 (``posegraph.run``, what ``lie-factors posegraph`` runs), and tabulate the start
 used, iterations, final error, initialization and optimization seconds per
@@ -33,7 +33,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from lie_factors.util import atomic  # noqa: E402
-from lie_factors.app import run as P  # noqa: E402
+import lie_factors as lf  # noqa: E402
 from lie_factors.backends import BACKENDS, build_graph  # noqa: E402
 from lie_factors.g2o import read_pose_graph  # noqa: E402
 from lie_factors.errors import InputError  # noqa: E402
@@ -76,13 +76,13 @@ def run_dataset(path: str, backends: list[str], max_iterations: int, log,
                 if backend in row and row[backend] is None:
                     continue
                 try:
-                    record, _, _ = P.run(pg, backend, max_iterations, init=init)
+                    record = lf.optimize(pg, backend=backend, max_iterations=max_iterations, init=init)
                 except InputError as exc:
                     log(f"  {backend} --init {init}: {exc}")
                     row[backend] = None
                     continue
                 log(f"  {backend} --init {init} ({record.init}, {record.init_seconds:.2f} s): "
-                    f"{record.iterations} it, error {record.final_error:.10g}, {record.seconds:.2f} s")
+                    f"{record.iterations} it, error {record.error:.10g}, {record.seconds:.2f} s")
                 best = row.get(backend)
                 if best is None or record.init_seconds + record.seconds < best.init_seconds + best.seconds:
                     row[backend] = record
@@ -113,19 +113,19 @@ def markdown_table(rows: list[dict], backends: list[str]) -> str:
     head += [f"init s {b}" for b in backends] + [f"optimize s {b}" for b in backends]
     head += [f"total s {b}" for b in backends] + [f"ratio {b}/{ref} (optimize)" for b in others]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    file_final = {r["dataset"]: r[ref].final_error for r in rows
+    file_final = {r["dataset"]: r[ref].error for r in rows
                   if r["init"] == "file" and r.get(ref) is not None}
     for r in rows:
         n = r.get(ref)
         start = next((r[b].init for b in backends if r.get(b) is not None), "n/a")
         cells = [r["dataset"], r["dim"], str(r["poses"]), str(r["factors"]), start]
         cells += [_fmt(r.get(b), "iterations", "d") for b in backends]
-        cells += [_fmt(r.get(b), "final_error", ".10g") for b in backends]
+        cells += [_fmt(r.get(b), "error", ".10g") for b in backends]
         for b in others:
             c = r.get(b)
-            cells.append(_rel(c.final_error, n.final_error) if n is not None and c is not None else "n/a")
+            cells.append(_rel(c.error, n.error) if n is not None and c is not None else "n/a")
         f = file_final.get(r["dataset"])
-        cells.append(f"{(n.final_error - f) / f:+.1e}" if n is not None and f else "n/a")
+        cells.append(f"{(n.error - f) / f:+.1e}" if n is not None and f else "n/a")
         cells += [_fmt(r.get(b), "init_seconds", ".3f") for b in backends]
         cells += [_fmt(r.get(b), "seconds", ".3f") for b in backends]
         cells += ["n/a" if r.get(b) is None else f"{r[b].init_seconds + r[b].seconds:.3f}"

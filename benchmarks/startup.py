@@ -212,24 +212,26 @@ SPLIT = r"""
 import sys, time, json, tempfile, os
 t0 = time.perf_counter()
 import gtsam
-from lie_factors import g2o
-from lie_factors.app import backends, load
+import lie_factors as lf
+from lie_factors import backends, g2o
 from lie_factors.initialization import initialize
 t1 = time.perf_counter()
 backend = sys.argv[1]; path = sys.argv[2]
-backends.load_factors(backend)
+backends.factor_namespace(backend)
 t2 = time.perf_counter()
 summary = g2o.check_g2o(path)
 t3 = time.perf_counter()
 arrays = g2o.read_arrays(summary)
 t4 = time.perf_counter()
-pg = load.load(path)  # (check + read again, not counted: the pieces above are)
+pg = lf.read_g2o(path)  # (check + read again, not counted: the pieces above are)
 t4b = time.perf_counter()
 built = backends.build_graph(pg, backend)
 t5 = time.perf_counter()
 start = initialize(pg.with_first_prior(), "auto", engine="lie_factors" if backend == "batch" else "gtsam")
 t6 = time.perf_counter()
-res = backends.get_backend(backend).optimize(built, start.values, max_iterations=0)
+params = gtsam.LevenbergMarquardtParams()
+params.setMaxIterations(0)
+res = backends.optimize_with(backend, built, start.values, params)
 t7 = time.perf_counter()
 with tempfile.TemporaryDirectory() as d:
     g2o.write_g2o(os.path.join(d, "out.g2o"), pg.factor_graph(), res.values)

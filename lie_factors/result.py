@@ -79,6 +79,7 @@ class Result:
             else:
                 from .interop import values_from_matrices
 
+                assert self._group is not None and self._keys is not None and self._poses is not None
                 values = values_from_matrices(self._group, self._keys, self._poses)
                 self._values = values if self.pose_graph is None else self.pose_graph.with_landmarks(values)
         return self._values
@@ -87,18 +88,21 @@ class Result:
     def keys(self) -> np.ndarray:
         """(n,) int64: the keys of the pose variables, increasing."""
         self._ensure_arrays()
+        assert self._keys is not None
         return self._keys
 
     @property
     def poses(self) -> np.ndarray:
         """(n, m, m): the pose variables' matrices, in :attr:`keys` order (m = 3 for Pose2, 4 otherwise)."""
         self._ensure_arrays()
+        assert self._poses is not None
         return self._poses
 
     @property
     def group(self) -> str:
         """GTSAM's name of the poses' group: ``Pose2``, ``Pose3``, ``Rot3``, ``Similarity2``, ``Similarity3``."""
         self._ensure_arrays()
+        assert self._group is not None
         return self._group
 
     def _ensure_arrays(self) -> None:

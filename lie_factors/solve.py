@@ -387,6 +387,7 @@ def _optimize_gnc(posed: PoseGraph, start, opts: Options, params, events: Events
         initial_error = float(graph.error(values0))
     setup = time.perf_counter() - t
     events.set_up(setup)
+    assert opts.gnc is not None
     out = reject_and_optimize(posed, solver, size, loss=opts.gnc, consistency=opts.consistency,
                               lm_params=params, gtsam_semantics=opts.backend == "native")
     res = out.gnc
@@ -400,6 +401,7 @@ def _optimize_gnc(posed: PoseGraph, start, opts: Options, params, events: Events
     else:
         result._values, result._start = res.values, values0
     return result
+
 
 # --------------------------------------------------------------------------- #
 # Online

@@ -67,7 +67,7 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
     #: Group lie_factors factors with robust noise (only subclasses that apply the loss do).
     group_robust = False
 
-    def __init__(self, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
+    def __init__(self, graph: "gtsam.NonlinearFactorGraph | Problem", initial: gtsam.Values | None,
                  params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
                  min_model_fidelity: float = lm.MIN_MODEL_FIDELITY, linear_solver: str = "auto",
                  reweight: Callable[[np.ndarray], np.ndarray] | None = None,

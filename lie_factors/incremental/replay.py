@@ -116,11 +116,9 @@ def isam2_params(relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
 def factor_graph(pose_graph: PoseGraph, backend: str) -> gtsam.NonlinearFactorGraph:
     """The graph ``backend`` replays: the edges, the prior on the first pose, the landmark
     measurements, with GTSAM's factor classes (``native``) or lie_factors' (the others)."""
-    if backend == "native":
-        namespace = gtsam
-    else:
-        from .. import factors as namespace
-    return pose_graph.with_first_prior().factor_graph(namespace)
+    from .. import factors
+
+    return pose_graph.with_first_prior().factor_graph(gtsam if backend == "native" else factors)
 
 
 def new_isam(backend: str, relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
@@ -172,6 +170,7 @@ def _landmark_initial(pose_graph: PoseGraph, f, key: int, poses: gtsam.Values):
     """A landmark's initial value: its vertex, else where its measurement ``f`` puts it from its
     pose's initial value (``poses``)."""
     lm = pose_graph.landmarks
+    assert lm is not None  # only a landmark measurement asks
     if key in lm.with_vertex:
         return lm.vertices.atPoint3(key) if pose_graph.is3d else lm.vertices.atPoint2(key)
     return lm.place(f, poses)

@@ -41,6 +41,9 @@ PRIOR_VARIANCES = {
 #: The groups a pose graph can hold (GTSAM type names).
 GROUPS = tuple(PRIOR_VARIANCES)
 
+#: No priors given: ``__post_init__`` puts empty arrays of the group's shapes in their place.
+_NO_PRIOR = np.zeros(0)
+
 
 def is_loop_closure(key1, key2):
     """Whether an edge between poses ``key1`` and ``key2`` is a loop closure: |key1 − key2| ≠ 1
@@ -89,9 +92,9 @@ class PoseGraph:
     information: np.ndarray
     vertices: np.ndarray | None
     lines: np.ndarray | None
-    prior_keys: np.ndarray | None = None
-    prior_measured: np.ndarray | None = None
-    prior_information: np.ndarray | None = None
+    prior_keys: np.ndarray = dataclasses.field(default_factory=lambda: _NO_PRIOR)
+    prior_measured: np.ndarray = dataclasses.field(default_factory=lambda: _NO_PRIOR)
+    prior_information: np.ndarray = dataclasses.field(default_factory=lambda: _NO_PRIOR)
     landmarks: "Landmarks | None" = None
     name: str = ""
     path: str = ""
@@ -100,7 +103,7 @@ class PoseGraph:
         if self.group not in GROUPS:
             raise ValueError(f"group: a pose graph holds {', '.join(GROUPS)}, got {self.group!r}")
         g = registry.group(self.group)
-        if self.prior_keys is None:
+        if self.prior_keys is None or self.prior_keys is _NO_PRIOR:
             self.prior_keys = np.zeros(0, dtype=np.int64)
             self.prior_measured = np.zeros((0, g.mat, g.mat))
             self.prior_information = np.zeros((0, g.dim, g.dim))
@@ -292,7 +295,9 @@ class PoseGraph:
         import gtsam
 
         kinds = [(getattr(gtsam, name), name) for name in GROUPS]
-        edges, priors, seen = [], [], set()
+        edges: list[tuple] = []
+        priors: list[tuple] = []
+        seen: set[str] = set()
         for k in range(graph.size()):
             f = graph.at(k)
             if f is None:  # a removed factor leaves a null slot
@@ -301,7 +306,7 @@ class PoseGraph:
             value = (f.measured() if len(fkeys) == 2 and hasattr(f, "measured") else
                      f.prior() if len(fkeys) == 1 and hasattr(f, "prior") else None)
             kind = next((name for cls, name in kinds if isinstance(value, cls)), None)
-            if kind is None:
+            if kind is None or value is None:
                 raise InputError(f"factor {k} ({type(f).__name__}) is not a Between or Prior factor on "
                                      "Pose2/Pose3/Similarity3; a pose graph has no other")
             model = f.noiseModel()

@@ -41,7 +41,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Callable, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
@@ -171,7 +171,7 @@ class GncResult:
     ``stop``: why GNC stopped.
     """
 
-    values: object
+    values: Any
     weights: np.ndarray
     thresholds: np.ndarray
     cost: float
