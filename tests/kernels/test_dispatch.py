@@ -95,7 +95,7 @@ _SE3_ONLY = textwrap.dedent(
     import numpy as np
     import gtsam
     from lie_factors import factors, se2, sim2, sim3, se3
-    from lie_factors.batch import run_batch
+    import lie_factors as lf
 
     noise = gtsam.noiseModel.Isotropic.Sigma(6, 0.1)
     a = gtsam.Pose3(gtsam.Rot3.Ypr(0.1, 0.2, 0.3), np.array([1.0, 2.0, 3.0]))
@@ -106,7 +106,7 @@ _SE3_ONLY = textwrap.dedent(
     values.insert(0, gtsam.Pose3())
     values.insert(1, a.compose(gtsam.Pose3.Expmap(np.full(6, 0.05))))
     graph.linearize(values)
-    run_batch(graph, values, 3, None, None)
+    lf.optimize(graph, values, max_iterations=3)
     def own_compiled(m):  # kernels defined in m (not imported into it) that were compiled
         return sorted(name for name, f in vars(m).items()
                       if getattr(f, "signatures", None) and f.py_func.__module__ == m.__name__)
