@@ -147,7 +147,7 @@ class IterationInfo:
     seconds: float
 
 
-@dataclass
+@dataclass(repr=False)
 class OptimizeResult:
     """One optimization run, whichever optimizer ran it.
 
@@ -183,6 +183,11 @@ class OptimizeResult:
     @property
     def final_error(self) -> float:
         return self.errors[-1]
+
+    def __repr__(self) -> str:
+        state = "converged" if self.converged else "not converged"
+        return (f"<OptimizeResult: error {self.initial_error:.6g} -> {self.final_error:.6g}, "
+                f"{self.iterations} iterations, {state}, {self.seconds:.3f} s>")
 
 
 def format_iteration(info: IterationInfo) -> str:

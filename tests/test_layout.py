@@ -254,10 +254,15 @@ def test_the_app_calls_only_public_names(path):
 
 
 #: The directories of the package whose functions and modules the size limits cover.
-SIZE_CHECKED = ["incremental"]
+SIZE_CHECKED = [""]  # "": the whole package
 
 #: Modules allowed past the soft limit of 600 lines (never past 900): path → the one job each does.
-ONE_JOB: dict[Path, str] = {}
+ONE_JOB: dict[Path, str] = {
+    PACKAGE / "sim3.py": "the Sim(3) closed forms: exp, log, D_exp and D_log with the series bands "
+                         "each needs, one derivation (docs/sim3.md)",
+    PACKAGE / "sparse" / "cholmod.py": "the CHOLMOD wrapper: its structures, the factor kept across "
+                                       "refactorizations, its two ways in (direct and through cvxopt)",
+}
 
 
 @pytest.mark.parametrize("directory", SIZE_CHECKED)

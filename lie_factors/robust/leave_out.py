@@ -36,6 +36,8 @@ rows where the system has thousands (intel: 150 of 5184 on average).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import prange
 
@@ -45,18 +47,28 @@ from ..batch.graph import Problem
 from ..batch.loops import parallel_kernel
 from ..batch.system import LinearSystem
 
-__all__ = ["leave_out_chi2", "group_gram"]
+__all__ = ["leave_out_chi2", "group_gram", "UnitLower"]
 
 #: Groups per parallel chunk (each chunk allocates two work arrays of the system's size).
 GROUP_CHUNK = 64
 
 
+class UnitLower(NamedTuple):
+    """A factor L·D·Lᵀ: L unit lower triangular in CSC (each column's diagonal first), D (N,)."""
+
+    colptr: np.ndarray
+    rowind: np.ndarray
+    values: np.ndarray
+    d: np.ndarray
+
+
 @parallel_kernel
-def _group_gram(colptr, rowind, values, d, pos, o1, o2, A1, A2, gptr, rows, hptr, H):
+def _group_gram(L, pos, o1, o2, A1, A2, gptr, rows, hptr, H):
     """H[hptr[g]:…] = Y_gᵀ·D⁻¹·Y_g (d × d, row-major, d = n·size) for each group g of factors
     ``rows[gptr[g]:gptr[g+1]]`` (indices into o1, o2, A1, A2), Y_g = L⁻¹·P·A_gᵀ on the union of
-    the elimination-tree paths from the group's variables (see the module docstring); L unit
-    lower triangular, each column's diagonal first."""
+    the elimination-tree paths from the group's variables (see the module docstring); ``L`` a
+    :class:`UnitLower`."""
+    colptr, rowind, values, d = L.colptr, L.rowind, L.values, L.d
     N = colptr.shape[0] - 1
     G = gptr.shape[0] - 1
     n = A1.shape[1]
@@ -134,7 +146,7 @@ def group_gram(factor: Cholesky, pos: np.ndarray, o1: np.ndarray, o2: np.ndarray
             else np.zeros(0, dtype=np.int64))
     H = np.empty(int(hptr[-1]))
     if len(groups):
-        _group_gram(colptr, rowind, values, d, pos, np.ascontiguousarray(o1, dtype=np.int64),
+        _group_gram(UnitLower(colptr, rowind, values, d), pos, np.ascontiguousarray(o1, dtype=np.int64),
                     np.ascontiguousarray(o2, dtype=np.int64), np.ascontiguousarray(A1),
                     np.ascontiguousarray(A2), gptr, flat, hptr, H)
     return [H[hptr[g]:hptr[g + 1]].reshape(n * sizes[g], n * sizes[g]) for g in range(len(groups))]

@@ -137,7 +137,7 @@ def test_the_batch_and_incremental_kernels_cached_apart_run_together(tmp_path):
         from lie_factors.robust import leave_out as lo
         i8 = lambda n: np.zeros(n, dtype=np.int64)
         f8 = lambda *s: np.zeros(s)
-        lo._group_gram(i8(2), i8(1), f8(1), f8(1), i8(1), i8(0), i8(0), f8(0, 1, 1), f8(0, 1, 1), i8(1), i8(0), i8(1), f8(0))
+        lo._group_gram(lo.UnitLower(i8(2), i8(1), f8(1), f8(1)), i8(1), i8(0), i8(0), f8(0, 1, 1), f8(0, 1, 1), i8(1), i8(0), i8(1), f8(0))
         print(sum(lo._group_gram.stats.cache_misses.values()))
     """)
     compact = textwrap.dedent("""
@@ -148,7 +148,7 @@ def test_the_batch_and_incremental_kernels_cached_apart_run_together(tmp_path):
         if {load_batch}:
             i8 = lambda n: np.zeros(n, dtype=np.int64)
             f8 = lambda *s: np.zeros(s)
-            lo._group_gram(i8(2), i8(1), f8(1), f8(1), i8(1), i8(0), i8(0), f8(0, 1, 1), f8(0, 1, 1), i8(1), i8(0), i8(1), f8(0))
+            lo._group_gram(lo.UnitLower(i8(2), i8(1), f8(1), f8(1)), i8(1), i8(0), i8(0), f8(0, 1, 1), f8(0, 1, 1), i8(1), i8(0), i8(1), f8(0))
         dim = np.ones(3, dtype=np.int64)
         sep_start, sep_len, sep_dim = np.array([8, 2, -1]), np.array([1, 1, 0]), np.array([1, 1, 0])
         cond, ustart = np.array([20, 4, 12]), np.full(3, -1)
