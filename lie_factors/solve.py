@@ -40,7 +40,7 @@ ROBUST_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
 #: The losses of graduated non-convexity.
 GNC_LOSSES = ("tls", "gm")
 #: The initializers (:data:`lie_factors.initialization.METHODS`).
-INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
+INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "odometry", "file")
 #: Iterations accepted: beyond this no run finishes in any useful time, and GTSAM's counter is an int.
 MAX_ITERATIONS = 1_000_000
 

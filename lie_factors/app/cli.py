@@ -114,7 +114,7 @@ _BACKEND_HELP = ("batch = lie_factors factors in the vectorized solver; dropin =
 
 #: lie_factors.initialization.METHODS, spelled out so that building the parser
 #: does not import GTSAM (a test checks they agree).
-INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
+INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "odometry", "file")
 
 
 def _add_posegraph(p: argparse.ArgumentParser) -> None:
@@ -130,7 +130,9 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", default="auto", choices=INIT_METHODS,
                    help="where LM starts: chordal = GTSAM's chordal relaxation (InitializePose3), "
                         "lago = GTSAM's LAGO (2-D, diagonal noise only), spanning-tree = "
-                        "measurements composed along a BFS tree, file = the file's vertices; "
+                        "measurements composed along a BFS tree, odometry = the edges between "
+                        "consecutive poses composed from the prior (dead reckoning), file = the "
+                        "file's vertices; "
                         "auto (default) = chordal in 3-D, lago then chordal in 2-D, then file, "
                         "then spanning-tree: the first that applies; with --gnc or --robust, auto "
                         "uses the odometry edges and the prior only (their measurements composed; "

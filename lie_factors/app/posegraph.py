@@ -28,6 +28,7 @@ INIT_DESCRIPTIONS = {
     "chordal": "chordal relaxation (GTSAM's InitializePose3)",
     "lago": "LAGO (GTSAM's lago)",
     "spanning-tree": "measurements composed along a spanning tree",
+    "odometry": "the odometry composed from the prior (dead reckoning)",
     "file": "vertices in the file",
 }
 

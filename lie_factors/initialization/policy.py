@@ -17,7 +17,7 @@ from ..posegraph.graph import PoseGraph
 from . import anchor, lago, spanning_tree, with_gtsam
 
 #: ``--init`` choices, in the CLI's order.
-METHODS = ("auto", "chordal", "lago", "spanning-tree", "file")
+METHODS = ("auto", "chordal", "lago", "spanning-tree", "odometry", "file")
 
 #: Implementations of ``chordal`` and ``lago``: ours on arrays, or GTSAM's own (no numba).
 ENGINES = ("lie_factors", "gtsam")
@@ -197,6 +197,10 @@ def _run(name: str, pg: PoseGraph, engine: str, file) -> np.ndarray:
             poses = file.poses()
         elif name == "spanning-tree":
             poses = spanning_tree.initialize(pg)
+        elif name == "odometry":
+            # dead reckoning: the edges between consecutive keys composed from the prior
+            poses = spanning_tree.initialize(pg.with_edges(np.setdiff1d(np.arange(len(pg.edge_keys)),
+                                                                        pg.loop_closures())))
         elif engine == "gtsam":
             poses = (with_gtsam.chordal if name == "chordal" else with_gtsam.lago)(pg)
         elif name == "chordal":

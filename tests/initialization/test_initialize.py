@@ -399,3 +399,23 @@ def test_auto_with_known_inliers_uses_them_alone():
     assert max_pose_diff(start.values, I.initialize(graph, "lago").values, False) > 1e-6
     # Named methods use every factor.
     assert not I.initialize(graph, "chordal", truth, inliers=chain).inliers_only
+
+
+def test_odometry_is_dead_reckoning_from_the_prior():
+    """``odometry``: the edges between consecutive keys composed from the prior, the loop closures
+    left out (the measurements chained, as the definition says)."""
+    pg = read_pose_graph(str(DATA / "intel.g2o")).with_first_prior()
+    start = I.initialize(pg, "odometry")
+    assert start.method == "odometry"
+    X = pg.prior_measured[0]
+    np.testing.assert_allclose(start.poses[0], X, atol=0)
+    chain = {}
+    for k, (i, j) in enumerate(pg.edge_keys.tolist()):
+        if j == i + 1:
+            chain[i] = pg.measured[k]
+    for n in range(1, len(pg.keys)):
+        X = X @ chain[n - 1]
+        np.testing.assert_allclose(start.poses[n], X, atol=1e-9)
+    gap = pg.with_edges(np.flatnonzero(~((pg.edge_keys[:, 0] == 10) & (pg.edge_keys[:, 1] == 11))))
+    with pytest.raises(I.InitializationError, match="odometry"):
+        I.initialize(gap, "odometry")
