@@ -293,8 +293,8 @@ def test_bad_graphs_are_refused():
     mixed.add(gtsam.BetweenFactorPose3(0, 1, gtsam.Pose3(), gtsam.noiseModel.Unit.Create(6)))
     with pytest.raises(I.InitializationError, match="mixes Pose2 and Pose3"):
         I.initialize(mixed)
-    with pytest.raises(I.InitializationError, match="unknown initialization 'odometry'"):
-        I.initialize(mixed, "odometry")
+    with pytest.raises(I.InitializationError, match="unknown initialization 'odometer'"):
+        I.initialize(mixed, "odometer")
     assert issubclass(I.InitializationError, InputError)
 
 
