@@ -23,7 +23,8 @@ reported.
         [--helix-poses 10000] [--cli] [--accuracy]
 
 ``--cli`` instead times what a user runs: ``lie-factors posegraph FILE --incremental --backend
-LEG --json`` in a fresh process each (legs: ``--legs``, default native and batch), alternating,
+LEG --json`` in a fresh process each (legs: ``--legs``, default native and batch; with
+``--reference DIR`` also the default backend of that checkout), alternating,
 best of ``--repeat``: the wall seconds of the whole command, its update_seconds and p99, its
 peak resident memory, and each against native's.
 
@@ -118,11 +119,11 @@ def run_leg(pg, leg: str, graphs: dict, plain_limit: float, limit: float | None 
     return replay_graph(pg, graphs["dropin"], new_isam("dropin"), backend="dropin", max_seconds=limit)
 
 
-def _run_command(cmd: list) -> tuple[float, str | None, float]:
+def _run_command(cmd: list, env: dict | None = None, cwd: str | None = None) -> tuple[float, str | None, float]:
     """(wall seconds, stdout or None if it failed, peak resident MB) of ``cmd`` in a fresh process."""
     with tempfile.TemporaryFile(mode="w+") as err:
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, env=env, cwd=cwd)
         out = proc.stdout.read()
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
@@ -130,12 +131,23 @@ def _run_command(cmd: list) -> tuple[float, str | None, float]:
         err.seek(0)
         message = err.read().strip()
     if proc.returncode != 0:
-        print(f"#   {cmd[2]} {cmd[5]}: {message.splitlines()[-1] if message else 'failed'}", file=sys.stderr)
+        print(f"#   {' '.join(cmd[3:])}: {message.splitlines()[-1] if message else 'failed'}", file=sys.stderr)
     return wall, out if proc.returncode == 0 else None, usage.ru_maxrss / 1024.0
 
 
-def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int, legs) -> None:
-    exe = os.path.join(os.path.dirname(sys.executable), "lie-factors")
+#: The console script's code, run with ``python -c`` so that PYTHONPATH picks the checkout.
+ENTRY = "from lie_factors.app import cli; import sys; sys.exit(cli.entry())"
+
+
+def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int, legs,
+             reference: str | None = None) -> None:
+    """``legs``: backends of this checkout; with ``reference``, a ``reference`` leg too: the default
+    backend of that checkout (``PYTHONPATH=reference``), alternated with the others."""
+    root = str(ROOT)
+    sides = {backend: (backend, root) for backend in legs}
+    if reference:
+        sides["reference"] = ("batch", os.path.abspath(reference))
+    legs = list(sides)
     paths = {}
     for name in datasets:
         pg, _ = load(name, data_dir, tmp, helix_poses)
@@ -143,9 +155,11 @@ def cli_rows(datasets, data_dir: str, tmp: str, helix_poses: int, repeat: int, l
     best: dict = {}
     for r in range(repeat):
         for name in datasets:
-            for backend in legs:
-                wall, out, rss = _run_command([exe, "posegraph", paths[name], "--incremental", "--backend",
-                                               backend, "--json", "--quiet"])
+            for backend in (legs if r % 2 == 0 else legs[::-1]):
+                leg, where = sides[backend]
+                wall, out, rss = _run_command([sys.executable, "-c", ENTRY, "posegraph", paths[name], "--incremental",
+                                               "--backend", leg, "--json", "--quiet"],
+                                              env=dict(os.environ, PYTHONPATH=where), cwd=where)
                 if out is None:
                     print(f"# repeat {r + 1} {name} {backend}: failed", file=sys.stderr, flush=True)
                     best.setdefault((name, backend), None)
@@ -271,6 +285,8 @@ def main(argv=None) -> int:
                          "replay takes too long); legs are compared over the updates both did")
     ap.add_argument("--helix-poses", type=int, default=10000)
     ap.add_argument("--cli", action="store_true", help="time the whole CLI command instead")
+    ap.add_argument("--reference", default=None, metavar="DIR",
+                    help="with --cli: also time the default backend of another checkout (PYTHONPATH=DIR)")
     ap.add_argument("--accuracy", action="store_true", help="errors against gtsam.ISAM2 and batch LM instead")
     args = ap.parse_args(argv)
     if args.accuracy:
@@ -280,7 +296,7 @@ def main(argv=None) -> int:
     if args.cli:
         legs = args.legs if args.legs != list(LEGS) else ["native", "batch"]
         with tempfile.TemporaryDirectory() as tmp:
-            cli_rows(args.datasets, args.data_dir, tmp, args.helix_poses, args.repeat, legs)
+            cli_rows(args.datasets, args.data_dir, tmp, args.helix_poses, args.repeat, legs, args.reference)
         return 0
 
     with tempfile.TemporaryDirectory() as tmp:

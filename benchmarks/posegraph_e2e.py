@@ -66,6 +66,10 @@ def dataset_path(name: str) -> str:
     return os.path.join(DATA, name + ".g2o")
 
 
+#: Further options of every run (``--args``), e.g. ``--gnc tls``.
+EXTRA: list[str] = []
+
+
 def run_once(path: str, backend: str, init: str, root: str = ROOT) -> tuple[float, float, dict]:
     """(wall seconds, peak RSS MiB, --json record) of one fresh ``lie-factors posegraph`` process.
 
@@ -77,7 +81,7 @@ def run_once(path: str, backend: str, init: str, root: str = ROOT) -> tuple[floa
     t = time.perf_counter()
     # cwd: `python -c` puts the working directory first on sys.path, before PYTHONPATH
     p = subprocess.run([sys.executable, "-c", CODE, "posegraph", path, "--backend", backend, "--init", init,
-                        "--json", "--quiet"], capture_output=True, text=True, env=env, cwd=root)
+                        *EXTRA, "--json", "--quiet"], capture_output=True, text=True, env=env, cwd=root)
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -163,16 +167,19 @@ def main(argv=None):
     ap.add_argument("--datasets", default=DEFAULT)
     ap.add_argument("--init", default="auto")
     ap.add_argument("--output", default="", help="also write the table to this markdown file")
+    ap.add_argument("--args", default="", help="further options of every run, e.g. '--gnc tls'")
     ap.add_argument("--reference", default="", metavar="DIR",
                     help="another checkout whose default command runs alongside (PYTHONPATH=DIR)")
     args = ap.parse_args(argv)
+    EXTRA[:] = args.args.split()
     rows = []
     for name in args.datasets.split(","):
         row = measure(name, args.repeats, args.init, args.reference)
         rows.append(row)
         print(table([row]).splitlines()[-1], flush=True)
     text = (f"python benchmarks/posegraph_e2e.py --repeats {args.repeats} --init {args.init} "
-            f"--datasets {args.datasets}" + (f" --reference {args.reference}" if args.reference else "")
+            f"--datasets {args.datasets}" + (f" --args '{args.args}'" if args.args else "")
+            + (f" --reference {args.reference}" if args.reference else "")
             + "\n\n" + table(rows) + "\n")
     if args.reference:
         text += "\n" + reference_table(rows) + "\n"
