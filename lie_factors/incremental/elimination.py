@@ -25,12 +25,14 @@ KEEP_UPDATE = 64 * 65 // 2
 def _keep_old_roots(tree, aidx):
     """The old roots that are not re-eliminated, linked through ``tree.nxt`` (reversed);
     returns the first, or −1."""
-    r = tree.roots[0]
+    nxt = tree.nxt
+    roots = tree.roots
+    r = roots[0]
     kept = -1
     while r >= 0:
-        following = tree.nxt[r]
+        following = nxt[r]
         if aidx[r] < 0:
-            tree.nxt[r] = kept
+            nxt[r] = kept
             kept = r
         r = following
     return kept
@@ -40,40 +42,62 @@ def _keep_old_roots(tree, aidx):
 def _commit(order, orphans, new, tree, work):
     """Write the re-eliminated nodes into the tree (counting the pool entries they free in
     ``work.stats[4:6]``), hang the orphans, and link the new roots before the kept ones."""
-    kept = _keep_old_roots(tree, work.aidx)
+    new_cond = new.cond
+    new_nchild = new.nchild
+    orphan_parent = new.orphan_parent
+    new_parent = new.parent
+    new_roots = new.roots
+    new_sep_dim = new.sep_dim
+    new_sep_len = new.sep_len
+    new_sep_start = new.sep_start
+    new_ustart = new.ustart
+    tree_cond = tree.cond
+    dim = tree.dim
+    first = tree.first
+    tree_nchild = tree.nchild
+    nxt = tree.nxt
+    tree_parent = tree.parent
+    tree_roots = tree.roots
+    tree_sep_dim = tree.sep_dim
+    tree_sep_len = tree.sep_len
+    tree_sep_start = tree.sep_start
+    tree_ustart = tree.ustart
+    aidx = work.aidx
+    chead = work.chead
+    cnext = work.cnext
+    stats = work.stats
+    kept = _keep_old_roots(tree, aidx)
     for q in range(orphans.shape[0]):
         o = orphans[q]
-        tree.nxt[o] = work.cnext[o]
-        tree.parent[o] = new.orphan_parent[q]
-    stats = work.stats
-    dim = tree.dim
+        nxt[o] = cnext[o]
+        tree_parent[o] = orphan_parent[q]
     for k in range(order.shape[0]):
         j = order[k]
-        if tree.cond[j] >= 0:
-            stats[4] += dim[j] * (dim[j] + tree.sep_dim[j] + 1)
-            stats[5] += tree.sep_len[j]
-        if tree.ustart[j] >= 0:
-            stats[4] += packed(tree.sep_dim[j] + 1)
-        tree.parent[j] = new.parent[k]
-        tree.sep_start[j] = new.sep_start[k]
-        tree.sep_len[j] = new.sep_len[k]
-        tree.sep_dim[j] = new.sep_dim[k]
-        tree.cond[j] = new.cond[k]
-        tree.ustart[j] = new.ustart[k]
-        tree.first[j] = work.chead[j]
-        tree.nxt[j] = work.cnext[j]
-        tree.nchild[j] = new.nchild[k]
-        work.aidx[j] = -1
-    r = new.roots[0]
+        if tree_cond[j] >= 0:
+            stats[4] += dim[j] * (dim[j] + tree_sep_dim[j] + 1)
+            stats[5] += tree_sep_len[j]
+        if tree_ustart[j] >= 0:
+            stats[4] += packed(tree_sep_dim[j] + 1)
+        tree_parent[j] = new_parent[k]
+        tree_sep_start[j] = new_sep_start[k]
+        tree_sep_len[j] = new_sep_len[k]
+        tree_sep_dim[j] = new_sep_dim[k]
+        tree_cond[j] = new_cond[k]
+        tree_ustart[j] = new_ustart[k]
+        first[j] = chead[j]
+        nxt[j] = cnext[j]
+        tree_nchild[j] = new_nchild[k]
+        aidx[j] = -1
+    r = new_roots[0]
     last = -1
     while r >= 0:
         last = r
-        r = tree.nxt[r]
+        r = nxt[r]
     if last >= 0:
-        tree.nxt[last] = kept
-        tree.roots[0] = new.roots[0]
+        nxt[last] = kept
+        tree_roots[0] = new_roots[0]
     else:
-        tree.roots[0] = kept
+        tree_roots[0] = kept
 
 
 @dense_kernel
@@ -93,18 +117,23 @@ def reeliminate(order, orphans, base, tree, pools, itop, ftop, store, work, keep
     update matrices extend-added, factors assembled, frontal scalars², pool floats freed, pool
     ints freed, Σ D·N² over fronts].
     """
-    new = begin(order, orphans, base, tree, pools.ipool, work)
-    status, detail, it, fall = separators(order, new, tree, pools.ipool, itop, store, work)
+    fpool = pools.fpool
+    ipool = pools.ipool
+    dim = tree.dim
+    pos = tree.pos
+    aidx = work.aidx
+    new = begin(order, orphans, base, tree, ipool, work)
+    status, detail, it, fall = separators(order, new, tree, ipool, itop, store, work)
     if status == OK:
-        need = float_room(order, new, tree.dim, work.aidx, keep_update)
-        if ftop + need > pools.fpool.shape[0]:
+        need = float_room(order, new, dim, aidx, keep_update)
+        if ftop + need > fpool.shape[0]:
             status = NEED_FLOAT
             detail = ftop + need
     ft = ftop
     if status == OK:
         status, detail, ft = numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update)
     if status != OK:
-        restore(order, new, tree.pos, work.aidx)
+        restore(order, new, pos, aidx)
         return status, detail, itop, ftop
     _commit(order, orphans, new, tree, work)
     return OK, 0, it, ft

@@ -94,19 +94,24 @@ def _chain(j, k, new, work, members):
     """The clique ``j`` (index ``k``) starts: ``j`` and the parents that each have the previous
     member as only child and nest its separator, written to ``members``; returns their count,
     0 when ``j`` is itself such a parent (its child's clique holds it)."""
-    c = work.chead[j]
-    if new.nchild[k] == 1 and work.aidx[c] >= 0 and new.sep_len[work.aidx[c]] == new.sep_len[k] + 1:
+    nchild = new.nchild
+    parent = new.parent
+    sep_len = new.sep_len
+    aidx = work.aidx
+    chead = work.chead
+    c = chead[j]
+    if nchild[k] == 1 and aidx[c] >= 0 and sep_len[aidx[c]] == sep_len[k] + 1:
         return 0
     members[0] = j
     nm = 1
     top = j
     while True:
-        ti = work.aidx[top]
-        p = new.parent[ti]
+        ti = aidx[top]
+        p = parent[ti]
         if p < 0:
             break
-        pi = work.aidx[p]
-        if new.nchild[pi] != 1 or new.sep_len[ti] != new.sep_len[pi] + 1:
+        pi = aidx[p]
+        if nchild[pi] != 1 or sep_len[ti] != sep_len[pi] + 1:
             break
         members[nm] = p
         nm += 1
@@ -118,16 +123,20 @@ def _chain(j, k, new, work, members):
 def _locate(members, new, dim, ipool, work):
     """The front's columns: the members' first (``work.loc``), then the last member's
     separator's, then the right-hand side; returns the members' scalars D."""
+    sep_len = new.sep_len
+    sep_start = new.sep_start
+    aidx = work.aidx
+    loc = work.loc
     D = 0
     for q in range(members.shape[0]):
         v = members[q]
-        work.loc[v] = D
+        loc[v] = D
         D += dim[v]
-    topk = work.aidx[members[members.shape[0] - 1]]
+    topk = aidx[members[members.shape[0] - 1]]
     o = D
-    for t in range(new.sep_start[topk], new.sep_start[topk] + new.sep_len[topk]):
+    for t in range(sep_start[topk], sep_start[topk] + sep_len[topk]):
         v = ipool[t]
-        work.loc[v] = o
+        loc[v] = o
         o += dim[v]
     return D
 
@@ -166,47 +175,68 @@ def _extend_add(j, front, new, tree, pools, work):
     """The update matrices of ``j``'s children (re-eliminated ones from ``new``, orphans from the
     tree) added to the front.  Returns (child, count): child −1, or a child without an update
     matrix (never: such a child shares its parent's clique)."""
+    new_sep_dim = new.sep_dim
+    new_sep_len = new.sep_len
+    new_sep_start = new.sep_start
+    new_ustart = new.ustart
+    fpool = pools.fpool
+    ipool = pools.ipool
+    dim = tree.dim
+    tree_sep_dim = tree.sep_dim
+    tree_sep_len = tree.sep_len
+    tree_sep_start = tree.sep_start
+    tree_ustart = tree.ustart
+    aidx = work.aidx
+    chead = work.chead
+    cnext = work.cnext
+    loc = work.loc
     N = front.phi.shape[0]
     colmap = front.colmap
     nu = 0
-    c = work.chead[j]
+    c = chead[j]
     while c >= 0:
-        ci = work.aidx[c]
-        s0 = new.sep_start[ci] if ci >= 0 else tree.sep_start[c]
-        sl = new.sep_len[ci] if ci >= 0 else tree.sep_len[c]
-        u0 = new.ustart[ci] if ci >= 0 else tree.ustart[c]
+        ci = aidx[c]
+        s0 = new_sep_start[ci] if ci >= 0 else tree_sep_start[c]
+        sl = new_sep_len[ci] if ci >= 0 else tree_sep_len[c]
+        u0 = new_ustart[ci] if ci >= 0 else tree_ustart[c]
         if u0 < 0:
             return c, nu
-        S1 = (new.sep_dim[ci] if ci >= 0 else tree.sep_dim[c]) + 1
+        S1 = (new_sep_dim[ci] if ci >= 0 else tree_sep_dim[c]) + 1
         cc = 0
         for t in range(s0, s0 + sl):
-            v = pools.ipool[t]
-            for i in range(tree.dim[v]):
-                colmap[cc] = work.loc[v] + i
+            v = ipool[t]
+            for i in range(dim[v]):
+                colmap[cc] = loc[v] + i
                 cc += 1
         colmap[cc] = N - 1
-        _add_packed(front, S1, pools.fpool, u0)
+        _add_packed(front, S1, fpool, u0)
         nu += 1
-        c = work.cnext[c]
+        c = cnext[c]
     return -1, nu
 
 
 @inline_kernel
 def _assemble(f, front, store, dim, loc):
     """Add factor ``f``'s AᵀA (augmented with Aᵀb) to the front's upper triangle and diagonal."""
+    fcols = store.fcols
+    fjstart = store.fjstart
+    fnv = store.fnv
+    frows = store.frows
+    fvars = store.fvars
+    fvstart = store.fvstart
+    jac = store.jac
     Phi, diag0, colmap = front.phi, front.diag, front.colmap
     N = Phi.shape[0]
-    jac = store.jac
-    D1 = store.fcols[f]
+    D1 = fcols[f]
     cc = 0
-    for u in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
-        w = store.fvars[u]
+    for u in range(fvstart[f], fvstart[f] + fnv[f]):
+        w = fvars[u]
         for i in range(dim[w]):
             colmap[cc] = loc[w] + i
             cc += 1
     colmap[cc] = N - 1
-    J0 = store.fjstart[f]
-    r = store.frows[f]
+    J0 = fjstart[f]
+    r = frows[f]
     for c1 in range(D1):
         t1 = colmap[c1]
         for c2 in range(D1):
@@ -240,6 +270,10 @@ def _eliminate_members(front, fall, new, fpool, ux, store, dim, work, keep_updat
     from it).  A member's factors enter just before its block (they touch no column before
     it), so that each update matrix kept is its subtree's alone; those of the members below the
     last are written from ``ux``.  Returns (bad column or −1, factors assembled, new ux)."""
+    fstart = new.fstart
+    ustart = new.ustart
+    aidx = work.aidx
+    loc = work.loc
     Phi, diag0, members = front.phi, front.diag, front.members
     N = Phi.shape[0]
     nm = members.shape[0]
@@ -247,11 +281,11 @@ def _eliminate_members(front, fall, new, fpool, ux, store, dim, work, keep_updat
     nf = 0
     for q in range(nm):
         v = members[q]
-        mk = work.aidx[v]
-        for t in range(new.fstart[mk], new.fstart[mk + 1]):
-            _assemble(fall[t], front, store, dim, work.loc)
+        mk = aidx[v]
+        for t in range(fstart[mk], fstart[mk + 1]):
+            _assemble(fall[t], front, store, dim, loc)
             nf += 1
-        e = work.loc[v] + dim[v]
+        e = loc[v] + dim[v]
         last = q == nm - 1
         if not last and packed(N - e) > keep_update:
             continue
@@ -262,7 +296,7 @@ def _eliminate_members(front, fall, new, fpool, ux, store, dim, work, keep_updat
             return bad, nf, ux
         b0 = e
         if not last:
-            new.ustart[mk] = ux
+            ustart[mk] = ux
             ux = _write_update(Phi, e, ux, fpool)
     return -1, nf, ux
 
@@ -271,13 +305,16 @@ def _eliminate_members(front, fall, new, fpool, ux, store, dim, work, keep_updat
 def _write_conditionals(front, ft, new, fpool, dim, work):
     """Each member's conditional, its rows of the front from its own columns on (zero below
     the diagonal), written to ``fpool`` from ``ft``; returns the end."""
+    cond = new.cond
+    aidx = work.aidx
+    loc = work.loc
     Phi, members = front.phi, front.members
     N = Phi.shape[0]
     for q in range(members.shape[0]):
         v = members[q]
-        o = work.loc[v]
+        o = loc[v]
         W = N - o
-        new.cond[work.aidx[v]] = ft
+        cond[aidx[v]] = ft
         for p in range(dim[v]):
             for qq in range(W):
                 cidx = o + qq
@@ -308,24 +345,30 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
     factors assembled, frontal scalars², …, Σ D·N² over fronts (the work of their dense
     elimination, in multiply-adds up to a constant)] (entries 0–3 and 6).
     """
+    sep_dim = new.sep_dim
+    ustart = new.ustart
+    fpool = pools.fpool
+    ipool = pools.ipool
+    dim = tree.dim
+    aidx = work.aidx
+    loc = work.loc
+    stats = work.stats
     K = order.shape[0]
     members = np.empty(K, dtype=np.int64)
     colmap = np.empty(64, dtype=np.int64)
     scratch = np.empty(4096)  # the fronts, reused (grown to the largest)
-    stats = work.stats
-    dim = tree.dim
     ft = ftop
     for k in range(K):
         j = order[k]
         nm = _chain(j, k, new, work, members)
         if nm == 0:
             continue
-        D = _locate(members[:nm], new, dim, pools.ipool, work)
-        topk = work.aidx[members[nm - 1]]
-        N = D + new.sep_dim[topk] + 1
+        D = _locate(members[:nm], new, dim, ipool, work)
+        topk = aidx[members[nm - 1]]
+        N = D + sep_dim[topk] + 1
         need_f = packed(N - D)  # the conditionals and the last member's update matrix
         for q in range(nm):
-            need_f += dim[members[q]] * (N - work.loc[members[q]])
+            need_f += dim[members[q]] * (N - loc[members[q]])
         if N * N + N > scratch.shape[0]:
             scratch = np.empty(2 * (N * N + N))
         if N > colmap.shape[0]:
@@ -334,12 +377,12 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
         child, nu = _extend_add(j, front, new, tree, pools, work)
         if child >= 0:
             return NOT_POSITIVE, child, ftop
-        bad, nf, ux = _eliminate_members(front, fall, new, pools.fpool, ft + need_f, store, dim, work, keep_update)
+        bad, nf, ux = _eliminate_members(front, fall, new, fpool, ft + need_f, store, dim, work, keep_update)
         if bad >= 0:
-            return NOT_POSITIVE, _variable_of(front.members, bad, dim, work.loc), ftop
-        ft = _write_conditionals(front, ft, new, pools.fpool, dim, work)
-        new.ustart[topk] = ft
-        _write_update(front.phi, D, ft, pools.fpool)
+            return NOT_POSITIVE, _variable_of(front.members, bad, dim, loc), ftop
+        ft = _write_conditionals(front, ft, new, fpool, dim, work)
+        ustart[topk] = ft
+        _write_update(front.phi, D, ft, fpool)
         ft = ux
         stats[0] += nm
         stats[1] += nu

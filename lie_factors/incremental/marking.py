@@ -38,26 +38,30 @@ def _take(j, flag, out, na):
 def _row_subtrees(relin, tree, ipool, flag, out, na):
     """Mark the nodes whose separator holds a relinearized variable (its row subtree, ISAM2's
     ``findAll``): every column the variable's factors reach.  Returns the new count."""
+    first = tree.first
+    nxt = tree.nxt
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
     stack = np.empty(16, dtype=np.int64)
     for q in range(relin.shape[0]):
         r = relin[q]
         top = 0
-        c = tree.first[r]
+        c = first[r]
         while c >= 0:
             stack = push(stack, top, c)
             top += 1
-            c = tree.nxt[c]
+            c = nxt[c]
         while top > 0:
             top -= 1
             j = stack[top]
-            if not _has(ipool, tree.sep_start[j], tree.sep_len[j], r):
+            if not _has(ipool, sep_start[j], sep_len[j], r):
                 continue
             na = _take(j, flag, out, na)
-            c = tree.first[j]
+            c = first[j]
             while c >= 0:
                 stack = push(stack, top, c)
                 top += 1
-                c = tree.nxt[c]
+                c = nxt[c]
     return na
 
 
@@ -79,13 +83,16 @@ def _ancestors(parent, flag, out, na):
 def _clique_members_below(tree, flag, out, na):
     """Mark the only child of a marked node when it keeps no update matrix (the two share a
     clique: the parent cannot be re-eliminated without it), down the chain; returns the count."""
+    first = tree.first
+    nchild = tree.nchild
+    ustart = tree.ustart
     q = 0
     while q < na:
         p = out[q]
         q += 1
-        if tree.nchild[p] == 1:
-            c = tree.first[p]
-            if flag[c] == 0 and tree.ustart[c] < 0:
+        if nchild[p] == 1:
+            c = first[p]
+            if flag[c] == 0 and ustart[c] < 0:
                 flag[c] = 1
                 out[na] = c
                 na += 1
@@ -103,20 +110,23 @@ def mark_affected(marked, relin, tree, ipool, flag, out_affected, out_orphans):
     ``flag`` (V,) zero on entry, zero on return.  Writes ``out_affected`` and
     ``out_orphans`` (the unmarked children of marked nodes); returns their counts.
     """
+    first = tree.first
+    nxt = tree.nxt
+    parent = tree.parent
     na = _row_subtrees(relin, tree, ipool, flag, out_affected, 0)
     for lst in (marked, relin):
         for q in range(lst.shape[0]):
             na = _take(lst[q], flag, out_affected, na)
-    na = _ancestors(tree.parent, flag, out_affected, na)
+    na = _ancestors(parent, flag, out_affected, na)
     na = _clique_members_below(tree, flag, out_affected, na)
     no = 0
     for q in range(na):
-        c = tree.first[out_affected[q]]
+        c = first[out_affected[q]]
         while c >= 0:
             if flag[c] == 0:
                 out_orphans[no] = c
                 no += 1
-            c = tree.nxt[c]
+            c = nxt[c]
     for q in range(na):
         flag[out_affected[q]] = 0
     return na, no
@@ -126,26 +136,33 @@ def mark_affected(marked, relin, tree, ipool, flag, out_affected, out_orphans):
 def _factors_inside(affected, store, flag, stamp, out_ptr, out_vars):
     """The factors whose variables are all affected (``flag`` 1), each once (``store.fstamp``
     set to ``stamp``), appended as lists; their variables flagged 2.  Returns (lists, entries)."""
+    afac = store.afac
+    ahead = store.ahead
+    anext = store.anext
+    fnv = store.fnv
+    fstamp = store.fstamp
+    fvars = store.fvars
+    fvstart = store.fvstart
     n = 0
     m = 0
     for q in range(affected.shape[0]):
-        e = store.ahead[affected[q]]
+        e = ahead[affected[q]]
         while e >= 0:
-            f = store.afac[e]
-            e = store.anext[e]
-            if store.fstamp[f] == stamp:
+            f = afac[e]
+            e = anext[e]
+            if fstamp[f] == stamp:
                 continue
-            store.fstamp[f] = stamp
+            fstamp[f] = stamp
             inside = True
-            for t in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
-                if flag[store.fvars[t]] == 0:
+            for t in range(fvstart[f], fvstart[f] + fnv[f]):
+                if flag[fvars[t]] == 0:
                     inside = False
                     break
             if not inside:
                 continue
-            for t in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
-                out_vars[m] = store.fvars[t]
-                flag[store.fvars[t]] = 2
+            for t in range(fvstart[f], fvstart[f] + fnv[f]):
+                out_vars[m] = fvars[t]
+                flag[fvars[t]] = 2
                 m += 1
             n += 1
             out_ptr[n] = m
@@ -158,13 +175,15 @@ def ordering_graph(affected, orphans, store, tree, ipool, flag, stamp, out_ptr, 
     affected, every orphan's separator (a clique), and each affected variable in neither alone.
     Lists in ``out_ptr``/``out_vars`` (CSR); returns (lists, entries).  ``flag`` (V,) zero on
     entry and return; ``store.fstamp`` holds factor stamps below ``stamp``."""
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
     for q in range(affected.shape[0]):
         flag[affected[q]] = 1
     out_ptr[0] = 0
     n, m = _factors_inside(affected, store, flag, stamp, out_ptr, out_vars)
     for q in range(orphans.shape[0]):
         o = orphans[q]
-        for t in range(tree.sep_start[o], tree.sep_start[o] + tree.sep_len[o]):
+        for t in range(sep_start[o], sep_start[o] + sep_len[o]):
             out_vars[m] = ipool[t]
             flag[ipool[t]] = 2
             m += 1
@@ -206,16 +225,19 @@ def marked_among(affected, observed, flag):
 @kernel
 def factors_of(variables, store, nf):
     """The factors on any of ``variables``, each once, in increasing order (of the first ``nf``)."""
+    afac = store.afac
+    ahead = store.ahead
+    anext = store.anext
     seen = np.zeros(nf, dtype=np.uint8)
     n = 0
     for q in range(variables.shape[0]):
-        e = store.ahead[variables[q]]
+        e = ahead[variables[q]]
         while e >= 0:
-            f = store.afac[e]
+            f = afac[e]
             if seen[f] == 0:
                 seen[f] = 1
                 n += 1
-            e = store.anext[e]
+            e = anext[e]
     out = np.empty(n, dtype=np.int64)
     k = 0
     for f in range(nf):

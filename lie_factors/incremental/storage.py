@@ -15,22 +15,32 @@ from .structures import packed
 def init_variables(nv0, dims, ns0, tree, ahead, delta):
     """Variables nv0, nv0 + 1, … of dimensions ``dims``: no node yet, no factor (``ahead``),
     δ = 0, scalar offsets from ``ns0``; returns the new scalar count."""
+    cond = tree.cond
+    dim = tree.dim
+    first = tree.first
+    nchild = tree.nchild
+    nxt = tree.nxt
+    parent = tree.parent
+    sep_dim = tree.sep_dim
+    sep_len = tree.sep_len
+    ustart = tree.ustart
+    voff = tree.voff
     o = ns0
     for q in range(dims.shape[0]):
         j = nv0 + q
-        tree.dim[j] = dims[q]
-        tree.voff[j] = o
+        dim[j] = dims[q]
+        voff[j] = o
         for i in range(dims[q]):
             delta[o + i] = 0.0
         o += dims[q]
-        tree.parent[j] = -1
-        tree.first[j] = -1
-        tree.nxt[j] = -1
-        tree.nchild[j] = 0
-        tree.sep_len[j] = 0
-        tree.sep_dim[j] = 0
-        tree.cond[j] = -1
-        tree.ustart[j] = -1
+        parent[j] = -1
+        first[j] = -1
+        nxt[j] = -1
+        nchild[j] = 0
+        sep_len[j] = 0
+        sep_dim[j] = 0
+        cond[j] = -1
+        ustart[j] = -1
         ahead[j] = -1
     return o
 
@@ -40,33 +50,47 @@ def append_factors(fv, J, counts, store):
     """Factors ``counts`` = (nf, nfv, njac), nf + 1, … on the variables ``fv`` (F, k) with
     Jacobians ``J`` (F, r, D + 1), stored from entry ``nfv`` of ``store.fvars`` and ``njac`` of
     ``store.jac``."""
+    fcols = store.fcols
+    fjstart = store.fjstart
+    fnv = store.fnv
+    frows = store.frows
+    fstamp = store.fstamp
+    fvars = store.fvars
+    fvstart = store.fvstart
+    jac = store.jac
     nf, nfv, njac = counts
     F, k = fv.shape
     r, D1 = J.shape[1], J.shape[2]
     for q in range(F):
         f = nf + q
-        store.fnv[f] = k
-        store.fvstart[f] = nfv + q * k
+        fnv[f] = k
+        fvstart[f] = nfv + q * k
         for t in range(k):
-            store.fvars[nfv + q * k + t] = fv[q, t]
-        store.frows[f] = r
-        store.fcols[f] = D1
-        store.fjstart[f] = njac + q * r * D1
+            fvars[nfv + q * k + t] = fv[q, t]
+        frows[f] = r
+        fcols[f] = D1
+        fjstart[f] = njac + q * r * D1
         for a in range(r):
             for b in range(D1):
-                store.jac[njac + q * r * D1 + a * D1 + b] = J[q, a, b]
-        store.fstamp[f] = 0
+                jac[njac + q * r * D1 + a * D1 + b] = J[q, a, b]
+        fstamp[f] = 0
 
 
 @kernel
 def link_adjacency(store, f0, f1):
     """Prepend factors f0..f1-1 to their variables' adjacency lists (entry t of ``fvars`` is entry t)."""
+    afac = store.afac
+    ahead = store.ahead
+    anext = store.anext
+    fnv = store.fnv
+    fvars = store.fvars
+    fvstart = store.fvstart
     for f in range(f0, f1):
-        for t in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
-            v = store.fvars[t]
-            store.afac[t] = f
-            store.anext[t] = store.ahead[v]
-            store.ahead[v] = t
+        for t in range(fvstart[f], fvstart[f] + fnv[f]):
+            v = fvars[t]
+            afac[t] = f
+            anext[t] = ahead[v]
+            ahead[v] = t
 
 
 @kernel
@@ -88,20 +112,23 @@ def _move_down(pool, segments, starts, sizes, order):
 @inline_kernel
 def _compact_separators(nv, tree, ipool):
     """Move every live separator down over the freed entries of ``ipool``; returns the new top."""
+    cond = tree.cond
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
     starts = np.empty(nv, dtype=np.int64)
     sizes = np.empty(nv, dtype=np.int64)
     nodes = np.empty(nv, dtype=np.int64)
     n = 0
     for j in range(nv):
-        if tree.cond[j] >= 0 and tree.sep_len[j] > 0:
-            starts[n] = tree.sep_start[j]
-            sizes[n] = tree.sep_len[j]
+        if cond[j] >= 0 and sep_len[j] > 0:
+            starts[n] = sep_start[j]
+            sizes[n] = sep_len[j]
             nodes[n] = j
             n += 1
     moved = np.empty(n, dtype=np.int64)
     it = _move_down(ipool, moved, starts[:n], sizes[:n], np.argsort(starts[:n]))
     for k in range(n):
-        tree.sep_start[nodes[k]] = moved[k]
+        sep_start[nodes[k]] = moved[k]
     return it
 
 
@@ -109,19 +136,23 @@ def _compact_separators(nv, tree, ipool):
 def _compact_floats(nv, tree, fpool):
     """Move every conditional and update matrix down over the freed entries of ``fpool``;
     returns the new top."""
+    cond = tree.cond
+    dim = tree.dim
+    sep_dim = tree.sep_dim
+    ustart = tree.ustart
     starts = np.empty(2 * nv, dtype=np.int64)
     sizes = np.empty(2 * nv, dtype=np.int64)
     nodes = np.empty(2 * nv, dtype=np.int64)
     n = 0
     for j in range(nv):
-        s = tree.sep_dim[j]
-        if tree.cond[j] >= 0:
-            starts[n] = tree.cond[j]
-            sizes[n] = tree.dim[j] * (tree.dim[j] + s + 1)
+        s = sep_dim[j]
+        if cond[j] >= 0:
+            starts[n] = cond[j]
+            sizes[n] = dim[j] * (dim[j] + s + 1)
             nodes[n] = j
             n += 1
-        if tree.ustart[j] >= 0:
-            starts[n] = tree.ustart[j]
+        if ustart[j] >= 0:
+            starts[n] = ustart[j]
             sizes[n] = packed(s + 1)
             nodes[n] = -1 - j
             n += 1
@@ -130,9 +161,9 @@ def _compact_floats(nv, tree, fpool):
     for k in range(n):
         j = nodes[k]
         if j >= 0:
-            tree.cond[j] = moved[k]
+            cond[j] = moved[k]
         else:
-            tree.ustart[-1 - j] = moved[k]
+            ustart[-1 - j] = moved[k]
     return ft
 
 
@@ -140,4 +171,6 @@ def _compact_floats(nv, tree, fpool):
 def compact_pools(nv, tree, pools):
     """Move every node's separator, conditional and update matrix down over the freed entries of
     the pools, in place, and point the node there; returns the new tops."""
-    return _compact_separators(nv, tree, pools.ipool), _compact_floats(nv, tree, pools.fpool)
+    fpool = pools.fpool
+    ipool = pools.ipool
+    return _compact_separators(nv, tree, ipool), _compact_floats(nv, tree, fpool)

@@ -18,11 +18,14 @@ from .structures import push
 def _solve_node(j, tree, pools, delta, x, xs):
     """x = R_j⁻¹ (d_j − T_j δ_S): the node's variable given its separator's values in ``delta``
     (gathered once into ``xs``, so that each row is one contiguous dot product)."""
+    cond = tree.cond
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
     dim, voff, ipool, fpool = tree.dim, tree.voff, pools.ipool, pools.fpool
     d = dim[j]
-    c0 = tree.cond[j]
+    c0 = cond[j]
     s = 0
-    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
+    for t in range(sep_start[j], sep_start[j] + sep_len[j]):
         v = ipool[t]
         o = voff[v]
         for i in range(dim[v]):
@@ -56,10 +59,14 @@ def _push_list(pending, npend, head, nxt):
 @inline_kernel
 def _dirty(j, tree, ipool, wildfire):
     """Whether node ``j`` was re-eliminated or a variable of its separator changed."""
-    if wildfire.replaced[j] != 0:
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
+    changed = wildfire.changed
+    replaced = wildfire.replaced
+    if replaced[j] != 0:
         return True
-    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
-        if wildfire.changed[ipool[t]] != 0:
+    for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+        if changed[ipool[t]] != 0:
             return True
     return False
 
@@ -87,25 +94,32 @@ def back_substitute(threshold, tree, pools, delta, wildfire):
     and ``changed`` are cleared on return (every re-eliminated node is below a
     re-eliminated root, so all are visited).  Returns the number of nodes solved.
     """
+    ipool = pools.ipool
+    dim = tree.dim
+    first = tree.first
+    nxt = tree.nxt
+    roots = tree.roots
+    sep_dim = tree.sep_dim
+    voff = tree.voff
     x = np.empty(64)
     xs = np.empty(256)
-    pending, npend = _push_list(np.empty(64, dtype=np.int64), 0, tree.roots[0], tree.nxt)
+    pending, npend = _push_list(np.empty(64, dtype=np.int64), 0, roots[0], nxt)
     replaced, changed, visited = wildfire
     solved = 0
     cleared = 0
     while npend > 0:
         npend -= 1
         j = pending[npend]
-        if not _dirty(j, tree, pools.ipool, wildfire):
+        if not _dirty(j, tree, ipool, wildfire):
             continue
-        d = tree.dim[j]
+        d = dim[j]
         if d > x.shape[0]:
             x = np.empty(2 * d)
-        if tree.sep_dim[j] > xs.shape[0]:
-            xs = np.empty(2 * tree.sep_dim[j])
+        if sep_dim[j] > xs.shape[0]:
+            xs = np.empty(2 * sep_dim[j])
         _solve_node(j, tree, pools, delta, x, xs)
         solved += 1
-        o = tree.voff[j]
+        o = voff[j]
         keep = replaced[j] != 0 or _moved(x, delta, o, d) >= threshold
         if keep:
             for p in range(d):
@@ -114,7 +128,7 @@ def back_substitute(threshold, tree, pools, delta, wildfire):
             visited[cleared] = j
             cleared += 1
         replaced[j] = 0
-        pending, npend = _push_list(pending, npend, tree.first[j], tree.nxt)
+        pending, npend = _push_list(pending, npend, first[j], nxt)
     for q in range(cleared):
         changed[visited[q]] = 0
     return solved
@@ -142,13 +156,16 @@ def _root_path(v, parent):
 def _forward_node(q, path, start, where, Y, tree, pools):
     """Path node ``q``'s rows of Y = R⁻ᵀ(E − the contributions already subtracted), then Tᵀ
     times them subtracted from the rows of its separator (all on the path)."""
+    cond = tree.cond
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
     dim, ipool, fpool = tree.dim, pools.ipool, pools.fpool
     dv = Y.shape[1]
     j = path[q]
     d = dim[j]
-    c0 = tree.cond[j]
+    c0 = cond[j]
     s = 0
-    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
+    for t in range(sep_start[j], sep_start[j] + sep_len[j]):
         s += dim[ipool[t]]
     N = d + s + 1
     y0 = start[q]
@@ -159,7 +176,7 @@ def _forward_node(q, path, start, where, Y, tree, pools):
                 acc -= fpool[c0 + t * N + p] * Y[y0 + t, col]
             Y[y0 + p, col] = acc / fpool[c0 + p * N + p]
     cc = d
-    for t in range(tree.sep_start[j], tree.sep_start[j] + tree.sep_len[j]):
+    for t in range(sep_start[j], sep_start[j] + sep_len[j]):
         w = ipool[t]
         dw = dim[w]
         if w in where:
@@ -180,14 +197,16 @@ def marginal_covariance(v, tree, pools, out):
 
     Forward substitution Rᵀ Y = E_v visiting only that path: a node's rows of Y
     take the contributions of the path nodes below it through their blocks T."""
-    dv = tree.dim[v]
-    path = _root_path(v, tree.parent)
+    dim = tree.dim
+    parent = tree.parent
+    dv = dim[v]
+    path = _root_path(v, parent)
     plen = path.shape[0]
     tot = 0
     start = np.empty(plen, dtype=np.int64)
     for q in range(plen):
         start[q] = tot
-        tot += tree.dim[path[q]]
+        tot += dim[path[q]]
     Y = np.zeros((tot, dv))
     where = {}
     for q in range(plen):

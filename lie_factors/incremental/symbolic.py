@@ -24,6 +24,12 @@ def begin(order, orphans, base, tree, ipool, work):
     """The variables ``order`` at positions ``base``, ``base`` + 1, … (``work.aidx``: their
     index in ``order``, no children yet), and the orphans hung from the first variable of their
     separator in the new order; returns the :data:`Columns` to fill."""
+    pos = tree.pos
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
+    aidx = work.aidx
+    chead = work.chead
+    cnext = work.cnext
     K = order.shape[0]
     new = Columns(np.empty(K, dtype=np.int64), np.empty(K, dtype=np.int64), np.empty(K, dtype=np.int64),
                   np.empty(K, dtype=np.int64), np.empty(K, dtype=np.int64), np.empty(K, dtype=np.int64),
@@ -31,30 +37,31 @@ def begin(order, orphans, base, tree, ipool, work):
                   np.empty(orphans.shape[0], dtype=np.int64), np.full(1, -1, dtype=np.int64))
     for k in range(K):
         j = order[k]
-        new.old_pos[k] = tree.pos[j]
-        tree.pos[j] = base + k
-        work.aidx[j] = k
-        work.chead[j] = -1
+        new.old_pos[k] = pos[j]
+        pos[j] = base + k
+        aidx[j] = k
+        chead[j] = -1
     for q in range(orphans.shape[0]):
         o = orphans[q]
         best = -1
-        for t in range(tree.sep_start[o], tree.sep_start[o] + tree.sep_len[o]):
+        for t in range(sep_start[o], sep_start[o] + sep_len[o]):
             v = ipool[t]
-            if best < 0 or tree.pos[v] < tree.pos[best]:
+            if best < 0 or pos[v] < pos[best]:
                 best = v
         new.orphan_parent[q] = best
-        work.cnext[o] = work.chead[best]
-        work.chead[best] = o
-        new.nchild[work.aidx[best]] += 1
+        cnext[o] = chead[best]
+        chead[best] = o
+        new.nchild[aidx[best]] += 1
     return new
 
 
 @inline_kernel
 def restore(order, new, pos, aidx):
     """Undo :func:`begin`'s positions and indices (a refused re-elimination)."""
+    old_pos = new.old_pos
     for k in range(order.shape[0]):
         j = order[k]
-        pos[j] = new.old_pos[k]
+        pos[j] = old_pos[k]
         aidx[j] = -1
 
 
@@ -76,15 +83,21 @@ def _own_factors(j, store, pos, mark, stamp, sep, fall):
     """The factors whose first variable in the order is ``j``, appended to ``fall``, and their
     later variables (not yet stamped ``stamp``) to ``sep``.  ``sep`` and ``fall`` are
     (buffer, count) pairs; returns both, the buffers grown when full."""
+    afac = store.afac
+    ahead = store.ahead
+    anext = store.anext
+    fnv = store.fnv
+    fvars = store.fvars
+    fvstart = store.fvstart
     sbuf, ns = sep
     flist, nfall = fall
-    e = store.ahead[j]
+    e = ahead[j]
     while e >= 0:
-        f = store.afac[e]
-        e = store.anext[e]
+        f = afac[e]
+        e = anext[e]
         first_var = True
-        for t in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
-            v = store.fvars[t]
+        for t in range(fvstart[f], fvstart[f] + fnv[f]):
+            v = fvars[t]
             if v != j and pos[v] < pos[j]:
                 first_var = False
                 break
@@ -92,8 +105,8 @@ def _own_factors(j, store, pos, mark, stamp, sep, fall):
             continue
         flist = push(flist, nfall, f)
         nfall += 1
-        for t in range(store.fvstart[f], store.fvstart[f] + store.fnv[f]):
-            v = store.fvars[t]
+        for t in range(fvstart[f], fvstart[f] + fnv[f]):
+            v = fvars[t]
             if mark[v] != stamp:
                 mark[v] = stamp
                 sbuf = push(sbuf, ns, v)
@@ -105,35 +118,49 @@ def _own_factors(j, store, pos, mark, stamp, sep, fall):
 def _children_separators(j, new, tree, ipool, work, stamp, sep):
     """The variables of the separators of ``j``'s children (new ones from ``new``, orphans from
     the tree) not yet stamped, appended to ``sep`` (buffer, count); returns it."""
+    new_sep_len = new.sep_len
+    new_sep_start = new.sep_start
+    tree_sep_len = tree.sep_len
+    tree_sep_start = tree.sep_start
+    aidx = work.aidx
+    chead = work.chead
+    cnext = work.cnext
+    mark = work.mark
     sbuf, ns = sep
-    c = work.chead[j]
+    c = chead[j]
     while c >= 0:
-        ci = work.aidx[c]
-        s0 = new.sep_start[ci] if ci >= 0 else tree.sep_start[c]
-        sl = new.sep_len[ci] if ci >= 0 else tree.sep_len[c]
+        ci = aidx[c]
+        s0 = new_sep_start[ci] if ci >= 0 else tree_sep_start[c]
+        sl = new_sep_len[ci] if ci >= 0 else tree_sep_len[c]
         for t in range(s0, s0 + sl):
             v = ipool[t]
-            if work.mark[v] != stamp:
-                work.mark[v] = stamp
+            if mark[v] != stamp:
+                mark[v] = stamp
                 sbuf = push(sbuf, ns, v)
                 ns += 1
-        c = work.cnext[c]
+        c = cnext[c]
     return sbuf, ns
 
 
 @inline_kernel
 def _hang(k, j, sbuf, ns, new, work):
     """Variable ``j`` (index ``k``) hangs from the first variable of its separator, or is a new root."""
+    nchild = new.nchild
+    parent = new.parent
+    roots = new.roots
+    aidx = work.aidx
+    chead = work.chead
+    cnext = work.cnext
     if ns > 0:
         p = sbuf[0]
-        new.parent[k] = p
-        work.cnext[j] = work.chead[p]
-        work.chead[p] = j
-        new.nchild[work.aidx[p]] += 1
+        parent[k] = p
+        cnext[j] = chead[p]
+        chead[p] = j
+        nchild[aidx[p]] += 1
     else:
-        new.parent[k] = -1
-        work.cnext[j] = new.roots[0]
-        new.roots[0] = j
+        parent[k] = -1
+        cnext[j] = roots[0]
+        roots[0] = j
 
 
 @inline_kernel
@@ -145,21 +172,29 @@ def separators(order, new, tree, ipool, itop, store, work):
     size to grow to; ``factors``: the factors each variable assembles, variable ``order[k]``'s
     from ``new.fstart[k]`` to ``new.fstart[k + 1]``.  ``work.stamps[0]`` moves past the stamps used.
     """
+    fstart = new.fstart
+    sep_dim = new.sep_dim
+    sep_len = new.sep_len
+    sep_start = new.sep_start
+    dim = tree.dim
+    pos = tree.pos
+    mark = work.mark
+    stamps = work.stamps
     K = order.shape[0]
     fall = (np.empty(16, dtype=np.int64), 0)
     sbuf = np.empty(64, dtype=np.int64)
     status = OK
     detail = 0
     it = itop
-    stamp = work.stamps[0]
+    stamp = stamps[0]
     for k in range(K):
         j = order[k]
         stamp += 1
-        work.mark[j] = stamp
-        new.fstart[k] = fall[1]
-        sep, fall = _own_factors(j, store, tree.pos, work.mark, stamp, (sbuf, 0), fall)
+        mark[j] = stamp
+        fstart[k] = fall[1]
+        sep, fall = _own_factors(j, store, pos, mark, stamp, (sbuf, 0), fall)
         sbuf, ns = _children_separators(j, new, tree, ipool, work, stamp, sep)
-        _sort_by(tree.pos, sbuf, ns)
+        _sort_by(pos, sbuf, ns)
         if it + ns > ipool.shape[0]:
             status = NEED_INT
             detail = max(2 * ipool.shape[0], it + ns)
@@ -167,14 +202,14 @@ def separators(order, new, tree, ipool, itop, store, work):
         s = 0
         for q in range(ns):
             ipool[it + q] = sbuf[q]
-            s += tree.dim[sbuf[q]]
-        new.sep_start[k] = it
-        new.sep_len[k] = ns
-        new.sep_dim[k] = s
+            s += dim[sbuf[q]]
+        sep_start[k] = it
+        sep_len[k] = ns
+        sep_dim[k] = s
         it += ns
         _hang(k, j, sbuf, ns, new, work)
-    new.fstart[K] = fall[1]
-    work.stamps[0] = stamp
+    fstart[K] = fall[1]
+    stamps[0] = stamp
     return status, detail, it, fall[0]
 
 
@@ -182,13 +217,17 @@ def separators(order, new, tree, ipool, itop, store, work):
 def float_room(order, new, dim, aidx, keep_update):
     """The floats the numeric pass writes: every conditional, the update matrix of every clique's
     last member and of the members that keep theirs (at most ``keep_update`` floats)."""
+    nchild = new.nchild
+    parent = new.parent
+    sep_dim = new.sep_dim
+    sep_len = new.sep_len
     need = 0
     for k in range(order.shape[0]):
         d = dim[order[k]]
-        S1 = new.sep_dim[k] + 1
+        S1 = sep_dim[k] + 1
         need += d * (d + S1)
-        p = new.parent[k]
-        top = p < 0 or new.nchild[aidx[p]] != 1 or new.sep_len[k] != new.sep_len[aidx[p]] + 1
+        p = parent[k]
+        top = p < 0 or nchild[aidx[p]] != 1 or sep_len[k] != sep_len[aidx[p]] + 1
         if top or packed(S1) <= keep_update:
             need += packed(S1)
     return need
