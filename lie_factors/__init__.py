@@ -7,6 +7,8 @@ The front door (``import lie_factors as lf``)::
     result = lf.optimize(pg, gnc="tls")        # false loop closures: result.outliers, result.rejected_by
     result = lf.optimize(graph, initial, params)   # any gtsam.NonlinearFactorGraph
     lf.write_g2o(result, "optimized.g2o")
+    lf.write_trajectory(result, "optimized.tum")        # TUM or KITTI, for evo
+    lf.evaluate(result, "data/groundtruth/city10000.tum")   # ATE and RPE, as evo computes them
     replay = lf.replay(pg)                     # online, through the incremental smoother
     isam = lf.Smoother()                       # gtsam.ISAM2's interface
 
@@ -31,6 +33,9 @@ __version__ = "0.1.0"
 #: Public name → the submodule defining it.
 _EXPORTS = {
     "read_g2o": "files", "write_g2o": "files",
+    "read_trajectory": "files", "write_trajectory": "files", "trajectory_of": "files",
+    "evaluate": "files",
+    "Trajectory": "evaluation.trajectory", "Evaluation": "evaluation.metrics",
     "optimize": "solve", "replay": "solve",
     "Result": "result", "ReplayResult": "result",
     "PoseGraph": "posegraph.graph",

@@ -1,13 +1,19 @@
-"""Files in and out at the front door: :func:`read_g2o` and :func:`write_g2o`."""
+"""Files in and out at the front door: g2o pose graphs, TUM and KITTI trajectories, and the
+evaluation of a trajectory against a reference (:func:`evaluate`)."""
 
 from __future__ import annotations
 
+import os
+
+
 from .errors import InputError
+from .evaluation.metrics import Evaluation, evaluate_trajectories
+from .evaluation.trajectory import FORMATS, Trajectory, planar_poses, read_trajectory as _read, write_trajectory_file
 from .g2o import read_pose_graph
 from .posegraph.graph import PoseGraph
 from .result import Result
 
-__all__ = ["read_g2o", "write_g2o"]
+__all__ = ["read_g2o", "write_g2o", "read_trajectory", "write_trajectory", "trajectory_of", "evaluate"]
 
 
 def read_g2o(path: str) -> PoseGraph:
@@ -43,3 +49,54 @@ def write_g2o(result_or_pose_graph: Result | PoseGraph, path: str) -> None:
     else:
         raise InputError(f"write_g2o: expected a Result or a PoseGraph, got {type(result_or_pose_graph).__name__}")
     write(path, pg.factor_graph(), values)
+
+
+def read_trajectory(path: str, format: str | None = None) -> Trajectory:
+    """A TUM (``stamp tx ty tz qx qy qz qw``) or KITTI (a 3×4 matrix per row) trajectory file; the
+    format from the extension (``.tum``, ``.kitti``) or ``format``.  Every line is checked (its
+    columns, a unit quaternion, an orthonormal rotation); a bad one raises
+    :class:`~lie_factors.errors.InputError` naming the file and the line."""
+    return _read(path, format)
+
+
+def trajectory_of(source, name: str = "") -> Trajectory:
+    """A :class:`~lie_factors.evaluation.trajectory.Trajectory` of ``source``: a trajectory, a
+    :class:`~lie_factors.result.Result` of a pose graph (its estimate, stamped by pose key),
+    a :class:`~lie_factors.posegraph.graph.PoseGraph` (its start: the vertices, else the edges
+    composed), or a path: a TUM or KITTI file, or a g2o file (its vertices)."""
+    if isinstance(source, Trajectory):
+        return source
+    if isinstance(source, Result):
+        return Trajectory(source.keys, planar_poses(source.poses), True, name or "estimate")
+    if isinstance(source, PoseGraph):
+        return Trajectory(source.keys, planar_poses(source.start_poses), True, name or source.name)
+    if isinstance(source, (str, os.PathLike)):
+        path = os.fspath(source)
+        if os.path.splitext(path)[1].lower() in FORMATS:
+            return _read(path)
+        return trajectory_of(read_pose_graph(path))
+    raise InputError(f"expected a trajectory, a Result, a PoseGraph or a path, got {type(source).__name__}")
+
+
+def write_trajectory(source, path: str, format: str | None = None) -> None:
+    """Write ``source`` (a :class:`~lie_factors.result.Result`, a
+    :class:`~lie_factors.posegraph.graph.PoseGraph` or a trajectory) as TUM or KITTI, atomically:
+    the format from the extension (``.tum``, ``.kitti``) or ``format``.  A stamp is the pose key
+    (or the stamp a TUM input carried); 2-D poses are written as planar 3-D ones."""
+    if isinstance(source, (str, os.PathLike)):
+        raise InputError("write_trajectory: give a Result, a PoseGraph or a Trajectory, not a path")
+    write_trajectory_file(trajectory_of(source), path, format)
+
+
+def evaluate(estimate, reference, align: str = "se3", delta: int = 1) -> Evaluation:
+    """The absolute (ATE) and relative (RPE) trajectory errors of ``estimate`` against
+    ``reference``, as evo computes them (``evo_ape -a``/``-as``, ``evo_rpe -d DELTA -u f``).
+
+    ``estimate``, ``reference``: results, pose graphs, trajectories or files (g2o, TUM,
+    KITTI: :func:`trajectory_of`); poses are associated by stamp (pose id for g2o);
+    ``align``: ``se3`` (Umeyama, rigid), ``sim3`` (with scale) or ``none``; ``delta``: the
+    RPE's step in poses.  Returns an :class:`~lie_factors.evaluation.metrics.Evaluation`
+    (``ate``, ``rpe``: RMSE, mean, median, std, min, max; ``to_dict()`` for JSON).
+    """
+    return evaluate_trajectories(trajectory_of(estimate, "estimate"), trajectory_of(reference, "reference"),
+                                 align, delta)

@@ -68,6 +68,7 @@ class Result:
     _values: "gtsam.Values | None" = None
     _build_values: Callable[[], "gtsam.Values"] | None = None
     _start: Any = None
+    _start_poses: np.ndarray | None = None
 
     # ------------------------------------------------------------ the estimate
     @property
@@ -113,6 +114,15 @@ class Result:
         values = self.values
         self._group, self._keys = _pose_variables(values)
         self._poses = matrices_from_values(values, self._group, self._keys)
+
+    @property
+    def start_poses(self) -> np.ndarray:
+        """(n, m, m): the start of the pose variables, in :attr:`keys` order."""
+        if self._start_poses is None:
+            from .interop import matrices_from_values
+
+            self._start_poses = matrices_from_values(self.start, self.group, self.keys)
+        return self._start_poses
 
     @property
     def start(self) -> Any:

@@ -285,6 +285,8 @@ def optimize_pose_graph(pg: PoseGraph, opts: Options, params=None, events: Event
         else:
             result = _optimize_graph(posed, start, opts, params, events)
     result.pose_graph = pg
+    if start.poses is not None and start.keys is not None and np.array_equal(start.keys, pg.keys):
+        result._start_poses = start.poses
     result.init, result.init_seconds = start.method, start.seconds
     result.init_inliers_only = start.inliers_only if (opts.robust is not None or opts.gnc is not None) else None
     result.backend, result.robust, result.gnc = opts.backend, opts.robust_name, opts.gnc

@@ -38,7 +38,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "lie_factors"
 RANKS = {
     "util": 0, "errors": 0,
     "kernels": 1, "so3": 1, "se3": 1, "se2": 1, "sim2": 1, "sim3": 1, "quaternion": 1, "dual_quaternion": 1,
-    "interop": 2,
+    "interop": 2, "evaluation": 2,
     "factors": 3,
     "posegraph": 4,
     "g2o": 5,

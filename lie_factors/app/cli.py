@@ -163,7 +163,12 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     p.add_argument("--relinearize-skip", type=_bounded_int("--relinearize-skip", 1, MAX_ITERATIONS),
                    default=10, metavar="N",
                    help="with --incremental: ISAM2's relinearizeSkip (default: 10)")
-    p.add_argument("--output", metavar="FILE.g2o", help="write the optimized graph (g2o)")
+    p.add_argument("--output", metavar="FILE",
+                   help="write the optimized graph: g2o, or, by the extension .tum or .kitti, its trajectory "
+                        "(TUM: stamp = pose id; 2-D poses as planar 3-D ones)")
+    p.add_argument("--groundtruth", metavar="FILE",
+                   help="a ground-truth trajectory (TUM or KITTI, or a g2o file's vertices): report the ATE "
+                        "(SE(3)-aligned) of the start and of the optimum; the JSON gains ate_initial and ate")
     p.add_argument("--plot", metavar="FILE.png", help="plot initial and optimized trajectories")
     p.add_argument("--json", action="store_true",
                    help="print a JSON summary as the last line of stdout")
@@ -244,16 +249,27 @@ def _demo_files(args) -> tuple[str, str]:
     return files
 
 
-def _write_demo(args, files: tuple[str, str], between, values, trajectories: dict, title: str) -> None:
-    """The optimized graph (g2o) and the trajectories (png), each written atomically."""
+def _write_demo(args, files: tuple[str, str], between, values, trajectories: dict, title: str,
+                truth=None) -> None:
+    """The optimized graph (g2o), the trajectories (png) and, given the ground truth (n, 4, 4)
+    with its poses' keys 0 … n−1, ``groundtruth.tum`` beside them, each written atomically."""
+    import numpy as np
+
+    import lie_factors as lf
     from lie_factors.util import atomic
     from lie_factors import g2o
     from lie_factors.app.plotting import plot_trajectories
+    from lie_factors.evaluation.trajectory import planar_poses
 
     png, g2o_path = files
     g2o.write_g2o(g2o_path, between, values)
     atomic.replace_atomically(png, lambda tmp: plot_trajectories(tmp, trajectories, title), suffix=".png")
-    _say(args, f"wrote {png} and {g2o_path}")
+    written = [png, g2o_path]
+    if truth is not None:
+        path = os.path.join(os.path.dirname(g2o_path), "groundtruth.tum")
+        lf.write_trajectory(lf.Trajectory(np.arange(len(truth)), planar_poses(truth)), path)
+        written.append(path)
+    _say(args, f"wrote {', '.join(written[:-1])} and {written[-1]}")
 
 
 def _demo_record(args, dataset: str, graph, result, ate0: float, ate1: float, scenario: str | None = None) -> dict:
@@ -265,6 +281,8 @@ def _demo_record(args, dataset: str, graph, result, ate0: float, ate1: float, sc
 
 
 def _run_demo(args) -> int:
+    import numpy as np
+
     import lie_factors as lf
     from lie_factors.app import demo
     from lie_factors.backends import factor_namespace
@@ -295,7 +313,8 @@ def _run_demo(args) -> int:
     _write_demo(args, files, demo.between_graph(problem), result.values,
                 {"ground truth": [T.translation() for T in problem.truth],
                  "initial": positions(problem.initial, True), "optimized": positions(result.values, True)},
-                f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m")
+                f"SE(3) pose graph: {args.poses} poses, ATE {ate0:.3f} m -> {ate1:.3f} m",
+                truth=np.array([T.matrix() for T in problem.truth]))
     if args.json:
         _emit_json(_demo_record(args, f"demo(poses={args.poses}, seed={args.seed})", graph, result, ate0, ate1))
     return 0
@@ -360,11 +379,34 @@ def _run_demo_sim3(args) -> int:
 # registry
 # --------------------------------------------------------------------------- #
 
+def _add_evaluate(p: argparse.ArgumentParser) -> None:
+    p.add_argument("estimate", metavar="ESTIMATE", help="a trajectory (TUM .tum or KITTI .kitti) or a g2o file "
+                                                        "(its vertices)")
+    p.add_argument("reference", metavar="REFERENCE", help="the ground truth, in the same formats")
+    p.add_argument("--align", default="se3", choices=("se3", "sim3", "none"),
+                   help="align the estimate to the reference first: se3 (rigid, Umeyama; default), sim3 (with "
+                        "scale), none")
+    p.add_argument("--delta", type=_bounded_int("--delta", 1, MAX_ITERATIONS), default=1, metavar="N",
+                   help="the relative pose error's step, in poses (default: 1)")
+    p.add_argument("--plot", metavar="FILE.png", help="the estimate over the reference, coloured by its error")
+    p.add_argument("--json", action="store_true", help="print a JSON summary as the last line of stdout")
+    p.add_argument("--quiet", action="store_true", help="no human-readable report")
+
+
+def _run_evaluate(args) -> int:
+    """``lie-factors evaluate``: :mod:`lie_factors.app.evaluate`."""
+    from lie_factors.app import evaluate
+
+    return evaluate.run(args)
+
+
 #: name → (help, add_arguments(parser), run(args) -> exit status)
 SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
     "demo": ("simulate and optimize a pose graph: SE(3) odometry with loop closures, or "
              "(--scenario sim3) Sim(3) monocular scale drift", _add_demo, _run_demo),
     "posegraph": ("optimize a g2o pose graph with Levenberg-Marquardt", _add_posegraph, _run_posegraph),
+    "evaluate": ("the absolute and relative trajectory errors of an estimate against a reference, as evo "
+                 "computes them", _add_evaluate, _run_evaluate),
 }
 
 #: Subcommands living in their own module, offered only if the module imports.

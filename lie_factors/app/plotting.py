@@ -138,3 +138,32 @@ def plot_result(path: str, pg, result, title: str, incremental: bool = False) ->
     segments = ({"rejected loop closures": edge_segments(trajectories[estimate], pg, rejected)}
                 if rejected is not None and len(rejected) else None)
     plot_trajectories(path, trajectories, title, three_d=pg.is3d, points=landmarks, segments=segments)
+
+
+def plot_evaluation(path: str, evaluation) -> None:
+    """The aligned estimate over the reference, as evo draws it: the reference dashed grey, the
+    estimate coloured by its position error (top view; a colour bar in metres)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.5, 6))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ref = evaluation.reference.positions
+    est = evaluation.aligned.positions
+    ax.plot(ref[:, 0], ref[:, 1], color="grey", ls="--", lw=1.0, label="reference")
+    e = evaluation.errors
+    segments = np.stack([est[:-1, :2], est[1:, :2]], axis=1)
+    lines = LineCollection(segments, cmap="jet", lw=1.5)
+    lines.set_array(0.5 * (e[:-1] + e[1:]))
+    lines.set_clim(float(e.min()), float(e.max()))
+    ax.add_collection(lines)
+    fig.colorbar(lines, ax=ax, label="ATE (m)")
+    ax.autoscale()
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"ATE RMSE {evaluation.ate.rmse:.4g} m ({evaluation.alignment}-aligned, {evaluation.ate.count} poses)")
+    ax.legend(loc="best")
+    fig.savefig(path, format="png", dpi=110)

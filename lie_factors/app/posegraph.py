@@ -4,7 +4,9 @@
 2. :func:`lie_factors.read_g2o`;
 3. :func:`lie_factors.optimize` (or, with ``--incremental``, :func:`lie_factors.replay`),
    heard through :class:`lie_factors.Events` to print its progress;
-4. :func:`lie_factors.write_g2o` (``--output``) and the plot (``--plot``), each atomically;
+4. :func:`lie_factors.write_g2o` or :func:`lie_factors.write_trajectory` (``--output``, by its
+   extension) and the plot (``--plot``), each atomically; with ``--groundtruth``, the ATE of the
+   start and of the estimate (:func:`lie_factors.evaluate`);
 5. with ``--json``, the record as the last line of stdout.
 """
 
@@ -16,7 +18,9 @@ import time
 
 import lie_factors as lf
 from lie_factors.errors import InputError
+from lie_factors.evaluation.trajectory import FORMATS, planar_poses
 from lie_factors.events import Events
+from lie_factors.files import trajectory_of
 from lie_factors.solve import check_graph, options
 from lie_factors.util import memory
 from lie_factors.util.atomic import check_writable, replace_atomically
@@ -116,9 +120,28 @@ def check(args):
     return opts
 
 
+def _groundtruth(args):
+    """The ground truth of ``--groundtruth``, read (and so checked) before any work, or None."""
+    return trajectory_of(args.groundtruth, "the ground truth") if args.groundtruth else None
+
+
+def _is_trajectory(path: str) -> bool:
+    return path.lower().endswith(tuple(FORMATS))
+
+
+def _ate(out: "Printer", result, truth) -> dict:
+    """ATE (SE(3)-aligned) of the start and of the estimate against ``truth``, printed; their JSON."""
+    start = lf.Trajectory(result.keys, planar_poses(result.start_poses), True, "start")
+    before, after = lf.evaluate(start, truth), lf.evaluate(result, truth)
+    out.say(f"ATE (RMSE) against {truth.name or 'the ground truth'}: {before.ate.rmse:.6g} m -> "
+            f"{after.ate.rmse:.6g} m (se3-aligned, {after.ate.count} poses)")
+    return {"ate_initial": before.ate.to_dict(), "ate": after.ate.to_dict()}
+
+
 def run(args, imports: float, started: float) -> int:
     """``lie-factors posegraph`` on parsed ``args``; ``imports``: the seconds its imports took."""
     opts = check(args)
+    truth = _groundtruth(args)
     out = Printer(args, started)
     t = time.perf_counter()
     pg = lf.read_g2o(args.dataset)
@@ -146,11 +169,12 @@ def run(args, imports: float, started: float) -> int:
         _report_compile(args)
         _report(out, args, pg, result)
     timings.update({k: result.timings.get(k, 0.0) for k in ("init", "setup", "iterations")})
+    accuracy = _ate(out, result, truth) if truth is not None else {}
     t = time.perf_counter()
     write(out, args, pg, result)
     timings["write"] = time.perf_counter() - t
     if args.json:
-        print(json.dumps(record(pg, result, timings, args)), flush=True)
+        print(json.dumps({**record(pg, result, timings, args), **accuracy}), flush=True)
     return 0
 
 
@@ -183,7 +207,10 @@ def _report(out: Printer, args, pg, result) -> None:
 def write(out: Printer, args, pg, result) -> None:
     """``--output`` (g2o) and ``--plot`` (png), each atomically."""
     if args.output:
-        lf.write_g2o(result, args.output)
+        if _is_trajectory(args.output):
+            lf.write_trajectory(result, args.output)
+        else:
+            lf.write_g2o(result, args.output)
         out.progress(f"wrote {args.output}")
         out.say(f"wrote {args.output}")
     if args.plot:

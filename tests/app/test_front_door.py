@@ -23,7 +23,8 @@ INTEL = str(ROOT / "data" / "intel.g2o")
 PRESENTATION = {"--json", "--quiet", "--plot"}
 
 #: Each option: (the command's extra arguments, the front door's keywords); ``--incremental`` and
-#: its ISAM2 parameters go to lf.replay, ``--output`` to lf.write_g2o.
+#: its ISAM2 parameters go to lf.replay, ``--output`` to lf.write_g2o (a ``.tum`` or ``.kitti`` name to
+#: lf.write_trajectory), ``--groundtruth`` to lf.evaluate.
 CASES = {
     "--backend": [(["--backend", b], {"backend": b}) for b in cli.BACKENDS],
     "--max-iterations": [(["--max-iterations", "1"], {"max_iterations": 1})],
@@ -36,7 +37,8 @@ CASES = {
     "--relinearize-threshold": [(["--incremental", "--relinearize-threshold", "0.05"],
                                  {"replay": True, "relinearize_threshold": 0.05})],
     "--relinearize-skip": [(["--incremental", "--relinearize-skip", "3"], {"replay": True, "relinearize_skip": 3})],
-    "--output": [(["--output", "{out}"], {"output": True})],
+    "--output": [(["--output", "{out}" + ext], {"output": ext}) for ext in (".g2o", ".tum", ".kitti")],
+    "--groundtruth": [(["--groundtruth", "{truth}"], {"groundtruth": True})],
 }
 
 
@@ -61,7 +63,9 @@ def intel():
 
 @pytest.mark.parametrize("extra, keywords", _cases())
 def test_the_command_and_the_front_door_give_the_same_numbers(extra, keywords, intel, tmp_path, capsys):
-    argv = [a.replace("{out}", str(tmp_path / "cli.g2o")) for a in extra]
+    truth = tmp_path / "truth.tum"
+    lf.write_trajectory(intel, str(truth))  # the start as a reference: any trajectory of intel's stamps
+    argv = [a.replace("{out}", str(tmp_path / "cli")).replace("{truth}", str(truth)) for a in extra]
     status, out, err = run_main(capsys, "posegraph", INTEL, "--quiet", "--json", *argv)
     keywords = dict(keywords)
     if status != 0:  # an option this graph refuses (LAGO needs diagonal noise): the same refusal
@@ -75,11 +79,16 @@ def test_the_command_and_the_front_door_give_the_same_numbers(extra, keywords, i
         result = lf.replay(intel, **keywords)
         assert record["updates"] == result.updates
     else:
-        output = keywords.pop("output", False)
+        output, groundtruth = keywords.pop("output", None), keywords.pop("groundtruth", False)
         result = lf.optimize(intel, **keywords)
-        if output:
+        if output == ".g2o":
             lf.write_g2o(result, str(tmp_path / "api.g2o"))
-            assert (tmp_path / "api.g2o").read_text() == (tmp_path / "cli.g2o").read_text()
+        elif output:
+            lf.write_trajectory(result, str(tmp_path / f"api{output}"))
+        if output:
+            assert (tmp_path / f"api{output}").read_text() == (tmp_path / f"cli{output}").read_text()
+        if groundtruth:
+            assert record["ate"]["rmse"] == pytest.approx(lf.evaluate(result, str(truth)).ate.rmse, rel=1e-12)
         assert record["iterations"] == result.iterations
         assert record.get("outliers") == (None if result.outliers is None else result.outliers.tolist())
         assert record.get("rejected_by") == (None if result.rejected_by is None
