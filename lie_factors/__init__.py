@@ -9,6 +9,7 @@ The front door (``import lie_factors as lf``)::
     lf.write_g2o(result, "optimized.g2o")
     lf.write_trajectory(result, "optimized.tum")        # TUM or KITTI, for evo
     lf.evaluate(result, "data/groundtruth/city10000.tum")   # ATE and RPE, as evo computes them
+    result.covariances()                       # (n, d, d) marginal covariances, GTSAM's tangent order
     replay = lf.replay(pg)                     # online, through the incremental smoother
     isam = lf.Smoother()                       # gtsam.ISAM2's interface
 
@@ -34,8 +35,9 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "read_g2o": "files", "write_g2o": "files",
     "read_trajectory": "files", "write_trajectory": "files", "trajectory_of": "files",
-    "evaluate": "files",
+    "evaluate": "files", "write_covariances": "files", "read_covariances": "files",
     "Trajectory": "evaluation.trajectory", "Evaluation": "evaluation.metrics",
+    "Marginals": "batch.marginals",
     "optimize": "solve", "replay": "solve",
     "Result": "result", "ReplayResult": "result",
     "PoseGraph": "posegraph.graph",

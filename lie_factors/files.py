@@ -13,7 +13,8 @@ from .g2o import read_pose_graph
 from .posegraph.graph import PoseGraph
 from .result import Result
 
-__all__ = ["read_g2o", "write_g2o", "read_trajectory", "write_trajectory", "trajectory_of", "evaluate"]
+__all__ = ["read_g2o", "write_g2o", "read_trajectory", "write_trajectory", "trajectory_of", "evaluate",
+           "write_covariances", "read_covariances"]
 
 
 def read_g2o(path: str) -> PoseGraph:
@@ -100,3 +101,36 @@ def evaluate(estimate, reference, align: str = "se3", delta: int = 1) -> Evaluat
     """
     return evaluate_trajectories(trajectory_of(estimate, "estimate"), trajectory_of(reference, "reference"),
                                  align, delta)
+
+
+def write_covariances(result: Result, path: str, keys=None) -> None:
+    """Write the marginal covariances of ``result`` (:meth:`~lie_factors.result.Result.covariances`
+    of ``keys``, default every pose) as a NumPy ``.npz``, atomically: ``keys`` (n,) int64,
+    ``covariances`` (n, d, d) in GTSAM's tangent order, and ``group`` (its name)."""
+    import numpy as np
+
+    from .util.atomic import replace_atomically
+
+    if not isinstance(result, Result):
+        raise InputError(f"write_covariances: expected a Result, got {type(result).__name__}")
+    keys = result.keys if keys is None else np.asarray(keys, dtype=np.int64).reshape(-1)
+    covariances = result.covariances(keys)
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as fh:  # a file object: np.savez would add ".npz" to a name
+            np.savez(fh, keys=keys, covariances=covariances, group=np.array(result.group))
+
+    replace_atomically(path, write, suffix=".npz")
+
+
+def read_covariances(path: str) -> tuple:
+    """``(keys (n,), covariances (n, d, d), group)`` of a file :func:`write_covariances` wrote."""
+    import numpy as np
+
+    try:
+        with np.load(path) as f:
+            return f["keys"], f["covariances"], str(f["group"])
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputError(f"{path}: not a covariance file written by write_covariances ({exc})") from None

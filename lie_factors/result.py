@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from .errors import InputError
 from .kernels import registry
 
 if TYPE_CHECKING:
@@ -69,6 +70,8 @@ class Result:
     _build_values: Callable[[], "gtsam.Values"] | None = None
     _start: Any = None
     _start_poses: np.ndarray | None = None
+    _marginals_of: Callable[[], Any] | None = None  # → lie_factors.batch.marginals.Marginals
+    _marginals: Any = None
 
     # ------------------------------------------------------------ the estimate
     @property
@@ -130,6 +133,31 @@ class Result:
         if callable(self._start):
             self._start = self._start()
         return self._start
+
+    # ------------------------------------------------------------ uncertainty
+    @property
+    def marginals(self) -> Any:
+        """The :class:`~lie_factors.batch.marginals.Marginals` at the estimate, computed on first
+        use: the graph optimized (rejected edges left out), linearized at the estimate and
+        factored by the batch solver's sparse Cholesky (GTSAM's ``Marginals`` where CHOLMOD is
+        not installed)."""
+        if self._marginals is None:
+            if self._marginals_of is None:
+                raise InputError("this result does not know the graph it estimates: use "
+                                 "lie_factors.Marginals(graph, result.values)")
+            self._marginals = self._marginals_of()
+        return self._marginals
+
+    def covariance(self, key) -> np.ndarray:
+        """(d, d): the marginal covariance of ``key``'s variable at the estimate, in its tangent
+        coordinates in GTSAM's order (Pose2 [x, y, θ], Pose3 [ω, v], Similarity3 [ω, u, λ]);
+        ``gtsam.Marginals(graph, values).marginalCovariance(key)``."""
+        return self.marginals.marginalCovariance(key)
+
+    def covariances(self, keys=None) -> np.ndarray:
+        """(n, d, d): :meth:`covariance` of each of ``keys`` (default: every pose, :attr:`keys`),
+        all of one dimension d."""
+        return self.marginals.covariances(self.keys if keys is None else keys)
 
     # ------------------------------------------------------------ reporting
     def to_dict(self) -> dict:

@@ -28,6 +28,7 @@ from .result import Result
 if TYPE_CHECKING:
     import gtsam
 
+    from .batch.marginals import Marginals
     from .initialization import Initialization
     from .result import ReplayResult
     from .robust.losses import RobustLoss
@@ -255,7 +256,7 @@ def _optimize_factor_graph(graph, initial, params, opts: Options, events: Events
     values = res.values
     return Result(res.final_error, res.initial_error, res.iterations, res.converged, seconds,
                   errors=list(res.errors), timings=timings, backend=opts.backend, factors=int(graph.size()),
-                  _values=values, _start=initial)
+                  _values=values, _start=initial, _marginals_of=lambda: _marginals(graph, values))
 
 
 # --------------------------------------------------------------------------- #
@@ -346,7 +347,8 @@ def _optimize_arrays(posed: PoseGraph, start, opts: Options, params, events: Eve
     return Result(res.final_error, res.initial_error, res.iterations, res.converged, seconds,
                   errors=list(res.errors), timings={"setup": setup, "iterations": seconds - setup},
                   factors=int(problem.graph_size), _keys=np.asarray(posed.keys, dtype=np.int64), _poses=poses,
-                  _group=posed.group, _start=lambda: posed.with_landmarks(start.values))
+                  _group=posed.group, _start=lambda: posed.with_landmarks(start.values),
+                  _marginals_of=lambda: _pose_graph_marginals(posed, poses))
 
 
 def _optimize_graph(posed: PoseGraph, start, opts: Options, params, events: Events) -> Result:
@@ -361,7 +363,8 @@ def _optimize_graph(posed: PoseGraph, start, opts: Options, params, events: Even
     res = optimize_with(opts.backend, graph, values0, params, events.iteration, robust=opts.robust is not None)
     return Result(res.final_error, res.initial_error, res.iterations, res.converged, res.seconds,
                   errors=list(res.errors), timings={"setup": setup, "iterations": res.seconds},
-                  factors=int(graph.size()), _values=res.values, _start=values0)
+                  factors=int(graph.size()), _values=res.values, _start=values0,
+                  _marginals_of=lambda: _marginals(graph, res.values))
 
 
 def _optimize_gnc(posed: PoseGraph, start, opts: Options, params, events: Events) -> Result:
@@ -396,13 +399,30 @@ def _optimize_gnc(posed: PoseGraph, start, opts: Options, params, events: Events
     result = Result(float(res.cost), initial_error, int(res.iterations), out.converged, out.seconds,
                     errors=[initial_error, float(res.cost)], timings={"setup": setup, "iterations": out.seconds},
                     outliers=out.outliers, rejected_by=out.rejected_by, factors=size)
+    inliers = posed.with_edges(np.setdiff1d(np.arange(posed.edge_count), out.outliers))
     if values0 is None:
         result._keys, result._group = np.asarray(posed.keys, dtype=np.int64), posed.group
-        result._poses = solver.poses(res.values)
+        result._poses = poses = solver.poses(res.values)
         result._start = lambda: posed.with_landmarks(start.values)
+        result._marginals_of = lambda: _pose_graph_marginals(inliers, poses)
     else:
+        from .backends import build_graph
+
         result._values, result._start = res.values, values0
+        result._marginals_of = lambda: _marginals(build_graph(inliers, opts.backend), res.values)
     return result
+
+
+def _marginals(graph, values) -> "Marginals":
+    from .batch.marginals import Marginals
+
+    return Marginals(graph, values)
+
+
+def _pose_graph_marginals(pose_graph: PoseGraph, poses: np.ndarray) -> "Marginals":
+    from .batch.marginals import Marginals
+
+    return Marginals.of_pose_graph(pose_graph, poses)
 
 
 # --------------------------------------------------------------------------- #
@@ -440,5 +460,7 @@ def replay(pose_graph: PoseGraph, *, backend: str = DEFAULT_BACKEND,
     from .incremental.replay import replay as run
 
     events = events if events is not None else Events()
-    return run(pose_graph, backend=backend, relinearize_threshold=float(relinearize_threshold),
-               relinearize_skip=int(relinearize_skip), progress=events.replayed)
+    result = run(pose_graph, backend=backend, relinearize_threshold=float(relinearize_threshold),
+                 relinearize_skip=int(relinearize_skip), progress=events.replayed)
+    result._marginals_of = lambda: _pose_graph_marginals(pose_graph.with_first_prior(), result.poses)
+    return result

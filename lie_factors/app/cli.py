@@ -169,6 +169,9 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
     p.add_argument("--groundtruth", metavar="FILE",
                    help="a ground-truth trajectory (TUM or KITTI, or a g2o file's vertices): report the ATE "
                         "(SE(3)-aligned) of the start and of the optimum; the JSON gains ate_initial and ate")
+    p.add_argument("--covariances", metavar="FILE.npz",
+                   help="write every pose's marginal covariance (keys, covariances (n, d, d) in GTSAM's tangent "
+                        "order, group) as NumPy .npz; with --plot, 2-D poses get their 95%% ellipses")
     p.add_argument("--plot", metavar="FILE.png", help="plot initial and optimized trajectories")
     p.add_argument("--json", action="store_true",
                    help="print a JSON summary as the last line of stdout")

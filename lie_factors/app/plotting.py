@@ -25,15 +25,18 @@ _STYLES = {
     "initial landmarks": dict(color="tab:red", marker="x", s=12, alpha=0.6),
     "optimized landmarks": dict(color="tab:green", marker="o", s=10),
     "rejected loop closures": dict(color="tab:red", lw=0.6, alpha=0.7),
+    "95% position ellipses": dict(color="tab:purple", lw=0.5, alpha=0.8),
 }
 
 
 def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str = "",
                       three_d: bool = True, points: dict[str, np.ndarray] | None = None,
-                      segments: dict[str, np.ndarray] | None = None) -> None:
+                      segments: dict[str, np.ndarray] | None = None,
+                      outlines: dict[str, np.ndarray] | None = None) -> None:
     """Save a PNG of named trajectories, each an array of positions, shape (N, 3),
-    of named point sets (landmarks), shape (M, 3), drawn as markers, and of named
-    sets of line segments (rejected loop closures), shape (K, 2, 3).
+    of named point sets (landmarks), shape (M, 3), drawn as markers, of named
+    sets of line segments (rejected loop closures), shape (K, 2, 3), and of named
+    sets of closed curves in the top view (covariance ellipses), shape (K, N, 2).
 
     Left: top view (x, y).  Right (if ``three_d``): a 3-D view.  ``path`` is
     written as PNG whatever its suffix (callers write to a temporary name).
@@ -67,6 +70,10 @@ def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str
             from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
             ax3.add_collection(Line3DCollection(S, label=f"{label} ({len(S)})", **style))
+    for label, C in (outlines or {}).items():
+        from matplotlib.collections import LineCollection
+
+        top.add_collection(LineCollection(np.asarray(C, dtype=float), label=label, **_STYLES.get(label, {})))
     top.set_xlabel("x [m]")
     top.set_ylabel("y [m]")
     top.set_title("top view")
@@ -120,10 +127,35 @@ def landmark_positions(values: gtsam.Values, is3d: bool) -> np.ndarray:
     return out
 
 
-def plot_result(path: str, pg, result, title: str, incremental: bool = False) -> None:
+#: χ²(2) at 0.95: the squared Mahalanobis radius of a 2-D Gaussian's 95 % ellipse.
+CHI2_2DOF_95 = 5.991464547107979
+
+#: At most this many poses get an ellipse (evenly spaced along the keys).
+MAX_ELLIPSES = 120
+
+
+def covariance_ellipses(poses: np.ndarray, covariances: np.ndarray, points: int = 48) -> np.ndarray:
+    """(K, points, 2): the 95 % position ellipse of each 2-D pose (K ≤ :data:`MAX_ELLIPSES`).
+
+    ``poses`` (n, 3, 3) Pose2 or Similarity2 matrices [[A, t], [0, 1]]; ``covariances`` (n, d, d)
+    in their tangent order, x and y first: to first order a perturbation δ moves the position by
+    A·δ_xy, so its covariance in the map's frame is A·Σ_xy·Aᵀ."""
+    pick = np.unique(np.linspace(0, len(poses) - 1, min(len(poses), MAX_ELLIPSES)).round().astype(np.int64))
+    A = poses[pick, :2, :2]
+    S = A @ covariances[pick, :2, :2] @ np.swapaxes(A, 1, 2)
+    w, V = np.linalg.eigh(S)
+    angle = np.linspace(0.0, 2.0 * np.pi, points)
+    circle = np.stack([np.cos(angle), np.sin(angle)])  # (2, points)
+    radii = np.sqrt(CHI2_2DOF_95 * np.clip(w, 0.0, None))  # (K, 2)
+    shape = V @ (radii[:, :, None] * circle[None])  # (K, 2, points)
+    return np.swapaxes(shape, 1, 2) + poses[pick, None, :2, 2]
+
+
+def plot_result(path: str, pg, result, title: str, incremental: bool = False, ellipses: bool = False) -> None:
     """The command's plot of a run on ``pg``: the start and the estimate (top view, and 3-D for a
-    3-D graph), the landmarks of each, and the loop closures rejected under ``--robust``/``--gnc``
-    drawn between their optimized poses."""
+    3-D graph), the landmarks of each, the loop closures rejected under ``--robust``/``--gnc``
+    drawn between their optimized poses, and with ``ellipses`` (2-D) the estimate's 95 %
+    position ellipses (:func:`covariance_ellipses`)."""
     if incremental:
         start, estimate, start_points, points = ("initial (online guesses)", "ISAM2 estimate", "initial landmarks",
                                                  "estimated landmarks")
@@ -137,7 +169,10 @@ def plot_result(path: str, pg, result, title: str, incremental: bool = False) ->
     rejected = result.outliers
     segments = ({"rejected loop closures": edge_segments(trajectories[estimate], pg, rejected)}
                 if rejected is not None and len(rejected) else None)
-    plot_trajectories(path, trajectories, title, three_d=pg.is3d, points=landmarks, segments=segments)
+    outlines = ({"95% position ellipses": covariance_ellipses(result.poses, result.covariances())}
+                if ellipses else None)
+    plot_trajectories(path, trajectories, title, three_d=pg.is3d, points=landmarks, segments=segments,
+                      outlines=outlines)
 
 
 def plot_evaluation(path: str, evaluation) -> None:

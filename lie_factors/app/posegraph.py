@@ -114,7 +114,7 @@ def check(args):
         opts = options(backend=args.backend, init=args.init, max_iterations=args.max_iterations,
                        robust=args.robust, robust_all=args.robust_all, gnc=args.gnc,
                        consistency=not args.no_consistency, spell=flag)
-    for path in (args.output, args.plot):
+    for path in (args.output, args.plot, args.covariances):
         if path:
             check_writable(path)
     return opts
@@ -205,7 +205,7 @@ def _report(out: Printer, args, pg, result) -> None:
 
 
 def write(out: Printer, args, pg, result) -> None:
-    """``--output`` (g2o) and ``--plot`` (png), each atomically."""
+    """``--output`` (g2o, TUM or KITTI), ``--covariances`` (npz) and ``--plot`` (png), each atomically."""
     if args.output:
         if _is_trajectory(args.output):
             lf.write_trajectory(result, args.output)
@@ -213,12 +213,18 @@ def write(out: Printer, args, pg, result) -> None:
             lf.write_g2o(result, args.output)
         out.progress(f"wrote {args.output}")
         out.say(f"wrote {args.output}")
+    if args.covariances:
+        lf.write_covariances(result, args.covariances)
+        out.progress(f"wrote {args.covariances}")
+        out.say(f"wrote {args.covariances}")
     if args.plot:
         from .plotting import plot_result
 
         incremental = args.incremental
         title = f"{pg.name} ({result.backend}{', incremental' if incremental else ''})"
-        replace_atomically(args.plot, lambda tmp: plot_result(tmp, pg, result, title, incremental), suffix=".png")
+        ellipses = args.covariances is not None and not pg.is3d
+        replace_atomically(args.plot, lambda tmp: plot_result(tmp, pg, result, title, incremental, ellipses),
+                           suffix=".png")
         out.progress(f"wrote {args.plot}")
         out.say(f"wrote {args.plot}")
 

@@ -12,7 +12,9 @@ GTSAM's elimination redoes its symbolic work every iteration.  Here
   into a block-sparse matrix whose pattern and scatter map are computed once;
 * :mod:`~lie_factors.batch.solvers` factors ``H + damping`` with CHOLMOD
   (symbolic analysis once per graph; cvxopt) or GTSAM's elimination;
-* :mod:`~lie_factors.batch.optimizer` runs GTSAM's LM / Gauss–Newton loop.
+* :mod:`~lie_factors.batch.optimizer` runs GTSAM's LM / Gauss–Newton loop;
+* :mod:`~lie_factors.batch.marginals` gives the marginal covariances at a point from the
+  same factorization (``gtsam.Marginals``' ``marginalCovariance``).
 
 Usage::
 
@@ -32,6 +34,7 @@ _EXPORTS = {
     "TIMING_KEYS": "optimizer", "optimize": "optimizer",
     "LINEAR_SOLVERS": "solvers", "cholmod_available": "solvers",
     "LinearSystem": "system",
+    "Marginals": "marginals",
 }
 
 __all__ = sorted(_EXPORTS)

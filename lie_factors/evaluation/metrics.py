@@ -9,7 +9,7 @@ index with one of the same length.
 also the scale s, that minimize Σᵢ ‖pᵢ − (s·R·qᵢ + t)‖² over the associated
 positions p (reference) and q (estimate), in closed form (Umeyama, "Least-squares
 estimation of transformation parameters between two point patterns", IEEE PAMI
-1991, Eqs. 40–42): with the centroids μ_p, μ_q, the variance σ_q² of q and the
+1991, Eqs. 38–42): with the centroids μ_p, μ_q, the variance σ_q² of q and the
 cross-covariance Σ = (1/n)·Σᵢ (pᵢ − μ_p)(qᵢ − μ_q)ᵀ = U·D·Vᵀ (SVD),
 S = diag(1, 1, det(U)·det(V)), R = U·S·Vᵀ, s = tr(D·S)/σ_q² (1 without scale),
 t = μ_p − s·R·μ_q.  Every estimated pose X becomes [[R, t], [0, 1]]·X with its

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import InputError, NotPositiveDefinite
 from ..util.arrays import sorted_unique
+from .supernodes import Supernodes
 
 
 def available() -> bool:
@@ -53,6 +54,7 @@ def available() -> bool:
 
 # cholmod_core.h: itype, xtype, dtype, orderings, solve systems
 _INT, _PATTERN, _REAL, _DOUBLE = 0, 0, 1, 0
+_ALWAYS_SUPERNODAL = 2  # Common->supernodal: CHOLMOD_SUPERNODAL (1, the default, lets CHOLMOD choose)
 _NATURAL, _GIVEN, _AMD, _METIS, _NESDIS = 0, 1, 2, 3, 4
 SOLVE_A, SOLVE_L, SOLVE_D, SOLVE_P = 0, 4, 6, 7
 
@@ -268,12 +270,13 @@ class Cholesky:
     values (nnz,) on this pattern, :meth:`solve` solves with the last one.
 
     ``supernodal``: CHOLMOD chose a supernodal LLᵀ (else a simplicial LDLᵀ, for
-    near-chain graphs); ``factor_entries``: the entries of L; ``flops``: CHOLMOD's count of
+    near-chain graphs); given as True, the factor is supernodal whatever the graph (the
+    direct way: :meth:`supernodes` reads it); ``factor_entries``: the entries of L; ``flops``: CHOLMOD's count of
     the floating-point operations of one numeric factorization (the direct way only, else
     None).
     """
 
-    def __init__(self, colptr: np.ndarray, rowind: np.ndarray, natural: bool = True):
+    def __init__(self, colptr: np.ndarray, rowind: np.ndarray, natural: bool = True, supernodal: bool = False):
         self.colptr = _as_int32(colptr, "colptr")
         self.rowind = _as_int32(rowind, "rowind")
         self.n = len(self.colptr) - 1
@@ -285,6 +288,8 @@ class Cholesky:
             return
         lib = self._lib
         self._common = _new_common(lib, _NATURAL if natural else _AMD, postorder=not natural)
+        if supernodal:
+            struct.pack_into("i", self._common, _Common.SUPERNODAL, _ALWAYS_SUPERNODAL)
         self._values = None
         # The analysis reads the pattern only; factorize points the matrix at its values.
         self._A = _Sparse(self.n, self.n, self.nnz, self.colptr.ctypes.data, self.rowind.ctypes.data, None,
@@ -386,6 +391,24 @@ class Cholesky:
             finally:
                 lib.cholmod_free_sparse(ctypes.byref(S), common)
         return (perm, colptr, rowind) + _unit_lower(colptr, rowind, values, ll)
+
+    def supernodes(self) -> "Supernodes":
+        """The last factorization where it lies, as :class:`Supernodes`: P·A·Pᵀ = L·Lᵀ (the
+        direct way, a supernodal factor).  Its ``values`` are the factor's own: what is written
+        there changes the factor (:meth:`factorize` again before the next :meth:`solve`)."""
+        self._check_numeric()
+        if self._lib is None or not self.supernodal:
+            raise RuntimeError("supernodes(): only a supernodal factor of the direct way lies as supernodes")
+        head = self._L.contents
+        ints = ctypes.POINTER(ctypes.c_int32)
+
+        def read(ptr, size):
+            return np.ctypeslib.as_array(ctypes.cast(ptr, ints), shape=(size,)).astype(np.int64)
+
+        ns = int(head.nsuper)
+        self._spent = True
+        return Supernodes(read(head.Perm, self.n), read(head.super, ns + 1), read(head.pi, ns + 1),
+                          read(head.px, ns + 1), read(head.s, max(int(head.ssize), 1)), self._x)
 
     def _check_numeric(self) -> None:
         if getattr(self, "_spent", False) or (self._lib is None and self._impl.spent):

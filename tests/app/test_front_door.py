@@ -24,7 +24,7 @@ PRESENTATION = {"--json", "--quiet", "--plot"}
 
 #: Each option: (the command's extra arguments, the front door's keywords); ``--incremental`` and
 #: its ISAM2 parameters go to lf.replay, ``--output`` to lf.write_g2o (a ``.tum`` or ``.kitti`` name to
-#: lf.write_trajectory), ``--groundtruth`` to lf.evaluate.
+#: lf.write_trajectory), ``--groundtruth`` to lf.evaluate, ``--covariances`` to lf.write_covariances.
 CASES = {
     "--backend": [(["--backend", b], {"backend": b}) for b in cli.BACKENDS],
     "--max-iterations": [(["--max-iterations", "1"], {"max_iterations": 1})],
@@ -39,6 +39,7 @@ CASES = {
     "--relinearize-skip": [(["--incremental", "--relinearize-skip", "3"], {"replay": True, "relinearize_skip": 3})],
     "--output": [(["--output", "{out}" + ext], {"output": ext}) for ext in (".g2o", ".tum", ".kitti")],
     "--groundtruth": [(["--groundtruth", "{truth}"], {"groundtruth": True})],
+    "--covariances": [(["--covariances", "{out}.npz"], {"covariances": True})],
 }
 
 
@@ -80,7 +81,12 @@ def test_the_command_and_the_front_door_give_the_same_numbers(extra, keywords, i
         assert record["updates"] == result.updates
     else:
         output, groundtruth = keywords.pop("output", None), keywords.pop("groundtruth", False)
+        covariances = keywords.pop("covariances", False)
         result = lf.optimize(intel, **keywords)
+        if covariances:
+            lf.write_covariances(result, str(tmp_path / "api.npz"))
+            for a, b in zip(lf.read_covariances(str(tmp_path / "api.npz")), lf.read_covariances(str(tmp_path / "cli.npz"))):
+                assert np.array_equal(a, b)
         if output == ".g2o":
             lf.write_g2o(result, str(tmp_path / "api.g2o"))
         elif output:

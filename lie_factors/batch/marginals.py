@@ -1,0 +1,143 @@
+"""Marginal covariances at a point, from the batch solver's own sparse Cholesky factor.
+
+At the estimate, the Gauss–Newton information matrix of the whitened factors is
+H = Σ_f w_f·A_fᵀA_f (:mod:`lie_factors.batch.system`, undamped), and the marginal
+covariance of a variable is its diagonal block of H⁻¹, in the variable's tangent
+coordinates (GTSAM's order: Pose2 [x, y, θ], Pose3 [ω, v], …) — what
+``gtsam.Marginals(graph, values).marginalCovariance(key)`` returns.  Here H is factored
+once by CHOLMOD (:class:`lie_factors.sparse.cholmod.Cholesky`, supernodal) and inverted
+on the factor's pattern only (:mod:`lie_factors.sparse.selinv`), which holds every
+variable's diagonal block: all of them for the cost of one more factorization.
+Where CHOLMOD is not installed, GTSAM's ``Marginals`` answers instead.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import IndeterminantLinearSystem, InputError, NotPositiveDefinite
+from ..sparse import cholmod
+from ..sparse.selinv import diagonal_blocks, invert_in_place
+from ..sparse.supernodes import Supernodes
+from .graph import Problem, key_name
+from .system import LinearSystem
+
+__all__ = ["Marginals"]
+
+
+class Marginals:
+    """``gtsam.Marginals``' covariances, from the batch solver's factorization (module docstring).
+
+    ``Marginals(graph, values)``: a ``gtsam.NonlinearFactorGraph`` linearized at ``values``
+    (robust noise models reweighted at ``values``, as GTSAM's linearization does);
+    :meth:`of_pose_graph`: a pose graph's arrays, with no factor object.  Raises
+    :class:`~lie_factors.errors.IndeterminantLinearSystem` where H is singular (a variable
+    the factors do not determine: no prior, say).
+    """
+
+    def __init__(self, graph, values):
+        self._gtsam = None
+        if cholmod.available():
+            self._compute(Problem(graph, values))
+        else:
+            self._use_gtsam(graph, values)
+
+    @classmethod
+    def of_pose_graph(cls, pose_graph, poses: np.ndarray) -> "Marginals":
+        """The marginals of a :class:`~lie_factors.posegraph.graph.PoseGraph` (its edges and priors;
+        give it its prior first: :meth:`~lie_factors.posegraph.graph.PoseGraph.with_first_prior`)
+        at ``poses`` (P, m, m) in its keys' order, straight from its arrays."""
+        self = cls.__new__(cls)
+        self._gtsam = None
+        if cholmod.available():
+            self._compute(Problem.from_pose_graph(pose_graph, poses))
+        else:
+            from ..interop import values_from_matrices
+
+            self._use_gtsam(pose_graph.factor_graph(), values_from_matrices(pose_graph.group, pose_graph.keys, poses))
+        return self
+
+    def _use_gtsam(self, graph, values) -> None:
+        import gtsam
+
+        self._gtsam = gtsam.Marginals(graph, values)
+        self._keys = {int(k) for k in values.keys()}
+
+    def _compute(self, problem: Problem) -> None:
+        system = LinearSystem(problem)
+        system.linearize_assemble()
+        p = system.pattern
+        factor = cholmod.Cholesky(p.colptr, p.rowind, natural=True, supernodal=True)
+        try:
+            factor.factorize(system.data)
+        except NotPositiveDefinite as exc:
+            raise self._indeterminant(problem, p, exc.column) from None
+        del system
+        inverse = invert_in_place(factor.supernodes() if factor.supernodal and cholmod.direct_available()
+                                  else Supernodes.from_lower(*factor.lower()))
+        row_of = np.empty(p.n, dtype=np.int64)  # δ index → matrix row
+        row_of[p.scalar_order] = np.arange(p.n)
+        dims = problem.var_dims
+        #: variable index → (its dimension's block array, its place there)
+        self._blocks: dict[int, np.ndarray] = {}
+        self._place = np.empty(len(dims), dtype=np.int64)
+        for d in np.unique(dims).tolist():
+            idx = np.flatnonzero(dims == d)
+            rows = row_of[problem.var_offsets[idx][:, None] + np.arange(d)]
+            self._blocks[d] = diagonal_blocks(inverse, rows)
+            self._place[idx] = np.arange(len(idx))
+        self._index = problem.var_index
+        self._dims = dims
+        factor.free()
+
+    @staticmethod
+    def _indeterminant(problem: Problem, pattern, column: int | None) -> IndeterminantLinearSystem:
+        where = ""
+        variable = None
+        if column is not None and 0 <= column < pattern.n:
+            variable = int(np.searchsorted(problem.var_offsets, pattern.scalar_order[column], side="right") - 1)
+            where = f" near variable {key_name(problem.var_keys[variable])}"
+        return IndeterminantLinearSystem(
+            f"Marginals: the information matrix is singular{where}: the factors do not determine every "
+            "variable (a pose graph needs a prior)", variable)
+
+    def _variable(self, key) -> int:
+        try:
+            k = int(key)
+        except (TypeError, ValueError):
+            raise InputError(f"marginalCovariance: expected an integer key, got {key!r}") from None
+        v = self._index.get(k)
+        if v is None:
+            raise InputError(f"marginalCovariance: {key_name(k)} is not a variable of the graph")
+        return v
+
+    def marginalCovariance(self, key) -> np.ndarray:
+        """(d, d): the covariance of ``key``'s variable in its tangent coordinates."""
+        if self._gtsam is not None:
+            if int(key) not in self._keys:
+                raise InputError(f"marginalCovariance: {key_name(int(key))} is not a variable of the graph")
+            return np.asarray(self._gtsam.marginalCovariance(int(key)))
+        v = self._variable(key)
+        return self._blocks[int(self._dims[v])][self._place[v]].copy()
+
+    def marginalInformation(self, key) -> np.ndarray:
+        """(d, d): the inverse of :meth:`marginalCovariance`."""
+        return np.linalg.inv(self.marginalCovariance(key))
+
+    def covariances(self, keys) -> np.ndarray:
+        """(n, d, d): :meth:`marginalCovariance` of each of ``keys`` (all of one dimension d)."""
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1)
+        if self._gtsam is not None:
+            covs = [self.marginalCovariance(k) for k in keys.tolist()]
+            if len({c.shape for c in covs}) > 1:
+                raise InputError("covariances: the keys' variables have different dimensions; ask for one "
+                                 "dimension at a time (or use marginalCovariance)")
+            return np.array(covs) if covs else np.zeros((0, 0, 0))
+        vs = np.array([self._variable(k) for k in keys.tolist()], dtype=np.int64)
+        dims = np.unique(self._dims[vs])
+        if len(dims) > 1:
+            raise InputError(f"covariances: the keys' variables have dimensions {dims.tolist()}; ask for "
+                             "one dimension at a time (or use marginalCovariance)")
+        if not len(vs):
+            return np.zeros((0, 0, 0))
+        return self._blocks[int(dims[0])][self._place[vs]]
