@@ -43,6 +43,20 @@ def _lower_inverse(L):
 
 
 @kernel
+def _product(A, B, transpose_a):
+    """A·B, or Aᵀ·B: loops, not BLAS, whose threads cost more than these small blocks."""
+    n, k = (A.shape[1], A.shape[0]) if transpose_a else (A.shape[0], A.shape[1])
+    out = np.zeros((n, B.shape[1]))
+    for i in range(n):
+        for q in range(k):
+            a = A[q, i] if transpose_a else A[i, q]
+            if a != 0.0:
+                for j in range(B.shape[1]):
+                    out[i, j] += a * B[q, j]
+    return out
+
+
+@kernel
 def _gather(first, rowptr, valptr, rows, x, owner, where, B):
     """Z_BB (m, m) for the rows ``B`` (ascending), from the supernodes inverted already: entry
     (r, c), r ≥ c, lies in c's supernode, in c's column, at r's place in its rows."""
@@ -85,15 +99,16 @@ def _invert(first, rowptr, valptr, rows, x, owner):
             for r in range(c, nc):
                 Ljj[r, c] = x[base + c * nr + r]
         Linv = _lower_inverse(Ljj)
-        Zjj = Linv.T @ Linv
+        Zjj = _product(Linv, Linv, True)
         if m:
             Lbj = np.empty((m, nc))
             for c in range(nc):
                 for r in range(m):
                     Lbj[r, c] = x[base + c * nr + nc + r]
-            Y = Lbj @ Linv
-            Zbj = -(_gather(first, rowptr, valptr, rows, x, owner, where, rows[rowptr[J] + nc:rowptr[J + 1]]) @ Y)
-            Zjj -= Y.T @ Zbj
+            Y = _product(Lbj, Linv, False)
+            Zbj = -_product(_gather(first, rowptr, valptr, rows, x, owner, where, rows[rowptr[J] + nc:rowptr[J + 1]]),
+                            Y, False)
+            Zjj -= _product(Y, Zbj, True)
             for c in range(nc):
                 for r in range(m):
                     x[base + c * nr + nc + r] = Zbj[r, c]
