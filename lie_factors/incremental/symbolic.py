@@ -174,9 +174,9 @@ def separators(order, new, tree, ipool, itop, store, work):
     mark = work.mark
     stamps = work.stamps
     K = order.shape[0]
-    # sized once, never grown in the loop (see structures): each factor is assembled once, and
-    # a separator holds a variable once
-    flist = np.empty(store.fnv.shape[0], dtype=np.int64)
+    # sized once, never grown in the loop (see structures): a factor enters once per entry of
+    # its variables' adjacency lists at most, and a separator holds a variable once
+    flist = np.empty(store.afac.shape[0], dtype=np.int64)
     sbuf = np.empty(dim.shape[0], dtype=np.int64)
     nfall = 0
     status = OK
