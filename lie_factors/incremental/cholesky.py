@@ -38,11 +38,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import IndeterminantLinearSystem
+from ..kernels.jit import direct
+from . import elimination, marking, storage, substitution
 from . import structures as st
-from .elimination import KEEP_UPDATE, reeliminate
-from .marking import factors_of, mark_affected, marked_among, ordering_graph
-from .storage import append_factors, compact_pools, init_variables, link_adjacency
-from .substitution import back_substitute, marginal_covariance, max_abs_blocks
+from .elimination import KEEP_UPDATE
+from .marking import factors_of, marked_among
+from .storage import compact_pools
+from .substitution import marginal_covariance, max_abs_blocks
+
+# The kernels every update calls, through their entry points (:func:`~lie_factors.kernels.jit.direct`):
+# their arguments are the structures and arrays allocated here, whose types never change.
+init_variables = direct(storage.init_variables)
+append_factors = direct(storage.append_factors)
+link_adjacency = direct(storage.link_adjacency)
+mark_affected = direct(marking.mark_affected)
+ordering_graph = direct(marking.ordering_graph)
+reeliminate = direct(elimination.reeliminate)
+back_substitute = direct(substitution.back_substitute)
 
 
 #: ISAM2's share of re-eliminated variables from which an update orders and eliminates everything.
@@ -149,7 +161,7 @@ class BlockFactor:
         re-eliminated and ordered last.  Raises
         :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive.
         """
-        new_dims = np.asarray(new_dims, dtype=np.int64).reshape(-1)
+        new_dims = np.ascontiguousarray(new_dims, dtype=np.int64).reshape(-1)
         counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
         undo = []  # (array, indices, old values) to put back if the update fails
         try:

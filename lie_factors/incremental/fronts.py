@@ -9,6 +9,13 @@ computed with all of a block's rows at once.  The clique's last member keeps
 its update matrix, and so does every member whose update matrix is at most
 ``keep_update`` floats.
 
+A front is ``Phi`` (N, N), symmetric, its upper triangle used (its last row below the
+diagonal holds the diagonal before elimination, for the pivot test; its last column is the
+right-hand side), with ``diag`` (at least N) the diagonal as assembled, ``colmap`` (at least
+N) scratch, and ``members[:nm]`` the clique's variables in order.  The helpers take these
+arrays, and the dense eliminations are called from :func:`numeric_pass` itself (see
+:mod:`~lie_factors.incremental.structures` on why).
+
 Everything is written to fresh pool space and to the
 :data:`~lie_factors.incremental.structures.Columns` of the symbolic pass
 (:mod:`lie_factors.incremental.symbolic`); the tree is not touched, so a pivot
@@ -16,8 +23,6 @@ that fails leaves it as it was.
 """
 
 from __future__ import annotations
-
-from collections import namedtuple
 
 import numpy as np
 
@@ -28,13 +33,6 @@ from .structures import NOT_POSITIVE, OK, packed
 #: elimination (a pivot is 1/(Λ⁻¹)_pp in units of Λ_pp: this refuses a condition number
 #: above 1e13, where the variable is not determined to double precision).
 PIVOT_TOLERANCE = 1e-13
-
-#: One supernode's front: ``phi`` (N, N), symmetric, upper triangle used (its last row below
-#: the diagonal holds the diagonal before elimination, for the pivot test; its last column is
-#: the right-hand side); ``diag`` (N,) the diagonal as assembled; ``colmap`` scratch of at
-#: least N entries; ``members`` the clique's variables, in order.
-Front = namedtuple("Front", ["phi", "diag", "colmap", "members"])
-
 
 @dense_kernel
 def _row_update(Phi, i, q0, q1):
@@ -90,15 +88,11 @@ def eliminate_columns(Phi, o, D):
 
 
 @inline_kernel
-def _chain(j, k, new, work, members):
+def _chain(j, k, nchild, parent, sep_len, aidx, chead, members):
     """The clique ``j`` (index ``k``) starts: ``j`` and the parents that each have the previous
     member as only child and nest its separator, written to ``members``; returns their count,
-    0 when ``j`` is itself such a parent (its child's clique holds it)."""
-    nchild = new.nchild
-    parent = new.parent
-    sep_len = new.sep_len
-    aidx = work.aidx
-    chead = work.chead
+    0 when ``j`` is itself such a parent (its child's clique holds it).  ``nchild``,
+    ``parent``, ``sep_len``: the new columns'."""
     c = chead[j]
     if nchild[k] == 1 and aidx[c] >= 0 and sep_len[aidx[c]] == sep_len[k] + 1:
         return 0
@@ -120,21 +114,16 @@ def _chain(j, k, new, work, members):
 
 
 @inline_kernel
-def _locate(members, new, dim, ipool, work):
-    """The front's columns: the members' first (``work.loc``), then the last member's
-    separator's, then the right-hand side; returns the members' scalars D."""
-    sep_len = new.sep_len
-    sep_start = new.sep_start
-    aidx = work.aidx
-    loc = work.loc
+def _locate(members, nm, s0, sl, dim, ipool, loc):
+    """The front's columns (``loc``): the members' first, then those of the last member's
+    separator (``ipool[s0:s0 + sl]``), then the right-hand side; returns the members' scalars D."""
     D = 0
-    for q in range(members.shape[0]):
+    for q in range(nm):
         v = members[q]
         loc[v] = D
         D += dim[v]
-    topk = aidx[members[members.shape[0] - 1]]
     o = D
-    for t in range(sep_start[topk], sep_start[topk] + sep_len[topk]):
+    for t in range(s0, s0 + sl):
         v = ipool[t]
         loc[v] = o
         o += dim[v]
@@ -142,25 +131,37 @@ def _locate(members, new, dim, ipool, work):
 
 
 @inline_kernel
-def _cleared_front(scratch, N):
+def _cleared_front(scratch, diag, N):
     """The front (N, N) at the start of ``scratch``, its upper triangle zero (all that is read),
-    and the N entries after it (the diagonal as assembled) zero."""
+    and ``diag[:N]`` (the diagonal as assembled) zero."""
     Phi = scratch[:N * N].reshape((N, N))
     for i in range(N):
+        diag[i] = 0.0
         for c in range(i, N):
             Phi[i, c] = 0.0
-    scratch[N * N:N * N + N] = 0.0
     return Phi
 
 
 @inline_kernel
-def _add_packed(front, S1, fpool, u):
+def _separator_columns(s0, sl, ipool, dim, loc, colmap):
+    """``colmap``: the front's columns of the separator ``ipool[s0:s0 + sl]``, scalar by scalar;
+    returns their count."""
+    cc = 0
+    for t in range(s0, s0 + sl):
+        v = ipool[t]
+        for i in range(dim[v]):
+            colmap[cc] = loc[v] + i
+            cc += 1
+    return cc
+
+
+@inline_kernel
+def _add_packed(Phi, diag, colmap, S1, fpool, u):
     """Add the packed update matrix at ``fpool[u]`` (side ``S1``) to the front's rows and
-    columns ``front.colmap[:S1]`` (extend-add)."""
-    Phi, diag0, colmap = front.phi, front.diag, front.colmap
+    columns ``colmap[:S1]`` (extend-add)."""
     for a in range(S1):
         ta = colmap[a]
-        diag0[ta] += fpool[u]
+        diag[ta] += fpool[u]
         for b in range(a, S1):
             tb = colmap[b]
             if ta <= tb:
@@ -171,7 +172,7 @@ def _add_packed(front, S1, fpool, u):
 
 
 @inline_kernel
-def _extend_add(j, front, new, tree, pools, work):
+def _extend_add(j, Phi, diag, colmap, new, tree, work, pools):
     """The update matrices of ``j``'s children (re-eliminated ones from ``new``, orphans from the
     tree) added to the front.  Returns (child, count): child −1, or a child without an update
     matrix (never: such a child shares its parent's clique)."""
@@ -190,44 +191,30 @@ def _extend_add(j, front, new, tree, pools, work):
     chead = work.chead
     cnext = work.cnext
     loc = work.loc
-    N = front.phi.shape[0]
-    colmap = front.colmap
+    N = Phi.shape[0]
+    missing = -1
     nu = 0
     c = chead[j]
-    while c >= 0:
+    while c >= 0 and missing < 0:
         ci = aidx[c]
         s0 = new_sep_start[ci] if ci >= 0 else tree_sep_start[c]
         sl = new_sep_len[ci] if ci >= 0 else tree_sep_len[c]
         u0 = new_ustart[ci] if ci >= 0 else tree_ustart[c]
         if u0 < 0:
-            return c, nu
-        S1 = (new_sep_dim[ci] if ci >= 0 else tree_sep_dim[c]) + 1
-        cc = 0
-        for t in range(s0, s0 + sl):
-            v = ipool[t]
-            for i in range(dim[v]):
-                colmap[cc] = loc[v] + i
-                cc += 1
-        colmap[cc] = N - 1
-        _add_packed(front, S1, fpool, u0)
-        nu += 1
+            missing = c
+        else:
+            S1 = (new_sep_dim[ci] if ci >= 0 else tree_sep_dim[c]) + 1
+            cc = _separator_columns(s0, sl, ipool, dim, loc, colmap)
+            colmap[cc] = N - 1
+            _add_packed(Phi, diag, colmap, S1, fpool, u0)
+            nu += 1
         c = cnext[c]
-    return -1, nu
+    return missing, nu
 
 
 @inline_kernel
-def _assemble(f, front, store, dim, loc):
-    """Add factor ``f``'s AᵀA (augmented with Aᵀb) to the front's upper triangle and diagonal."""
-    fcols = store.fcols
-    fjstart = store.fjstart
-    fnv = store.fnv
-    frows = store.frows
-    fvars = store.fvars
-    fvstart = store.fvstart
-    jac = store.jac
-    Phi, diag0, colmap = front.phi, front.diag, front.colmap
-    N = Phi.shape[0]
-    D1 = fcols[f]
+def _factor_columns(f, fvstart, fnv, fvars, dim, loc, colmap, N):
+    """``colmap``: the front's columns of factor ``f``'s variables, then the right-hand side."""
     cc = 0
     for u in range(fvstart[f], fvstart[f] + fnv[f]):
         w = fvars[u]
@@ -235,8 +222,12 @@ def _assemble(f, front, store, dim, loc):
             colmap[cc] = loc[w] + i
             cc += 1
     colmap[cc] = N - 1
-    J0 = fjstart[f]
-    r = frows[f]
+
+
+@inline_kernel
+def _add_gram(J, r, D1, jac, Phi, diag, colmap):
+    """Add AᵀA (augmented with Aᵀb) of the r × D1 Jacobian at ``jac[J]`` to the front's upper
+    triangle and diagonal, at its columns ``colmap[:D1]``."""
     for c1 in range(D1):
         t1 = colmap[c1]
         for c2 in range(D1):
@@ -245,10 +236,28 @@ def _assemble(f, front, store, dim, loc):
                 continue
             acc = 0.0
             for rr in range(r):
-                acc += jac[J0 + rr * D1 + c1] * jac[J0 + rr * D1 + c2]
+                acc += jac[J + rr * D1 + c1] * jac[J + rr * D1 + c2]
             Phi[t1, t2] += acc
             if t1 == t2:
-                diag0[t1] += acc
+                diag[t1] += acc
+
+
+@inline_kernel
+def _assemble(t0, t1, fall, store, dim, loc, Phi, diag, colmap):
+    """Add the AᵀA (augmented with Aᵀb) of the factors ``fall[t0:t1]`` to the front's upper
+    triangle and diagonal."""
+    fcols = store.fcols
+    fjstart = store.fjstart
+    fnv = store.fnv
+    frows = store.frows
+    fvars = store.fvars
+    fvstart = store.fvstart
+    jac = store.jac
+    N = Phi.shape[0]
+    for t in range(t0, t1):
+        f = fall[t]
+        _factor_columns(f, fvstart, fnv, fvars, dim, loc, colmap, N)
+        _add_gram(fjstart[f], frows[f], fcols[f], jac, Phi, diag, colmap)
 
 
 @inline_kernel
@@ -263,54 +272,25 @@ def _write_update(Phi, e, at, fpool):
 
 
 @inline_kernel
-def _eliminate_members(front, fall, new, fpool, ux, store, dim, work, keep_update):
-    """The members' factors assembled and their columns eliminated, in blocks each ending at a
-    member that keeps its update matrix (the last always does; the others when it is at most
+def _block_end(members, nm, q0, N, dim, loc, keep_update):
+    """The block of members eliminated together from ``members[q0]``: up to the first that keeps
+    its update matrix (the last member always does; the others when it is at most
     ``keep_update`` floats: a later update that re-eliminates only the members above starts
-    from it).  A member's factors enter just before its block (they touch no column before
-    it), so that each update matrix kept is its subtree's alone; those of the members below the
-    last are written from ``ux``.  Returns (bad column or −1, factors assembled, new ux)."""
-    fstart = new.fstart
-    ustart = new.ustart
-    aidx = work.aidx
-    loc = work.loc
-    Phi, diag0, members = front.phi, front.diag, front.members
-    N = Phi.shape[0]
-    nm = members.shape[0]
-    b0 = 0
-    nf = 0
-    for q in range(nm):
-        v = members[q]
-        mk = aidx[v]
-        for t in range(fstart[mk], fstart[mk + 1]):
-            _assemble(fall[t], front, store, dim, loc)
-            nf += 1
-        e = loc[v] + dim[v]
-        last = q == nm - 1
-        if not last and packed(N - e) > keep_update:
-            continue
-        for p in range(b0, e):
-            Phi[N - 1, p] = diag0[p]
-        bad = eliminate_columns(Phi, b0, e - b0)
-        if bad >= 0:
-            return bad, nf, ux
-        b0 = e
-        if not last:
-            ustart[mk] = ux
-            ux = _write_update(Phi, e, ux, fpool)
-    return -1, nf, ux
+    from it).  Returns (q1, e): past its last member, and past its last column."""
+    e = loc[members[q0]] + dim[members[q0]]
+    q = q0 + 1
+    while q < nm and packed(N - e) > keep_update:
+        e = loc[members[q]] + dim[members[q]]
+        q += 1
+    return q, e
 
 
 @inline_kernel
-def _write_conditionals(front, ft, new, fpool, dim, work):
+def _write_conditionals(Phi, members, nm, ft, cond, aidx, loc, dim, fpool):
     """Each member's conditional, its rows of the front from its own columns on (zero below
-    the diagonal), written to ``fpool`` from ``ft``; returns the end."""
-    cond = new.cond
-    aidx = work.aidx
-    loc = work.loc
-    Phi, members = front.phi, front.members
+    the diagonal), written to ``fpool`` from ``ft`` (its start to ``cond``); returns the end."""
     N = Phi.shape[0]
-    for q in range(members.shape[0]):
+    for q in range(nm):
         v = members[q]
         o = loc[v]
         W = N - o
@@ -324,10 +304,10 @@ def _write_conditionals(front, ft, new, fpool, dim, work):
 
 
 @inline_kernel
-def _variable_of(members, column, dim, loc):
+def _variable_of(members, nm, column, dim, loc):
     """The member whose columns hold ``column``."""
     found = -1
-    for q in range(members.shape[0]):
+    for q in range(nm):
         v = members[q]
         if loc[v] <= column < loc[v] + dim[v]:
             found = v
@@ -345,44 +325,74 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
     factors assembled, frontal scalars², …, Σ D·N² over fronts (the work of their dense
     elimination, in multiply-adds up to a constant)] (entries 0–3 and 6).
     """
+    cond = new.cond
+    fstart = new.fstart
+    nchild = new.nchild
+    parent = new.parent
     sep_dim = new.sep_dim
+    sep_len = new.sep_len
+    sep_start = new.sep_start
     ustart = new.ustart
     fpool = pools.fpool
     ipool = pools.ipool
     dim = tree.dim
     aidx = work.aidx
+    chead = work.chead
     loc = work.loc
     stats = work.stats
     K = order.shape[0]
     members = np.empty(K, dtype=np.int64)
+    # the fronts' arrays, reused (grown to the largest)
+    scratch = np.empty(4096)
+    diag = np.empty(64)
     colmap = np.empty(64, dtype=np.int64)
-    scratch = np.empty(4096)  # the fronts, reused (grown to the largest)
     ft = ftop
     for k in range(K):
         j = order[k]
-        nm = _chain(j, k, new, work, members)
+        nm = _chain(j, k, nchild, parent, sep_len, aidx, chead, members)
         if nm == 0:
             continue
-        D = _locate(members[:nm], new, dim, ipool, work)
         topk = aidx[members[nm - 1]]
+        D = _locate(members, nm, sep_start[topk], sep_len[topk], dim, ipool, loc)
         N = D + sep_dim[topk] + 1
         need_f = packed(N - D)  # the conditionals and the last member's update matrix
         for q in range(nm):
             need_f += dim[members[q]] * (N - loc[members[q]])
-        if N * N + N > scratch.shape[0]:
-            scratch = np.empty(2 * (N * N + N))
+        if N * N > scratch.shape[0]:
+            scratch = np.empty(2 * N * N)
         if N > colmap.shape[0]:
+            diag = np.empty(2 * N)
             colmap = np.empty(2 * N, dtype=np.int64)
-        front = Front(_cleared_front(scratch, N), scratch[N * N:N * N + N], colmap, members[:nm])
-        child, nu = _extend_add(j, front, new, tree, pools, work)
+        Phi = _cleared_front(scratch, diag, N)
+        child, nu = _extend_add(j, Phi, diag, colmap, new, tree, work, pools)
         if child >= 0:
             return NOT_POSITIVE, child, ftop
-        bad, nf, ux = _eliminate_members(front, fall, new, fpool, ft + need_f, store, dim, work, keep_update)
-        if bad >= 0:
-            return NOT_POSITIVE, _variable_of(front.members, bad, dim, loc), ftop
-        ft = _write_conditionals(front, ft, new, fpool, dim, work)
+        # the members' factors assembled and their columns eliminated, block by block; a
+        # member's factors enter just before its block (they touch no column before it), so
+        # that each update matrix kept is its subtree's alone (those below the last from ux)
+        ux = ft + need_f
+        nf = 0
+        b0 = 0
+        q0 = 0
+        while q0 < nm:
+            q1, e = _block_end(members, nm, q0, N, dim, loc, keep_update)
+            for q in range(q0, q1):
+                mk = aidx[members[q]]
+                _assemble(fstart[mk], fstart[mk + 1], fall, store, dim, loc, Phi, diag, colmap)
+                nf += fstart[mk + 1] - fstart[mk]
+            for p in range(b0, e):
+                Phi[N - 1, p] = diag[p]
+            bad = eliminate_columns(Phi, b0, e - b0)
+            if bad >= 0:
+                return NOT_POSITIVE, _variable_of(members, nm, bad, dim, loc), ftop
+            if q1 < nm:
+                ustart[aidx[members[q1 - 1]]] = ux
+                ux = _write_update(Phi, e, ux, fpool)
+            b0 = e
+            q0 = q1
+        ft = _write_conditionals(Phi, members, nm, ft, cond, aidx, loc, dim, fpool)
         ustart[topk] = ft
-        _write_update(front.phi, D, ft, fpool)
+        _write_update(Phi, D, ft, fpool)
         ft = ux
         stats[0] += nm
         stats[1] += nu

@@ -25,23 +25,21 @@ def _has(ipool, start, length, v):
 
 
 @inline_kernel
-def _take(j, flag, out, na):
-    """Append ``j`` to ``out[:na]`` unless flagged; returns the new count."""
-    if flag[j] == 0:
-        flag[j] = 1
-        out[na] = j
-        na += 1
+def _take(ids, flag, out, na):
+    """Append the variables ``ids`` not yet flagged to ``out[:na]``, flagged; returns the new count."""
+    for q in range(ids.shape[0]):
+        j = ids[q]
+        if flag[j] == 0:
+            flag[j] = 1
+            out[na] = j
+            na += 1
     return na
 
 
 @inline_kernel
-def _row_subtrees(relin, tree, ipool, flag, out, na):
+def _row_subtrees(relin, first, nxt, sep_start, sep_len, ipool, flag, out, na):
     """Mark the nodes whose separator holds a relinearized variable (its row subtree, ISAM2's
     ``findAll``): every column the variable's factors reach.  Returns the new count."""
-    first = tree.first
-    nxt = tree.nxt
-    sep_len = tree.sep_len
-    sep_start = tree.sep_start
     stack = np.empty(16, dtype=np.int64)
     for q in range(relin.shape[0]):
         r = relin[q]
@@ -56,7 +54,10 @@ def _row_subtrees(relin, tree, ipool, flag, out, na):
             j = stack[top]
             if not _has(ipool, sep_start[j], sep_len[j], r):
                 continue
-            na = _take(j, flag, out, na)
+            if flag[j] == 0:
+                flag[j] = 1
+                out[na] = j
+                na += 1
             c = first[j]
             while c >= 0:
                 stack = push(stack, top, c)
@@ -80,12 +81,9 @@ def _ancestors(parent, flag, out, na):
 
 
 @inline_kernel
-def _clique_members_below(tree, flag, out, na):
+def _clique_members_below(first, nchild, ustart, flag, out, na):
     """Mark the only child of a marked node when it keeps no update matrix (the two share a
     clique: the parent cannot be re-eliminated without it), down the chain; returns the count."""
-    first = tree.first
-    nchild = tree.nchild
-    ustart = tree.ustart
     q = 0
     while q < na:
         p = out[q]
@@ -113,12 +111,11 @@ def mark_affected(marked, relin, tree, ipool, flag, out_affected, out_orphans):
     first = tree.first
     nxt = tree.nxt
     parent = tree.parent
-    na = _row_subtrees(relin, tree, ipool, flag, out_affected, 0)
-    for lst in (marked, relin):
-        for q in range(lst.shape[0]):
-            na = _take(lst[q], flag, out_affected, na)
+    na = _row_subtrees(relin, first, nxt, tree.sep_start, tree.sep_len, ipool, flag, out_affected, 0)
+    na = _take(marked, flag, out_affected, na)
+    na = _take(relin, flag, out_affected, na)
     na = _ancestors(parent, flag, out_affected, na)
-    na = _clique_members_below(tree, flag, out_affected, na)
+    na = _clique_members_below(first, tree.nchild, tree.ustart, flag, out_affected, na)
     no = 0
     for q in range(na):
         c = first[out_affected[q]]

@@ -30,6 +30,15 @@ as the arrays it holds (by reference: a kernel writes into them), but cannot
 rebind a field: an array that grows is reallocated by the Python caller, which
 then builds the tuple again (:class:`~lie_factors.incremental.cholesky.BlockFactor`
 keeps one of each).  Shapes: ``V`` variable capacity, ``F`` factor capacity.
+
+Why the kernels bind the fields they read to locals once, at their top: in numba every
+field read, and every array handed to an inlined helper (a structure: each of its
+arrays), takes a reference count of its own, which numba drops only where nothing between
+its start and its end releases an array: no buffer reassigned as it grows, no call to
+another compiled kernel (its error exit releases everything), no array that dies on one
+side of a branch only.  So a helper called in a loop takes arrays (or a structure it reads
+at its top, where nothing in it releases one), buffers filled in a loop are sized once per
+call to never grow, and the dense kernels are called from the top of a pass.
 """
 
 from __future__ import annotations

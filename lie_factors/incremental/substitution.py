@@ -11,17 +11,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.jit import dense_kernel, inline_kernel, kernel
-from .structures import push
 
 
 @dense_kernel
-def _solve_node(j, tree, pools, delta, x, xs):
+def _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x, xs):
     """x = R_j⁻¹ (d_j − T_j δ_S): the node's variable given its separator's values in ``delta``
     (gathered once into ``xs``, so that each row is one contiguous dot product)."""
-    cond = tree.cond
-    sep_len = tree.sep_len
-    sep_start = tree.sep_start
-    dim, voff, ipool, fpool = tree.dim, tree.voff, pools.ipool, pools.fpool
     d = dim[j]
     c0 = cond[j]
     s = 0
@@ -47,22 +42,19 @@ def _solve_node(j, tree, pools, delta, x, xs):
 
 @inline_kernel
 def _push_list(pending, npend, head, nxt):
-    """Push the list ``head``, ``nxt[head]``, … (children or roots) on the stack; returns it."""
+    """Push the list ``head``, ``nxt[head]``, … (children or roots) on the stack (room for every
+    node); returns its new height."""
     c = head
     while c >= 0:
-        pending = push(pending, npend, c)
+        pending[npend] = c
         npend += 1
         c = nxt[c]
-    return pending, npend
+    return npend
 
 
 @inline_kernel
-def _dirty(j, tree, ipool, wildfire):
+def _dirty(j, sep_start, sep_len, ipool, replaced, changed):
     """Whether node ``j`` was re-eliminated or a variable of its separator changed."""
-    sep_len = tree.sep_len
-    sep_start = tree.sep_start
-    changed = wildfire.changed
-    replaced = wildfire.replaced
     if replaced[j] != 0:
         return True
     for t in range(sep_start[j], sep_start[j] + sep_len[j]):
@@ -94,7 +86,9 @@ def back_substitute(threshold, tree, pools, delta, wildfire):
     and ``changed`` are cleared on return (every re-eliminated node is below a
     re-eliminated root, so all are visited).  Returns the number of nodes solved.
     """
+    fpool = pools.fpool
     ipool = pools.ipool
+    cond = tree.cond
     dim = tree.dim
     first = tree.first
     nxt = tree.nxt
@@ -103,21 +97,27 @@ def back_substitute(threshold, tree, pools, delta, wildfire):
     voff = tree.voff
     x = np.empty(64)
     xs = np.empty(256)
-    pending, npend = _push_list(np.empty(64, dtype=np.int64), 0, roots[0], nxt)
-    replaced, changed, visited = wildfire
+    replaced = wildfire.replaced
+    changed = wildfire.changed
+    visited = wildfire.visited
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
+    # each node is pushed once at most: a stack that never grows
+    pending = np.empty(dim.shape[0], dtype=np.int64)
+    npend = _push_list(pending, 0, roots[0], nxt)
     solved = 0
     cleared = 0
     while npend > 0:
         npend -= 1
         j = pending[npend]
-        if not _dirty(j, tree, ipool, wildfire):
+        if not _dirty(j, sep_start, sep_len, ipool, replaced, changed):
             continue
         d = dim[j]
         if d > x.shape[0]:
             x = np.empty(2 * d)
         if sep_dim[j] > xs.shape[0]:
             xs = np.empty(2 * sep_dim[j])
-        _solve_node(j, tree, pools, delta, x, xs)
+        _solve_node(j, dim, voff, sep_start, sep_len, cond, ipool, fpool, delta, x, xs)
         solved += 1
         o = voff[j]
         keep = replaced[j] != 0 or _moved(x, delta, o, d) >= threshold
@@ -128,7 +128,7 @@ def back_substitute(threshold, tree, pools, delta, wildfire):
             visited[cleared] = j
             cleared += 1
         replaced[j] = 0
-        pending, npend = _push_list(pending, npend, first[j], nxt)
+        npend = _push_list(pending, npend, first[j], nxt)
     for q in range(cleared):
         changed[visited[q]] = 0
     return solved

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.jit import inline_kernel, kernel
-from .structures import NEED_INT, OK, Columns, packed, push
+from .structures import NEED_INT, OK, Columns, packed
 
 
 @inline_kernel
@@ -79,18 +79,17 @@ def _sort_by(keys_of, buf, n):
 
 
 @inline_kernel
-def _own_factors(j, store, pos, mark, stamp, sep, fall):
-    """The factors whose first variable in the order is ``j``, appended to ``fall``, and their
-    later variables (not yet stamped ``stamp``) to ``sep``.  ``sep`` and ``fall`` are
-    (buffer, count) pairs; returns both, the buffers grown when full."""
-    afac = store.afac
+def _own_factors(j, store, pos, mark, stamp, sbuf, flist, nfall):
+    """The factors whose first variable in the order is ``j``, appended to ``flist[:nfall]``,
+    and their later variables not yet stamped ``stamp``, stamped and written to ``sbuf`` from
+    its start.  Returns (variables written, new ``nfall``)."""
     ahead = store.ahead
     anext = store.anext
+    afac = store.afac
+    fvstart = store.fvstart
     fnv = store.fnv
     fvars = store.fvars
-    fvstart = store.fvstart
-    sbuf, ns = sep
-    flist, nfall = fall
+    ns = 0
     e = ahead[j]
     while e >= 0:
         f = afac[e]
@@ -103,21 +102,21 @@ def _own_factors(j, store, pos, mark, stamp, sep, fall):
                 break
         if not first_var:
             continue
-        flist = push(flist, nfall, f)
+        flist[nfall] = f
         nfall += 1
         for t in range(fvstart[f], fvstart[f] + fnv[f]):
             v = fvars[t]
             if mark[v] != stamp:
                 mark[v] = stamp
-                sbuf = push(sbuf, ns, v)
+                sbuf[ns] = v
                 ns += 1
-    return (sbuf, ns), (flist, nfall)
+    return ns, nfall
 
 
 @inline_kernel
-def _children_separators(j, new, tree, ipool, work, stamp, sep):
+def _children_separators(j, new, tree, ipool, work, stamp, sbuf, ns):
     """The variables of the separators of ``j``'s children (new ones from ``new``, orphans from
-    the tree) not yet stamped, appended to ``sep`` (buffer, count); returns it."""
+    the tree) not yet stamped, stamped and appended to ``sbuf[:ns]``; returns the new count."""
     new_sep_len = new.sep_len
     new_sep_start = new.sep_start
     tree_sep_len = tree.sep_len
@@ -126,7 +125,6 @@ def _children_separators(j, new, tree, ipool, work, stamp, sep):
     chead = work.chead
     cnext = work.cnext
     mark = work.mark
-    sbuf, ns = sep
     c = chead[j]
     while c >= 0:
         ci = aidx[c]
@@ -136,31 +134,20 @@ def _children_separators(j, new, tree, ipool, work, stamp, sep):
             v = ipool[t]
             if mark[v] != stamp:
                 mark[v] = stamp
-                sbuf = push(sbuf, ns, v)
+                sbuf[ns] = v
                 ns += 1
         c = cnext[c]
-    return sbuf, ns
+    return ns
 
 
 @inline_kernel
-def _hang(k, j, sbuf, ns, new, work):
-    """Variable ``j`` (index ``k``) hangs from the first variable of its separator, or is a new root."""
-    nchild = new.nchild
-    parent = new.parent
-    roots = new.roots
-    aidx = work.aidx
-    chead = work.chead
-    cnext = work.cnext
-    if ns > 0:
-        p = sbuf[0]
-        parent[k] = p
-        cnext[j] = chead[p]
-        chead[p] = j
-        nchild[aidx[p]] += 1
-    else:
-        parent[k] = -1
-        cnext[j] = roots[0]
-        roots[0] = j
+def _hang(k, j, p, parent, nchild, aidx, chead, cnext):
+    """Variable ``j`` (index ``k``) hangs from ``p``, the first variable of its separator
+    (``parent``, ``nchild``: the new columns')."""
+    parent[k] = p
+    cnext[j] = chead[p]
+    chead[p] = j
+    nchild[aidx[p]] += 1
 
 
 @inline_kernel
@@ -173,16 +160,25 @@ def separators(order, new, tree, ipool, itop, store, work):
     from ``new.fstart[k]`` to ``new.fstart[k + 1]``.  ``work.stamps[0]`` moves past the stamps used.
     """
     fstart = new.fstart
+    nchild = new.nchild
+    parent = new.parent
+    roots = new.roots
     sep_dim = new.sep_dim
     sep_len = new.sep_len
     sep_start = new.sep_start
     dim = tree.dim
     pos = tree.pos
+    aidx = work.aidx
+    chead = work.chead
+    cnext = work.cnext
     mark = work.mark
     stamps = work.stamps
     K = order.shape[0]
-    fall = (np.empty(16, dtype=np.int64), 0)
-    sbuf = np.empty(64, dtype=np.int64)
+    # sized once, never grown in the loop (see structures): a factor enters once per entry of
+    # its variables' adjacency lists at most, and a separator holds a variable once
+    flist = np.empty(store.afac.shape[0], dtype=np.int64)
+    sbuf = np.empty(dim.shape[0], dtype=np.int64)
+    nfall = 0
     status = OK
     detail = 0
     it = itop
@@ -191,9 +187,9 @@ def separators(order, new, tree, ipool, itop, store, work):
         j = order[k]
         stamp += 1
         mark[j] = stamp
-        fstart[k] = fall[1]
-        sep, fall = _own_factors(j, store, pos, mark, stamp, (sbuf, 0), fall)
-        sbuf, ns = _children_separators(j, new, tree, ipool, work, stamp, sep)
+        fstart[k] = nfall
+        ns, nfall = _own_factors(j, store, pos, mark, stamp, sbuf, flist, nfall)
+        ns = _children_separators(j, new, tree, ipool, work, stamp, sbuf, ns)
         _sort_by(pos, sbuf, ns)
         if it + ns > ipool.shape[0]:
             status = NEED_INT
@@ -207,10 +203,15 @@ def separators(order, new, tree, ipool, itop, store, work):
         sep_len[k] = ns
         sep_dim[k] = s
         it += ns
-        _hang(k, j, sbuf, ns, new, work)
-    fstart[K] = fall[1]
+        if ns > 0:
+            _hang(k, j, sbuf[0], parent, nchild, aidx, chead, cnext)
+        else:  # a new root
+            parent[k] = -1
+            cnext[j] = roots[0]
+            roots[0] = j
+    fstart[K] = nfall
     stamps[0] = stamp
-    return status, detail, it, fall[0]
+    return status, detail, it, flist
 
 
 @inline_kernel

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 
-from numba import njit, types
+from numba import njit, typeof, types
 from numba.core import event as _event
 
 from . import cache
@@ -98,3 +98,26 @@ def entry_point(wrapper, argtypes: tuple):
     looked at: its type is all it carries.
     """
     return wrapper.compile(tuple(argtypes))
+
+
+def direct(kernel):
+    """``kernel`` called through its :func:`entry_point` for the argument types of its first call.
+
+    For a caller whose arguments never change type, such as the incremental factor's
+    structures (namedtuples of int64 and float64 C arrays it allocates itself): numba's
+    dispatcher types every argument of every call, and the type of a namedtuple holds its
+    fields' names, which it reads afresh each time, most of the call of a kernel that does
+    little.  As with :func:`entry_point`, nothing checks the arguments after the first call.
+    """
+    entry = None
+
+    def call(*args):
+        nonlocal entry
+        if entry is None:
+            entry = entry_point(kernel, [typeof(a) for a in args])
+        return entry(*args)
+
+    call.__name__ = call.__qualname__ = kernel.__name__
+    call.__doc__ = kernel.__doc__
+    call.kernel = kernel
+    return call
