@@ -113,9 +113,9 @@ def reeliminate(order, orphans, base, tree, pools, itop, ftop, store, work, keep
     are counted exactly after the symbolic pass); ``NOT_POSITIVE`` with the variable whose
     pivot failed.  ``work.aidx`` −1 on entry and return; ``work.stamps[0]``: the last mark
     used.  ``keep_update``: a clique member below the last keeps an update matrix of at most
-    this many floats (:data:`KEEP_UPDATE`).  ``work.stats`` (7,) += [columns eliminated,
+    this many floats (:data:`KEEP_UPDATE`).  ``work.stats`` (8,) += [columns eliminated,
     update matrices extend-added, factors assembled, frontal scalars², pool floats freed, pool
-    ints freed, Σ D·N² over fronts].
+    ints freed, Σ D·N² over fronts, blocks whose trailing update BLAS computed].
     """
     fpool = pools.fpool
     ipool = pools.ipool

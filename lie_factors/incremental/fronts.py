@@ -61,19 +61,78 @@ def _row_update(Phi, i, q0, q1):
         q += 1
 
 
+#: Fronts whose trailing update is at least this many multiply-adds (D·M², M its side)
+#: and whose block has at least :data:`BLAS_MIN_COLUMNS` scalars compute it with BLAS
+#: (``benchmarks/dense_fronts.py`` measured where BLAS's tiles overtake the compiled loops:
+#: a block of one 6-scalar pose is a rank-6 update, bound by memory either way).
+BLAS_MIN_WORK = 60_000
+BLAS_MIN_COLUMNS = 12
+
+#: OpenBLAS runs a gemm of m·n·k multiply-adds on one thread when m·n·k is at most 4·65536
+#: (its GEMM_MULTITHREAD_THRESHOLD times SMP_THRESHOLD_MIN): the trailing update is cut into
+#: tiles that small, since threads cost these blocks far more than they save, and several
+#: times more when the machine's other cores are busy.
+BLAS_SINGLE_THREAD_WORK = 4 * 65536
+#: The largest side of a tile.
+BLAS_TILE = 64
+
+
+@inline_kernel
+def uses_blas(D, M):
+    """Whether eliminating D scalars from a front with M trailing scalars calls BLAS."""
+    return D >= BLAS_MIN_COLUMNS and D * M * M >= BLAS_MIN_WORK
+
+
+@inline_kernel
+def _tile_side(D):
+    """The side of the square tiles of a rank-D update that OpenBLAS runs on one thread."""
+    side = BLAS_TILE
+    while side > 8 and side * side * D > BLAS_SINGLE_THREAD_WORK:
+        side -= 8
+    return side
+
+
 @dense_kernel
-def eliminate_columns(Phi, o, D):
+def _trailing_blas(Phi, o, e, Tt, G):
+    """Φ[e:, e:] −= TᵀT (upper triangle), T = Φ[o:e, e:]: Tᵀ copied contiguous to ``Tt``
+    (at least (N − e)·(e − o) floats), then tile by tile of the upper triangle with BLAS's
+    gemm into ``G`` (at least :data:`BLAS_TILE`² floats)."""
+    N = Phi.shape[0]
+    D = e - o
+    M = N - e
+    T = Tt[:M * D].reshape((M, D))
+    for q in range(D):
+        row = Phi[o + q]
+        for c in range(M):
+            T[c, q] = row[e + c]
+    side = _tile_side(D)
+    for a0 in range(0, M, side):
+        a1 = min(a0 + side, M)
+        for b0 in range(a0, M, side):
+            b1 = min(b0 + side, M)
+            g = G[:(a1 - a0) * (b1 - b0)].reshape((a1 - a0, b1 - b0))
+            np.dot(T[a0:a1], T[b0:b1].T, g)
+            for a in range(a0, a1):
+                ra = Phi[e + a]
+                ga = g[a - a0]
+                for b in range(max(a, b0), b1):
+                    ra[e + b] -= ga[b - b0]
+
+
+@dense_kernel
+def eliminate_columns(Phi, o, D, blas, Tt, G):
     """Eliminate the scalars o … o + D − 1 of the symmetric frontal ``Phi`` (N × N, upper
     triangle read and written, the first o already eliminated; ``Phi[N − 1, :]`` below the
     diagonal holds the diagonal before elimination): rows o … o + D − 1 become [R | T | d]
     (R upper triangular, RᵀR = Φ₁₁, T = R⁻ᵀΦ₁₂), and the trailing upper triangle becomes the
     update matrix Φ₂₂ − [T d]ᵀ[T d].  Row by row (left-looking): each row takes the updates of
     all the pivot rows above it at once, then, if it is a pivot row, is scaled by its pivot's
-    square root.  Returns −1, or the first pivot that is not positive (relative to
-    :data:`PIVOT_TOLERANCE`)."""
+    square root; with ``blas`` (:func:`uses_blas`), the trailing rows take theirs from BLAS
+    (:func:`_trailing_blas`, scratch ``Tt`` and ``G``).  Returns −1, or the first pivot that
+    is not positive (relative to :data:`PIVOT_TOLERANCE`)."""
     N = Phi.shape[0]
     e = o + D
-    for i in range(o, N):
+    for i in range(o, e if blas else N):
         _row_update(Phi, i, o, min(i, e))
         if i < e:
             a = Phi[i, i]
@@ -84,6 +143,8 @@ def eliminate_columns(Phi, o, D):
             Phi[i, i] = r
             for c in range(i + 1, N):
                 Phi[i, c] *= inv
+    if blas:
+        _trailing_blas(Phi, o, e, Tt, G)
     return -1
 
 
@@ -323,7 +384,8 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
     Returns (status, detail, new ftop): :data:`OK`, or :data:`NOT_POSITIVE` with the variable
     whose pivot failed.  ``work.stats`` += [columns eliminated, update matrices extend-added,
     factors assembled, frontal scalars², …, Σ D·N² over fronts (the work of their dense
-    elimination, in multiply-adds up to a constant)] (entries 0–3 and 6).
+    elimination, in multiply-adds up to a constant), blocks whose trailing update BLAS
+    computed] (entries 0–3, 6 and 7).
     """
     cond = new.cond
     fstart = new.fstart
@@ -346,6 +408,8 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
     scratch = np.empty(4096)
     diag = np.empty(64)
     colmap = np.empty(64, dtype=np.int64)
+    Tt = np.empty(4096)
+    G = np.empty(BLAS_TILE * BLAS_TILE)
     ft = ftop
     for k in range(K):
         j = order[k]
@@ -360,6 +424,7 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
             need_f += dim[members[q]] * (N - loc[members[q]])
         if N * N > scratch.shape[0]:
             scratch = np.empty(2 * N * N)
+            Tt = np.empty(2 * N * N)
         if N > colmap.shape[0]:
             diag = np.empty(2 * N)
             colmap = np.empty(2 * N, dtype=np.int64)
@@ -382,7 +447,9 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
                 nf += fstart[mk + 1] - fstart[mk]
             for p in range(b0, e):
                 Phi[N - 1, p] = diag[p]
-            bad = eliminate_columns(Phi, b0, e - b0)
+            blas = uses_blas(e - b0, N - e)
+            bad = eliminate_columns(Phi, b0, e - b0, blas, Tt, G)
+            stats[7] += blas
             if bad >= 0:
                 return NOT_POSITIVE, _variable_of(members, nm, bad, dim, loc), ftop
             if q1 < nm:

@@ -87,7 +87,7 @@ Pools = namedtuple("Pools", ["ipool", "fpool"])
 #: (a variable's index in the update's order, −1 on entry and return), ``mark`` (the
 #: symbolic pass's stamps), ``loc`` (a variable's first column in the current front),
 #: ``chead``/``cnext`` (the children lists being built), ``flag`` (zero on entry and return);
-#: ``stamps`` (1,): the last stamp used in ``mark``; ``stats`` (7,): the counts
+#: ``stamps`` (1,): the last stamp used in ``mark``; ``stats`` (8,): the counts
 #: :func:`~lie_factors.incremental.elimination.reeliminate` adds to.
 Workspace = namedtuple("Workspace", ["aidx", "mark", "loc", "chead", "cnext", "flag", "stamps", "stats"])
 
@@ -166,7 +166,7 @@ def empty_store() -> FactorStore:
 
 def empty_workspace() -> Workspace:
     return Workspace(*(np.zeros(0, dtype=np.int64) for _ in WORKSPACE_FILL), np.zeros(1, dtype=np.int64),
-                     np.zeros(7, dtype=np.int64))
+                     np.zeros(8, dtype=np.int64))
 
 
 def empty_wildfire() -> Wildfire:

@@ -99,6 +99,27 @@ def test_random_updates_equal_a_from_scratch_cholesky(seed, keep_update, small_p
     check_solution(p.bf, H, eta)
 
 
+def test_large_fronts_take_their_trailing_update_from_blas_and_stay_exact():
+    from lie_factors.incremental.fronts import uses_blas
+
+    # dense loop closures: fronts of a hundred scalars and more, whose blocks pass the BLAS
+    # threshold; the factor is still the from-scratch Cholesky
+    p = RandomProblem(6, dims=(6,))
+    for step in range(70):
+        p.add_pose(loops=3 if step > 5 else 0)
+        if step % 9 == 8:
+            p.relinearize(4)
+    assert p.bf.work.stats[7] > 0
+    H, eta = check_exact(p.bf)
+    check_solution(p.bf, H, eta)
+    # a chain's fronts are small: no BLAS call
+    q = RandomProblem(7, dims=(6,))
+    for _ in range(50):
+        q.add_pose()
+    assert q.bf.work.stats[7] == 0
+    assert not uses_blas(6, 200) and not uses_blas(60, 20) and uses_blas(60, 200)
+
+
 def test_odometry_only_update_refactors_a_constant_number_of_columns():
     p = RandomProblem(1, dims=(6,))
     for step in range(40):
