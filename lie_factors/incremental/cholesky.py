@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import IndeterminantLinearSystem
 from ..kernels.jit import direct
-from . import elimination, marking, storage, substitution
+from . import elimination, marking, ordering, storage, substitution
 from . import structures as st
 from .elimination import KEEP_UPDATE
 from .marking import factors_of, marked_among
@@ -53,6 +53,7 @@ append_factors = direct(storage.append_factors)
 link_adjacency = direct(storage.link_adjacency)
 mark_affected = direct(marking.mark_affected)
 ordering_graph = direct(marking.ordering_graph)
+order_small = direct(ordering.order_small)
 reeliminate = direct(elimination.reeliminate)
 back_substitute = direct(substitution.back_substitute)
 
@@ -102,6 +103,8 @@ class BlockFactor:
 
     def __init__(self, keep_update: int = KEEP_UPDATE):
         self.keep_update = int(keep_update)
+        #: sets of at most this many variables are ordered by minimum degree (0: all by CCOLAMD)
+        self.max_small = ordering.MAX_SMALL
         self.nv = 0
         self.nf = 0
         self.nscalar = 0
@@ -298,8 +301,10 @@ class BlockFactor:
             self.pools = self._grown_pools(self.pools, status, size)
 
     def _order(self, affected: np.ndarray, orphans: np.ndarray, observed: np.ndarray) -> np.ndarray:
-        """The affected variables in elimination order: CCOLAMD on the factors inside them and the
-        orphans' separators, the observed variables last (when some are not observed)."""
+        """The affected variables in elimination order: minimum degree (at most
+        :data:`~lie_factors.incremental.ordering.MAX_SMALL` of them) or CCOLAMD on the factors
+        inside them and the orphans' separators, the observed variables last (when some are
+        not observed)."""
         na = len(affected)
         flag = self.work.flag
         if na <= SMALL_SET:
@@ -309,20 +314,28 @@ class BlockFactor:
             pos = self.tree.pos
             rest = sorted((v for v in affected.tolist() if v not in obs), key=lambda v: pos[v])
             return np.array(rest + obs, dtype=np.int64)
+        stamp = self._graph_room(affected, orphans)
+        if na <= self.max_small:
+            out = np.empty(na, dtype=np.int64)
+            order_small(affected, orphans, observed, self.store, self.tree, self.pools.ipool, flag, stamp,
+                        self._graph_ptr, self._graph_vars, self.work.loc, out)
+            return out
         import gtsam
 
-        n, m = self._ordering_graph(affected, orphans)
+        n, m = ordering_graph(affected, orphans, self.store, self.tree, self.pools.ipool, flag, stamp,
+                              self._graph_ptr, self._graph_vars)
         obs = marked_among(affected, observed, flag)
         g = _symbolic_graph(self._graph_ptr, self._graph_vars, n, m)
         if 0 < len(obs) < na:
-            ordering = gtsam.Ordering.ColamdConstrainedLastSymbolicFactorGraph(g, obs.tolist(), False)
+            ordering_ = gtsam.Ordering.ColamdConstrainedLastSymbolicFactorGraph(g, obs.tolist(), False)
         else:
-            ordering = gtsam.Ordering.ColamdSymbolicFactorGraph(g)
-        return np.fromiter(map(ordering.at, range(ordering.size())), dtype=np.int64, count=ordering.size())
+            ordering_ = gtsam.Ordering.ColamdSymbolicFactorGraph(g)
+        return np.fromiter(map(ordering_.at, range(ordering_.size())), dtype=np.int64, count=ordering_.size())
 
-    def _ordering_graph(self, affected: np.ndarray, orphans: np.ndarray) -> tuple[int, int]:
-        """The graph the affected variables are ordered on, in ``_graph_ptr``/``_graph_vars``
-        (:func:`~lie_factors.incremental.marking.ordering_graph`); returns (lists, entries)."""
+    def _graph_room(self, affected: np.ndarray, orphans: np.ndarray) -> int:
+        """Room in ``_graph_ptr``/``_graph_vars`` for the graph the affected variables are
+        ordered on (:func:`~lie_factors.incremental.marking.ordering_graph`); returns a new
+        factor stamp for it."""
         nptr = self.nf + len(orphans) + 1 + len(affected)
         nout = self.nfv + int(self.tree.sep_len[orphans].sum()) + 1 + len(affected)
         if self._graph_ptr.shape[0] < nptr:
@@ -330,8 +343,7 @@ class BlockFactor:
         if self._graph_vars.shape[0] < nout:
             self._graph_vars = np.empty(2 * nout, dtype=np.int64)
         self.fstamp_box += 1
-        return ordering_graph(affected, orphans, self.store, self.tree, self.pools.ipool, self.work.flag,
-                              self.fstamp_box, self._graph_ptr, self._graph_vars)
+        return self.fstamp_box
 
     def _compact(self) -> None:
         """Move the live entries of the pools down over the freed ones, in place: when a pool is

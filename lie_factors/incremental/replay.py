@@ -334,3 +334,7 @@ def warm_up_smoother(group: str) -> None:
                     np.eye(info.dim)[None])
     s.update_arrays(group, [2], I[None], [[1, 2], [0, 2]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))
     s.estimate_matrix(2)
+    for k in range(3, 8):  # a chain, then a closure whose set is ordered by minimum degree
+        s.update_arrays(group, [k], I[None], [[k - 1, k]], I[None], np.eye(info.dim)[None])
+    s.update_arrays(group, [8], I[None], [[7, 8], [2, 8]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))
+    s.estimate_matrix(8)

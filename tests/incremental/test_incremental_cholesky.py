@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import gtsam
+
 from lie_factors.incremental.cholesky import BlockFactor
+from lie_factors.incremental.ordering import MAX_SMALL
 from lie_factors.incremental.structures import Pools, Tree
 from lie_factors.errors import IndeterminantLinearSystem
 
@@ -264,5 +267,74 @@ def test_many_compactions_keep_the_factor_exact():
             checked = p.bf.compactions
             check_exact(p.bf)
     assert p.bf.compactions >= 20
+    H, eta = check_exact(p.bf)
+    check_solution(p.bf, H, eta)
+
+
+# minimum degree on small affected sets: a valid constrained order, the expected one on known
+# graphs, no GTSAM call
+def _chain_with_hub(bf: BlockFactor, n: int, rng):
+    """n variables of dimension 2: a chain, and variable 0 tied to every other (a hub)."""
+    dims = [2] * n
+    factors = [(np.array([[0]]), rng.normal(size=(1, 3, 3)))]
+    factors += [(np.array([[i - 1, i]]), rng.normal(size=(1, 4, 5))) for i in range(1, n)]
+    factors += [(np.array([[0, i]]), rng.normal(size=(1, 2, 5))) for i in range(2, n)]
+    bf.update(new_dims=dims, new_factors=factors)
+
+
+def test_minimum_degree_eliminates_the_hub_last_and_the_observed_after_the_rest():
+    rng = np.random.default_rng(0)
+    bf = BlockFactor()
+    _chain_with_hub(bf, 8, rng)  # everything new: all observed, ordered without constraint
+    order = bf.ordering().tolist()
+    assert sorted(order) == list(range(8))
+    # the hub meets every variable: minimum degree takes it last, or with the last two
+    # (once the rest are gone every remaining variable has the same degree)
+    assert order.index(0) >= 5
+    H, eta = check_exact(bf)
+    check_solution(bf, H, eta)
+
+
+def test_observed_variables_come_last_in_a_small_set():
+    rng = np.random.default_rng(1)
+    bf = BlockFactor()
+    n = 40
+    bf.update(new_dims=[3] * n, new_factors=[(np.array([[0]]), rng.normal(size=(1, 4, 4)))] +
+              [(np.array([[i - 1, i]]), rng.normal(size=(1, 6, 7))) for i in range(1, n)])
+    # a new variable tied to 35 and 39: the affected set (their paths to the root and the new
+    # variable) is ordered with the three observed variables last
+    bf.update(new_dims=[3], new_factors=[(np.array([[35, n], [n - 1, n]]), rng.normal(size=(2, 3, 7)))])
+    assert 3 < bf.last.columns <= MAX_SMALL and not bf.last.batch
+    assert set(bf.ordering()[-3:].tolist()) == {35, n - 1, n}
+    H, eta = check_exact(bf)
+    check_solution(bf, H, eta)
+
+
+def test_small_sets_are_ordered_without_gtsam(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("GTSAM's COLAMD was called for a small set")
+
+    p = RandomProblem(8, dims=(6,))
+    for _ in range(12):
+        p.add_pose()
+    monkeypatch.setattr(gtsam.Ordering, "ColamdConstrainedLastSymbolicFactorGraph", refuse)
+    monkeypatch.setattr(gtsam.Ordering, "ColamdSymbolicFactorGraph", refuse)
+    sizes = []
+    for step in range(30):
+        p.add_pose(loops=int(step % 4 == 0))
+        sizes.append(p.bf.last.columns)
+    assert max(sizes) > 3  # some sets needed an ordering
+    H, eta = check_exact(p.bf)
+    check_solution(p.bf, H, eta)
+
+
+@pytest.mark.parametrize("max_small", [3, MAX_SMALL])
+def test_both_orderings_keep_the_factor_exact(max_small):
+    p = RandomProblem(9)
+    p.bf.max_small = max_small
+    for step in range(50):
+        p.add_pose(loops=int(p.rng.random() < 0.4))
+        if step % 6 == 5:
+            p.relinearize(3)
     H, eta = check_exact(p.bf)
     check_solution(p.bf, H, eta)

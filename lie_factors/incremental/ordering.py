@@ -1,0 +1,110 @@
+"""The elimination order of a small set of affected variables: minimum degree on bit sets (compiled).
+
+An update's affected set is ordered on the graph of
+:func:`~lie_factors.incremental.marking.ordering_graph` (the factors inside the
+set and the separators of the subtrees hanging below it), the observed
+variables last when some are not.  Large sets go to GTSAM's constrained
+COLAMD; a set of at most :data:`MAX_SMALL` variables, most of an online
+replay's, is ordered here in one compiled call: each variable's neighbours are
+one 64-bit word, and the exact minimum degree ordering (the variable with the
+fewest remaining neighbours next, its neighbours made a clique) costs a few
+word operations per variable and neighbour.  Ties go to the variable earliest
+in the order so far (new variables last), which keeps the tree's shape where
+the degrees do not decide.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.jit import inline_kernel, kernel
+from .marking import ordering_graph
+
+#: The largest set ordered here: its adjacency rows are single 64-bit words.
+MAX_SMALL = 64
+
+_ONE = np.uint64(1)
+
+
+@inline_kernel
+def _popcount(x):
+    """Bits set in the uint64 ``x``."""
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return (x * np.uint64(0x0101010101010101)) >> np.uint64(56)
+
+
+@inline_kernel
+def _adjacency(K, ptr, lists, n, local, adj):
+    """``adj[:K]``: each variable's neighbours in the cliques ``lists`` (CSR ``ptr``, ``n`` of
+    them; ``local``: a variable's index in the set), itself included."""
+    for a in range(K):
+        adj[a] = _ONE << np.uint64(a)
+    for t in range(n):
+        word = np.uint64(0)
+        for q in range(ptr[t], ptr[t + 1]):
+            word |= _ONE << np.uint64(local[lists[q]])
+        for q in range(ptr[t], ptr[t + 1]):
+            adj[local[lists[q]]] |= word
+
+
+@inline_kernel
+def _eliminate_in_turn(candidates, remaining, adj, rank, K, out, done):
+    """Take the ``candidates`` (a bit set) one by one, the fewest remaining neighbours first
+    (ties: the lowest ``rank``), writing their indices to ``out`` from ``done``; returns
+    (remaining, done)."""
+    while candidates != np.uint64(0):
+        best = -1
+        best_degree = K + 1
+        for a in range(K):
+            if (candidates >> np.uint64(a)) & _ONE:
+                d = _popcount(adj[a] & remaining)
+                if d < best_degree or (d == best_degree and rank[a] < rank[best]):
+                    best_degree = d
+                    best = a
+        bit = _ONE << np.uint64(best)
+        nbrs = adj[best] & remaining & ~bit
+        for a in range(K):
+            if (nbrs >> np.uint64(a)) & _ONE:
+                adj[a] |= nbrs
+        remaining &= ~bit
+        candidates &= ~bit
+        out[done] = best
+        done += 1
+    return remaining, done
+
+
+@kernel
+def order_small(affected, orphans, observed, store, tree, ipool, flag, stamp, ptr, lists, local, out):
+    """The affected variables (at most :data:`MAX_SMALL`) in elimination order, written to
+    ``out``: minimum degree on the graph of :func:`ordering_graph` (scratch ``ptr``/``lists``
+    sized as for it, ``stamp`` a new factor stamp), the variables in ``observed`` (repeats
+    allowed) last when some are not observed.  ``flag`` (V,) zero on entry and return;
+    ``local`` (V,) scratch."""
+    K = affected.shape[0]
+    n, m = ordering_graph(affected, orphans, store, tree, ipool, flag, stamp, ptr, lists)
+    for a in range(K):
+        local[affected[a]] = a
+    adj = np.empty(K, dtype=np.uint64)
+    _adjacency(K, ptr, lists, n, local, adj)
+    for q in range(observed.shape[0]):
+        flag[observed[q]] = 1
+    last = np.uint64(0)
+    for a in range(K):
+        if flag[affected[a]] == 1:
+            last |= _ONE << np.uint64(a)
+    for q in range(observed.shape[0]):
+        flag[observed[q]] = 0
+    everything = ~np.uint64(0) if K == 64 else (_ONE << np.uint64(K)) - _ONE
+    if last == everything:
+        last = np.uint64(0)
+    order = np.empty(K, dtype=np.int64)
+    rank = np.empty(K, dtype=np.int64)
+    pos = tree.pos
+    for a in range(K):
+        rank[a] = pos[affected[a]]
+    remaining, done = _eliminate_in_turn(everything & ~last, everything, adj, rank, K, order, 0)
+    _eliminate_in_turn(last, remaining, adj, rank, K, order, done)
+    for a in range(K):
+        out[a] = affected[order[a]]
