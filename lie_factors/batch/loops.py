@@ -60,7 +60,7 @@ class Prior(NamedTuple):
 
 
 @kernel
-def _whiten_residual(Rf, e, out):
+def whiten_residual(Rf, e, out):
     """out = −Rf·e (the right-hand side b); returns ‖Rf·e‖²."""
     total = 0.0
     for r in range(Rf.shape[0]):
@@ -73,7 +73,7 @@ def _whiten_residual(Rf, e, out):
 
 
 @kernel
-def _whiten_jacobian(Rf, H, out):
+def whiten_jacobian(Rf, H, out):
     """out = Rf·H."""
     n = H.shape[1]
     for r in range(Rf.shape[0]):
@@ -96,9 +96,9 @@ def _between_lin_range(g, X, fs, A1, A2, b, sq, f0, f1):
         _dispatch.Ad(g, fs.Minv[f], Ad)
         _factors.between(g, fs.Minv[f], Ad, X[fs.i1[f]], X[fs.i2[f]], e, H1, H2)
         Rf = fs.R[fs.ridx[f]]
-        sq[f] = _whiten_residual(Rf, e, b[f])
-        _whiten_jacobian(Rf, H1, A1[f])
-        _whiten_jacobian(Rf, H2, A2[f])
+        sq[f] = whiten_residual(Rf, e, b[f])
+        whiten_jacobian(Rf, H1, A1[f])
+        whiten_jacobian(Rf, H2, A2[f])
 
 
 @parallel_kernel
@@ -120,8 +120,8 @@ def _prior_lin_range(g, X, fs, A1, b, sq, f0, f1):
     for f in range(f0, f1):
         _factors.prior(g, fs.Pinv[f], X[fs.i1[f]], e, H)
         Rf = fs.R[fs.ridx[f]]
-        sq[f] = _whiten_residual(Rf, e, b[f])
-        _whiten_jacobian(Rf, H, A1[f])
+        sq[f] = whiten_residual(Rf, e, b[f])
+        whiten_jacobian(Rf, H, A1[f])
 
 
 @parallel_kernel
@@ -146,7 +146,7 @@ def _errors(g, X, i1, i2, Minv, R, ridx, sq):
                 _factors.prior_error(g, Minv[f], X[i2[f]], e)
             else:
                 _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
-            sq[f] = _whiten_residual(R[ridx[f]], e, scratch)
+            sq[f] = whiten_residual(R[ridx[f]], e, scratch)
 
 
 @kernel

@@ -36,10 +36,12 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from numba import typeof
 
 from ..errors import IndeterminantLinearSystem
-from ..kernels.jit import direct
-from . import elimination, marking, ordering, storage, substitution
+
+from ..kernels.jit import direct, entry_point
+from . import array_path, elimination, marking, ordering, storage, substitution
 from . import structures as st
 from .elimination import KEEP_UPDATE
 from .marking import factors_of, marked_among
@@ -55,6 +57,8 @@ mark_affected = direct(marking.mark_affected)
 ordering_graph = direct(marking.ordering_graph)
 order_small = direct(ordering.order_small)
 reeliminate = direct(elimination.reeliminate)
+#: The array path's kernel, through its entry point for each group (its tag's type differs).
+_add_and_mark: dict = {}
 back_substitute = direct(substitution.back_substitute)
 
 
@@ -185,6 +189,38 @@ class BlockFactor:
         self.updates += 1
         return self.last
 
+    def update_arrays(self, g, X: np.ndarray, velem: np.ndarray, prep, plan: np.ndarray, sizes: tuple) -> None:
+        """The array path's update (:mod:`~lie_factors.incremental.array_path`): P new variables
+        of the group ``g`` (dimension n), E between factors and Q priors of ``prep``, linearized
+        at ``X`` and marked by one compiled call, then ordered and re-eliminated.  ``plan`` as
+        :func:`~lie_factors.incremental.array_path.add_and_mark` takes it; ``sizes`` (P, E, Q, n).
+        Raises :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive."""
+        P, E, Q, n = sizes
+        counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
+        nv = self.nv + P
+        self._reserve_vars(nv)
+        self._reserve_delta(self.nscalar + P * n)
+        self._reserve_factors(self.nf + E + Q, self.nfv + 2 * E + Q, self.njac + n * (E * (2 * n + 1) + Q * (n + 1)))
+        if self._marks.shape[0] < 2 * nv:
+            self._marks = np.empty(4 * nv + 64, dtype=np.int64)
+        observed = plan[E + Q:]
+        heads = self.store.ahead[observed]  # a copy: the heads to put back if the update fails
+        entry = _add_and_mark.get(g)
+        args = (g, X, velem, prep, plan, np.array(counts + (P, E, Q, n), dtype=np.int64), self.tree, self.store,
+                self.delta, self.work, self.pools.ipool, self._marks)
+        if entry is None:
+            entry = _add_and_mark[g] = entry_point(array_path.add_and_mark, [typeof(a) for a in args])
+        ns, na, no = entry(*args)
+        self.nv, self.nf, self.nfv, self.njac, self.nscalar = nv, self.nf + E + Q, self.nfv + 2 * E + Q, \
+            self.njac + n * (E * (2 * n + 1) + Q * (n + 1)), int(ns)
+        try:
+            self._reeliminate_set(self._marks[:na].copy(), self._marks[nv:nv + no].copy(), observed)
+        except BaseException:
+            self.store.ahead[observed] = heads
+            self.nv, self.nf, self.nfv, self.njac, self.nscalar = counts
+            raise
+        self.updates += 1
+
     def _add_variables(self, new_dims: np.ndarray) -> None:
         P = new_dims.shape[0]
         if not P:
@@ -242,6 +278,11 @@ class BlockFactor:
 
     def _reeliminate(self, observed: np.ndarray, relin: np.ndarray) -> None:
         affected, orphans = self._affected(observed, relin)
+        self._reeliminate_set(affected, orphans, observed)
+
+    def _reeliminate_set(self, affected: np.ndarray, orphans: np.ndarray, observed: np.ndarray) -> None:
+        """Order and re-eliminate the ``affected`` variables on top of the ``orphans`` (or every
+        variable, when they are :data:`BATCH_SHARE` of them), the ``observed`` ones last."""
         batch = len(affected) >= BATCH_SHARE * self.nv
         if batch:
             affected = np.arange(self.nv, dtype=np.int64)

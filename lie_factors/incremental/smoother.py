@@ -39,6 +39,7 @@ from .. import factors as _factors
 from ..batch.graph import key_name
 from ..errors import IndeterminantLinearSystem, InputError
 from ..interop import to_gtsam
+from .array_path import try_update
 from .cholesky import BlockFactor
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
 from .gtsam_objects import VALUE_TYPES, insert_from, make_factor, native_jacobian, read_update, typed_estimate
@@ -137,6 +138,12 @@ class Smoother:
     def update_prepared(self, fa: "FactorArrays", keys, values, edges=(), priors=()) -> UpdateResult:
         """An update adding the new variables ``keys`` (P,) at ``values`` (P, m, m) and the
         factors ``edges``/``priors`` (indices) of the prepared ``fa``."""
+        try:
+            result = try_update(self, fa, keys, values, edges, priors)
+        except IndeterminantLinearSystem as exc:
+            raise self._indeterminant(exc, np.asarray(keys).reshape(-1).tolist()) from None
+        if result is not None:
+            return result
         spec = fa.spec
         m, n = spec.mat, spec.dim
         keys = np.asarray(keys, dtype=np.int64).reshape(-1)
@@ -221,28 +228,51 @@ class Smoother:
             relin_vars = self._relinearize_set()
         undo = Undo(self)
         try:
-            new_vars = self._add_variables(nf, undo)
+            self._add_variables(nf, undo)
             refreshed = self._relinearize(relin_vars, undo) if len(relin_vars) else []
             new_factors = self._add_factors(nf, undo)
             self.bf.update(new_dims=np.array(nf.dims, dtype=np.int64), new_factors=new_factors,
                            refreshed=refreshed, relinearized=relin_vars)
         except IndeterminantLinearSystem as exc:
             undo.run()
-            v = exc.variable
-            name = key_name(self.keys[v]) if v < len(self.keys) else key_name(nf.keys[v - len(self.keys)]) \
-                if v - len(self.keys) < len(nf.keys) else str(v)
-            raise IndeterminantLinearSystem(
-                f"the update leaves variable {name} undetermined (a pivot of its column is not positive): "
-                "the factors so far do not constrain it", v) from None
+            raise self._indeterminant(exc, nf.keys) from None
         except BaseException:
             undo.run()
             raise
-        del new_vars
-        self.update_count = count
-        self.relinearizations += len(relin_vars)
+        return self._updated(len(relin_vars))
+
+    def _indeterminant(self, exc: IndeterminantLinearSystem, new_keys: list) -> IndeterminantLinearSystem:
+        """The error of an update that left variable ``exc.variable`` undetermined, by its key
+        (``new_keys``: the update's new keys, the variables past the smoother's)."""
+        v = exc.variable
+        name = key_name(self.keys[v]) if v < len(self.keys) else key_name(new_keys[v - len(self.keys)]) \
+            if v - len(self.keys) < len(new_keys) else str(v)
+        return IndeterminantLinearSystem(
+            f"the update leaves variable {name} undetermined (a pivot of its column is not positive): "
+            "the factors so far do not constrain it", v)
+
+    def _updated(self, relinearized: int) -> UpdateResult:
+        """The counts after an update that succeeded, and what it reports."""
+        self.update_count += 1
+        self.relinearizations += relinearized
         self.reorderings += int(self.bf.last.batch)
         self._fresh = False
-        return UpdateResult(self.bf.last.columns, len(relin_vars), self.bf.nv, self.bf.last.batch)
+        return UpdateResult(self.bf.last.columns, relinearized, self.bf.nv, self.bf.last.batch)
+
+    def _grow_variables(self, n: int) -> None:
+        """Room for ``n`` variables in the per-variable arrays."""
+        self.velem = grow(self.velem, n)
+        self.vcode = grow(self.vcode, n)
+        self.vnative = grow(self.vnative, n)
+
+    def _kind(self, kind: str, name: str) -> FactorKind:
+        """The array factors of (``kind``, group ``name``), made on first use."""
+        store = self.kinds.get((kind, name))
+        if store is None:
+            store = self.kinds[(kind, name)] = FactorKind(kind, _factors.GROUPS[name], self._elements(name))
+            store.code = len(self.kind_list)
+            self.kind_list.append(store)
+        return store
 
     def _add_variables(self, nf: NewFactors, undo) -> list:
         nv0 = len(self.keys)
@@ -251,9 +281,7 @@ class Smoother:
             return []
         ids = list(range(nv0, nv0 + P))
         undo.vars(nv0)
-        self.velem = grow(self.velem, nv0 + P)
-        self.vcode = grow(self.vcode, nv0 + P)
-        self.vnative = grow(self.vnative, nv0 + P)
+        self._grow_variables(nv0 + P)
         self.vcode[nv0:nv0 + P] = -1
         self.vnative[nv0:nv0 + P] = False
         by_group: dict = {}
@@ -299,11 +327,7 @@ class Smoother:
         out = []
         var = self.var
         for (kind, name), entry in nf.arrays.items():
-            store = self.kinds.get((kind, name))
-            if store is None:
-                store = self.kinds[(kind, name)] = FactorKind(kind, _factors.GROUPS[name], self._elements(name))
-                store.code = len(self.kind_list)
-                self.kind_list.append(store)
+            store = self._kind(kind, name)
             undo.kind(store)
             keys = entry["keys"]
             v = np.fromiter((var[k] for k in keys.ravel().tolist()), dtype=np.int64, count=keys.size).reshape(keys.shape)

@@ -1,0 +1,215 @@
+"""The array path of an update: a replay's prepared factors added by one compiled call.
+
+:meth:`Smoother.update_prepared <lie_factors.incremental.smoother.Smoother.update_prepared>`
+adds new poses and some of a :class:`~lie_factors.incremental.factor_arrays.FactorArrays`'
+factors.  When the smoother holds only that group's variables and array factors, and the
+update relinearizes nothing (nine updates in ten with ISAM2's ``relinearizeSkip``),
+:func:`try_update` takes it here: Python checks the keys and maps them to variables (a dict
+lookup each), appends the new values and factors to the smoother's arrays, and one compiled
+call (:func:`add_and_mark`) linearizes the new factors into the block factor's store, links
+them to their variables and marks the columns to re-eliminate; then the ordering and the
+re-elimination, one compiled call each.  Any other update goes through the general path
+(:meth:`Smoother._apply <lie_factors.incremental.smoother.Smoother._apply>`): the same
+kernels and the same linearization cores, with GTSAM's objects and relinearization.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numpy as np
+
+from .. import factors as _factors
+from ..batch.graph import key_name
+from ..batch.loops import whiten_jacobian, whiten_residual
+from ..errors import InputError
+from ..kernels import dispatch as _dispatch
+from ..kernels.jit import inline_kernel, kernel
+from .marking import mark_affected
+from .storage import init_variables, link_adjacency
+
+#: A :class:`~lie_factors.incremental.factor_arrays.FactorArrays`' constants, as the kernel
+#: takes them: per between factor M⁻¹ (E, m, m) and the whitening R (E, n, n), per prior P⁻¹
+#: and R.
+Prepared = namedtuple("Prepared", ["Minv", "R", "Pinv", "prior_R"])
+
+#: ``counts`` of :func:`add_and_mark`: variables, factors, variable entries, Jacobian floats
+#: and scalars so far; new variables P, between factors E, priors Q; the group's dimension.
+COUNTS = ("nv", "nf", "nfv", "njac", "nscalar", "P", "E", "Q", "n")
+
+
+@inline_kernel
+def _store_factor(f, vs, nfv, njac, rows, D1, store):
+    """Factor ``f`` on the variables ``vs``, its entries from ``nfv`` and its rows × D1
+    Jacobian from ``njac`` (written by the caller)."""
+    fvars = store.fvars
+    store.fnv[f] = vs.shape[0]
+    store.fvstart[f] = nfv
+    for t in range(vs.shape[0]):
+        fvars[nfv + t] = vs[t]
+    store.frows[f] = rows
+    store.fcols[f] = D1
+    store.fjstart[f] = njac
+    store.fstamp[f] = 0
+
+
+@kernel
+def add_and_mark(g, X, velem, prep, plan, counts, tree, store, delta, work, ipool, marks):
+    """Add P new variables and E between factors and Q priors of ``prep`` (a :data:`Prepared`)
+    to the block factor, linearized at the elements ``X`` (``velem``: a variable's element),
+    and mark the columns to re-eliminate.
+
+    ``plan``: the factors' indices in ``prep`` (E between, then Q priors), then the observed
+    variables: the P new ones, each between factor's two, each prior's one.  ``counts``:
+    :data:`COUNTS`.  The structures have room for everything (the caller grows them).  Writes
+    the affected variables to ``marks[:nv]`` and the orphans to ``marks[nv:2 nv]`` (nv the new
+    variable count); returns (scalars, affected, orphans).
+    """
+    nv0, nf0, nfv, njac, ns0, P, E, Q, n = counts[0], counts[1], counts[2], counts[3], counts[4], \
+        counts[5], counts[6], counts[7], counts[8]
+    dims = np.full(P, n, dtype=np.int64)
+    ns = init_variables(nv0, dims, ns0, tree, store.ahead, delta)
+    observed = plan[E + Q:]
+    jac = store.jac
+    e = np.empty(n)
+    H1 = np.empty((n, n))
+    H2 = np.empty((n, n))
+    Ad = np.empty((n, n))
+    A1 = np.empty((n, n))
+    A2 = np.empty((n, n))
+    b = np.empty(n)
+    for q in range(E + Q):
+        f = nf0 + q
+        k = plan[q]
+        if q < E:
+            vs = observed[P + 2 * q:P + 2 * q + 2]
+            D1 = 2 * n + 1
+            _dispatch.Ad(g, prep.Minv[k], Ad)
+            _factors.between(g, prep.Minv[k], Ad, X[velem[vs[0]]], X[velem[vs[1]]], e, H1, H2)
+            Rf = prep.R[k]
+            whiten_jacobian(Rf, H2, A2)
+        else:
+            vs = observed[P + 2 * E + q - E:P + 2 * E + q - E + 1]
+            D1 = n + 1
+            _factors.prior(g, prep.Pinv[k], X[velem[vs[0]]], e, H1)
+            Rf = prep.prior_R[k]
+        whiten_residual(Rf, e, b)
+        whiten_jacobian(Rf, H1, A1)
+        _store_factor(f, vs, nfv, njac, n, D1, store)
+        for r in range(n):
+            row = njac + r * D1
+            for c in range(n):
+                jac[row + c] = A1[r, c]
+            if q < E:
+                for c in range(n):
+                    jac[row + n + c] = A2[r, c]
+            jac[row + D1 - 1] = b[r]
+        nfv += vs.shape[0]
+        njac += n * D1
+    link_adjacency(store, nf0, nf0 + E + Q)
+    nv = nv0 + P
+    na, no = mark_affected(observed, plan[:0], tree, ipool, work.flag, marks[:nv], marks[nv:2 * nv])
+    return ns, na, no
+
+
+def prepared(fa) -> Prepared:
+    """The kernel's view of ``fa``'s constants, made once per FactorArrays."""
+    prep = getattr(fa, "_prepared", None)
+    if prep is None:
+        prep = fa._prepared = Prepared(np.ascontiguousarray(fa.Minv), np.ascontiguousarray(fa.R),
+                                       np.ascontiguousarray(fa.Pinv), np.ascontiguousarray(fa.prior_R))
+    return prep
+
+
+def takes(s, fa) -> bool:
+    """Whether the smoother ``s`` can take an update of ``fa``'s factors on the array path: it
+    holds only ``fa``'s group and array factors, and this update relinearizes nothing."""
+    p = s.params
+    if s.native or s.other_types or (s.group_names and s.group_names != [fa.group]):
+        return False
+    return not (p.enableRelinearization and (s.update_count + 1) % p.relinearizeSkip == 0 and s.bf.nv)
+
+
+def _observed(s, fa, klist: list, edges: list, priors: list) -> list:
+    """The variables of the new keys, then of each factor's keys, checked as the general path
+    checks them (every key known or new, every new key in a new factor)."""
+    var = s.var
+    nv0 = len(s.keys)
+    new = {}
+    for q, k in enumerate(klist):
+        if k in var:
+            raise InputError(f"key {key_name(k)} is already a variable of the smoother")
+        if k in new:
+            raise InputError(f"key {key_name(k)} is given twice")
+        new[k] = nv0 + q
+    obs = list(range(nv0, nv0 + len(klist)))
+    for kind, idx, keys, count in (("between", edges, fa.edge_keys, fa.E), ("prior", priors, fa.prior_keys, fa.Q)):
+        if idx and not (min(idx) >= 0 and max(idx) < count):
+            raise InputError(f"{kind} factor indices must be in [0, {count}), got {idx}")
+        for k in (keys[idx].ravel().tolist() if idx else ()):
+            v = new.get(k)
+            if v is None:
+                v = var.get(k)
+                if v is None:
+                    raise InputError(f"a {fa.group} factor uses key {key_name(k)}, which has no value "
+                                     "(neither new nor in the smoother)")
+            obs.append(v)
+    used = set(obs[len(klist):])
+    for q, k in enumerate(klist):
+        if nv0 + q not in used:
+            raise InputError(f"new key {key_name(k)} is in no new factor: it would be unconstrained")
+    return obs
+
+
+def try_update(s, fa, keys, values, edges, priors):
+    """The update of :meth:`Smoother.update_prepared` on the array path, or None when it needs
+    the general path (:func:`takes`).  Raises as the general path does, with the smoother
+    as it was."""
+    if not takes(s, fa):
+        return None
+    spec = fa.spec
+    m, n = spec.mat, spec.dim
+    klist = np.asarray(keys, dtype=np.int64).reshape(-1).tolist()
+    P = len(klist)
+    X = np.zeros((0, m, m)) if P == 0 and values is None else np.asarray(values, dtype=np.float64)
+    if X.shape != (P, m, m):
+        raise InputError(f"values: expected shape ({P}, {m}, {m}), got {X.shape}")
+    if not np.isfinite(X).all():
+        raise InputError("values: not finite")
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1).tolist()
+    priors = np.asarray(priors, dtype=np.int64).reshape(-1).tolist()
+    obs = _observed(s, fa, klist, edges, priors)
+    nv0 = len(s.keys)
+    el = s._elements(fa.group)
+    n_el = el.n
+    kinds = [(s._kind(kind, fa.group), C, R, idx, k) for kind, C, R, idx, k in
+             (("between", fa.Minv, fa.R, edges, 2), ("prior", fa.Pinv, fa.prior_R, priors, 1)) if idx]
+    kind_n = [kind.n for kind, *_ in kinds]
+    s.keys.extend(klist)
+    s.var.update(zip(klist, range(nv0, nv0 + P)))
+    s.vgroup.extend([fa.group] * P)
+    s._grow_variables(nv0 + P)
+    s.velem[nv0:nv0 + P] = el.append(X, np.arange(nv0, nv0 + P))
+    s.vcode[nv0:nv0 + P] = el.code
+    s.vnative[nv0:nv0 + P] = False
+    bf = s.bf
+    at, fid = P, bf.nf
+    for kind, C, R, idx, k in kinds:
+        v = np.array(obs[at:at + k * len(idx)], dtype=np.int64).reshape(-1, k)
+        local = kind.append(v, s.velem[v], C[idx], R[idx], [None] * len(idx))
+        kind.fid[local] = np.arange(fid, fid + len(idx))
+        s._register(kind.fid[local], kind.code, local)
+        at += k * len(idx)
+        fid += len(idx)
+    plan = np.array(edges + priors + obs, dtype=np.int64)
+    try:
+        bf.update_arrays(spec.group, el.X, s.velem, prepared(fa), plan, (P, len(edges), len(priors), n))
+    except BaseException:
+        del s.keys[nv0:], s.vgroup[nv0:]
+        for k in klist:
+            s.var.pop(k, None)
+        el.n = n_el
+        for (kind, *_), kn in zip(kinds, kind_n):
+            kind.truncate(kn)
+        raise
+    return s._updated(0)

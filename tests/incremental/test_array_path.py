@@ -1,0 +1,133 @@
+"""The array path of ``Smoother.update_prepared``: one compiled call adds and marks, the same
+factor as the general path, refusals that leave the smoother as it was."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lie_factors.errors import IndeterminantLinearSystem, InputError
+from lie_factors.incremental import FactorArrays, Smoother, cholesky
+from lie_factors.incremental.smoother import Smoother as SmootherClass
+from lie_factors.kernels import registry
+from lie_factors.se3 import exp as se3_exp
+
+
+def _graph(poses=40, seed=0):
+    """A noisy SE(3) chain with a closure every 5th pose and a prior: FactorArrays and the
+    factors of each update (edges, priors) and the poses' start values."""
+    rng = np.random.default_rng(seed)
+    step = se3_exp(np.array([0.0, 0.0, 0.2, 1.0, 0.0, 0.0]))
+    truth = [np.eye(4)]
+    for _ in range(poses - 1):
+        truth.append(truth[-1] @ step)
+    edges, updates = [], []
+    for i in range(poses):
+        mine = []
+        if i:
+            mine.append(len(edges))
+            edges.append((i - 1, i))
+        if i >= 6 and i % 5 == 0:
+            mine.append(len(edges))
+            edges.append((i - 6, i))
+        updates.append(mine)
+    measured = np.array([np.linalg.inv(truth[a]) @ truth[b] @ se3_exp(0.01 * rng.normal(size=6))
+                         for a, b in edges])
+    info = np.array([np.diag(rng.uniform(50, 100, size=6)) for _ in edges])
+    fa = FactorArrays("Pose3", np.array(edges), measured, info, [0], truth[0][None], 100 * np.eye(6)[None])
+    start = [truth[i] @ se3_exp(0.05 * rng.normal(size=6)) for i in range(poses)]
+    return fa, updates, start
+
+
+def _replay(s: Smoother, fa, updates, start, upto=None):
+    for i, mine in enumerate(updates[:upto]):
+        s.update_prepared(fa, [i], start[i][None], mine, [0] if i == 0 else [])
+
+
+def test_an_update_on_the_array_path_is_one_compiled_call_that_adds_and_marks(monkeypatch):
+    fa, updates, start = _graph()
+    s = Smoother()
+    _replay(s, fa, updates, start, 3)  # compiles the entry points
+    tag = registry.group("Pose3")
+    calls = {"add": 0, "general": 0, "reeliminate": 0}
+    entry = cholesky._add_and_mark[tag]
+    reeliminate = cholesky.reeliminate
+    apply = SmootherClass._apply
+
+    def count(name, f):
+        def counted(*a, **k):
+            calls[name] += 1
+            return f(*a, **k)
+        return counted
+
+    monkeypatch.setitem(cholesky._add_and_mark, tag, count("add", entry))
+    monkeypatch.setattr(cholesky, "reeliminate", count("reeliminate", reeliminate))
+    monkeypatch.setattr(SmootherClass, "_apply", lambda self, nf: count("general", apply)(self, nf))
+    for i in range(3, len(updates)):
+        before = dict(calls)
+        room = (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
+        s.update_prepared(fa, [i], start[i][None], updates[i], [])
+        pools_changed = room != (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
+        relinearizing = (i + 1) % s.params.relinearizeSkip == 0
+        assert calls["general"] - before["general"] == int(relinearizing)
+        assert calls["add"] - before["add"] == int(not relinearizing)
+        # one re-elimination, but when the pools had no room for it: then it asked for the room
+        # after its symbolic pass and ran again (a batch step's fresh pools always)
+        assert calls["reeliminate"] - before["reeliminate"] == 1 or s.bf.last.batch or pools_changed
+
+
+def test_the_array_path_builds_the_factor_the_general_path_builds():
+    fa, updates, start = _graph(seed=1)
+    # the general path on every update (a check every update, a threshold nothing reaches);
+    # exact solves (wildfire's estimate depends on when δ is solved, and the check solves)
+    general = Smoother(relinearizeSkip=1, relinearizeThreshold=1e9, wildfireThreshold=0.0)
+    arrays = Smoother(enableRelinearization=False, wildfireThreshold=0.0)
+    _replay(general, fa, updates, start)
+    _replay(arrays, fa, updates, start)
+    assert arrays.bf.nf == general.bf.nf == fa.E + fa.Q
+    a, g = arrays.bf, general.bf
+    nj = g.njac
+    assert a.njac == nj
+    assert np.max(np.abs(a.store.jac[:nj] - g.store.jac[:nj])) <= 1e-12 * np.max(np.abs(g.store.jac[:nj]))
+    for x, y in zip(a.dense_factor(), g.dense_factor()):
+        assert np.max(np.abs(x - y)) <= 1e-10 * max(1.0, np.max(np.abs(y)))
+    keys = list(range(len(updates)))
+    assert np.max(np.abs(arrays.estimate_matrices(keys) - general.estimate_matrices(keys))) <= 1e-9
+    assert arrays.getFactorsUnsafe().size() == fa.E + fa.Q
+
+
+def test_refusals_on_the_array_path_leave_the_smoother_as_it_was():
+    fa, updates, start = _graph(seed=2)
+    # exact solves: reading the estimate between updates does not change later ones
+    s = Smoother(enableRelinearization=False, wildfireThreshold=0.0)
+    _replay(s, fa, updates, start, 20)
+    before = (s.estimate_matrices(list(range(20))), s.bf.nv, s.bf.nf, len(s.keys), s.update_count)
+
+    def refused(match, exc=InputError, **kw):
+        args = dict(fa=fa, keys=[20], values=start[20][None], edges=updates[20], priors=[])
+        args.update(kw)
+        with pytest.raises(exc, match=match):
+            s.update_prepared(**args)
+        assert (s.bf.nv, s.bf.nf, len(s.keys), s.update_count) == before[1:]
+        assert np.array_equal(s.estimate_matrices(list(range(20))), before[0])
+
+    refused("already a variable", keys=[3])
+    refused("given twice", keys=[20, 20], values=np.stack([start[20]] * 2))
+    refused("no new factor", keys=[20, 77], values=np.stack([start[20]] * 2))
+    refused("has no value", edges=[len(fa.edge_keys) - 1])  # pose 39's closure: 33 is unknown
+    refused("indices must be in", edges=[len(fa.edge_keys)])
+    refused("expected shape", values=start[20][None, :3])
+    refused("not finite", values=np.full((1, 4, 4), np.nan))
+    # two new poses tied only to each other: the gauge is free, the update undetermined
+    lone = FactorArrays("Pose3", [[200, 201]], np.eye(4)[None], np.eye(6)[None])
+    with pytest.raises(IndeterminantLinearSystem, match="undetermined"):
+        s.update_prepared(lone, [200, 201], np.stack([np.eye(4)] * 2), [0], [])
+    assert (s.bf.nv, s.bf.nf, len(s.keys), s.update_count) == before[1:]
+    # the next updates work and agree with a smoother never refused
+    for i in range(20, len(updates)):
+        s.update_prepared(fa, [i], start[i][None], updates[i], [])
+    t = Smoother(enableRelinearization=False, wildfireThreshold=0.0)
+    _replay(t, fa, updates, start)
+    assert np.array_equal(s.bf.dense_factor()[1], t.bf.dense_factor()[1])
+    keys = list(range(len(updates)))
+    assert np.max(np.abs(s.estimate_matrices(keys) - t.estimate_matrices(keys))) <= 1e-12
