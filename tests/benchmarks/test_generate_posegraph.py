@@ -50,3 +50,35 @@ def test_graph_as_gtsam_reads_it(tmp_path):
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
     dof = 6 * closures
     assert 0.5 * dof * 0.8 < graph.error(result) < 0.5 * dof * 1.2
+
+
+def test_street_walks_have_local_closures_and_the_stated_noise(tmp_path):
+    # city (SE(2)) and hills (SE(3)): odometry composes to the vertices, closures tie a pose to
+    # one at least --min-gap back, and LM from the file reaches about its expected error
+    for shape, dim in (("city", 3), ("hills", 6)):
+        path = tmp_path / f"{shape}.g2o"
+        subprocess.run([sys.executable, SCRIPT, "--shape", shape, "--poses", "1500", "--seed", "3", "--output",
+                        str(path)], check=True, capture_output=True)
+        graph, values = gtsam.readG2o(str(path), dim == 6)
+        n = values.size()
+        assert n == 1500
+        at = values.atPose3 if dim == 6 else values.atPose2
+        gaps = []
+        for k in range(graph.size()):
+            f = graph.at(k)
+            a, b = f.keys()
+            if k < n - 1:
+                assert (a, b) == (k, k + 1)
+                pred = at(a).compose(f.measured())
+                assert np.max(np.abs(pred.matrix() - at(b).matrix())) < 1e-9
+            else:
+                gaps.append(b - a)
+        assert len(gaps) > 100 and min(gaps) >= 50
+        assert len(set(gaps)) > 20  # where the walk returns, not at one period
+        if dim == 6:
+            graph.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+        else:
+            graph.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()).optimize()
+        half_dof = 0.5 * dim * len(gaps)
+        assert 0.8 * half_dof < graph.error(result) < 1.2 * half_dof
