@@ -1,7 +1,7 @@
 """The smoother's choices measured on replays: how small sets are ordered, and which variables are relinearized when.
 
     python benchmarks/incremental_choices.py [--datasets intel kitti_00 parking-garage sphere2500 FILE.g2o ...]
-        [--variants default colamd global deferred] [--repeat 2]
+        [--variants default colamd md64 variable global] [--repeat 2]
 
 Each variant is the replay of :func:`lie_factors.incremental.replay.replay_arrays` (what
 ``lie-factors posegraph FILE --incremental`` runs) with one choice changed:
@@ -9,7 +9,10 @@ Each variant is the replay of :func:`lie_factors.incremental.replay.replay_array
 - ``default``: the library's choices;
 - ``colamd``: every set of more than three variables ordered by GTSAM's CCOLAMD (no minimum
   degree on small sets, ``BlockFactor.max_small = 3``);
-- ``global``, ``deferred``, ``variable``: ``SmootherParams.relinearizePolicy``.
+- ``mdK`` (``md64``, …): sets of up to K variables ordered by minimum degree
+  (``BlockFactor.max_small = K``; the default is
+  :data:`~lie_factors.incremental.ordering.MAX_SMALL`, the kernel takes up to 64);
+- ``variable``, ``global``: ``SmootherParams.relinearizePolicy``.
 
 Variants alternate within one process (repeat ▸ dataset ▸ variant, the order reversed every
 other repeat); each reports its best update seconds of ``--repeat``, the dense elimination
@@ -32,7 +35,7 @@ from lie_factors.g2o import read_pose_graph  # noqa: E402
 from lie_factors.incremental import Smoother, SmootherParams  # noqa: E402
 from lie_factors.incremental.replay import replay_arrays, warm_up_smoother  # noqa: E402
 
-VARIANTS = ("default", "colamd", "variable", "global", "deferred")
+VARIANTS = ("default", "colamd", "variable", "global")
 
 
 def load(name: str):
@@ -43,19 +46,25 @@ def load(name: str):
 
 
 def smoother(variant: str) -> Smoother:
-    policy = variant if variant in ("variable", "global", "deferred") else SmootherParams().relinearizePolicy
+    policy = variant if variant in ("variable", "global") else SmootherParams().relinearizePolicy
     s = Smoother(SmootherParams(relinearizePolicy=policy))
     if variant == "colamd":
         s.bf.max_small = 3
+    elif variant.startswith("md"):
+        s.bf.max_small = int(variant[2:])
     return s
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--datasets", nargs="+", default=["intel", "kitti_00", "parking-garage", "sphere2500"])
-    ap.add_argument("--variants", nargs="+", default=["default", "colamd"], choices=VARIANTS)
+    ap.add_argument("--variants", nargs="+", default=["default", "colamd"],
+                    help=f"{', '.join(VARIANTS)}, or mdK (minimum degree on sets of up to K variables)")
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args(argv)
+    for v in args.variants:
+        if v not in VARIANTS and not (v.startswith("md") and v[2:].isdigit() and 3 <= int(v[2:]) <= 64):
+            ap.error(f"unknown variant {v}")
     print(f"# load: {subprocess.run(['uptime'], capture_output=True, text=True).stdout.strip()}", flush=True)
     graphs = {name: load(name) for name in args.datasets}
     for pg in graphs.values():

@@ -6,7 +6,7 @@ set and the separators of the subtrees hanging below it), the observed
 variables last when some are not.  Large sets go to GTSAM's constrained
 COLAMD; a set of at most :data:`MAX_SMALL` variables, most of an online
 replay's, is ordered here in one compiled call: each variable's neighbours are
-one 64-bit word, and the exact minimum degree ordering (the variable with the
+one 64-bit word (so the kernel takes up to :data:`WORD` variables), and the exact minimum degree ordering (the variable with the
 fewest remaining neighbours next, its neighbours made a clique) costs a few
 word operations per variable and neighbour.  Ties go to the variable earliest
 in the order so far (new variables last), which keeps the tree's shape where
@@ -20,8 +20,14 @@ import numpy as np
 from ..kernels.jit import inline_kernel, kernel
 from .marking import ordering_graph
 
-#: The largest set ordered here: its adjacency rows are single 64-bit words.
-MAX_SMALL = 64
+#: The largest set the kernel can order: its adjacency rows are single 64-bit words.
+WORD = 64
+#: The largest set ordered here by default.  Up to 32 variables, minimum degree and CCOLAMD
+#: leave trees of about the same later work (``benchmarks/incremental_choices.py``: the dense
+#: elimination work Σ D·N² of whole replays within 5 % either way); with sets of 33 to 64 as
+#: well, later updates re-eliminate more on graphs whose affected sets are large (sphere2500:
+#: 1.8 times the work of CCOLAMD's trees, city10000: 1.16 times).
+MAX_SMALL = 32
 
 _ONE = np.uint64(1)
 
@@ -77,7 +83,7 @@ def _eliminate_in_turn(candidates, remaining, adj, rank, K, out, done):
 
 @kernel
 def order_small(affected, orphans, observed, store, tree, ipool, flag, stamp, ptr, lists, local, out):
-    """The affected variables (at most :data:`MAX_SMALL`) in elimination order, written to
+    """The affected variables (at most :data:`WORD`) in elimination order, written to
     ``out``: minimum degree on the graph of :func:`ordering_graph` (scratch ``ptr``/``lists``
     sized as for it, ``stamp`` a new factor stamp), the variables in ``observed`` (repeats
     allowed) last when some are not observed.  ``flag`` (V,) zero on entry and return;

@@ -8,7 +8,7 @@ import pytest
 import gtsam
 
 from lie_factors.incremental.cholesky import BlockFactor
-from lie_factors.incremental.ordering import MAX_SMALL
+from lie_factors.incremental.ordering import MAX_SMALL, WORD
 from lie_factors.incremental.structures import Pools, Tree
 from lie_factors.errors import IndeterminantLinearSystem
 
@@ -259,7 +259,7 @@ def test_many_compactions_keep_the_factor_exact():
     dozens of times, and the factor equals a from-scratch Cholesky after each."""
     p = RandomProblem(11, small_pools=True)
     checked = 0
-    for step in range(150):
+    for step in range(180):
         p.add_pose(int(p.rng.random() < 0.3))
         if step % 3 == 2:
             p.relinearize(8)
@@ -328,7 +328,7 @@ def test_small_sets_are_ordered_without_gtsam(monkeypatch):
     check_solution(p.bf, H, eta)
 
 
-@pytest.mark.parametrize("max_small", [3, MAX_SMALL])
+@pytest.mark.parametrize("max_small", [3, MAX_SMALL, WORD])
 def test_both_orderings_keep_the_factor_exact(max_small):
     p = RandomProblem(9)
     p.bf.max_small = max_small
@@ -338,3 +338,23 @@ def test_both_orderings_keep_the_factor_exact(max_small):
             p.relinearize(3)
     H, eta = check_exact(p.bf)
     check_solution(p.bf, H, eta)
+
+
+@pytest.mark.parametrize("N,o,D", [(150, 0, 12), (200, 3, 70), (97, 10, 64), (130, 0, 100)])
+def test_blas_trailing_update_equals_the_compiled_loops(N, o, D):
+    from lie_factors.incremental.fronts import BLAS_TILE, eliminate_columns
+
+    # whole tiles, a partial last tile, and blocks wide enough that the tiles shrink below
+    # BLAS_TILE: the same [R | T | d] and update matrix as the row-by-row loops
+    rng = np.random.default_rng(N + D)
+    A = rng.normal(size=(N + 5, N))
+    Phi = np.triu(A.T @ A)
+    Phi[N - 1, :N - 1] = np.diag(Phi)[:N - 1]
+    if o:  # the first o scalars eliminated already, as in a clique's later member
+        eliminate_columns(Phi, 0, o, False, np.empty(2 * N * N), np.empty(BLAS_TILE ** 2))
+    loops, blas = Phi.copy(), Phi.copy()
+    assert eliminate_columns(loops, o, D, False, np.empty(2 * N * N), np.empty(BLAS_TILE ** 2)) == -1
+    assert eliminate_columns(blas, o, D, True, np.empty(2 * N * N), np.empty(BLAS_TILE ** 2)) == -1
+    upper = np.triu_indices(N)
+    scale = np.max(np.abs(loops[upper]))
+    assert np.max(np.abs(blas[upper] - loops[upper])) <= 1e-12 * scale
