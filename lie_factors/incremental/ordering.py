@@ -24,7 +24,7 @@ from .marking import ordering_graph
 WORD = 64
 #: The largest set ordered here by default.  Up to 32 variables, minimum degree and CCOLAMD
 #: leave trees of about the same later work (``benchmarks/incremental_choices.py``: the dense
-#: elimination work Σ D·N² of whole replays within 5 % either way); with sets of 33 to 64 as
+#: elimination work Σ D·N² of whole replays at most 5 % above CCOLAMD's); with sets of 33 to 64 as
 #: well, later updates re-eliminate more on graphs whose affected sets are large (sphere2500:
 #: 1.8 times the work of CCOLAMD's trees, city10000: 1.16 times).
 MAX_SMALL = 32
