@@ -338,3 +338,9 @@ def warm_up_smoother(group: str) -> None:
         s.update_arrays(group, [k], I[None], [[k - 1, k]], I[None], np.eye(info.dim)[None])
     s.update_arrays(group, [8], I[None], [[7, 8], [2, 8]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))
     s.estimate_matrix(8)
+    # a closure whose set GTSAM's CCOLAMD orders (its first call costs milliseconds), and a
+    # pool compaction: both come only after many updates of a replay
+    s.bf.max_small = 3
+    s.update_arrays(group, [9], I[None], [[8, 9], [3, 9]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))
+    s.bf._compact()
+    s.estimate_matrix(9)

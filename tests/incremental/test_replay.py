@@ -4,6 +4,10 @@ result, its refusals, and the command line reporting what it returns."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import gtsam
 import numpy as np
@@ -17,6 +21,8 @@ from lie_factors.incremental.replay import factor_graph, new_isam, replay, repla
 from lie_factors.interop import to_gtsam
 from lie_factors.optimizers import ISAM2
 from lie_factors.result import ReplayResult
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_schedule_and_initial_values_follow_the_rules(tmp_path):
@@ -122,3 +128,43 @@ def test_lower_level_pieces_run_our_factors_in_plain_isam2(tmp_path):
     plain = replay_graph(pg, factor_graph(pg, "dropin"), gtsam.ISAM2(gtsam.ISAM2Params()), backend="dropin")
     dropin = replay_graph(pg, factor_graph(pg, "dropin"), new_isam("dropin"), backend="dropin")
     assert plain.error == pytest.approx(dropin.error, rel=1e-12)
+
+
+
+#: Run in a fresh process: the smoother's dispatchers' signatures after warm_up_smoother, then
+#: after a replay (the final error, loops._errors, is evaluated after the updates, off the clock).
+WARM_UP_CHECK = """
+import importlib, pkgutil
+import numba
+import lie_factors.incremental as inc
+from lie_factors.batch import loops
+from lie_factors.g2o import read_pose_graph
+from lie_factors.incremental.replay import replay_arrays, warm_up_smoother
+from lie_factors.incremental.smoother import Smoother
+
+modules = [importlib.import_module("lie_factors.incremental." + m.name) for m in pkgutil.iter_modules(inc.__path__)]
+dispatchers = {id(d): d for mod in modules + [loops] for d in vars(mod).values()
+               if isinstance(d, numba.core.registry.CPUDispatcher) and d is not loops._errors}
+
+def signatures():
+    return {k: len(d.overloads) for k, d in dispatchers.items()}
+
+pg = read_pose_graph("data/smallGrid3D.g2o")
+warm_up_smoother(pg.group)
+before = signatures()
+s = Smoother()
+replay_arrays(pg, s)
+assert s.bf.compactions > 0
+assert signatures() == before, [dispatchers[k].py_func.__name__ for k, n in signatures().items() if before[k] != n]
+print("ok", sum(before.values()))
+"""
+
+
+def test_after_the_warm_up_a_replay_compiles_and_loads_no_kernel():
+    # every kernel a replay runs is compiled or loaded by warm_up_smoother, outside the timed
+    # updates: the replay adds no signature to any of the smoother's dispatchers, even with a
+    # pool compaction (smallGrid3D's replay compacts once)
+    out = subprocess.run([sys.executable, "-c", WARM_UP_CHECK], capture_output=True, text=True, cwd=ROOT,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("ok")
