@@ -29,9 +29,13 @@ inliers); ``file`` the file's vertices (the chain: composed odometry);
 ``--init auto`` is without ``--gnc``/``--robust``).
 
 ``--suite`` compares what ``lie-factors posegraph FILE --gnc tls`` runs
-(consistency stage, GNC, final check) with GTSAM's ``GncOptimizer`` on the
-suite's graphs, uniform and clustered false closures, at ``--fractions`` and
-``--seeds``.  Besides precision and recall of the rejected edges, it reports
+(consistency stage, GNC, final check) with GTSAM's ``GncOptimizer`` on
+``--graphs``, with false closures of ``--kinds`` from ``--generator``
+(``corrupt``: :func:`lie_factors.corrupt`'s uniform, local, group and near;
+``testing``: the uniform and clustered ones of the earlier tables), at
+``--fractions`` and ``--seeds``.  It prints a row per run, then the worst and
+the median of each cell over the seeds not in ``--tuning-seeds`` (the seeds
+the pipeline was developed on: default 0).  Besides precision and recall of the rejected edges, it reports
 how many planted closures happen to fit the clean optimum (χ² ≤ χ²_n(0.95)
 under their own noise model) and precision and recall with those left out of
 the count (riSAM's rule: such a closure is not an outlier).  GTSAM's results
@@ -47,6 +51,8 @@ Usage::
     python benchmarks/outliers.py --graphs intel chain1000 --methods lm gnc-tls
     python benchmarks/outliers.py --graphs intel --backends batch --start chordal
     python benchmarks/outliers.py --suite --graphs intel CSAIL --seeds 0 1 --repeat 2
+    python benchmarks/outliers.py --suite --graphs intel manhattan --kinds uniform group --fractions 0.2 --seeds 1 2 3
+    python benchmarks/outliers.py --suite --generator testing --kinds uniform clustered --seeds 0
     python benchmarks/outliers.py --tails --graphs intel CSAIL manhattan city10000 sphere2500
 
 Timing: best of ``--repeat`` runs, native and batch alternated (on a shared
@@ -159,18 +165,20 @@ def run_gnc(pg, backend):
     return values, res.iterations, seconds, res.outliers, res.cost
 
 
-def _native_gnc_child(name, fraction, seed, start, conn, kind="uniform"):
-    pg, planted, _, _ = prepare(name, fraction, seed, reference=False, start=start, kind=kind)
+def _native_gnc_child(name, fraction, seed, start, conn, kind="uniform", pg=None):
+    if pg is None:
+        pg, planted, _, _ = prepare(name, fraction, seed, reference=False, start=start, kind=kind)
     values, its, seconds, rejected, cost = run_gnc(pg, "native")
     conn.send((positions(values, pg), its, seconds, rejected.tolist(), cost))
     conn.close()
 
 
-def run_native_gnc_with_timeout(name, fraction, seed, start, timeout, kind="uniform"):
-    """Native GNC in a child process (GTSAM's C++ loop cannot be interrupted); None if it times out."""
+def run_native_gnc_with_timeout(name, fraction, seed, start, timeout, kind="uniform", pg=None):
+    """Native GNC in a child process (GTSAM's C++ loop cannot be interrupted); None if it times out.
+    ``pg``: the planted graph with its start (else planted again in the child)."""
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_native_gnc_child, args=(name, fraction, seed, start, child, kind))
+    proc = ctx.Process(target=_native_gnc_child, args=(name, fraction, seed, start, child, kind, pg))
     proc.start()
     if parent.poll(timeout):
         out = parent.recv()
@@ -211,8 +219,23 @@ def reference_positions(pg) -> np.ndarray:
     return positions(reference_values(pg), pg)
 
 
-def plant(pg, fraction, seed, kind="uniform"):
-    """``pg``'s between graph with false loop closures (``kind``: uniform or clustered) and their slots."""
+#: The generators of ``--generator``: ``corrupt`` is :func:`lie_factors.corrupt` (kinds uniform, local,
+#: group, near); ``testing`` is :mod:`lie_factors.testing.outliers` (uniform: translations in ±10 m;
+#: clustered: runs of 3–10), what the earlier tables of docs/benchmarks.md planted.
+GENERATORS = {"corrupt": ("uniform", "local", "group", "near"), "testing": ("uniform", "clustered")}
+
+
+def plant(pg, fraction, seed, kind="uniform", generator="testing", reference=None):
+    """``pg``'s between graph with false loop closures of ``kind`` from ``generator`` and their slots;
+    ``reference``: the clean optimum's poses (P, m, m), which ``corrupt``'s group and near runs need."""
+    if kind not in GENERATORS[generator]:
+        raise SystemExit(f"outliers.py: --generator {generator} has no kind {kind!r} "
+                         f"(choose from {', '.join(GENERATORS[generator])})")
+    if generator == "corrupt":
+        from lie_factors.corruption import plant as corrupt_plant
+
+        c = corrupt_plant(pg, fraction=fraction, kind=kind, seed=seed, reference=reference)
+        return c.graph.factor_graph(), c.planted
     n_lc = len(pg.loop_closures())
     count = int(round(fraction * n_lc))
     planter = (outliers.plant_false_loop_closures if kind == "uniform"
@@ -237,7 +260,12 @@ def rmse(P, ref) -> float:
 # The suite: lie-factors' --gnc (consistency stage, GNC, final check) against GTSAM's GncOptimizer
 # --------------------------------------------------------------------------- #
 
-SUITE_GRAPHS = ("intel", "manhattan", "CSAIL", "city10000", "sphere2500", "parking-garage", "helix10000")
+SUITE_GRAPHS = ("intel", "CSAIL", "MIT", "manhattan", "city10000", "kitti_00", "sphere2500", "parking-garage",
+                "torus3D", "helix10000")
+
+
+def _timed_out(b) -> bool:
+    return isinstance(b[0], str)
 
 
 def run_ours(planted_pg):
@@ -254,7 +282,8 @@ NATIVE_CACHE = os.path.join(tempfile.gettempdir(), "lie_factors_outliers_native"
 
 
 def _cache_path(cache, name, fraction, kind, seed):
-    return os.path.join(cache, f"{os.path.basename(name)}-{fraction:g}-{kind}-{seed}.npz")
+    """``kind`` is the generator's: ``corrupt:group``, or ``uniform``/``clustered`` for ``testing``."""
+    return os.path.join(cache, f"{os.path.basename(name)}-{fraction:g}-{kind.replace(':', '-')}-{seed}.npz")
 
 
 def load_native(cache, name, fraction, kind, seed):
@@ -296,54 +325,96 @@ def stage_counts(rejected_by: dict) -> str:
     return ", ".join(f"{k} {counts[k]}" for k in ("gate", "clique", "gnc", "final") if k in counts)
 
 
+def _suite_case(args, name, base, ref_values, fraction, kind, seed):
+    """One cell of the suite at one seed: {method: (positions, seconds, rejected, rejected_by) or
+    "timeout"}, the planted slots, those that fit the clean optimum, and the cache key's kind."""
+    ckind = kind if args.generator == "testing" else f"corrupt:{kind}"
+    X = matrices_from_values(ref_values, base.group, base.keys)
+    between, planted = plant(base, fraction, seed, kind, args.generator, reference=X)
+    consistent = consistent_planted(between, planted, ref_values, base.info.dim)
+    pg = with_edges(base, between)
+    pg.initial, _ = start_values(pg, "auto")
+    best = {"ours": None, "gtsam": None}
+    cached = load_native(args.native_cache, name, fraction, ckind, seed) if args.reuse_native else None
+    if cached is not None:
+        best["gtsam"] = ("timeout", cached[1]) if _timed_out(cached) else (cached[0], cached[1], cached[2], None)
+    for _ in range(args.repeat):
+        P, sec, rejected, by = run_ours(pg)
+        if best["ours"] is None or sec < best["ours"][1]:
+            best["ours"] = (P, sec, rejected, by)
+        if not args.no_native and cached is None and not (best["gtsam"] and _timed_out(best["gtsam"])):
+            out = run_native_gnc_with_timeout(name, fraction, seed, "auto", args.native_timeout, kind, pg=pg)
+            if out is None:
+                best["gtsam"] = ("timeout", args.native_timeout)
+            elif best["gtsam"] is None or out[2] < best["gtsam"][1]:
+                best["gtsam"] = (out[0], out[2], out[3], None)
+    if cached is None and best["gtsam"] is not None:
+        store_native(args.native_cache, name, fraction, ckind, seed,
+                     None if _timed_out(best["gtsam"]) else best["gtsam"], args.native_timeout)
+    return best, planted, consistent, cached is not None
+
+
+def _summary(records, tuning) -> None:
+    """Worst and median per graph, fraction, kind and method over the seeds not in ``tuning``."""
+    cells: dict = {}
+    for r in records:
+        if r["seed"] not in tuning:
+            cells.setdefault((r["graph"], r["fraction"], r["kind"], r["method"]), []).append(r)
+    print()
+    print(f"# worst and median over the report seeds (tuning seeds {sorted(tuning)} left out); GTSAM's "
+          "runs abandoned at the timeout count as failed in precision, recall and map error")
+    print("| graph | false | kind | method | seeds | precision worst / median | recall worst / median | "
+          "map error / diag worst / median | seconds worst / median |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for (graph, fraction, kind, method), rs in cells.items():
+        seeds = ",".join(str(r["seed"]) for r in rs)
+        timeouts = sum(r["timeout"] for r in rs)
+        pr = np.array([0.0 if r["timeout"] else r["precision"] for r in rs])
+        rc = np.array([0.0 if r["timeout"] else r["recall"] for r in rs])
+        mp_ = np.array([np.inf if r["timeout"] else r["map"] for r in rs])
+        sec = np.array([r["seconds"] for r in rs])
+        over = f" ({timeouts} > {max(sec):.0f} s)" if timeouts else ""
+        print(f"| {graph} | {fraction:.0%} | {kind} | {method}{over} | {seeds} | {pr.min():.3f} / {np.median(pr):.3f} | "
+              f"{rc.min():.3f} / {np.median(rc):.3f} | {mp_.max():.3g} % / {np.median(mp_):.3g} % | "
+              f"{sec.max():.2f} / {np.median(sec):.2f} |", flush=True)
+
+
 def suite(args) -> int:
     fractions = args.fractions or [0.2, 0.5]
-    cache = args.native_cache
-    print(f"# outliers suite: seeds {args.seeds}, best of {args.repeat} (ours and GTSAM's GncOptimizer "
-          f"alternated), GTSAM abandoned after {args.native_timeout:.0f} s"
-          + (f"; GTSAM's results read from {cache} where stored (seconds marked *)" if args.reuse_native else ""))
+    kinds = args.kinds or list(GENERATORS[args.generator])
+    tuning = set(args.tuning_seeds)
+    print(f"# outliers suite: generator {args.generator}, kinds {kinds}, fractions {fractions}, seeds {args.seeds} "
+          f"(tuning seeds {sorted(tuning)}: shown, left out of the summary), best of {args.repeat} (ours and "
+          f"GTSAM's GncOptimizer alternated), GTSAM abandoned after {args.native_timeout:.0f} s"
+          + (f"; GTSAM's results read from {args.native_cache} where stored (seconds marked *)"
+             if args.reuse_native else ""))
     print("| graph | false | kind | seed | method | precision | recall | map error / diag | seconds | "
           "rejected by | planted consistent | precision, recall (riSAM) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    records = []
     for name in args.graphs:
         base = load_graph(name)
         ref_values = reference_values(base)
         ref = positions(ref_values, base)
         diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
         for fraction in fractions:
-            for kind in args.kinds:
+            for kind in kinds:
                 for seed in args.seeds:
-                    between, planted = plant(base, fraction, seed, kind)
-                    consistent = consistent_planted(between, planted, ref_values, base.info.dim)
-                    pg = with_edges(base, between)
-                    pg.initial, _ = start_values(pg, "auto")
-                    best = {"ours": None, "gtsam": None}
-                    cached = load_native(cache, name, fraction, kind, seed) if args.reuse_native else None
-                    if cached is not None:
-                        best["gtsam"] = "timeout" if cached[0] == "timeout" else (cached[0], cached[1], cached[2], None)
-                    for _ in range(args.repeat):
-                        P, sec, rejected, by = run_ours(pg)
-                        if best["ours"] is None or sec < best["ours"][1]:
-                            best["ours"] = (P, sec, rejected, by)
-                        if not args.no_native and cached is None and best["gtsam"] != "timeout":
-                            out = run_native_gnc_with_timeout(name, fraction, seed, "auto", args.native_timeout,
-                                                              kind)
-                            if out is None:
-                                best["gtsam"] = "timeout"
-                            elif best["gtsam"] is None or out[2] < best["gtsam"][1]:
-                                best["gtsam"] = (out[0], out[2], out[3], None)
-                    if cached is None and best["gtsam"] is not None:
-                        store_native(cache, name, fraction, kind, seed,
-                                     None if best["gtsam"] == "timeout" else best["gtsam"], args.native_timeout)
+                    best, planted, consistent, cached = _suite_case(args, name, base, ref_values, fraction, kind,
+                                                                    seed)
                     label = f"{base.name} | {fraction:.0%} ({len(planted)}) | {kind} | {seed}"
-                    star = "*" if cached is not None else ""
+                    star = "*" if cached else ""
                     for method in ("gtsam", "ours"):
                         b = best[method]
                         if b is None:
                             continue
-                        if b == "timeout":
-                            limit = cached[1] if cached is not None else args.native_timeout
-                            print(f"| {label} | GTSAM GNC | – | – | – | > {limit:.0f}{star} | – | – | – |", flush=True)
+                        title = "GTSAM GNC" if method == "gtsam" else "lie-factors"
+                        rec = {"graph": base.name, "fraction": fraction, "kind": kind, "seed": seed,
+                               "method": title, "timeout": _timed_out(b)}
+                        if _timed_out(b):
+                            rec["seconds"] = b[1]
+                            records.append(rec)
+                            print(f"| {label} | GTSAM GNC | – | – | – | > {b[1]:.0f}{star} | – | – | – |", flush=True)
                             continue
                         P, sec, rejected, by = b
                         c = outliers.classify(rejected, planted)
@@ -351,10 +422,13 @@ def suite(args) -> int:
                         keep = np.setdiff1d(planted, consistent)
                         c2 = outliers.classify(np.setdiff1d(rejected, consistent), keep)
                         stages = "–" if by is None else stage_counts(by)
-                        print(f"| {label} | {'GTSAM GNC' if method == 'gtsam' else 'lie-factors'} | "
-                              f"{c.precision:.3f} | {c.recall:.3f} | {100 * rmse(P, ref) / diag:.3g} % | "
+                        err = 100 * rmse(P, ref) / diag
+                        rec.update(precision=c.precision, recall=c.recall, map=err, seconds=sec)
+                        records.append(rec)
+                        print(f"| {label} | {title} | {c.precision:.3f} | {c.recall:.3f} | {err:.3g} % | "
                               f"{sec:.2f}{star if method == 'gtsam' else ''} | {stages} | {len(consistent)} | "
                               f"{c2.precision:.3f}, {c2.recall:.3f} |", flush=True)
+    _summary(records, tuning)
     return 0
 
 
@@ -420,8 +494,15 @@ def main(argv=None) -> int:
                     help="the consistency suite: lie-factors' --gnc tls against GTSAM's GncOptimizer on "
                          f"every graph (default {' '.join(SUITE_GRAPHS)}), at --fractions, --kinds, --seeds")
     ap.add_argument("--fractions", nargs="+", type=float, help="with --suite (default 0.2 0.5)")
-    ap.add_argument("--kinds", nargs="+", default=["uniform", "clustered"], choices=["uniform", "clustered"])
+    ap.add_argument("--generator", default="corrupt", choices=sorted(GENERATORS),
+                    help="with --suite: corrupt = lf.corrupt (kinds uniform, local, group, near; default), "
+                         "testing = lie_factors.testing.outliers (uniform, clustered), the earlier tables'")
+    ap.add_argument("--kinds", nargs="+", choices=sorted({k for ks in GENERATORS.values() for k in ks}),
+                    help="with --suite: the kinds to plant (default: every kind of --generator)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    ap.add_argument("--tuning-seeds", nargs="*", type=int, default=[0],
+                    help="with --suite: the seeds the pipeline was developed on (default 0): their rows are "
+                         "printed but left out of the worst/median summary")
     ap.add_argument("--no-native", action="store_true", help="with --suite: skip GTSAM's GncOptimizer")
     ap.add_argument("--clean", action="store_true",
                     help="the suite's graphs without false closures: --gnc tls against plain LM")

@@ -9,6 +9,7 @@ The front door (``import lie_factors as lf``)::
     lf.write_g2o(result, "optimized.g2o")
     lf.write_trajectory(result, "optimized.tum")        # TUM or KITTI, for evo
     lf.evaluate(result, "data/groundtruth/city10000.tum")   # ATE and RPE, as evo computes them
+    bad = lf.corrupt(pg, fraction=0.2, kind="group", seed=1)   # false loop closures: bad.graph, bad.planted
     result.covariances()                       # (n, d, d) marginal covariances, GTSAM's tangent order
     replay = lf.replay(pg)                     # online, through the incremental smoother
     isam = lf.Smoother()                       # gtsam.ISAM2's interface
@@ -38,6 +39,7 @@ _EXPORTS = {
     "evaluate": "files", "write_covariances": "files", "read_covariances": "files",
     "Trajectory": "evaluation.trajectory", "Evaluation": "evaluation.metrics",
     "Marginals": "batch.marginals",
+    "corrupt": "corruption", "write_corruption": "corruption", "Corruption": "corruption",
     "optimize": "solve", "replay": "solve",
     "Result": "result", "ReplayResult": "result",
     "PoseGraph": "posegraph.graph",

@@ -46,7 +46,7 @@ RANKS = {
     "robust.losses": 6.4, "robust.statistics": 6.4,
     "batch": 6.5, "initialization": 6.6, "incremental": 6.7, "robust": 6.8, "backends": 6.9,
     "result": 5.5,
-    "events": 7, "solve": 7, "files": 7, "": 7,
+    "events": 7, "solve": 7, "files": 7, "corruption": 7, "": 7,
     "app": 8,
 }
 APART = "testing"

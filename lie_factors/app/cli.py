@@ -403,6 +403,19 @@ def _run_evaluate(args) -> int:
     return evaluate.run(args)
 
 
+def _add_corrupt(p: argparse.ArgumentParser) -> None:
+    from lie_factors.app import corrupt
+
+    corrupt.add_arguments(p, _bounded_int("--seed", 0, MAX_SEED))
+
+
+def _run_corrupt(args) -> int:
+    """``lie-factors corrupt``: :mod:`lie_factors.app.corrupt`."""
+    from lie_factors.app import corrupt
+
+    return corrupt.run(args)
+
+
 #: name → (help, add_arguments(parser), run(args) -> exit status)
 SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
     "demo": ("simulate and optimize a pose graph: SE(3) odometry with loop closures, or "
@@ -410,6 +423,8 @@ SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
     "posegraph": ("optimize a g2o pose graph with Levenberg-Marquardt", _add_posegraph, _run_posegraph),
     "evaluate": ("the absolute and relative trajectory errors of an estimate against a reference, as evo "
                  "computes them", _add_evaluate, _run_evaluate),
+    "corrupt": ("plant false loop closures in a g2o pose graph (uniform, local, group or near), and list "
+                "them", _add_corrupt, _run_corrupt),
 }
 
 #: Subcommands living in their own module, offered only if the module imports.
