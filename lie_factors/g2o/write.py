@@ -62,8 +62,79 @@ def _landmark_vertex_lines(values: gtsam.Values, written: set[int]) -> list[str]
     return lines
 
 
+def _pose_vertex_lines(values: gtsam.Values) -> dict[str, list[str]]:
+    """Full-precision ``VERTEX_SE2`` / ``VERTEX_SE3:QUAT`` lines, per tag, in the order gtsam.writeG2o
+    writes them (each type's keys ascending)."""
+    out: dict[str, list[str]] = {"VERTEX_SE2": [], "VERTEX_SE3:QUAT": []}
+    poses2, poses3 = gtsam.utilities.allPose2s(values), gtsam.utilities.allPose3s(values)
+    for key in sorted(poses2.keys()):
+        x = poses2.atPose2(key)
+        out["VERTEX_SE2"].append(f"VERTEX_SE2 {gtsam.Symbol(key).index()} "
+                                 + _numbers((x.x(), x.y(), x.theta())))
+    for key in sorted(poses3.keys()):
+        x = poses3.atPose3(key)
+        out["VERTEX_SE3:QUAT"].append(f"VERTEX_SE3:QUAT {gtsam.Symbol(key).index()} " + _pose3_numbers(x))
+    return out
+
+
+def _pose3_numbers(x: gtsam.Pose3) -> str:
+    q = x.rotation().toQuaternion()
+    return _numbers((*np.asarray(x.translation()), q.x(), q.y(), q.z(), q.w()))
+
+
+def _pose_edge_lines(graph: gtsam.NonlinearFactorGraph) -> dict[str, list[str]]:
+    """Full-precision ``EDGE_SE2`` / ``EDGE_SE3:QUAT`` lines of the graph's Pose2/Pose3 between
+    factors, per tag, in factor order (gtsam.writeG2o's).  The information is RᵀR of the Gaussian
+    noise model, upper triangle by rows; a Pose3 edge's reordered from GTSAM's (rotation,
+    translation) to g2o's (translation, rotation)."""
+    out: dict[str, list[str]] = {"EDGE_SE2": [], "EDGE_SE3:QUAT": []}
+    upper = {3: np.triu_indices(3), 6: np.triu_indices(6)}
+    swap = np.ix_(np.r_[3:6, 0:3], np.r_[3:6, 0:3])
+    for k in range(graph.size()):
+        f = graph.at(k)
+        if isinstance(f, gtsam.BetweenFactorPose2):
+            m = f.measured()
+            R = np.asarray(f.noiseModel().R())
+            info = R.T @ R
+            tag, numbers = "EDGE_SE2", _numbers((m.x(), m.y(), m.theta()))
+        elif isinstance(f, gtsam.BetweenFactorPose3):
+            R = np.asarray(f.noiseModel().R())
+            info = (R.T @ R)[swap]
+            tag, numbers = "EDGE_SE3:QUAT", _pose3_numbers(f.measured())
+        else:
+            continue
+        i, j = f.keys()
+        out[tag].append(f"{tag} {gtsam.Symbol(i).index()} {gtsam.Symbol(j).index()} {numbers} "
+                        + _numbers(info[upper[info.shape[0]]]))
+    return out
+
+
+def _full_precision(lines: list[str], graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> list[str]:
+    """gtsam.writeG2o's ``lines`` with its pose vertices and pose edges, which it prints to six
+    significant digits, rewritten from ``graph`` and ``values`` in full (each the shortest text that
+    reads back as the same double).  Each rewritten line must name the same ids as GTSAM's: anything
+    else means the two disagree on what they write, and raises ``RuntimeError`` (nothing is written)."""
+    ours = {**_pose_vertex_lines(values), **_pose_edge_lines(graph)}
+    taken = dict.fromkeys(ours, 0)
+    out = []
+    for line in lines:
+        tag = line.split(" ", 1)[0]
+        if tag not in ours:
+            out.append(line)
+            continue
+        n = taken[tag]
+        ids = 2 if tag.startswith("EDGE") else 1
+        if n >= len(ours[tag]) or ours[tag][n].split()[:ids + 1] != line.split()[:ids + 1]:
+            raise RuntimeError(f"write_g2o: GTSAM wrote {line.split()[:ids + 1]} where "
+                               f"{ours[tag][n].split()[:ids + 1] if n < len(ours[tag]) else 'nothing'} was expected")
+        out.append(ours[tag][n])
+        taken[tag] = n + 1
+    return out
+
+
 def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-    """``gtsam.writeG2o`` + the landmark records it drops, via a temporary file.
+    """``gtsam.writeG2o`` + the landmark records it drops, via a temporary file, with its pose
+    vertices and pose edges in full precision (GTSAM prints six significant digits).
 
     GTSAM writes poses, pose–pose edges and 3-D landmark measurements
     (``EDGE_SE3_TRACKXYZ`` with an identity ``PARAMS_SE3OFFSET``); we add
@@ -80,13 +151,14 @@ def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
 
     def write(tmp: str) -> None:
         gtsam.writeG2o(graph, values, tmp)
-        with open(tmp, "rb") as fh:
-            written = {int(line.split()[1]) for line in fh
-                       if line.startswith((b"VERTEX_XY ", b"VERTEX_TRACKXYZ "))}
-        extra = _landmark_vertex_lines(values, written) + _landmark2_lines(graph)
-        if extra:
-            with open(tmp, "a") as fh:
-                fh.write("\n".join(extra) + "\n")
+        with open(tmp, encoding="utf-8") as fh:
+            lines = fh.read().splitlines()
+        lines = _full_precision(lines, graph, values)
+        written = {int(line.split()[1]) for line in lines
+                   if line.startswith(("VERTEX_XY ", "VERTEX_TRACKXYZ "))}
+        lines += _landmark_vertex_lines(values, written) + _landmark2_lines(graph)
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write("\n".join(lines) + "\n" if lines else "")
 
     replace_atomically(path, write, suffix=".g2o")
 
