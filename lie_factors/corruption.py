@@ -209,7 +209,7 @@ class _Planter:
         self.information: list = []
 
     def _free(self, a: int, b: int) -> bool:
-        if not (0 <= a < self.P and 0 <= b < self.P):
+        if not (0 <= a < self.P and 0 <= b < self.P) or a == b:
             return False
         ka, kb = self.pg.keys[a], self.pg.keys[b]
         return bool(is_loop_closure(ka, kb)) and (min(a, b), max(a, b)) not in self.taken

@@ -150,3 +150,12 @@ def test_bad_input(clean, tmp_path):
         lf.write_corruption(c, str(tmp_path / "a.g2o"), str(tmp_path / "a.g2o"))
     with pytest.raises(InputError, match="overwrite the input"):
         lf.write_corruption(c, pg.path)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "local"])
+def test_no_closure_joins_a_pose_to_itself(clean, kind):
+    # Many draws: a pair (a, a) is one in P of uniform's draws, which small fractions rarely meet.
+    for seed in range(4):
+        c = _corrupt(clean, kind, fraction=2.0, seed=seed)
+        idx = c.graph.index(c.planted_keys().reshape(-1)).reshape(-1, 2)
+        assert np.all(np.abs(idx[:, 0] - idx[:, 1]) >= 2)
