@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import quaternion
 from .errors import InputError
 from .posegraph.graph import PoseGraph, is_loop_closure
 from .util.atomic import check_writable, replace_atomically
@@ -184,10 +185,7 @@ def _random_rotation(rng, d: int) -> np.ndarray:
         t = rng.uniform(-np.pi, np.pi)
         return np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
     q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.asarray(quaternion.to_rotation(q / np.linalg.norm(q)))
 
 
 def _lie(group: str):
