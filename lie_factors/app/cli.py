@@ -505,6 +505,13 @@ def _PASSTHROUGH_DEFERRED(parser):
     parser.add_argument("argv", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
 
 
+def _missing(exc: ImportError) -> str:
+    """One line naming the package an ImportError lacks, and how to install it."""
+    text = (str(exc).strip().splitlines() or ["an import failed"])[0]
+    name = (exc.name or "").split(".")[0]
+    return f"{text} (install it: python -m pip install {name})" if name else text
+
+
 def build_parser(load=None) -> tuple[argparse.ArgumentParser, dict]:
     """The parser and the subcommand table; optional subcommands not in ``load`` are
     deferred (listed, imported when run); ``load=None`` imports them all."""
@@ -539,6 +546,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: error: interrupted", file=sys.stderr)
         return 130
+    except ImportError as exc:  # a package the run needs is missing: say which, in one line
+        print(f"{PROG}: error: {_missing(exc)}", file=sys.stderr)
+        return EXIT_USAGE
     except Exception as exc:
         from lie_factors.errors import LieFactorsError  # here, not above: --help stays free of numpy
 

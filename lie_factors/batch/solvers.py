@@ -41,10 +41,7 @@ def resolve(name: str) -> str:
     if name == "cholmod" and not cholmod_available():
         raise InputError("linear_solver='cholmod' needs cvxopt (pip install cvxopt)")
     if name == "pardiso":
-        try:
-            import pypardiso  # noqa: F401
-        except ImportError:
-            raise InputError("linear_solver='pardiso' needs pypardiso (pip install pypardiso)") from None
+        _pypardiso()
     if name != "auto":
         return name
     if cholmod_available():
@@ -54,6 +51,16 @@ def resolve(name: str) -> str:
                       "elimination, which is slower (pip install cvxopt)", RuntimeWarning, stacklevel=3)
         _fallback_warned = True
     return "gtsam"
+
+
+def _pypardiso():
+    """The optional pypardiso module, or the one-line error naming it."""
+    try:
+        import pypardiso
+    except ImportError:
+        raise InputError("linear_solver='pardiso' needs pypardiso (pip install pypardiso, "
+                         "or the extra: pip install -e \".[pardiso]\")") from None
+    return pypardiso
 
 
 def make(name: str, system):
@@ -97,8 +104,9 @@ class PardisoSolver:
     solve_seconds = 0.0  # not told apart: PARDISO's phases run in one call each
 
     def __init__(self, system):
-        import pypardiso
         import scipy.sparse as sp
+
+        pypardiso = _pypardiso()
 
         self.system = system
         p = system.pattern
@@ -115,8 +123,7 @@ class PardisoSolver:
         self._ps._call_pardiso(self._U, np.zeros(n))
 
     def solve(self, scale: np.ndarray | None) -> np.ndarray:
-        import pypardiso
-
+        pypardiso = _pypardiso()
         sys_ = self.system
         self._U.data[:] = sys_.damp(scale)[self._take]
         rhs = sys_.in_matrix_order(sys_.rhs)
