@@ -16,7 +16,9 @@ from ..posegraph.landmarks import landmark_keys, pose_keys
 if TYPE_CHECKING:
     import gtsam
 
-_STYLES = {
+#: The style of each kind of series a plot draws (a series' role: by default its label), so that
+#: every series is told apart from the others drawn with it.
+STYLES = {
     "ground truth": dict(color="black", lw=1.5, ls="--"),
     "initial": dict(color="tab:red", lw=1.0, alpha=0.8),
     "optimized": dict(color="tab:blue", lw=1.2),
@@ -29,51 +31,71 @@ _STYLES = {
 }
 
 
+def style(label: str, roles: dict[str, str] | None = None) -> dict:
+    """The matplotlib keywords of the series ``label``: :data:`STYLES` of its role (``roles[label]``,
+    or the label itself).  ``ValueError`` for a series with no style, which would otherwise take
+    matplotlib's next colour, the same as another series'."""
+    role = (roles or {}).get(label, label)
+    if role not in STYLES:
+        raise ValueError(f"no plot style for the series {label!r} (role {role!r}); known: {', '.join(STYLES)}")
+    return STYLES[role]
+
+
 def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str = "",
                       three_d: bool = True, points: dict[str, np.ndarray] | None = None,
                       segments: dict[str, np.ndarray] | None = None,
-                      outlines: dict[str, np.ndarray] | None = None) -> None:
-    """Save a PNG of named trajectories, each an array of positions, shape (N, 3),
-    of named point sets (landmarks), shape (M, 3), drawn as markers, of named
-    sets of line segments (rejected loop closures), shape (K, 2, 3), and of named
-    sets of closed curves in the top view (covariance ellipses), shape (K, N, 2).
+                      outlines: dict[str, np.ndarray] | None = None, roles: dict[str, str] | None = None) -> None:
+    """Save a PNG of :func:`trajectory_figure` (same arguments); ``path`` is written as PNG
+    whatever its suffix (callers write to a temporary name)."""
+    fig = trajectory_figure(trajectories, title, three_d, points, segments, outlines, roles)
+    fig.savefig(path, format="png", dpi=100)
 
-    Left: top view (x, y).  Right (if ``three_d``): a 3-D view.  ``path`` is
-    written as PNG whatever its suffix (callers write to a temporary name).
+
+def trajectory_figure(trajectories: dict[str, np.ndarray], title: str = "", three_d: bool = True,
+                      points: dict[str, np.ndarray] | None = None, segments: dict[str, np.ndarray] | None = None,
+                      outlines: dict[str, np.ndarray] | None = None, roles: dict[str, str] | None = None):
+    """A figure of named trajectories, each an array of positions, shape (N, 3), of named point
+    sets (landmarks), shape (M, 3), drawn as markers, of named sets of line segments (rejected
+    loop closures), shape (K, 2, 3), and of named sets of closed curves in the top view
+    (covariance ellipses), shape (K, N, 2); each series in the style of its role (:func:`style`).
+
+    Left: top view (x, y).  Right (if ``three_d``): a 3-D view.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    for label in (*trajectories, *(points or {}), *(segments or {}), *(outlines or {})):
+        style(label, roles)  # every series styled before anything is drawn
     fig = Figure(figsize=(12, 5.5) if three_d else (7, 6))
     FigureCanvasAgg(fig)
     top = fig.add_subplot(1, 2 if three_d else 1, 1)
     ax3 = fig.add_subplot(1, 2, 2, projection="3d") if three_d else None
     for label, P in trajectories.items():
         P = np.asarray(P, dtype=float).reshape(-1, 3)
-        style = _STYLES.get(label, {})
-        top.plot(P[:, 0], P[:, 1], label=label, **style)
+        kw = style(label, roles)
+        top.plot(P[:, 0], P[:, 1], label=label, **kw)
         if ax3 is not None:
-            ax3.plot(P[:, 0], P[:, 1], P[:, 2], label=label, **style)
+            ax3.plot(P[:, 0], P[:, 1], P[:, 2], label=label, **kw)
     for label, P in (points or {}).items():
         P = np.asarray(P, dtype=float).reshape(-1, 3)
-        style = _STYLES.get(label, {})
-        top.scatter(P[:, 0], P[:, 1], label=label, **style)
+        kw = style(label, roles)
+        top.scatter(P[:, 0], P[:, 1], label=label, **kw)
         if ax3 is not None:
-            ax3.scatter(P[:, 0], P[:, 1], P[:, 2], label=label, **style)
+            ax3.scatter(P[:, 0], P[:, 1], P[:, 2], label=label, **kw)
     for label, S in (segments or {}).items():
         from matplotlib.collections import LineCollection
 
         S = np.asarray(S, dtype=float).reshape(-1, 2, 3)
-        style = _STYLES.get(label, {})
-        top.add_collection(LineCollection(S[:, :, :2], label=f"{label} ({len(S)})", **style))
+        kw = style(label, roles)
+        top.add_collection(LineCollection(S[:, :, :2], label=f"{label} ({len(S)})", **kw))
         if ax3 is not None:
             from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-            ax3.add_collection(Line3DCollection(S, label=f"{label} ({len(S)})", **style))
+            ax3.add_collection(Line3DCollection(S, label=f"{label} ({len(S)})", **kw))
     for label, C in (outlines or {}).items():
         from matplotlib.collections import LineCollection
 
-        top.add_collection(LineCollection(np.asarray(C, dtype=float), label=label, **_STYLES.get(label, {})))
+        top.add_collection(LineCollection(np.asarray(C, dtype=float), label=label, **style(label, roles)))
     top.set_xlabel("x [m]")
     top.set_ylabel("y [m]")
     top.set_title("top view")
@@ -87,7 +109,7 @@ def plot_trajectories(path: str, trajectories: dict[str, np.ndarray], title: str
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, format="png", dpi=100)
+    return fig
 
 
 def positions(values: gtsam.Values, is3d: bool, group: str | None = None) -> np.ndarray:
@@ -162,6 +184,7 @@ def plot_result(path: str, pg, result, title: str, incremental: bool = False, el
     else:
         start, estimate, start_points, points = (f"initial ({result.init})", "optimized", "initial landmarks",
                                                  "optimized landmarks")
+    roles = {start: "initial", estimate: "optimized", start_points: "initial landmarks", points: "optimized landmarks"}
     values, begin = result.values, result.start
     trajectories = {start: positions(begin, pg.is3d, pg.group), estimate: positions(values, pg.is3d, pg.group)}
     landmarks = ({start_points: landmark_positions(begin, pg.is3d), points: landmark_positions(values, pg.is3d)}
@@ -172,7 +195,7 @@ def plot_result(path: str, pg, result, title: str, incremental: bool = False, el
     outlines = ({"95% position ellipses": covariance_ellipses(result.poses, result.covariances())}
                 if ellipses else None)
     plot_trajectories(path, trajectories, title, three_d=pg.is3d, points=landmarks, segments=segments,
-                      outlines=outlines)
+                      outlines=outlines, roles=roles)
 
 
 def plot_evaluation(path: str, evaluation) -> None:
