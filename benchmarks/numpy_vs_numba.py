@@ -6,7 +6,7 @@ The alternative to numba: numpy-vectorized batch kernels, no JIT.  Measured
 here on the work one LM iteration repeats most, the linearization of every
 Between factor (error e = Log(M⁻¹·X1⁻¹·X2), both Jacobians, whitening):
 
-* numba: ``lie_factors.batch.loops`` ``_between_lin`` (the library's kernel), warm;
+* numba: ``lie_factors.batch.loops`` ``_factor_range`` (the library's kernel), warm;
 * numpy: the same quantities with numpy stacks — Log and the inverse right
   Jacobian of SE(3) written in numpy below (the closed forms GTSAM uses),
   H2 = J_r⁻¹(e), H1 = −J_r⁻¹(e)·Ad(X2⁻¹X1) (GTSAM's ``between`` Jacobians, equal

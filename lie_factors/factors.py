@@ -60,7 +60,7 @@ from .kernels import checks as _check, dispatch as _dispatch, registry as _regis
 from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION  # noqa: F401
 from .errors import InputError
 from .interop import pose3_from_rows
-from .kernels.jit import kernel
+from .kernels.jit import inline_kernel, kernel
 from .kernels.registry import GroupInfo
 from .kernels.checks import ORTHONORMAL_TOL
 
@@ -81,7 +81,7 @@ __all__ = [
 ]
 
 
-@kernel
+@inline_kernel
 def between_error(g, Minv, X1, X2, e):
     """e = Log(M⁻¹·X1⁻¹·X2) on group ``g`` (a :mod:`lie_factors.kernels.dispatch` tag)."""
     m = X1.shape[0]
@@ -102,10 +102,16 @@ def between_error(g, Minv, X1, X2, e):
     _dispatch.log(g, E, e)
 
 
-@kernel
+@inline_kernel
 def between(g, Minv, AdMinv, X1, X2, e, H1, H2):
     """Error and Jacobians of a Between factor: H1 = −dlog(e)·Ad(M⁻¹), H2 = dlog(−e)."""
     between_error(g, Minv, X1, X2, e)
+    between_jacobians(g, AdMinv, e, H1, H2)
+
+
+@inline_kernel
+def between_jacobians(g, AdMinv, e, H1, H2):
+    """The Jacobians of a Between factor at its error ``e``: H1 = −dlog(e)·Ad(M⁻¹), H2 = dlog(−e)."""
     n = e.shape[0]
     D = np.empty((n, n))
     _dispatch.dlog(g, e, D)
@@ -121,7 +127,7 @@ def between(g, Minv, AdMinv, X1, X2, e, H1, H2):
     _dispatch.dlog(g, neg, H2)
 
 
-@kernel
+@inline_kernel
 def prior_error(g, Pinv, X, e):
     """e = Log(P⁻¹·X) on group ``g``."""
     m = X.shape[0]
@@ -130,10 +136,16 @@ def prior_error(g, Pinv, X, e):
     _dispatch.log(g, E, e)
 
 
-@kernel
+@inline_kernel
 def prior(g, Pinv, X, e, H):
     """Error and Jacobian of a Prior factor: H = dlog(−e)."""
     prior_error(g, Pinv, X, e)
+    prior_jacobian(g, e, H)
+
+
+@inline_kernel
+def prior_jacobian(g, e, H):
+    """The Jacobian of a Prior factor at its error ``e``: H = dlog(−e)."""
     n = e.shape[0]
     neg = np.empty(n)
     for i in range(n):
@@ -149,7 +161,7 @@ def between_many(g, Minv, AdMinv, X, i1, i2, e, H1, H2):
         between(g, Minv[k], AdMinv[k], X[i1[k]], X[i2[k]], e[k], H1[k], H2[k])
 
 
-@kernel
+@inline_kernel
 def check_element(g, X):
     """Validate one (m, m) element of group ``g``; returns OK or the first failure's code.
 

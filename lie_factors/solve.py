@@ -45,11 +45,6 @@ INIT_METHODS = ("auto", "chordal", "lago", "spanning-tree", "odometry", "file")
 #: Iterations accepted: beyond this no run finishes in any useful time, and GTSAM's counter is an int.
 MAX_ITERATIONS = 1_000_000
 
-#: Factors × (tangent dimension)² below which the batch solver's loops run on one numba thread:
-#: there their fork and join cost more than the second thread saves (docs/batch.md).
-PARALLEL_MIN_WORK = 500_000
-
-
 def _keyword(name: str) -> str:
     return name
 
@@ -321,26 +316,19 @@ def _poses_by_key(keys: np.ndarray, block, fallback: np.ndarray) -> np.ndarray:
 
 def _optimize_arrays(posed: PoseGraph, start, opts: Options, params, events: Events) -> Result:
     """The default path: the batch solver on the pose graph's arrays, no factor object."""
-    import numba
-
     from .batch.graph import Problem
     from .batch.optimizer import BatchLevenbergMarquardt
     from .util.timing import Stopwatch
 
     clock = Stopwatch()  # compilation of the kernels is not optimization time
-    threads = numba.get_num_threads()
     try:
         problem = Problem.from_pose_graph(posed, start.poses)
-        if problem.graph_size * problem.blocks[posed.group].spec.dim ** 2 < PARALLEL_MIN_WORK:
-            numba.set_num_threads(1)
         opt = BatchLevenbergMarquardt(problem, None, params, linear_solver=opts.linear_solver)
         setup = clock.seconds()
         events.set_up(setup)
         res = opt.optimize(events.iteration, values=False)
     except RuntimeError as exc:
         raise gtsam_failure(exc) from None
-    finally:
-        numba.set_num_threads(threads)
     seconds = clock.seconds()
     block = problem.blocks[posed.group]
     poses = _poses_by_key(posed.keys, block, start.poses)

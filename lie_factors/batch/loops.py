@@ -2,26 +2,30 @@
 
 Every loop is a cached top-level kernel taking the group tag ``g``
 (:mod:`lie_factors.kernels.dispatch`: one specialization per group, holding only
-that group's cores); the per-factor work is
-:func:`lie_factors.factors.between` / :func:`~lie_factors.factors.prior` (error
-and Jacobians) and their ``*_error`` halves, so no formula is repeated here.
+that group's cores); the per-factor work is the factors' own
+(:func:`lie_factors.factors.between_error`, :func:`~lie_factors.factors.between_jacobians`,
+:func:`~lie_factors.factors.prior_error`, :func:`~lie_factors.factors.prior_jacobian`), so no
+formula is repeated here.
 
 Arrays: ``X`` (N, m, m) elements of one group; ``i1``, ``i2`` (F,) indices into
 ``X``; ``Minv``/``Pinv`` (F, m, m); ``R`` (U, n, n) whitening matrices and ``ridx``
-(F,) the one of each factor (a group's factors are handed to the linearizations as one
-:class:`Between` or :class:`Prior` of these arrays); outputs ``A1``, ``A2`` (F, n, n),
+(F,) the one of each factor (a group's factors are handed to the kernel as one
+:class:`Factors` of these arrays); outputs ``A1``, ``A2`` (F, n, n),
 ``b`` (F, n) and ``sq`` (F,), the
 squared whitened residual norm ‖R·e‖² of every factor (the per-factor array a
 robust reweighting needs; the Gaussian error is ½·Σ sq).
 
-The loops over factors are ``prange`` loops over contiguous chunks (scratch
-allocated once per chunk), so they use every numba thread; each factor writes
-only its own outputs, so there are no races.
+Each loop is written once, as a kernel over a range of factors (or elements) that runs
+on the calling thread, and wrapped by a ``prange`` loop over contiguous chunks of that
+range (scratch allocated once per chunk) that uses every numba thread; each factor writes
+only its own outputs, so there are no races.  :class:`GroupLoops` runs a call on the
+threads only when its work reaches :data:`PARALLEL_MIN_WORK`: below it the fork and join
+cost more than a second thread saves, and a run that never reaches it never compiles the
+parallel wrappers (numba spends seconds on each, the most of any kernel here).
 """
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import numba
@@ -30,36 +34,43 @@ from numba import prange
 
 from ..kernels import dispatch as _dispatch
 from .. import factors as _factors
-from ..kernels.jit import kernel, parallel_kernel
+from ..kernels.jit import inline_kernel, kernel, parallel_kernel
 
 #: Factors per parallel chunk: large enough that thread start-up and scratch allocation vanish.
 CHUNK = 256
 
-#: ``i1`` of a group of priors: no first variable.
+#: Factors (or elements) × (tangent dimension)² below which a loop runs on the calling thread:
+#: there numba's fork and join cost more than the second thread saves (docs/batch.md).
+PARALLEL_MIN_WORK = 500_000
+
+
+
+#: ``i2`` of a group of priors: no second variable.
 _NO_INDEX = np.zeros(0, dtype=np.int64)
 
 
-class Between(NamedTuple):
-    """A group's between factors, as the linearization kernels take them: factor f joins
-    ``X[i1[f]]`` to ``X[i2[f]]``, measured M with ``Minv[f]`` = M⁻¹, whitened by ``R[ridx[f]]``."""
+def _none3(n: int) -> np.ndarray:
+    """The Jacobian outputs of an evaluation without Jacobians (never written)."""
+    return np.empty((0, n, n))
+
+
+def _none2(n: int) -> np.ndarray:
+    return np.empty((0, n))
+
+
+class Factors(NamedTuple):
+    """A group's factors of one kind, as the kernels take them: between factor f joins
+    ``X[i1[f]]`` to ``X[i2[f]]``, measured M with ``C[f]`` = M⁻¹; a prior (``i2`` empty) is on
+    ``X[i1[f]]``, with ``C[f]`` = P⁻¹; factor f is whitened by ``R[ridx[f]]``."""
 
     i1: np.ndarray
     i2: np.ndarray
-    Minv: np.ndarray
+    C: np.ndarray
     R: np.ndarray
     ridx: np.ndarray
 
 
-class Prior(NamedTuple):
-    """A group's priors: factor f on ``X[i1[f]]``, ``Pinv[f]`` = P⁻¹, whitened by ``R[ridx[f]]``."""
-
-    i1: np.ndarray
-    Pinv: np.ndarray
-    R: np.ndarray
-    ridx: np.ndarray
-
-
-@kernel
+@inline_kernel
 def whiten_residual(Rf, e, out):
     """out = −Rf·e (the right-hand side b); returns ‖Rf·e‖²."""
     total = 0.0
@@ -72,7 +83,7 @@ def whiten_residual(Rf, e, out):
     return total
 
 
-@kernel
+@inline_kernel
 def whiten_jacobian(Rf, H, out):
     """out = Rf·H."""
     n = H.shape[1]
@@ -85,68 +96,45 @@ def whiten_jacobian(Rf, H, out):
 
 
 @kernel
-def _between_lin_range(g, X, fs, A1, A2, b, sq, f0, f1):
-    """:func:`_between_lin` on the factors f0 … f1 − 1 of ``fs`` (a :class:`Between`)."""
+def _factor_range(g, X, fs, A1, A2, b, sq, f0, f1, jacobians):
+    """:func:`_factor_chunks` on the factors f0 … f1 − 1 of ``fs``."""
     n = fs.R.shape[1]
+    prior = fs.i2.shape[0] == 0
     e = np.empty(n)
     H1 = np.empty((n, n))
     H2 = np.empty((n, n))
     Ad = np.empty((n, n))
+    scratch = np.empty(n)
     for f in range(f0, f1):
-        _dispatch.Ad(g, fs.Minv[f], Ad)
-        _factors.between(g, fs.Minv[f], Ad, X[fs.i1[f]], X[fs.i2[f]], e, H1, H2)
         Rf = fs.R[fs.ridx[f]]
+        if prior:
+            _factors.prior_error(g, fs.C[f], X[fs.i1[f]], e)
+        else:
+            _factors.between_error(g, fs.C[f], X[fs.i1[f]], X[fs.i2[f]], e)
+        if not jacobians:
+            sq[f] = whiten_residual(Rf, e, scratch)
+            continue
         sq[f] = whiten_residual(Rf, e, b[f])
+        if prior:
+            _factors.prior_jacobian(g, e, H1)
+            whiten_jacobian(Rf, H1, A1[f])
+            continue
+        _dispatch.Ad(g, fs.C[f], Ad)
+        _factors.between_jacobians(g, Ad, e, H1, H2)
         whiten_jacobian(Rf, H1, A1[f])
         whiten_jacobian(Rf, H2, A2[f])
 
 
 @parallel_kernel
-def _between_lin(g, X, fs, A1, A2, b, sq):
-    """Whitened A1 = R·H1, A2 = R·H2, b = −R·e and sq = ‖R e‖² for every between factor of
-    ``fs`` (a :class:`Between`; R = R[ridx[f]]; Ad(M⁻¹) from M⁻¹ by the factors' own
-    construction core)."""
+def _factor_chunks(g, X, fs, A1, A2, b, sq, jacobians):
+    """sq = ‖R e‖² for every factor of ``fs`` (a :class:`Factors`; R = R[ridx[f]]): e =
+    Log(M⁻¹·X1⁻¹·X2) of a between factor, Log(P⁻¹·X) of a prior; with ``jacobians`` also the
+    whitened Jacobians A1 = R·H1 (and A2 = R·H2 of a between factor) and b = −R·e (Ad(M⁻¹) from
+    M⁻¹ by the factors' own construction core).  One kernel for both kinds, with and without
+    Jacobians: a group's factors compile once."""
     F = fs.i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
-        _between_lin_range(g, X, fs, A1, A2, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
-
-
-@kernel
-def _prior_lin_range(g, X, fs, A1, b, sq, f0, f1):
-    """:func:`_prior_lin` on the factors f0 … f1 − 1 of ``fs`` (a :class:`Prior`)."""
-    n = fs.R.shape[1]
-    e = np.empty(n)
-    H = np.empty((n, n))
-    for f in range(f0, f1):
-        _factors.prior(g, fs.Pinv[f], X[fs.i1[f]], e, H)
-        Rf = fs.R[fs.ridx[f]]
-        sq[f] = whiten_residual(Rf, e, b[f])
-        whiten_jacobian(Rf, H, A1[f])
-
-
-@parallel_kernel
-def _prior_lin(g, X, fs, A1, b, sq):
-    F = fs.i1.shape[0]
-    for c in prange((F + CHUNK - 1) // CHUNK):
-        _prior_lin_range(g, X, fs, A1, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK))
-
-
-@parallel_kernel
-def _errors(g, X, i1, i2, Minv, R, ridx, sq):
-    """sq[f] = ‖R·e‖² (no Jacobians), e = Log(M⁻¹·X1⁻¹·X2) with X1 = X[i1[f]], X2 = X[i2[f]]; for
-    priors (``i1`` empty) e = Log(P⁻¹·X2), P⁻¹ = Minv[f]."""
-    n = R.shape[2]
-    F = i2.shape[0]
-    prior = i1.shape[0] == 0
-    for c in prange((F + CHUNK - 1) // CHUNK):
-        e = np.empty(n)
-        scratch = np.empty(R.shape[1])
-        for f in range(c * CHUNK, min(F, (c + 1) * CHUNK)):
-            if prior:
-                _factors.prior_error(g, Minv[f], X[i2[f]], e)
-            else:
-                _factors.between_error(g, Minv[f], X[i1[f]], X[i2[f]], e)
-            sq[f] = whiten_residual(R[ridx[f]], e, scratch)
+        _factor_range(g, X, fs, A1, A2, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK), jacobians)
 
 
 @kernel
@@ -159,7 +147,11 @@ def _retract_range(g, X, delta, offsets, out, i0, i1):
     for i in range(i0, i1):
         o = offsets[i]
         if o < 0:
-            out[i] = X[i]
+            # element by element: an array assignment would compile numba's shape-mismatch
+            # message, seconds of string formatting on a first run
+            for r in range(m):
+                for c in range(m):
+                    out[i, r, c] = X[i, r, c]
             continue
         for k in range(n):
             x[k] = delta[o + k]
@@ -200,42 +192,57 @@ def _setup(g, M, Minv, codes):
 
 class GroupLoops:
     """The loops above bound to one group (``spec.group``, a :mod:`lie_factors.kernels.dispatch` tag):
-    ``between_lin(X, i1, i2, Minv, R, ridx, A1, A2, b, sq)`` is :func:`_between_lin` on
-    ``Between(i1, i2, Minv, R, ridx)``, ``prior_lin(X, i1, Pinv, R, ridx, A1, b, sq)``
-    :func:`_prior_lin` on ``Prior(i1, Pinv, R, ridx)``, ``retract(*a)`` ``_retract(g, *a)``,
-    and so on; ``between_err`` and ``prior_err`` are :func:`_errors`.  ``serial=True``: the
-    linearizations and the retraction run on the calling thread, one compiled call with no
-    fork and join (for the few factors of an incremental update, where starting numba's
-    threads costs more than the work)."""
+    ``between_lin(X, i1, i2, Minv, R, ridx, A1, A2, b, sq)`` and ``prior_lin(X, i1, Pinv, R,
+    ridx, A1, b, sq)`` are :func:`_factor_chunks` on ``Factors(i1, i2, Minv, R, ridx)`` (priors: ``i2``
+    empty), ``retract(X, delta, offsets, out)``
+    :func:`_retract`, ``relative_log`` :func:`_relative_log`.
+
+    ``*_lin`` linearize (Jacobians, right-hand side and squared norms), ``*_err`` evaluate the
+    squared norms only; all four run the one kernel :func:`_factor_range` (or its chunks).
+
+    A call runs on numba's threads when its factors (or elements) × n² reach
+    :data:`PARALLEL_MIN_WORK` and numba has more than one thread, else its range kernel on
+    the calling thread, one compiled call with no fork and join; both give the same bits.
+    ``serial=True``: always on the calling thread (the few factors of an incremental update).
+    """
 
     def __init__(self, spec, serial: bool = False):
         self.g = spec.group
         self._serial = serial
-        for name in ("retract", "relative_log"):
-            setattr(self, name, functools.partial(globals()[f"_{name}"], self.g))
-        if serial:
-            g = self.g
-            self.retract = lambda X, *a: _retract_range(g, X, *a, 0, X.shape[0])
+        self._n = spec.dim
+
+    def _parallel(self, count: int) -> bool:
+        return not self._serial and parallel(count, self._n)
+
+    def retract(self, X, delta, offsets, out):
+        """out[i] = X[i]·Exp(δ_i) for every element (:func:`_retract`)."""
+        if self._parallel(X.shape[0]):
+            _retract(self.g, X, delta, offsets, out)
+        else:
+            _retract_range(self.g, X, delta, offsets, out, 0, X.shape[0])
+
+    def relative_log(self, X0, X, out):
+        _relative_log(self.g, X0, X, out)
 
     def between_lin(self, X, i1, i2, Minv, R, ridx, A1, A2, b, sq):
-        fs = Between(i1, i2, Minv, R, ridx)
-        if self._serial:
-            _between_lin_range(self.g, X, fs, A1, A2, b, sq, 0, i1.shape[0])
-        else:
-            _between_lin(self.g, X, fs, A1, A2, b, sq)
+        self._run(X, Factors(i1, i2, Minv, R, ridx), A1, A2, b, sq, True)
 
     def prior_lin(self, X, i1, Pinv, R, ridx, A1, b, sq):
-        fs = Prior(i1, Pinv, R, ridx)
-        if self._serial:
-            _prior_lin_range(self.g, X, fs, A1, b, sq, 0, i1.shape[0])
-        else:
-            _prior_lin(self.g, X, fs, A1, b, sq)
+        self._run(X, Factors(i1, _NO_INDEX, Pinv, R, ridx), A1, _none3(R.shape[1]), b, sq, True)
 
     def between_err(self, X, i1, i2, Minv, R, ridx, sq):
-        _errors(self.g, X, i1, i2, Minv, R, ridx, sq)
+        n = R.shape[1]
+        self._run(X, Factors(i1, i2, Minv, R, ridx), _none3(n), _none3(n), _none2(n), sq, False)
 
     def prior_err(self, X, i1, Pinv, R, ridx, sq):
-        _errors(self.g, X, _NO_INDEX, i1, Pinv, R, ridx, sq)
+        n = R.shape[1]
+        self._run(X, Factors(i1, _NO_INDEX, Pinv, R, ridx), _none3(n), _none3(n), _none2(n), sq, False)
+
+    def _run(self, X, fs, A1, A2, b, sq, jacobians):
+        if self._parallel(fs.i1.shape[0]):
+            _factor_chunks(self.g, X, fs, A1, A2, b, sq, jacobians)
+        else:
+            _factor_range(self.g, X, fs, A1, A2, b, sq, 0, fs.i1.shape[0], jacobians)
 
     def setup(self, M):
         """(M⁻¹ (N, m, m), check codes (N,)) of elements ``M`` (N, m, m)."""
@@ -246,6 +253,12 @@ class GroupLoops:
         if N:
             _setup(self.g, M, Minv, codes)
         return Minv, codes
+
+
+def parallel(count: int, n: int) -> bool:
+    """Whether a loop over ``count`` items of tangent dimension ``n`` runs on numba's threads:
+    when count·n² reaches :data:`PARALLEL_MIN_WORK` and numba has more than one thread."""
+    return count * n * n >= PARALLEL_MIN_WORK and threads() > 1
 
 
 def threads() -> int:

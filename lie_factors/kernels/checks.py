@@ -51,21 +51,16 @@ def element_code(X, d, corner, tol):
     """
     if not finite(X):
         return NOT_FINITE
-    # RᵀR − I entry by entry (it is symmetric), d = 2 or 3 written out: no loop over a
-    # runtime d in a batch's inner loop
-    if d == 2:
-        orthonormal = (abs(X[0, 0] * X[0, 0] + X[1, 0] * X[1, 0] - 1.0) <= tol
-                       and abs(X[0, 0] * X[0, 1] + X[1, 0] * X[1, 1]) <= tol
-                       and abs(X[0, 1] * X[0, 1] + X[1, 1] * X[1, 1] - 1.0) <= tol)
-    else:
-        orthonormal = (abs(X[0, 0] * X[0, 0] + X[1, 0] * X[1, 0] + X[2, 0] * X[2, 0] - 1.0) <= tol
-                       and abs(X[0, 0] * X[0, 1] + X[1, 0] * X[1, 1] + X[2, 0] * X[2, 1]) <= tol
-                       and abs(X[0, 0] * X[0, 2] + X[1, 0] * X[1, 2] + X[2, 0] * X[2, 2]) <= tol
-                       and abs(X[0, 1] * X[0, 1] + X[1, 1] * X[1, 1] + X[2, 1] * X[2, 1] - 1.0) <= tol
-                       and abs(X[0, 1] * X[0, 2] + X[1, 1] * X[1, 2] + X[2, 1] * X[2, 2]) <= tol
-                       and abs(X[0, 2] * X[0, 2] + X[1, 2] * X[1, 2] + X[2, 2] * X[2, 2] - 1.0) <= tol)
-    if not orthonormal:
-        return NOT_ORTHONORMAL
+    # RᵀR − I entry by entry, its upper triangle row by row (it is symmetric)
+    for i in range(d):
+        for j in range(i, d):
+            s = 0.0
+            for k in range(d):
+                s += X[k, i] * X[k, j]
+            if i == j:
+                s -= 1.0
+            if not abs(s) <= tol:
+                return NOT_ORTHONORMAL
     if d == 2:
         det = X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]
     else:

@@ -46,7 +46,7 @@ from numba import prange
 
 from ..kernels import dispatch as _dispatch
 from ..kernels.jit import kernel
-from ..batch.loops import CHUNK, parallel_kernel
+from ..batch.loops import CHUNK, parallel, parallel_kernel
 
 __all__ = ["Chain", "chain", "reverse", "cycle_chi2", "gate_chi2", "pair_chi2", "near_pairs"]
 
@@ -200,27 +200,39 @@ def cycle_chi2(g, T, P, a, b, Z1, S1, c, d, Z2, S2):
     return _cholesky_quad(Sig, r)
 
 
+@kernel
+def _gate_range(g, T, P, a, b, Z, S, out, k0, k1):
+    """out[k] = the χ² of closure k against the odometry between its ends, k0 ≤ k < k1."""
+    m = T.shape[1]
+    n = P.shape[1]
+    I = np.zeros((m, m))
+    for i in range(m):
+        I[i, i] = 1.0
+    O = np.zeros((n, n))
+    for k in range(k0, k1):
+        out[k] = cycle_chi2(g, T, P, a[k], b[k], Z[k], S[k], b[k], b[k], I, O)
+
+
 @parallel_kernel
 def _gate_kernel(g, T, P, a, b, Z, S, out):
     C = a.shape[0]
-    m = T.shape[1]
-    n = P.shape[1]
     for ch in prange((C + CHUNK - 1) // CHUNK):
-        I = np.zeros((m, m))
-        for i in range(m):
-            I[i, i] = 1.0
-        O = np.zeros((n, n))
-        for k in range(ch * CHUNK, min(C, (ch + 1) * CHUNK)):
-            out[k] = cycle_chi2(g, T, P, a[k], b[k], Z[k], S[k], b[k], b[k], I, O)
+        _gate_range(g, T, P, a, b, Z, S, out, ch * CHUNK, min(C, (ch + 1) * CHUNK))
+
+
+@kernel
+def _pair_range(g, T, P, a, b, Z, S, first, second, out, k0, k1):
+    """out[k] = the χ² of the cycle of closures first[k] and second[k], k0 ≤ k < k1."""
+    for k in range(k0, k1):
+        i, j = first[k], second[k]
+        out[k] = cycle_chi2(g, T, P, a[i], b[i], Z[i], S[i], a[j], b[j], Z[j], S[j])
 
 
 @parallel_kernel
 def _pair_kernel(g, T, P, a, b, Z, S, first, second, out):
     K = first.shape[0]
     for ch in prange((K + CHUNK - 1) // CHUNK):
-        for k in range(ch * CHUNK, min(K, (ch + 1) * CHUNK)):
-            i, j = first[k], second[k]
-            out[k] = cycle_chi2(g, T, P, a[i], b[i], Z[i], S[i], a[j], b[j], Z[j], S[j])
+        _pair_range(g, T, P, a, b, Z, S, first, second, out, ch * CHUNK, min(K, (ch + 1) * CHUNK))
 
 
 @kernel
@@ -294,8 +306,11 @@ def gate_chi2(ch: Chain, a: np.ndarray, b: np.ndarray, Z: np.ndarray, S: np.ndar
     idx = np.flatnonzero(same)
     if idx.size:
         res = np.empty(idx.size)
-        _gate_kernel(ch.group, ch.T, ch.P, a[idx], b[idx], np.ascontiguousarray(Z[idx]),
-                     np.ascontiguousarray(S[idx]), res)
+        args = (ch.group, ch.T, ch.P, a[idx], b[idx], np.ascontiguousarray(Z[idx]), np.ascontiguousarray(S[idx]), res)
+        if parallel(idx.size, S.shape[1]):
+            _gate_kernel(*args)
+        else:
+            _gate_range(*args, 0, idx.size)
         out[idx] = res
     return out
 
@@ -305,10 +320,13 @@ def pair_chi2(ch: Chain, a, b, Z, S, first: np.ndarray, second: np.ndarray) -> n
     with the odometry between their ends; the four ends must be in one segment."""
     out = np.empty(first.shape[0])
     if first.size:
-        _pair_kernel(ch.group, ch.T, ch.P, np.ascontiguousarray(a, dtype=np.int64),
-                     np.ascontiguousarray(b, dtype=np.int64), np.ascontiguousarray(Z),
-                     np.ascontiguousarray(S), np.ascontiguousarray(first, dtype=np.int64),
-                     np.ascontiguousarray(second, dtype=np.int64), out)
+        args = (ch.group, ch.T, ch.P, np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64),
+                np.ascontiguousarray(Z), np.ascontiguousarray(S), np.ascontiguousarray(first, dtype=np.int64),
+                np.ascontiguousarray(second, dtype=np.int64), out)
+        if parallel(first.size, S.shape[1]):
+            _pair_kernel(*args)
+        else:
+            _pair_range(*args, 0, first.size)
     return out
 
 

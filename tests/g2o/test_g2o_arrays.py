@@ -20,7 +20,6 @@ import pytest
 from lie_factors.errors import InputError
 from lie_factors import factors, g2o
 import lie_factors as lf
-from lie_factors.solve import PARALLEL_MIN_WORK
 from support.runs import run
 from lie_factors.backends import build_graph
 from lie_factors.g2o import read_pose_graph
@@ -347,21 +346,3 @@ def test_g2o_modules_import_one_way():
         assert inside <= set(order[:k]), (name, inside - set(order[:k]))
 
 
-def test_small_graphs_run_the_batch_loops_on_one_thread(tmp_path):
-    """Below PARALLEL_MIN_WORK the default path iterates on one numba thread, then restores the count."""
-    import numba
-
-    path = tmp_path / "g.g2o"
-    path.write_text(_file_3d(np.random.default_rng(9)))
-    seen = []
-
-    class Events(lf.Events):
-        def iteration(self, info):
-            seen.append(numba.get_num_threads())
-
-    before = numba.get_num_threads()
-    pg = lf.read_g2o(str(path))
-    lf.optimize(pg, events=Events())
-    assert pg.edge_count * 36 < PARALLEL_MIN_WORK
-    assert seen and set(seen) == {1}
-    assert numba.get_num_threads() == before

@@ -1,0 +1,86 @@
+"""Each command compiles (or loads from the cache) the kernels of the path it runs, and no others.
+
+A first run compiles every kernel its process calls, seconds each for the largest, so a kernel
+that a command does not need must not be called: a module imported eagerly that compiles, a
+parallel wrapper called where the serial loop runs anyway, a signature compiled twice.  Each
+command runs in a fresh process; at its exit the process lists every dispatcher of the package
+that holds a signature (a compiled or a loaded kernel: the same calls, so the test does not
+need an empty cache).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = ROOT / "data"
+
+#: Run a command through the CLI, then print {dispatcher: [signatures], ...} and the parallel ones.
+LISTING = r"""
+import atexit, json, sys
+from numba.core.dispatcher import Dispatcher
+
+def listing():
+    seen = {}
+    for name, mod in list(sys.modules.items()):
+        if not name.startswith("lie_factors"):
+            continue
+        for value in list(vars(mod).values()):
+            d = value if isinstance(value, Dispatcher) else getattr(value, "kernel", None)
+            if isinstance(d, Dispatcher) and d.signatures:
+                key = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
+                seen[key] = dict(signatures=[str(s) for s in d.signatures],
+                                 parallel=bool(d.targetoptions.get("parallel")))
+    print("KERNELS " + json.dumps(seen))
+
+atexit.register(listing)
+from lie_factors.app import cli
+status = cli.main(sys.argv[1:])
+assert status == 0, status
+"""
+
+
+def kernels_of(tmp_path, *argv) -> dict:
+    out = subprocess.run([sys.executable, "-c", LISTING, *argv], capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    line = next(l for l in out.stdout.splitlines() if l.startswith("KERNELS "))
+    return json.loads(line[len("KERNELS "):])
+
+
+def modules(kernels: dict) -> set[str]:
+    return {name.rsplit(".", 1)[0].removeprefix("lie_factors.") for name in kernels}
+
+
+#: What the batch path of an SE(3) pose graph runs: the group's kernels and the factors'
+#: (checks, coefficients, SO(3) and SE(3) cores), the batch loops and the sparse assembly.
+BATCH_SE3 = {"kernels.coeffs", "kernels.checks", "so3", "se3", "factors", "batch.loops", "sparse.pattern"}
+
+
+def test_the_demo_compiles_the_batch_path_only(tmp_path):
+    kernels = kernels_of(tmp_path, "demo", "--poses", "60", "--quiet", "--output", str(tmp_path))
+    assert modules(kernels) <= BATCH_SE3, modules(kernels) - BATCH_SE3
+    assert not [k for k, v in kernels.items() if v["parallel"]]  # 60 poses: every loop on the calling thread
+    # one signature per kernel, but where the arguments' types differ by design: the Horner sum
+    # over series of different lengths, and the Gram block of a diagonal or an off-diagonal block
+    twice = {k for k, v in kernels.items() if len(v["signatures"]) > 1}
+    assert twice <= {"lie_factors.kernels.coeffs.horner", "lie_factors.sparse.pattern._add_gram"}, twice
+
+
+@pytest.mark.parametrize("extra, absent", [
+    ((), {"incremental", "robust", "sparse.selinv"}),
+    (("--incremental",), {"robust", "sparse.selinv", "sparse.pattern"}),
+    (("--gnc", "tls"), {"incremental", "sparse.selinv"}),
+    (("--covariances", "c.npz"), {"incremental", "robust"}),
+], ids=["batch", "incremental", "gnc", "covariances"])
+def test_each_posegraph_command_compiles_its_own_path(tmp_path, extra, absent):
+    kernels = kernels_of(tmp_path, "posegraph", str(DATA / "intel.g2o"), "--quiet", *extra)
+    found = {m for m in modules(kernels) for a in absent if m == a or m.startswith(a + ".")}
+    assert not found, found
+    # intel is below PARALLEL_MIN_WORK; the leave-out test's Gram blocks are always worth threads
+    # (each a sweep along the elimination tree, many times a factor's work)
+    assert {k for k, v in kernels.items() if v["parallel"]} <= {"lie_factors.robust.leave_out._group_gram"}
