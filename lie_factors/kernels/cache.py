@@ -88,6 +88,11 @@ class PackageLocator(caching._CacheLocator):
     def get_source_stamp(self):
         return package_digest()
 
+    def __getattr__(self, name):
+        # numba reads attributes of the locator it chose (``_py_file`` and ``_lineno`` when it
+        # warns that a function cannot be cached): they are the inner locator's
+        return getattr(self._inner, name)
+
     @classmethod
     def from_function(cls, py_func, py_file):
         if not _in_package(py_file):
