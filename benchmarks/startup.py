@@ -2,11 +2,13 @@
 and the whole ``posegraph --max-iterations 0`` command on city10000 split into its pieces.
 
     python benchmarks/startup.py [--repeat 3] [--dataset data/city10000.g2o] [--only SECTION]
-        [--reference DIR]
+        [--reference REV] [--commands NAME ...]
 
 Every whole-command figure is a fresh process (``python -m lie_factors.app.cli ...``), best of
-``--repeat``, backends alternated. The first-run figures use an empty NUMBA_CACHE_DIR (as a
-fresh clone has no ``__pycache__``); compile time = first-run wall − second-run wall.
+``--repeat``, backends alternated. The first-run figures run each command a user reaches
+(:data:`COMMANDS`) from a fresh clone of HEAD (and of ``--reference REV``, alternated) with an
+empty NUMBA_CACHE_DIR, then again with the cache it wrote: the compile seconds the command
+prints, and first-run wall − second-run wall.
 Prints markdown tables (docs/benchmarks.md, section "Start-up").
 """
 
@@ -46,43 +48,73 @@ def help_table(repeat: int) -> None:
         print(f"| `{k}` | {v:.3f} |")
 
 
-def _first_runs(env_base: dict, out: str) -> tuple[float, float, str]:
-    """The demo in a fresh process with an empty numba cache, then again with the cache it wrote:
-    (first wall s, best later wall s of two, the first run's compile note)."""
+#: The commands a user reaches, as run by the first-run table (paths relative to the checkout's data/).
+COMMANDS = {
+    "demo": ["demo"],
+    "posegraph intel": ["posegraph", "{data}/intel.g2o"],
+    "posegraph intel --incremental": ["posegraph", "{data}/intel.g2o", "--incremental"],
+    "posegraph intel --gnc tls": ["posegraph", "{data}/intel.g2o", "--gnc", "tls"],
+    "posegraph intel --covariances": ["posegraph", "{data}/intel.g2o", "--covariances", "{out}/c.npz"],
+    "posegraph city10000 --output x.tum": ["posegraph", "{data}/city10000.g2o", "--output", "{out}/city.tum"],
+    "posegraph sphere2500": ["posegraph", "{data}/sphere2500.g2o"],
+    "evaluate": ["evaluate", "{data}/groundtruth/city10000.tum", "{data}/groundtruth/city10000.tum"],
+    "corrupt": ["corrupt", "{data}/intel.g2o", "{out}/bad.g2o", "--fraction", "0.2", "--kind", "group",
+                "--seed", "1"],
+}
+
+
+def clone(revision: str, into: str) -> str:
+    """A fresh clone of this repository at ``revision`` (no ``__pycache__``, no numba cache): its path."""
+    subprocess.run(["git", "clone", "-q", ROOT, into], check=True)
+    subprocess.run(["git", "-C", into, "checkout", "-q", revision], check=True)
+    return into
+
+
+def _first_run(checkout: str, argv: list, out: str) -> tuple[float, float, float | None]:
+    """``argv`` in a fresh process on ``checkout``'s code with an empty numba cache, then again with
+    the cache it wrote: (first wall s, later wall s, the compile seconds the command printed or None)."""
+    import re
+
+    argv = [a.format(data=os.path.join(ROOT, "data"), out=out) for a in argv]
+    cmd = [sys.executable, "-m", "lie_factors.app.cli", *argv]
     with tempfile.TemporaryDirectory() as cache:
-        env = dict(env_base, NUMBA_CACHE_DIR=cache)
-        argv = cli("demo", "--output", out)
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=checkout)
         t = time.perf_counter()
-        p = subprocess.run(argv, env=env, capture_output=True, text=True)
+        p = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=out)
         first = time.perf_counter() - t
         if p.returncode != 0:
             raise SystemExit(f"{argv} failed: {p.stderr.strip()[-500:]}")
-        note = next((l for l in p.stderr.splitlines() if "compiled numba kernels" in l), "(no compile note)")
-        later = min(wall(argv, env), wall(argv, env))
-    return first, later, note
+        note = re.search(r"compiled numba kernels in ([0-9.]+) s", p.stderr)
+        later = wall(cmd, env)
+    return first, later, float(note.group(1)) if note else None
 
 
-def first_run_table(repeat: int, reference: str | None) -> None:
-    """``lie-factors demo`` from an empty numba cache and from a warm one; with ``reference``,
-    the same for that checkout (``PYTHONPATH=reference``), the two sides alternated."""
-    sides = {"this checkout": ENV}
-    if reference:
-        sides["reference"] = dict(os.environ, PYTHONPATH=os.path.abspath(reference) + os.pathsep
-                                  + os.environ.get("PYTHONPATH", ""))
-    best = {name: (float("inf"), float("inf"), "") for name in sides}
-    with tempfile.TemporaryDirectory() as out:
+def first_run_table(repeat: int, reference: str | None, only: list | None = None) -> None:
+    """Each command of :data:`COMMANDS` (or ``only``) from a fresh clone of HEAD with an empty numba
+    cache, then with the warm cache; with ``reference`` (a revision), the same for a fresh clone of
+    it, the two alternated; best of ``repeat``."""
+    names = only or list(COMMANDS)
+    with tempfile.TemporaryDirectory() as work:
+        sides = {"HEAD": clone("HEAD", os.path.join(work, "head"))}
+        if reference:
+            sides[reference] = clone(reference, os.path.join(work, "reference"))
+        best: dict = {}
         for r in range(repeat):
-            for name in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
-                first, later, note = _first_runs(sides[name], out)
-                f0, l0, n0 = best[name]
-                best[name] = (min(f0, first), min(l0, later), note if first < f0 else n0)
-    print(f"`lie-factors demo`, fresh processes, best of {repeat}:\n")
-    print("| side | first run, empty numba cache (wall s) | later run, warm cache (wall s) | compile = first − later |")
-    print("|---|---|---|---|")
-    for name, (first, later, _) in best.items():
-        print(f"| {name} | {first:.2f} | {later:.2f} | {first - later:.2f} |")
-    for name, (_, _, note) in best.items():
-        print(f"\nstderr of the best first run ({name}): `{note}`")
+            for name in names:
+                for side in (list(sides) if r % 2 == 0 else list(sides)[::-1]):
+                    out = os.path.join(work, "out")
+                    os.makedirs(out, exist_ok=True)
+                    first, later, note = _first_run(sides[side], COMMANDS[name], out)
+                    f0, l0, n0 = best.get((name, side), (float("inf"), float("inf"), None))
+                    best[(name, side)] = (min(f0, first), min(l0, later),
+                                          note if n0 is None or (note is not None and note < n0) else n0)
+    print(f"First runs, fresh clones, empty numba cache then warm, fresh processes, best of {repeat}"
+          f"{', sides alternated' if reference else ''} (wall s):\n")
+    print("| command | side | first run | later run | compile printed | first − later |")
+    print("|---|---|---|---|---|---|")
+    for (name, side), (first, later, note) in best.items():
+        shown = f"{note:.1f}" if note is not None else "–"
+        print(f"| `{name}` | {side} | {first:.2f} | {later:.2f} | {shown} | {first - later:.2f} |")
 
 
 FLOOR = r"""
@@ -275,11 +307,13 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dataset", default=os.path.join(ROOT, "data", "city10000.g2o"))
     ap.add_argument("--reference", default=None,
-                    help="first-run: also time another checkout of the library (PYTHONPATH=DIR), alternated")
+                    help="first-run: also time a fresh clone of this revision (e.g. the previous main), alternated")
+    ap.add_argument("--commands", nargs="+", choices=list(COMMANDS), default=None, metavar="NAME",
+                    help=f"first-run: only these commands (default: all: {', '.join(COMMANDS)})")
     ap.add_argument("--only", choices=("help", "first-run", "compile-split", "construction", "city", "floor"), default=None)
     args = ap.parse_args(argv)
     sections = [("help", lambda: help_table(args.repeat)),
-                ("first-run", lambda: first_run_table(args.repeat, args.reference)),
+                ("first-run", lambda: first_run_table(args.repeat, args.reference, args.commands)),
                 ("compile-split", lambda: compile_split_table(args.repeat)),
                 ("construction", construction_table), ("city", lambda: city_table(args.dataset, args.repeat)),
                 ("floor", lambda: floor_table(args.repeat))]

@@ -62,16 +62,6 @@ def _say(args, text: str) -> None:
         print(text, flush=True)
 
 
-def _report_compile(args) -> None:
-    """One stderr line if this process compiled numba kernels (a first run on this machine)."""
-    from lie_factors.util.timing import compile_seconds
-
-    seconds = compile_seconds()
-    if seconds > 0 and not args.quiet:
-        print(f"{PROG}: compiled numba kernels in {seconds:.1f} s (first run on this machine; "
-              "cached for later runs, not counted in the optimization time)", file=sys.stderr, flush=True)
-
-
 def _emit_json(record: dict) -> None:
     # Last stdout line, one object: scripts can do `tail -n1 | jq`.
     print(json.dumps(record, sort_keys=False), flush=True)
@@ -286,6 +276,8 @@ def _demo_record(args, dataset: str, graph, result, ate0: float, ate1: float, sc
 def _run_demo(args) -> int:
     import numpy as np
 
+    from lie_factors.app.compile_note import report_compile
+
     import lie_factors as lf
     from lie_factors.app import demo
     from lie_factors.backends import factor_namespace
@@ -303,7 +295,7 @@ def _run_demo(args) -> int:
                f"{len(problem.closures)} loop closures, seed {args.seed}, backend {args.backend}")
     result = lf.optimize(graph, problem.initial, backend=args.backend, max_iterations=args.max_iterations,
                          events=_iterations(args))
-    _report_compile(args)
+    report_compile(args)
     ate0 = demo.ate_rmse(problem.initial, problem.truth)
     ate1 = demo.ate_rmse(result.values, problem.truth)
     status = "converged" if result.converged else "stopped (not converged)"
@@ -326,9 +318,9 @@ def _run_demo(args) -> int:
 def _run_demo_sim3(args) -> int:
     """The scale-drift scenario (:mod:`lie_factors.app.demo_sim3`): ours and GTSAM's native
     factors on the same Sim(3) graph, ATE and true gradient norm of each result."""
-    from lie_factors.errors import InputError
-
     from lie_factors.app import demo_sim3
+    from lie_factors.app.compile_note import report_compile
+    from lie_factors.errors import InputError
 
     if args.backend == "native":
         raise InputError("--scenario sim3 always runs GTSAM's native factors beside ours; "
@@ -340,7 +332,7 @@ def _run_demo_sim3(args) -> int:
                f"{len(problem.closures)} loop closures, scale drift e^{demo_sim3.DRIFT[6]:g} per step, "
                f"seed {args.seed}, backend {args.backend} beside native")
     c = demo_sim3.compare(problem, args.backend, args.max_iterations, _iterations(args))
-    _report_compile(args)
+    report_compile(args)
     ours, native, graph = c.ours, c.native, c.graph
     ate0, ate_ours, ate_native = c.ate_initial, c.ate_ours, c.ate_native
     g0, g_ours, g_native = c.gradient_initial, c.gradient_ours, c.gradient_native

@@ -25,6 +25,8 @@ from lie_factors.solve import check_graph, options
 from lie_factors.util import memory
 from lie_factors.util.atomic import check_writable, replace_atomically
 
+from .compile_note import report_compile
+
 #: Keys of the record's ``timings``: the command's steps, in order.
 TIMING_KEYS = ("imports", "read", "init", "setup", "iterations", "write")
 
@@ -157,6 +159,7 @@ def run(args, imports: float, started: float) -> int:
         out.say(f"{result.updates} updates in {result.update_seconds:.3f} s (per update: median "
                 f"{result.update_p50 * 1e3:.3f} ms, p99 {result.update_p99 * 1e3:.3f} ms); "
                 f"final error {result.error:.6g}")
+        report_compile(args)
     else:
         out.say(f"{pg.describe()}{' (no vertices in the file)' if pg.vertices is None else ''}; "
                 f"backend {opts.backend}")
@@ -166,7 +169,7 @@ def run(args, imports: float, started: float) -> int:
                              robust=opts.robust, robust_all=opts.robust_all, gnc=opts.gnc,
                              consistency=opts.consistency, events=out)
         out.progress(f"optimized ({result.timings.get('iterations', 0.0):.2f} s)")
-        _report_compile(args)
+        report_compile(args)
         _report(out, args, pg, result)
     timings.update({k: result.timings.get(k, 0.0) for k in ("init", "setup", "iterations")})
     accuracy = _ate(out, result, truth) if truth is not None else {}
@@ -176,16 +179,6 @@ def run(args, imports: float, started: float) -> int:
     if args.json:
         print(json.dumps({**record(pg, result, timings, args), **accuracy}), flush=True)
     return 0
-
-
-def _report_compile(args) -> None:
-    """One stderr line if this process compiled numba kernels (a first run on this machine)."""
-    from lie_factors.util.timing import compile_seconds
-
-    seconds = compile_seconds()
-    if seconds > 0 and not args.quiet:
-        print(f"lie-factors: compiled numba kernels in {seconds:.1f} s (first run on this machine; "
-              "cached for later runs, not counted in the optimization time)", file=sys.stderr, flush=True)
 
 
 def _report(out: Printer, args, pg, result) -> None:
