@@ -359,24 +359,29 @@ class Cholesky:
 
     def _refuse_pivots(self, values: np.ndarray, tolerance: float) -> None:
         """Raise :class:`NotPositiveDefinite` at the first pivot the rule of
-        :mod:`lie_factors.sparse.pivots` refuses, compared with the diagonal of the matrix factored
-        (``values``), taken in the factor's order."""
-        pivots = self._pivots()
-        perm = self._factor_order()
-        at = self._diagonal_at
-        diagonal = np.where(at >= 0, values[np.maximum(at, 0)], 0.0) if len(values) else np.zeros(self.n)
-        if perm is not None:
-            diagonal = diagonal[perm]
+        :mod:`lie_factors.sparse.pivots` refuses (in elimination order)."""
+        pivots, diagonal, columns = self.pivots(values)
         k = first_refused(pivots, diagonal, tolerance)
         if k < 0:
             return
-        column = k if perm is None else int(perm[k])
+        column = int(columns[k])
         if tolerance > 0.0 and pivots[k] > 0.0:
             raise NotPositiveDefinite(f"the matrix is not positive definite to double precision (the pivot of "
                                       f"column {column} is {pivots[k] / diagonal[k]:.2g} of its diagonal entry, "
                                       f"not above {tolerance:g})", column)
         raise NotPositiveDefinite(f"the matrix is not positive definite (the pivot of column {column} is "
                                   f"{pivots[k]:.3g})", column)
+
+    def pivots(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(pivots, diagonal, columns), each (n,), of the last factorization, of the matrix with
+        ``values``, in elimination order: the k-th pivot (L_kk² of an L·Lᵀ factor, D_k of an
+        L·D·Lᵀ one), the matrix's diagonal entry it is compared with, and the matrix's column
+        it belongs to."""
+        perm = self._factor_order()
+        at = self._diagonal_at
+        diagonal = np.where(at >= 0, values[np.maximum(at, 0)], 0.0) if len(values) else np.zeros(self.n)
+        columns = np.arange(self.n) if perm is None else perm
+        return self._pivots(), diagonal[columns], columns
 
     def _pivots(self) -> np.ndarray:
         """The pivots (n,) of the last factorization in the factor's order: L_jj² of an L·Lᵀ
