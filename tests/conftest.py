@@ -17,3 +17,23 @@ def cholmod_way(request, monkeypatch):
     yield request.param
     monkeypatch.delenv("LIE_FACTORS_CHOLMOD", raising=False)
     cholmod._direct.cache_clear()
+
+
+@pytest.fixture
+def forbid_factorization(monkeypatch):
+    """A function that, once called, fails the test at any numeric factorization: CHOLMOD's, GTSAM's
+    elimination in the batch solver, the smoother's block factor.  A refusal that happens after it
+    was decided by the structure of the graph alone, independent of the machine's rounding."""
+    def forbid():
+        from lie_factors.batch.solvers import GtsamSolver
+        from lie_factors.incremental.cholesky import BlockFactor
+        from lie_factors.sparse.cholmod import Cholesky
+
+        def factorization(*args, **kwargs):
+            pytest.fail("a numeric factorization ran: the structure alone must decide")
+
+        for cls, name in ((Cholesky, "factorize"), (GtsamSolver, "solve"), (BlockFactor, "update"),
+                          (BlockFactor, "update_arrays")):
+            monkeypatch.setattr(cls, name, factorization)
+
+    return forbid

@@ -27,6 +27,7 @@ import numpy as np
 from .. import factors as _factors
 from ..errors import InputError, first_line
 from .. import interop
+from ..posegraph import gauge
 from ..robust.losses import from_gtsam
 # noise_whitening and whitening are imported from here by the incremental smoother, whitening by the tests
 from .groups import FactorGroup, VarBlock, noise_whitening, unique_rows, whitening  # noqa: F401
@@ -318,8 +319,10 @@ class Problem:
             self.native_pairs = np.zeros((0, 2), dtype=np.int64)
             return
         sizes, kv, kl, kd, ks, ps, istart = [], [], [], [], [0], [0], [0]
-        pairs = []
+        pairs, rows, relative = [], [], []
         for _, f, keys in self.native:
+            rows.append(int(f.dim()))
+            relative.append(gauge.is_relative(f))
             loc = 0
             vs = [self.var_index[k] for k in keys]
             for v in vs:
@@ -341,8 +344,36 @@ class Problem:
             key_dim=np.array(kd, dtype=np.int64), key_start=np.array(ks, dtype=np.int64),
             pair_start=np.array(ps[:-1], dtype=np.int64),
             info_start=np.array(istart[:-1], dtype=np.int64), info=np.zeros(istart[-1]),
-            sq=np.zeros(len(self.native)),
+            sq=np.zeros(len(self.native)), rows=np.array(rows, dtype=np.int64),
+            relative=np.array(relative, dtype=bool),
         )
+
+    def undetermined(self) -> gauge.Undetermined | None:
+        """The first variable of the linear system its structure leaves undetermined
+        (:func:`lie_factors.posegraph.gauge.undetermined`: too few rows of factors, or a
+        component of relative factors only), by its index in :attr:`var_keys`; None if the
+        structure decides nothing.  Between factors are relative, lie_factors' or GTSAM's
+        (those GTSAM linearizes: robust ones, say); priors anchor; a factor of another kind
+        leaves its component to the factorization."""
+        V = len(self.var_keys)
+        rows = np.zeros(V, dtype=np.int64)
+        u, v, anchored = [self.native_pairs[:, 0]], [self.native_pairs[:, 1]], []
+        for g in self.groups:
+            ends = (g.v1, g.v2) if g.kind == "between" else (g.v1,)
+            for e in ends:
+                rows += g.spec.dim * np.bincount(e, minlength=V)
+            if g.kind == "between":
+                u.append(g.v1)
+                v.append(g.v2)
+            else:
+                anchored.append(g.v1)
+        nat = self.native_arrays
+        if nat is not None:
+            count = np.diff(nat.key_start)  # each native factor's variables
+            rows += np.bincount(nat.key_var, np.repeat(nat.rows, count), minlength=V).astype(np.int64)
+            anchored.append(nat.key_var[nat.key_start[:-1][~nat.relative & (count > 0)]])
+        return gauge.undetermined(self.var_dims, rows, np.concatenate(u), np.concatenate(v),
+                                  np.concatenate(anchored) if anchored else np.zeros(0, dtype=np.int64))
 
     # ---------------------------------------------------------------- state
     def elements(self) -> dict:

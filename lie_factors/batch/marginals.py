@@ -19,10 +19,30 @@ from ..errors import IndeterminantLinearSystem, InputError, NotPositiveDefinite
 from ..sparse import cholmod
 from ..sparse.selinv import diagonal_blocks, invert_in_place
 from ..sparse.supernodes import Supernodes
+from ..posegraph import gauge
 from .graph import Problem, key_name
 from .system import LinearSystem
 
 __all__ = ["Marginals"]
+
+#: What a refusal says first: H is singular where the graph does not determine a variable.
+SINGULAR = "Marginals: the information matrix is singular"
+
+
+def _refuse(finding, key_of) -> None:
+    """Raise the refusal of a structural finding (:mod:`lie_factors.posegraph.gauge`), if any:
+    ``key_of(variable)`` is the key of the variable it names."""
+    if finding is not None:
+        raise finding.error(SINGULAR, key_name(key_of(finding.variable)))
+
+
+def _refuse_keys_in_no_factor(values, problem: Problem) -> None:
+    """A key of ``values`` that no factor of the graph touches has no marginal: refused (GTSAM's
+    Marginals fails when its covariance is asked)."""
+    keys = np.asarray(values.keys(), dtype=np.uint64)
+    loose = np.setdiff1d(keys, np.asarray(problem.var_keys, dtype=np.uint64))
+    if loose.size:
+        raise gauge.too_few_rows(None, 0, 1).error(SINGULAR, key_name(int(loose[0])))
 
 
 class Marginals:
@@ -37,8 +57,11 @@ class Marginals:
 
     def __init__(self, graph, values):
         self._gtsam = None
+        problem = Problem(graph, values)
+        _refuse_keys_in_no_factor(values, problem)
+        _refuse(problem.undetermined(), lambda v: problem.var_keys[v])
         if cholmod.available():
-            self._compute(Problem(graph, values))
+            self._compute(problem)
         else:
             self._use_gtsam(graph, values)
 
@@ -49,6 +72,7 @@ class Marginals:
         at ``poses`` (P, m, m) in its keys' order, straight from its arrays."""
         self = cls.__new__(cls)
         self._gtsam = None
+        _refuse(gauge.of_pose_graph(pose_graph), lambda v: pose_graph.keys[v])
         if cholmod.available():
             self._compute(Problem.from_pose_graph(pose_graph, poses))
         else:
@@ -71,7 +95,9 @@ class Marginals:
         try:
             factor.factorize(system.data)
         except NotPositiveDefinite as exc:
-            raise self._indeterminant(problem, p, exc.column) from None
+            variable = system.variable_at(exc.column)
+            where = "" if variable is None else f" near variable {key_name(problem.var_keys[variable])}"
+            raise IndeterminantLinearSystem(f"{SINGULAR}{where}: {exc}", variable) from None
         del system
         inverse = invert_in_place(factor.supernodes() if factor.supernodal and cholmod.direct_available()
                                   else Supernodes.from_lower(*factor.lower()))
@@ -89,17 +115,6 @@ class Marginals:
         self._index = problem.var_index
         self._dims = dims
         factor.free()
-
-    @staticmethod
-    def _indeterminant(problem: Problem, pattern, column: int | None) -> IndeterminantLinearSystem:
-        where = ""
-        variable = None
-        if column is not None and 0 <= column < pattern.n:
-            variable = int(np.searchsorted(problem.var_offsets, pattern.scalar_order[column], side="right") - 1)
-            where = f" near variable {key_name(problem.var_keys[variable])}"
-        return IndeterminantLinearSystem(
-            f"Marginals: the information matrix is singular{where}: the factors do not determine every "
-            "variable (a pose graph needs a prior)", variable)
 
     def _variable(self, key) -> int:
         try:

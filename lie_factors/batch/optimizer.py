@@ -27,7 +27,7 @@ from .. import lm
 from ..lm import IterationInfo, OptimizeResult
 from ..util.timing import Stopwatch
 from . import solvers
-from .graph import Problem
+from .graph import Problem, key_name
 from ..errors import IndeterminantLinearSystem, InputError, NotPositiveDefinite
 from .system import LinearSystem
 
@@ -39,8 +39,10 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
     """Levenberg–Marquardt (or Gauss–Newton) over ``graph`` from ``initial``, mirroring GTSAM.
 
     ``params``: ``gtsam.LevenbergMarquardtParams`` (default) or
-    ``gtsam.GaussNewtonParams`` (same loop, no damping, a non-positive-definite
-    system raises :class:`IndeterminantLinearSystem`).  ``linear_solver``:
+    ``gtsam.GaussNewtonParams`` (same loop, no damping; a graph that does not
+    determine every variable raises :class:`IndeterminantLinearSystem`, decided on
+    its structure first (:meth:`Problem.undetermined`), then by the pivot rule of
+    :mod:`lie_factors.sparse.pivots`).  ``linear_solver``:
     ``"auto"`` (CHOLMOD if cvxopt is installed, else GTSAM with a warning),
     ``"cholmod"`` or ``"gtsam"``.
 
@@ -84,7 +86,11 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
         self.problem = (graph if isinstance(graph, Problem)
                         else Problem(graph, initial, group_robust=self.group_robust))
         self.system = LinearSystem(self.problem)
-        self.solver = solvers.make(linear_solver, self.system)
+        # Gauss–Newton's system must determine every variable (the pivot rule of
+        # lie_factors.sparse.pivots); LM's damped one is GTSAM's: a pivot that is not > 0 raises λ.
+        self.solver = solvers.make(linear_solver, self.system,
+                                   solvers.PIVOT_TOLERANCE if self.gauss_newton else 0.0)
+        self._structure_checked = not self.gauss_newton
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
         self._iterations = 0
         self._setup()
@@ -228,17 +234,32 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
         if not self.gauss_newton:
             super().iterate()
             return
+        self._require_determined()
         self._linearize()
         try:
             delta = self._solve(None)
         except NotPositiveDefinite as exc:
+            P = self.problem
+            variable = self.system.variable_at(exc.column)
+            where = "" if variable is None else f" near variable {key_name(P.var_keys[variable])}"
             raise IndeterminantLinearSystem(
-                f"Gauss-Newton: {exc}; the graph does not determine every variable "
-                "(e.g. no prior fixes the gauge) - add a prior or use Levenberg-Marquardt") from None
+                f"Gauss-Newton: the linear system is singular{where}: {exc}; the graph does not determine "
+                "every variable - add a prior or use Levenberg-Marquardt", variable) from None
         Xs, other, self._error = self._try_step(delta)
         self.problem.accept(Xs, other)
         self._iterations += 1
         self._inner += 1
+
+    def _require_determined(self) -> None:
+        """Gauss–Newton: refuse, before the first factorization, a graph whose structure leaves a
+        variable undetermined (:meth:`Problem.undetermined`: exact, whatever the rounding)."""
+        if self._structure_checked:
+            return
+        finding = self.problem.undetermined()
+        if finding is not None:
+            raise finding.error("Gauss-Newton: the linear system is singular",
+                                key_name(self.problem.var_keys[finding.variable]))
+        self._structure_checked = True
 
     def optimize(self, progress: Callable[[IterationInfo], None] | None = None,
                  values: bool = True) -> OptimizeResult:

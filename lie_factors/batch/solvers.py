@@ -10,7 +10,8 @@
   rows plus GTSAM's λ-priors (``GaussianFactorGraph.optimize``), as GTSAM's LM
   does it: the cross-check, and the fallback where cvxopt is not installed.
 
-Both raise :class:`NotPositiveDefinite` when the system cannot be factored.
+Each raises :class:`NotPositiveDefinite` when the system cannot be factored (CHOLMOD's: where a
+pivot is refused by :mod:`lie_factors.sparse.pivots`' rule, at the tolerance it is given).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..util import stack
 
 from ..sparse.cholmod import Cholesky
 from ..sparse.cholmod import available as cholmod_available
+from ..sparse.pivots import PIVOT_TOLERANCE
 from ..errors import InputError, NotPositiveDefinite, first_line
 
 LINEAR_SOLVERS = ("auto", "cholmod", "pardiso", "gtsam")
@@ -63,27 +65,38 @@ def _pypardiso():
     return pypardiso
 
 
-def make(name: str, system):
-    return {"cholmod": CholmodSolver, "pardiso": PardisoSolver, "gtsam": GtsamSolver}[resolve(name)](system)
+def make(name: str, system, pivot_tolerance: float = PIVOT_TOLERANCE):
+    """The linear solver ``name`` (:data:`LINEAR_SOLVERS`) of ``system``; ``pivot_tolerance``: the
+    pivot rule of CHOLMOD's factorizations (:mod:`lie_factors.sparse.pivots`; GTSAM's elimination
+    and PARDISO keep their own)."""
+    kind = resolve(name)
+    if kind == "cholmod":
+        return CholmodSolver(system, pivot_tolerance)
+    return {"pardiso": PardisoSolver, "gtsam": GtsamSolver}[kind](system)
 
 
 class CholmodSolver:
     """Sparse Cholesky of ``system``'s pattern (:class:`lie_factors.sparse.cholmod.Cholesky`):
-    symbolic analysis once, a numeric factorization of ``system.data`` in place per solve."""
+    symbolic analysis once, a numeric factorization of ``system.data`` in place per solve.
+
+    ``pivot_tolerance``: a pivot not above this fraction of its diagonal entry is refused
+    (:mod:`lie_factors.sparse.pivots`: 1e-13, the one rule for a system that must be
+    determined; 0, the sign rule, for Levenberg–Marquardt's damped systems)."""
 
     name = "cholmod"
     needs_jacobians = False  # it factors H
     solve_seconds = 0.0  # the triangular solves' share of the solve calls
 
-    def __init__(self, system):
+    def __init__(self, system, pivot_tolerance: float = PIVOT_TOLERANCE):
         p = system.pattern
         self.system = system
+        self.pivot_tolerance = float(pivot_tolerance)
         self.factor = Cholesky(p.colptr, p.rowind, natural=True)
 
     def solve(self, scale: np.ndarray | None) -> np.ndarray:
         """δ solving (H + diag(scale)) δ = g."""
         sys_ = self.system
-        self.factor.factorize(sys_.damp(scale))  # NotPositiveDefinite: CHOLMOD's own message
+        self.factor.factorize(sys_.damp(scale), self.pivot_tolerance)  # NotPositiveDefinite: the column
         t = time.perf_counter()
         delta = sys_.from_matrix_order(self.factor.solve(sys_.in_matrix_order(sys_.rhs)))
         self.solve_seconds += time.perf_counter() - t

@@ -148,6 +148,13 @@ class LinearSystem:
             self._damped = True
         return self.data
 
+    def variable_at(self, column: int | None) -> int | None:
+        """The variable (its index in the problem's ``var_keys``) of the matrix's ``column``, as a
+        factorization reports it; None for None or a column out of range."""
+        if column is None or not 0 <= column < self.pattern.n:
+            return None
+        return int(np.searchsorted(self.problem.var_offsets, self.pattern.scalar_order[column], side="right") - 1)
+
     def in_matrix_order(self, v: np.ndarray) -> np.ndarray:
         """A vector (n, ...) in δ's order, reordered as the matrix's rows."""
         return v[self.pattern.scalar_order]

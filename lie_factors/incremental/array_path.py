@@ -22,7 +22,7 @@ import numpy as np
 from .. import factors as _factors
 from ..batch.graph import key_name
 from ..batch.loops import whiten_jacobian, whiten_residual
-from ..errors import InputError
+from ..errors import IndeterminantLinearSystem, InputError
 from ..kernels import dispatch as _dispatch
 from ..kernels.jit import inline_kernel, kernel
 from .marking import mark_affected
@@ -179,6 +179,12 @@ def try_update(s, fa, keys, values, edges, priors):
     edges = np.asarray(edges, dtype=np.int64).reshape(-1).tolist()
     priors = np.asarray(priors, dtype=np.int64).reshape(-1).tolist()
     obs = _observed(s, fa, klist, edges, priors)
+    # the structural rule (lie_factors.posegraph.gauge): edges are relative, priors anchor, and
+    # each factor has the group's dimension in rows on every variable it touches
+    E2 = P + 2 * len(edges)
+    joined, free = s.gauge.join(P, obs[P:E2:2], obs[P + 1:E2:2], obs[E2:], obs)
+    if free is not None:
+        raise s._refusal(free, klist)
     nv0 = len(s.keys)
     el = s._elements(fa.group)
     n_el = el.n
@@ -204,12 +210,15 @@ def try_update(s, fa, keys, values, edges, priors):
     plan = np.array(edges + priors + obs, dtype=np.int64)
     try:
         bf.update_arrays(spec.group, el.X, s.velem, prepared(fa), plan, (P, len(edges), len(priors), n))
-    except BaseException:
+    except BaseException as exc:
         del s.keys[nv0:], s.vgroup[nv0:]
         for k in klist:
             s.var.pop(k, None)
         el.n = n_el
         for (kind, *_), kn in zip(kinds, kind_n):
             kind.truncate(kn)
+        if isinstance(exc, IndeterminantLinearSystem):
+            raise s._indeterminant(exc, klist) from None
         raise
+    s.gauge.commit(joined)
     return s._updated(0)

@@ -10,9 +10,10 @@ its update matrix, and so does every member whose update matrix is at most
 ``keep_update`` floats.
 
 A front is ``Phi`` (N, N), symmetric, its upper triangle used (its last row below the
-diagonal holds the diagonal before elimination, for the pivot test; its last column is the
-right-hand side), with ``diag`` (at least N) the diagonal as assembled, ``colmap`` (at least
-N) scratch, and ``members[:nm]`` the clique's variables in order.  The helpers take these
+diagonal holds, for the pivot test, the diagonal of Λ = Σ AᵀA before any elimination on the
+members' columns, summed from every factor on their variables; its last column is the
+right-hand side), with ``colmap`` (at least N) scratch, and ``members[:nm]`` the clique's
+variables in order.  The helpers take these
 arrays, and the dense eliminations are called from :func:`numeric_pass` itself (see
 :mod:`~lie_factors.incremental.structures` on why).
 
@@ -27,12 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.jit import dense_kernel, inline_kernel  # dense_kernel keeps IEEE NaN, which the pivot test relies on
+from ..sparse.pivots import PIVOT_TOLERANCE  # the one pivot rule, CHOLMOD's too (its docstring: why 1e-13)
 from .structures import NOT_POSITIVE, OK, packed
-
-#: A pivot is refused when it is not above this fraction of its diagonal entry before
-#: elimination (a pivot is 1/(Λ⁻¹)_pp in units of Λ_pp: this refuses a condition number
-#: above 1e13, where the variable is not determined to double precision).
-PIVOT_TOLERANCE = 1e-13
 
 @dense_kernel
 def _row_update(Phi, i, q0, q1):
@@ -129,7 +126,8 @@ def eliminate_columns(Phi, o, D, blas, Tt, G):
     all the pivot rows above it at once, then, if it is a pivot row, is scaled by its pivot's
     square root; with ``blas`` (:func:`uses_blas`), the trailing rows take theirs from BLAS
     (:func:`_trailing_blas`, scratch ``Tt`` and ``G``).  Returns −1, or the first pivot that
-    is not positive (relative to :data:`PIVOT_TOLERANCE`)."""
+    is refused: not above :data:`PIVOT_TOLERANCE` times its entry of ``Phi[N − 1, :]``
+    (:mod:`lie_factors.sparse.pivots`)."""
     N = Phi.shape[0]
     e = o + D
     for i in range(o, e if blas else N):
@@ -192,12 +190,11 @@ def _locate(members, nm, s0, sl, dim, ipool, loc):
 
 
 @inline_kernel
-def _cleared_front(scratch, diag, N):
-    """The front (N, N) at the start of ``scratch``, its upper triangle zero (all that is read),
-    and ``diag[:N]`` (the diagonal as assembled) zero."""
+def _cleared_front(scratch, N):
+    """The front (N, N) at the start of ``scratch``, its upper triangle zero (all that is read
+    but its last row)."""
     Phi = scratch[:N * N].reshape((N, N))
     for i in range(N):
-        diag[i] = 0.0
         for c in range(i, N):
             Phi[i, c] = 0.0
     return Phi
@@ -217,12 +214,11 @@ def _separator_columns(s0, sl, ipool, dim, loc, colmap):
 
 
 @inline_kernel
-def _add_packed(Phi, diag, colmap, S1, fpool, u):
+def _add_packed(Phi, colmap, S1, fpool, u):
     """Add the packed update matrix at ``fpool[u]`` (side ``S1``) to the front's rows and
     columns ``colmap[:S1]`` (extend-add)."""
     for a in range(S1):
         ta = colmap[a]
-        diag[ta] += fpool[u]
         for b in range(a, S1):
             tb = colmap[b]
             if ta <= tb:
@@ -233,7 +229,7 @@ def _add_packed(Phi, diag, colmap, S1, fpool, u):
 
 
 @inline_kernel
-def _extend_add(j, Phi, diag, colmap, new, tree, work, pools):
+def _extend_add(j, Phi, colmap, new, tree, work, pools):
     """The update matrices of ``j``'s children (re-eliminated ones from ``new``, orphans from the
     tree) added to the front.  Returns (child, count): child −1, or a child without an update
     matrix (never: such a child shares its parent's clique)."""
@@ -267,7 +263,7 @@ def _extend_add(j, Phi, diag, colmap, new, tree, work, pools):
             S1 = (new_sep_dim[ci] if ci >= 0 else tree_sep_dim[c]) + 1
             cc = _separator_columns(s0, sl, ipool, dim, loc, colmap)
             colmap[cc] = N - 1
-            _add_packed(Phi, diag, colmap, S1, fpool, u0)
+            _add_packed(Phi, colmap, S1, fpool, u0)
             nu += 1
         c = cnext[c]
     return missing, nu
@@ -286,9 +282,9 @@ def _factor_columns(f, fvstart, fnv, fvars, dim, loc, colmap, N):
 
 
 @inline_kernel
-def _add_gram(J, r, D1, jac, Phi, diag, colmap):
+def _add_gram(J, r, D1, jac, Phi, colmap):
     """Add AᵀA (augmented with Aᵀb) of the r × D1 Jacobian at ``jac[J]`` to the front's upper
-    triangle and diagonal, at its columns ``colmap[:D1]``."""
+    triangle, at its columns ``colmap[:D1]``."""
     for c1 in range(D1):
         t1 = colmap[c1]
         for c2 in range(D1):
@@ -299,14 +295,12 @@ def _add_gram(J, r, D1, jac, Phi, diag, colmap):
             for rr in range(r):
                 acc += jac[J + rr * D1 + c1] * jac[J + rr * D1 + c2]
             Phi[t1, t2] += acc
-            if t1 == t2:
-                diag[t1] += acc
 
 
 @inline_kernel
-def _assemble(t0, t1, fall, store, dim, loc, Phi, diag, colmap):
+def _assemble(t0, t1, fall, store, dim, loc, Phi, colmap):
     """Add the AᵀA (augmented with Aᵀb) of the factors ``fall[t0:t1]`` to the front's upper
-    triangle and diagonal."""
+    triangle."""
     fcols = store.fcols
     fjstart = store.fjstart
     fnv = store.fnv
@@ -318,7 +312,52 @@ def _assemble(t0, t1, fall, store, dim, loc, Phi, diag, colmap):
     for t in range(t0, t1):
         f = fall[t]
         _factor_columns(f, fvstart, fnv, fvars, dim, loc, colmap, N)
-        _add_gram(fjstart[f], frows[f], fcols[f], jac, Phi, diag, colmap)
+        _add_gram(fjstart[f], frows[f], fcols[f], jac, Phi, colmap)
+
+
+@inline_kernel
+def _diagonal_of(v, o, dim, store, row):
+    """``row[o:o + dim[v]]`` = the diagonal of Λ = Σ AᵀA on the scalars of variable ``v``: the
+    squared norms of v's columns of every factor on it (its adjacency list in ``store``), a
+    factor that holds v twice counted once, its two columns added.  The denominator of the
+    pivot rule, the same whatever part of Λ reaches the front through update matrices."""
+    ahead = store.ahead
+    anext = store.anext
+    afac = store.afac
+    fnv = store.fnv
+    fvstart = store.fvstart
+    fvars = store.fvars
+    frows = store.frows
+    fcols = store.fcols
+    fjstart = store.fjstart
+    jac = store.jac
+    d = dim[v]
+    for i in range(d):
+        row[o + i] = 0.0
+    t = ahead[v]
+    while t >= 0:
+        f = afac[t]
+        s0 = fvstart[f]
+        first = True  # the factor's first entry on v: the factor is counted there only
+        for q in range(s0, t):
+            if fvars[q] == v:
+                first = False
+        if first:
+            D1 = fcols[f]
+            J = fjstart[f]
+            for i in range(d):
+                acc = 0.0
+                for r in range(frows[f]):
+                    x = 0.0
+                    c = 0
+                    for q in range(s0, s0 + fnv[f]):
+                        w = fvars[q]
+                        if w == v:
+                            x += jac[J + r * D1 + c + i]
+                        c += dim[w]
+                    acc += x * x
+                row[o + i] += acc
+        t = anext[t]
 
 
 @inline_kernel
@@ -406,7 +445,6 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
     members = np.empty(K, dtype=np.int64)
     # the fronts' arrays, reused (grown to the largest)
     scratch = np.empty(4096)
-    diag = np.empty(64)
     colmap = np.empty(64, dtype=np.int64)
     Tt = np.empty(4096)
     G = np.empty(BLAS_TILE * BLAS_TILE)
@@ -426,10 +464,12 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
             scratch = np.empty(2 * N * N)
             Tt = np.empty(2 * N * N)
         if N > colmap.shape[0]:
-            diag = np.empty(2 * N)
             colmap = np.empty(2 * N, dtype=np.int64)
-        Phi = _cleared_front(scratch, diag, N)
-        child, nu = _extend_add(j, Phi, diag, colmap, new, tree, work, pools)
+        Phi = _cleared_front(scratch, N)
+        for q in range(nm):  # Λ's diagonal on the members' columns, for the pivot test
+            v = members[q]
+            _diagonal_of(v, loc[v], dim, store, Phi[N - 1])
+        child, nu = _extend_add(j, Phi, colmap, new, tree, work, pools)
         if child >= 0:
             return NOT_POSITIVE, child, ftop
         # the members' factors assembled and their columns eliminated, block by block; a
@@ -443,10 +483,8 @@ def numeric_pass(order, new, fall, tree, pools, ftop, store, work, keep_update):
             q1, e = _block_end(members, nm, q0, N, dim, loc, keep_update)
             for q in range(q0, q1):
                 mk = aidx[members[q]]
-                _assemble(fstart[mk], fstart[mk + 1], fall, store, dim, loc, Phi, diag, colmap)
+                _assemble(fstart[mk], fstart[mk + 1], fall, store, dim, loc, Phi, colmap)
                 nf += fstart[mk + 1] - fstart[mk]
-            for p in range(b0, e):
-                Phi[N - 1, p] = diag[p]
             blas = uses_blas(e - b0, N - e)
             bad = eliminate_columns(Phi, b0, e - b0, blas, Tt, G)
             stats[7] += blas

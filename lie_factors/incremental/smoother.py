@@ -27,7 +27,10 @@ takes a pose graph's factors as arrays, with no factor object at all.
 Every update is validated before anything changes, and is all or nothing: an
 unknown or duplicate key, a key of the wrong type, a non-finite measurement,
 value or noise model, a new variable no factor constrains, or a system that
-leaves a variable undetermined raises, and the smoother is as it was.
+leaves a variable undetermined raises, and the smoother is as it was.  The last is
+decided on the structure first (:mod:`lie_factors.posegraph.gauge`, kept update by
+update: a new variable with fewer rows of factors than its dimension, a component of
+relative factors only), then by the pivot rule of :mod:`lie_factors.sparse.pivots`.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ from .. import factors as _factors
 from ..batch.graph import key_name
 from ..errors import IndeterminantLinearSystem, InputError
 from ..interop import to_gtsam
+from ..posegraph import gauge
+from ..sparse.pivots import PIVOT_TOLERANCE
 from .array_path import try_update
 from .cholesky import BlockFactor
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
@@ -46,6 +51,9 @@ from .gtsam_objects import VALUE_TYPES, insert_from, make_factor, native_jacobia
 from .params import SmootherParams, UpdateResult
 from .structures import grow
 from .undo import Undo
+
+#: What the refusal of an update says first.
+UNDETERMINED = "the update leaves a variable undetermined"
 
 
 class Smoother:
@@ -92,6 +100,7 @@ class Smoother:
         self.native_theta = gtsam.Values()  # θ of every variable a native factor touches
         self.other = gtsam.Values()  # θ of the variables GTSAM holds (no group of ours)
         self.other_types: dict[int, str] = {}  # their keys -> type names (``Values.at<Type>``)
+        self.gauge = gauge.Components()  # which variables factors join, and which components are anchored
         self.update_count = 0
         self.relinearizations = 0
         self.reorderings = 0
@@ -138,10 +147,7 @@ class Smoother:
     def update_prepared(self, fa: "FactorArrays", keys, values, edges=(), priors=()) -> UpdateResult:
         """An update adding the new variables ``keys`` (P,) at ``values`` (P, m, m) and the
         factors ``edges``/``priors`` (indices) of the prepared ``fa``."""
-        try:
-            result = try_update(self, fa, keys, values, edges, priors)
-        except IndeterminantLinearSystem as exc:
-            raise self._indeterminant(exc, np.asarray(keys).reshape(-1).tolist()) from None
+        result = try_update(self, fa, keys, values, edges, priors)
         if result is not None:
             return result
         spec = fa.spec
@@ -220,6 +226,7 @@ class Smoother:
 
     def _apply(self, nf: NewFactors) -> UpdateResult:
         self._validate(nf)
+        plan = self._structure(nf)
         p = self.params
         count = self.update_count + 1
         relin_vars = np.zeros(0, dtype=np.int64)
@@ -239,17 +246,67 @@ class Smoother:
         except BaseException:
             undo.run()
             raise
+        self.gauge.commit(plan)
         return self._updated(len(relin_vars))
+
+    def _structure(self, nf: NewFactors) -> tuple:
+        """The structural rule on the update (:mod:`lie_factors.posegraph.gauge`), before anything
+        changes: a new variable whose new factors have fewer rows than its dimension, or a
+        component the update touches whose factors are all relative (no prior: a free gauge),
+        raises :class:`IndeterminantLinearSystem`.  Returns the plan to commit once the update
+        has succeeded."""
+        n0, P = len(self.keys), len(nf.keys)
+        var = self.var
+        new = dict(zip(nf.keys, range(n0, n0 + P)))
+        u, v, anchored = [], [], []
+        touched = list(range(n0, n0 + P))
+        rows = [0] * P
+        for (kind, name), entry in nf.arrays.items():
+            ids = [new[k] if k in new else var[k] for k in entry["keys"].ravel().tolist()]
+            touched += ids
+            if kind == "between":
+                u += ids[0::2]
+                v += ids[1::2]
+            else:
+                anchored += ids
+            n = _factors.GROUPS[name].dim
+            for w in ids:
+                if w >= n0:
+                    rows[w - n0] += n
+        for f, keys in nf.native:
+            ids = [new[k] if k in new else var[k] for k in keys]
+            touched += ids
+            u += ids[:1] * (len(ids) - 1)
+            v += ids[1:]
+            if ids and not gauge.is_relative(f):
+                anchored.append(ids[0])
+            for w in set(ids):
+                if w >= n0:
+                    rows[w - n0] += int(f.dim())
+        finding = gauge.short_rows(n0, nf.dims, rows)
+        if finding is None:
+            plan, finding = self.gauge.join(P, u, v, anchored, touched)
+        if finding is not None:
+            raise self._refusal(finding, nf.keys)
+        return plan
+
+    def _name(self, v: int, new_keys: list) -> str:
+        """The key of variable ``v`` (``new_keys``: the update's, the variables past the smoother's)."""
+        n0 = len(self.keys)
+        return key_name(self.keys[v]) if v < n0 else key_name(new_keys[v - n0]) if v - n0 < len(new_keys) else str(v)
+
+    def _refusal(self, finding, new_keys: list) -> IndeterminantLinearSystem:
+        """The error of an update whose structure leaves a variable undetermined (``finding``, a
+        :class:`lie_factors.posegraph.gauge.Undetermined`)."""
+        return finding.error(UNDETERMINED, self._name(finding.variable, new_keys))
 
     def _indeterminant(self, exc: IndeterminantLinearSystem, new_keys: list) -> IndeterminantLinearSystem:
         """The error of an update that left variable ``exc.variable`` undetermined, by its key
         (``new_keys``: the update's new keys, the variables past the smoother's)."""
         v = exc.variable
-        name = key_name(self.keys[v]) if v < len(self.keys) else key_name(new_keys[v - len(self.keys)]) \
-            if v - len(self.keys) < len(new_keys) else str(v)
         return IndeterminantLinearSystem(
-            f"the update leaves variable {name} undetermined (a pivot of its column is not positive): "
-            "the factors so far do not constrain it", v)
+            f"{UNDETERMINED}: a pivot of the column of {self._name(v, new_keys)} is not above "
+            f"{PIVOT_TOLERANCE:g} of its diagonal entry: the factors so far do not determine it", v)
 
     def _updated(self, relinearized: int) -> UpdateResult:
         """The counts after an update that succeeded, and what it reports."""

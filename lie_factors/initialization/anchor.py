@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import InitializationError
 from ..posegraph.graph import PoseGraph
-from ..posegraph.topology import reached
+from ..posegraph.gauge import free_gauge
 
 #: ``initialize::kAnchorKey`` in GTSAM's InitializePose.h (not exposed to Python).
 ANCHOR_KEY = 99999999
@@ -34,11 +34,12 @@ def prepared(pg: PoseGraph) -> PoseGraph:
     pg = pg.validate().anchored()
     P = len(pg.keys)
     ij = pg.index(pg.edge_keys.reshape(-1)).reshape(-1, 2)
-    ok = reached(P, ij[:, 0], ij[:, 1], pg.index(pg.prior_keys))
-    if not ok.all():
-        lost = int(pg.keys[np.argmin(ok)])
-        raise InitializationError(f"graph is not connected: pose {lost} has no path to a prior "
-                                  f"({P - int(ok.sum())} of {P} poses unreachable)")
+    # the edges are relative and the priors anchor: a pose with no path to a prior is in a
+    # component whose gauge is free (decided on the structure, before any factorization)
+    lost = free_gauge(P, ij[:, 0], ij[:, 1], pg.index(pg.prior_keys))
+    if lost.any():
+        raise InitializationError(f"graph is not connected: pose {int(pg.keys[np.argmax(lost)])} has no path "
+                                  f"to a prior ({int(lost.sum())} of {P} poses unreachable)")
     return pg
 
 

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import InputError, NotPositiveDefinite
 from ..util.arrays import sorted_unique
+from .pivots import PIVOT_TOLERANCE, first_refused
 from .supernodes import Supernodes
 
 
@@ -270,8 +271,9 @@ class Cholesky:
     values (nnz,) on this pattern, :meth:`solve` solves with the last one.
 
     ``supernodal``: CHOLMOD chose a supernodal LLᵀ (else a simplicial LDLᵀ, for
-    near-chain graphs); given as True, the factor is supernodal whatever the graph (the
-    direct way: :meth:`supernodes` reads it); ``factor_entries``: the entries of L; ``flops``: CHOLMOD's count of
+    near-chain graphs; through cvxopt, None until the first factorization tells); given as
+    True, the factor is supernodal whatever the graph (the direct way: :meth:`supernodes`
+    reads it); ``factor_entries``: the entries of L; ``flops``: CHOLMOD's count of
     the floating-point operations of one numeric factorization (the direct way only, else
     None).
     """
@@ -281,6 +283,8 @@ class Cholesky:
         self.rowind = _as_int32(rowind, "rowind")
         self.n = len(self.colptr) - 1
         self.nnz = int(self.colptr[-1])
+        self._diagonal_at = _diagonal_positions(self.colptr, self.rowind)
+        self._perm = None  # the factor's order, read when the pivot rule first needs it
         self._lib = _direct()
         if self._lib is None:
             self._impl = _CvxoptFactor(self.n, self.colptr, self.rowind, natural)
@@ -316,35 +320,106 @@ class Cholesky:
         self.factor_entries = int(struct.unpack_from("d", stats, _Common.LNZ)[0])
         self.flops = float(struct.unpack_from("d", stats, _Common.FL)[0])
 
-    def factorize(self, values: np.ndarray) -> None:
+    def factorize(self, values: np.ndarray, pivot_tolerance: float = PIVOT_TOLERANCE) -> None:
         """Factor the matrix with ``values`` (nnz,) float64 (kept by reference until the next call).
 
-        Raises :class:`NotPositiveDefinite` (a pivot that is not > 0) or ``MemoryError``.
+        Raises :class:`NotPositiveDefinite` with the matrix's column where a pivot is refused:
+        a pivot not above ``pivot_tolerance`` times its diagonal entry before elimination
+        (:mod:`lie_factors.sparse.pivots`; 0: the sign rule, Levenberg–Marquardt's), or one
+        CHOLMOD refuses; ``MemoryError`` where CHOLMOD runs out of memory.
         """
         if values.dtype != np.float64 or values.shape != (self.nnz,) or not values.flags.c_contiguous:
             raise InputError(f"values: expected a contiguous ({self.nnz},) float64 array")
         if self._lib is None:
             self._impl.factorize(values)
+            self.supernodal = self._impl.supernodal
+        else:
+            self._values = values
+            self._A.x = values.ctypes.data
+            self._spent = False
+            L = self._L
+            if not self._lib.cholmod_factorize(ctypes.byref(self._A), L, self._common):
+                raise MemoryError(_failure(self._common, "numeric factorization"))
+            head = L.contents
+            if self.supernodal and head.x != self._x.ctypes.data:
+                raise RuntimeError("CHOLMOD moved a supernodal factor's values")
+            if head.minor < self.n:
+                raise NotPositiveDefinite(f"the matrix is not positive definite (CHOLMOD stopped at column "
+                                          f"{head.minor})", int(head.minor))
+        # An L·Lᵀ factor CHOLMOD completed has every pivot > 0, so the sign rule needs no check
+        # there; an L·D·Lᵀ one does not stop at a negative pivot.
+        if pivot_tolerance > 0.0 or not self._is_ll():
+            self._refuse_pivots(values, float(pivot_tolerance))
+
+    def _is_ll(self) -> bool:
+        """Whether the last factorization is L·Lᵀ (else L·D·Lᵀ)."""
+        if self._lib is None:
+            return bool(self._impl.supernodal)
+        return bool(self._L.contents.is_ll)
+
+    def _refuse_pivots(self, values: np.ndarray, tolerance: float) -> None:
+        """Raise :class:`NotPositiveDefinite` at the first pivot the rule of
+        :mod:`lie_factors.sparse.pivots` refuses (in elimination order)."""
+        pivots, diagonal, columns = self.pivots(values)
+        k = first_refused(pivots, diagonal, tolerance)
+        if k < 0:
             return
-        self._values = values
-        self._A.x = values.ctypes.data
-        self._spent = False
-        L = self._L
-        if not self._lib.cholmod_factorize(ctypes.byref(self._A), L, self._common):
-            raise MemoryError(_failure(self._common, "numeric factorization"))
-        head = L.contents
-        if self.supernodal and head.x != self._x.ctypes.data:
-            raise RuntimeError("CHOLMOD moved a supernodal factor's values")
-        if head.minor < self.n:
-            raise NotPositiveDefinite(f"the matrix is not positive definite (CHOLMOD stopped at column "
-                                      f"{head.minor})", int(head.minor))
-        if not head.is_ll:
-            # A simplicial LDLᵀ does not stop at a negative pivot: D's signs say it.
-            d = self.diagonal()
-            bad = np.flatnonzero(~(d > 0.0) | ~np.isfinite(d))
-            if bad.size:
-                raise NotPositiveDefinite(f"the matrix is not positive definite (CHOLMOD's LDLᵀ has a "
-                                          f"non-positive pivot at {int(bad[0])})", int(bad[0]))
+        column = int(columns[k])
+        if tolerance > 0.0 and pivots[k] > 0.0:
+            raise NotPositiveDefinite(f"the matrix is not positive definite to double precision (the pivot of "
+                                      f"column {column} is {pivots[k] / diagonal[k]:.2g} of its diagonal entry, "
+                                      f"not above {tolerance:g})", column)
+        raise NotPositiveDefinite(f"the matrix is not positive definite (the pivot of column {column} is "
+                                  f"{pivots[k]:.3g})", column)
+
+    def pivots(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(pivots, diagonal, columns), each (n,), of the last factorization, of the matrix with
+        ``values``, in elimination order: the k-th pivot (L_kk² of an L·Lᵀ factor, D_k of an
+        L·D·Lᵀ one), the matrix's diagonal entry it is compared with, and the matrix's column
+        it belongs to."""
+        perm = self._factor_order()
+        at = self._diagonal_at
+        diagonal = np.where(at >= 0, values[np.maximum(at, 0)], 0.0) if len(values) else np.zeros(self.n)
+        columns = np.arange(self.n) if perm is None else perm
+        return self._pivots(), diagonal[columns], columns
+
+    def _pivots(self) -> np.ndarray:
+        """The pivots (n,) of the last factorization in the factor's order: L_jj² of an L·Lᵀ
+        factor, D_j of an L·D·Lᵀ one."""
+        if self._lib is None:
+            return self._impl.pivots()
+        head = self._L.contents
+        ints = ctypes.POINTER(ctypes.c_int32)
+        if head.is_super:
+            ns = int(head.nsuper)
+
+            def read(ptr):
+                return np.ctypeslib.as_array(ctypes.cast(ptr, ints), shape=(ns + 1,)).astype(np.int64)
+
+            first, rowptr, valptr = read(head.super), read(head.pi), read(head.px)
+            width = np.diff(first)
+            owner = np.repeat(np.arange(ns), width)
+            k = np.arange(self.n) - first[owner]  # the column's place in its supernode
+            # column k of a supernode's dense column-major block (its rows × its columns)
+            L = self._x[valptr[owner] + k * (rowptr[owner + 1] - rowptr[owner] + 1)]
+            return L * L
+        p = np.ctypeslib.as_array(ctypes.cast(head.p, ints), shape=(self.n + 1,))
+        x = np.ctypeslib.as_array(ctypes.cast(head.x, ctypes.POINTER(ctypes.c_double)), shape=(int(head.nzmax),))
+        d = x[p[:self.n]]
+        return d * d if head.is_ll else d.copy()
+
+    def _factor_order(self) -> np.ndarray | None:
+        """The factor's order (n,): its column k is the matrix's column ``perm[k]``; None where
+        it is the matrix's own (a natural order CHOLMOD keeps)."""
+        if self._perm is None:
+            if self._lib is None:
+                perm = self._impl.permutation()
+            else:
+                head = self._L.contents
+                perm = np.ctypeslib.as_array(ctypes.cast(head.Perm, ctypes.POINTER(ctypes.c_int32)),
+                                             shape=(self.n,)).astype(np.int64)
+            self._perm = False if np.array_equal(perm, np.arange(self.n)) else perm
+        return None if self._perm is False else self._perm
 
     def lower(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The last factorization as arrays, (perm, colptr, rowind, values, d): P·A·Pᵀ = L·diag(d)·Lᵀ
@@ -461,6 +536,16 @@ class Cholesky:
             self._impl = None
 
 
+def _diagonal_positions(colptr: np.ndarray, rowind: np.ndarray) -> np.ndarray:
+    """(n,): where each column's diagonal entry is among the values of the lower triangle
+    ``colptr``, ``rowind`` (first in its column: rows are sorted), −1 where it is not stored."""
+    n = len(colptr) - 1
+    first = colptr[:-1].astype(np.int64)
+    stored = colptr[1:] > colptr[:-1]
+    stored[stored] = rowind[first[stored]] == np.flatnonzero(stored)
+    return np.where(stored, first, -1)
+
+
 def _unit_lower(colptr, rowind, values, ll: bool) -> tuple[np.ndarray, np.ndarray]:
     """(values, d) of L·diag(d)·Lᵀ with L unit lower triangular, from CHOLMOD's L·Lᵀ (``ll``) or its
     L·D·Lᵀ, whose simplicial factor keeps D on L's diagonal; each column's diagonal is first."""
@@ -506,9 +591,7 @@ class _CvxoptFactor:
         """(perm, colptr, rowind, values, ll): cvxopt's getfactor gives a supernodal factor as L·Lᵀ
         and a simplicial one as L·D·Lᵀ with D on the diagonal; D's solve told which (an L·Lᵀ
         factor has D = I, and a unit diagonal reads the same either way)."""
-        p = self._matrix(np.arange(self.n, dtype=np.float64))
-        self._cholmod.solve(self._F, p, sys=SOLVE_P)
-        perm = np.rint(np.array(p).reshape(-1)).astype(np.int64)
+        perm = self.permutation()
         colptr, rowind, values = (np.array(a).reshape(-1) for a in self._cholmod.getfactor(self._F).CCS)
         self.spent = True
         colptr, rowind = colptr.astype(np.int64), rowind.astype(np.int64)
@@ -525,14 +608,28 @@ class _CvxoptFactor:
             where = exc.args[0] if exc.args else "?"
             raise NotPositiveDefinite(f"the matrix is not positive definite (CHOLMOD stopped at column {where})",
                                       column) from None
+        # cvxopt's diag() takes a supernodal factor only (lower() leaves a simplicial one behind)
+        try:
+            self._ldiag = np.array(self._cholmod.diag(self._F)).reshape(-1)
+            self.supernodal = True
+        except ValueError:
+            self._ldiag = None
+            self.supernodal = False
         D = self._matrix(np.ones(self.n))
         self._cholmod.solve(self._F, D, sys=SOLVE_D)
-        dinv = np.array(D).reshape(-1)
-        bad = np.flatnonzero(~(dinv > 0.0) | ~np.isfinite(dinv))
-        if bad.size:
-            raise NotPositiveDefinite(f"the matrix is not positive definite (CHOLMOD's LDLᵀ has a "
-                                      f"non-positive pivot at {int(bad[0])})", int(bad[0]))
-        self._dinv = dinv
+        self._dinv = np.array(D).reshape(-1)
+
+    def pivots(self):
+        """L_jj² of a supernodal L·Lᵀ factor, D_j of a simplicial L·D·Lᵀ one, in the factor's order."""
+        if self._ldiag is not None:
+            return self._ldiag * self._ldiag
+        return 1.0 / self._dinv
+
+    def permutation(self):
+        """The factor's order (n,): P·x with x = 0, 1, …, n − 1 (CHOLMOD postorders even a given order)."""
+        p = self._matrix(np.arange(self.n, dtype=np.float64))
+        self._cholmod.solve(self._F, p, sys=SOLVE_P)
+        return np.rint(np.array(p).reshape(-1)).astype(np.int64)
 
     def diagonal(self):
         return 1.0 / self._dinv

@@ -9,6 +9,8 @@ lie_factors factor), the params semantics and the bad-input errors.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gtsam
 import numpy as np
 import pytest
@@ -18,6 +20,7 @@ from lie_factors.errors import IndeterminantLinearSystem, InputError
 from lie_factors.sparse.pattern import Pattern
 
 RNG_SEED = 20261121
+DATA = Path(__file__).resolve().parents[2] / "data"
 
 
 def _noise(dim, rng):
@@ -416,21 +419,124 @@ def test_gauss_newton_matches_gtsam(linear_solver):
 
 
 @pytest.mark.parametrize("linear_solver", ["cholmod", "gtsam"])
-def test_gauss_newton_without_prior_is_indeterminant(linear_solver):
-    lie, _, initial = make_problem("Pose3", seed=5)
-    gauge_free = gtsam.NonlinearFactorGraph()
-    for i in range(lie.size()):
-        if not isinstance(lie.at(i), factors.PriorFactor):
-            gauge_free.add(lie.at(i))
-    with pytest.raises(IndeterminantLinearSystem, match="not positive definite.*prior"):
+def test_gauss_newton_without_prior_is_indeterminant(linear_solver, forbid_factorization):
+    lie, native, initial = make_problem("Pose3", seed=5)
+    # LM's damping makes the system solvable: the result is finite.
+    for graph in (lie, native):
+        gauge_free = gtsam.NonlinearFactorGraph()
+        for i in range(graph.size()):
+            if not isinstance(graph.at(i), (factors.PriorFactor, gtsam.PriorFactorPose3)):
+                gauge_free.add(graph.at(i))
+        res = batch.optimize(gauge_free, initial, linear_solver=linear_solver)
+        assert np.isfinite(res.final_error) and res.final_error < res.errors[0]
+    # Gauss–Newton refuses it on its structure, before any factorization
+    forbid_factorization()
+    free = r"^Gauss-Newton: the linear system is singular: the component of 0 \(12 variables\) has no prior: " \
+           r"its gauge is free$"
+    with pytest.raises(IndeterminantLinearSystem, match=free) as info:
         batch.optimize(gauge_free, initial, gtsam.GaussNewtonParams(), linear_solver=linear_solver)
+    assert info.value.variable == 0
     import lie_factors as lf
 
-    with pytest.raises(IndeterminantLinearSystem, match="not positive definite.*prior"):
+    with pytest.raises(IndeterminantLinearSystem, match=free):
         lf.optimize(gauge_free, initial, gtsam.GaussNewtonParams(), linear_solver=linear_solver)
-    # LM's damping makes the same system solvable; the result is finite.
-    res = batch.optimize(gauge_free, initial, linear_solver=linear_solver)
-    assert np.isfinite(res.final_error) and res.final_error < res.errors[0]
+
+
+def test_gauge_free_intel_gauss_newton_refused_on_its_structure_levenberg_marquardt_solves_it(
+        forbid_factorization):
+    """GTSAM's Gauss–Newton raises on intel without a prior and its LM solves it; so do ours, GN
+    on the graph's structure (no factorization runs, so no rounding decides)."""
+    import lie_factors as lf
+
+    pg = lf.read_g2o(str(DATA / "intel.g2o"))
+    free = pg.factor_graph()
+    with pytest.raises(RuntimeError, match="Indeterminate linear system"):
+        gtsam.GaussNewtonOptimizer(free, pg.initial).optimize()
+    reference = free.error(gtsam.LevenbergMarquardtOptimizer(free, pg.initial).optimize())
+    for graph in (free, pg.factor_graph(factors)):
+        res = batch.optimize(graph, pg.initial)
+        assert res.final_error == pytest.approx(reference, rel=1e-8)
+    forbid_factorization()
+    for graph in (free, pg.factor_graph(factors)):
+        with pytest.raises(IndeterminantLinearSystem, match=r"the component of 0 \(1728 variables\) has no prior"):
+            batch.optimize(graph, pg.initial, gtsam.GaussNewtonParams())
+
+
+def _two_poses(w: float):
+    """x0 and x1 at the identity, a between factor (identity) of unit information and a prior
+    (identity) of information w·I on x0: each scalar of Λ is [[1 + w, −1], [−1, 1]]."""
+    X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(factors.BetweenFactorPose2(X0, X1, gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))
+    graph.add(factors.PriorFactorPose2(X0, gtsam.Pose2(), gtsam.noiseModel.Gaussian.Information(w * np.eye(3))))
+    values = gtsam.Values()
+    values.insert(X0, gtsam.Pose2())
+    values.insert(X1, gtsam.Pose2())
+    return graph, values
+
+
+@pytest.mark.parametrize("w, refused", [(1e-14, True), (1e-12, False)])
+def test_gauss_newton_refuses_a_pivot_not_above_1e_13_of_its_diagonal_entry(w, refused, cholmod_way):
+    """The pivot of x1 (x0 eliminated first) is 1 − 1/(1 + w) of its diagonal 1, that of x0 (x1
+    first) (1 + w) − 1 of 1 + w: w/(1 + w) either way, rounded by about 2e-16.  w = 1e-14 is
+    refused by the pivot rule (10 times past 1e-13), w = 1e-12 is not (10 times inside), on
+    any machine.  (The poses are the optimum: errorTol −1 makes Gauss–Newton iterate.)"""
+    graph, values = _two_poses(w)
+    params = gtsam.GaussNewtonParams()
+    params.setErrorTol(-1.0)
+    if refused:
+        with pytest.raises(IndeterminantLinearSystem, match=r"^Gauss-Newton: the linear system is singular near "
+                                                            r"variable x[01]: .* to double precision") as info:
+            batch.optimize(graph, values, params, linear_solver="cholmod")
+        assert info.value.variable in (0, 1)
+    else:
+        res = batch.optimize(graph, values, params, linear_solver="cholmod")
+        assert res.iterations == 1 and res.final_error == 0.0
+
+
+def test_levenberg_marquardt_keeps_the_sign_rule(cholmod_way):
+    """GTSAM's LM counts a factorization as failed only where a pivot is not positive.  On the two
+    poses with w = 1e-14 and λ starting at 1e-30, the gauge's pivot is about 1e-14 of its
+    diagonal entry: positive (far above the rounding, 2e-16), below the 1e-13 Gauss–Newton
+    refuses.  Every λ tried is accepted and λ only decreases, as with the sign rule; the rule of
+    Gauss–Newton would have failed the first tries and raised λ."""
+    graph, values = _two_poses(1e-14)
+    values.update(gtsam.symbol("x", 1), gtsam.Pose2(0.1, 0.05, 0.02))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setlambdaInitial(1e-30)
+    res = batch.optimize(graph, values, params, linear_solver="cholmod")
+    assert res.inner_iterations == res.iterations >= 1
+    assert all(b < a for a, b in zip(res.lambdas, res.lambdas[1:]))
+    assert res.final_error < 1e-15
+
+
+def test_gauss_newton_refuses_a_variable_with_fewer_rows_than_its_dimension(forbid_factorization):
+    """x2 (Pose2) is only in a CustomFactor of one row; a key in no factor is left where it is,
+    as GTSAM's Gauss–Newton leaves it."""
+    X = lambda i: gtsam.symbol("x", i)  # noqa: E731
+    unit = gtsam.noiseModel.Unit.Create(3)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(factors.PriorFactorPose2(X(0), gtsam.Pose2(), unit))
+    graph.add(factors.BetweenFactorPose2(X(0), X(1), gtsam.Pose2(1.0, 0.0, 0.0), unit))
+    values = gtsam.Values()
+    for i in range(3):
+        values.insert(X(i), gtsam.Pose2(float(i), 0.1, 0.0))
+    res = batch.optimize(graph, values, gtsam.GaussNewtonParams())
+    reference = gtsam.GaussNewtonOptimizer(graph, values, gtsam.GaussNewtonParams()).optimize()
+    assert res.values.atPose2(X(2)).equals(reference.atPose2(X(2)), 0.0)
+    assert res.final_error == pytest.approx(graph.error(reference), abs=1e-12)
+
+    def y_error(this, v, H):
+        if H is not None:
+            H[0] = np.array([[0.0, 1.0, 0.0]])
+        return np.array([v.atPose2(X(2)).y()])
+
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [X(2)], y_error))
+    forbid_factorization()
+    with pytest.raises(IndeterminantLinearSystem, match="singular: x2 has 1 row of factors for its 3 dimensions") \
+            as info:
+        batch.optimize(graph, values, gtsam.GaussNewtonParams())
+    assert info.value.variable == 2
 
 
 def test_unknown_linear_solver_rejected():

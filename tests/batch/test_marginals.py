@@ -97,16 +97,176 @@ def test_gnc_leaves_the_rejected_closures_out_of_the_covariances():
     assert _relative(result.covariances(), _gtsam(kept.factor_graph(ours), result.values, result.keys)) < 1e-7
 
 
-def test_unknown_keys_and_an_undetermined_graph_are_refused():
+def test_unknown_keys_and_an_undetermined_graph_are_refused(forbid_factorization):
     pg = lf.read_g2o(str(DATA / "intel.g2o"))
     result = lf.optimize(pg)
     with pytest.raises(InputError, match="not a variable"):
         result.covariance(10 ** 9)
     with pytest.raises(InputError, match="integer key"):
         result.covariance("x1")
-    free = pg.factor_graph()  # no prior: the gauge is free
-    with pytest.raises(IndeterminantLinearSystem, match="singular"):
-        lf.Marginals(free, result.values)
+    # no prior: the gauge is free, decided on the structure, whatever the machine's rounding
+    forbid_factorization()
+    free = pg.factor_graph()  # GTSAM's BetweenFactorPose2: relative factors GTSAM linearizes
+    for graph in (free, pg.factor_graph(ours)):
+        with pytest.raises(IndeterminantLinearSystem, match=r"^Marginals: the information matrix is singular: the "
+                           r"component of 0 \(1728 variables\) has no prior: its gauge is free$") as info:
+            lf.Marginals(graph, result.values)
+        assert info.value.variable == 0
+    with pytest.raises(IndeterminantLinearSystem, match=r"the component of 0 \(1728 variables\) has no prior"):
+        lf.Marginals.of_pose_graph(pg, result.poses)
+
+
+def _chain(letter: str, count: int, prior: bool, factors=ours):
+    """Pose2 poses ``letter``0 … at x = 0, 1, …, joined in a chain by between factors of unit
+    information (exact: the poses are where the measurements put them), a unit prior on the first."""
+    key = lambda i: gtsam.symbol(letter, i)  # noqa: E731
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    unit = gtsam.noiseModel.Unit.Create(3)
+    if prior:
+        graph.add(factors.PriorFactorPose2(key(0), gtsam.Pose2(), unit))
+    for i in range(count):
+        values.insert(key(i), gtsam.Pose2(float(i), 0.0, 0.0))
+        if i:
+            graph.add(factors.BetweenFactorPose2(key(i - 1), key(i), gtsam.Pose2(1.0, 0.0, 0.0), unit))
+    return graph, values
+
+
+def _joined(*parts):
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for g, v in parts:
+        graph.push_back(g)
+        values.insert(v)
+    return graph, values
+
+
+def test_the_free_component_is_named_by_its_first_variable(forbid_factorization):
+    graph, values = _joined(_chain("x", 5, prior=True), _chain("y", 4, prior=False))
+    forbid_factorization()
+    with pytest.raises(IndeterminantLinearSystem,
+                       match=r"the component of y0 \(4 variables\) has no prior: its gauge is free") as info:
+        lf.Marginals(graph, values)
+    assert info.value.variable == 5  # x0 … x4, then y0
+
+
+def _translation_x(key: int, target: float):
+    """A CustomFactor of one row on the Pose3 ``key``: the x of its translation, minus ``target``."""
+    def error(this, values, H):
+        pose = values.atPose3(key)
+        if H is not None:
+            H[0] = np.concatenate([np.zeros(3), pose.rotation().matrix()[0]])[None]
+        return np.array([pose.translation()[0] - target])
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [key], error)
+
+
+def test_a_variable_with_fewer_rows_than_its_dimension_is_refused(forbid_factorization):
+    """x2 (a Pose3, 6 dimensions) is only in a factor of one row: its columns have rank 1 at most.
+    A Point3 in a PriorFactorPoint3 has 3 rows for its 3: not refused."""
+    X = lambda i: gtsam.symbol("x", i)  # noqa: E731
+    unit6 = gtsam.noiseModel.Unit.Create(6)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(ours.PriorFactorPose3(X(0), gtsam.Pose3(), unit6))
+    graph.add(ours.BetweenFactorPose3(X(0), X(1), gtsam.Pose3(gtsam.Rot3(), [1.0, 0.0, 0.0]), unit6))
+    landmark = gtsam.symbol("l", 0)
+    graph.add(gtsam.PriorFactorPoint3(landmark, np.array([1.0, 2.0, 3.0]), gtsam.noiseModel.Unit.Create(3)))
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose3())
+    values.insert(X(1), gtsam.Pose3(gtsam.Rot3(), [1.0, 0.0, 0.0]))
+    values.insert(landmark, np.array([1.0, 2.0, 3.0]))
+    np.testing.assert_allclose(lf.Marginals(graph, values).marginalCovariance(landmark), np.eye(3), atol=1e-12)
+    graph.add(_translation_x(X(2), 2.0))
+    values.insert(X(2), gtsam.Pose3(gtsam.Rot3(), [2.0, 0.0, 0.0]))
+    result = lf.optimize(graph, values)  # Levenberg–Marquardt: damping makes the system definite
+    forbid_factorization()
+    message = r"^Marginals: the information matrix is singular: x2 has 1 row of factors for its 6 dimensions"
+    with pytest.raises(IndeterminantLinearSystem, match=message) as info:
+        lf.Marginals(graph, values)
+    assert info.value.variable == 3  # l0, x0, x1, x2 in key order
+    with pytest.raises(IndeterminantLinearSystem, match=message):
+        result.covariances([X(0), X(1)])
+
+
+def test_a_key_in_no_factor_is_refused(forbid_factorization):
+    graph, values = _chain("x", 3, prior=True)
+    values.insert(gtsam.symbol("z", 7), gtsam.Pose2())
+    forbid_factorization()
+    with pytest.raises(IndeterminantLinearSystem, match="singular: z7 is in no factor: nothing determines it"):
+        lf.Marginals(graph, values)
+
+
+def _point_offset(key1: int, key2: int, offset):
+    """A CustomFactor between two Point2: p2 − p1 − offset (a kind the structure does not know)."""
+    def error(this, values, H):
+        if H is not None:
+            H[0], H[1] = -np.eye(2), np.eye(2)
+        return values.atPoint2(key2) - values.atPoint2(key1) - offset
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), [key1, key2], error)
+
+
+def test_a_component_with_a_factor_of_unknown_kind_is_left_to_the_factorization():
+    """The structure decides only components of known factors: one held by a CustomFactor is
+    determined (its marginals are GTSAM's) or refused by the pivot rule (an offset between two
+    points and nothing else: exactly singular)."""
+    graph, values = _chain("x", 4, prior=False)
+    anchor = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), [gtsam.symbol("x", 0)],
+                                lambda this, v, H: _pose2_prior(v, H))
+    graph.add(anchor)
+    ref = _gtsam(graph, values, [gtsam.symbol("x", i) for i in range(4)])
+    got = lf.Marginals(graph, values).covariances([gtsam.symbol("x", i) for i in range(4)])
+    assert _relative(got, ref) < 1e-12
+    p, q = gtsam.symbol("p", 0), gtsam.symbol("p", 1)
+    points = gtsam.NonlinearFactorGraph()
+    points.add(_point_offset(p, q, np.array([1.0, 0.0])))
+    at = gtsam.Values()
+    at.insert(p, np.array([0.0, 0.0]))
+    at.insert(q, np.array([1.0, 0.0]))
+    with pytest.raises(RuntimeError, match="Indeterminate linear system"):
+        gtsam.Marginals(points, at)
+    with pytest.raises(IndeterminantLinearSystem, match=r"singular near variable p[01]: the matrix is not positive"):
+        lf.Marginals(points, at)
+
+
+def _pose2_prior(values, H):
+    """The error of a unit prior at the identity on x0, a Pose2 (its Local: x, y, θ at the identity)."""
+    pose = values.atPose2(gtsam.symbol("x", 0))
+    if H is not None:
+        H[0] = np.eye(3)
+    return gtsam.Pose2.Logmap(pose)
+
+
+def _two_poses(w: float, factors=ours):
+    """Poses x0 and x1 at the identity, a between factor (identity) of unit information, and a
+    prior (identity) of information w·I on x0."""
+    X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(factors.BetweenFactorPose2(X0, X1, gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))
+    graph.add(factors.PriorFactorPose2(X0, gtsam.Pose2(), gtsam.noiseModel.Gaussian.Information(w * np.eye(3))))
+    values = gtsam.Values()
+    values.insert(X0, gtsam.Pose2())
+    values.insert(X1, gtsam.Pose2())
+    return graph, values
+
+
+@pytest.mark.parametrize("w, refused", [(1e-14, True), (1e-12, False)])
+def test_the_pivot_rule_refuses_a_gauge_held_by_a_prior_of_information_1e_14(w, refused, cholmod_way):
+    """Two poses at the identity: the between factor's Jacobians are −I and I, the prior's √w·I,
+    so each scalar of Λ is [[1 + w, −1], [−1, 1]] (x0, x1).  Eliminating x0 first, x1's pivot is
+    1 − 1/(1 + w) of its diagonal entry 1; x1 first, x0's is (1 + w) − 1 of 1 + w: w/(1 + w)
+    either way.  Rounding moves that by about 2e-16: w = 1e-14 is 10 times past the threshold
+    1e-13, w = 1e-12 10 times inside it, whatever the machine.  The structure does not decide:
+    the prior anchors the component."""
+    graph, values = _two_poses(w)
+    if refused:
+        with pytest.raises(IndeterminantLinearSystem, match=r"singular near variable x[01]: the matrix is not "
+                                                            r"positive definite to double precision") as info:
+            lf.Marginals(graph, values)
+        assert info.value.variable in (0, 1)
+    else:
+        m = lf.Marginals(graph, values)
+        # Λ⁻¹ = [[1, 1], [1, 1 + w]]/w per scalar; Λ's condition number 4/w leaves 1e-4 of it
+        np.testing.assert_allclose(m.marginalCovariance(gtsam.symbol("x", 0)), np.eye(3) / w, rtol=1e-3)
+        np.testing.assert_allclose(m.marginalCovariance(gtsam.symbol("x", 1)), np.eye(3) * (1 + w) / w, rtol=1e-3)
 
 
 def test_the_command_writes_the_covariances_and_draws_their_ellipses(tmp_path, capsys):

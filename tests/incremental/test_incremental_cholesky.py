@@ -358,3 +358,27 @@ def test_blas_trailing_update_equals_the_compiled_loops(N, o, D):
     upper = np.triu_indices(N)
     scale = np.max(np.abs(loops[upper]))
     assert np.max(np.abs(blas[upper] - loops[upper])) <= 1e-12 * scale
+
+
+@pytest.mark.parametrize("w, refused", [(1e-14, True), (1e-12, False)])
+def test_a_pivot_is_compared_with_the_diagonal_of_lambda_not_with_the_fronts(w, refused):
+    """Scalars a, c, b (eliminated in that order) with factors a − b and c − b of one unit row
+    each and a prior √w·a: Λ = [[1 + w, 0, −1], [0, 1, −1], [−1, −1, 2]].  b's front holds only
+    what its children pass up, (1 − 1/(1 + w)) + (1 − 1) = w/(1 + w): its pivot is all of
+    that, but only w/(2(1 + w)) of Λ_bb = 2, the diagonal before elimination.  The pivot rule
+    compares with Λ_bb, as CHOLMOD's does: w = 1e-14 is refused (20 times past 1e-13), w =
+    1e-12 is not (5 times inside), rounding (about 2e-16) deciding neither."""
+    bf = BlockFactor()
+    between = (np.array([[0, 2], [1, 2]]), np.array([[[1.0, -1.0, 0.0]], [[1.0, -1.0, 0.0]]]))
+    prior = (np.array([[0]]), np.array([[[np.sqrt(w), 0.0]]]))
+    update = lambda: bf.update(new_dims=[1, 1, 1], new_factors=[between, prior])  # noqa: E731
+    if refused:
+        with pytest.raises(IndeterminantLinearSystem) as info:
+            update()
+        assert info.value.variable == 2 and bf.nv == 0
+        return
+    update()
+    assert bf.ordering().tolist() == [0, 1, 2]
+    assert bf.tree.parent[:3].tolist() == [2, 2, -1] and bf.tree.nchild[2] == 2  # b: a front of its own
+    H, eta = check_exact(bf)
+    np.testing.assert_allclose(H, [[1 + w, 0, -1], [0, 1, -1], [-1, -1, 2]], rtol=1e-15, atol=1e-15)

@@ -314,3 +314,147 @@ def test_global_relinearization_policy_relinearizes_everything_at_once():
     e_global, e_var = graph.error(everything.calculateEstimate()), graph.error(per_variable.calculateEstimate())
     assert e_global <= 1.01 * e_var
 
+
+
+def _gauge_state(s: Smoother):
+    return list(s.gauge.parent), list(s.gauge.anchored), list(s.gauge.size)
+
+
+def _intel_update(pg, upto: int, start: int = 0):
+    """Intel's poses start … upto − 1 and the edges among them: (graph, values) of GTSAM's factors."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for (a, b), M, info in zip(pg.edge_keys.tolist(), pg.measured, pg.information):
+        if start <= min(a, b) and max(a, b) < upto:
+            graph.add(gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(M[0, 2], M[1, 2], np.arctan2(M[1, 0], M[0, 0])),
+                                               gtsam.noiseModel.Gaussian.Information(info)))
+    for k in range(start, upto):
+        values.insert(k, pg.initial.atPose2(k))
+    return graph, values
+
+
+def test_a_free_gauge_is_refused_on_the_structure_of_the_update(forbid_factorization):
+    """Intel with no prior: gtsam.ISAM2 raises, all at once or on its first pose pair; the
+    smoother refuses it on its structure, before any elimination, whatever the machine's
+    rounding, on either path, and is left as it was (its components too)."""
+    from lie_factors.g2o import read_pose_graph
+
+    pg = read_pose_graph(str(ROOT / "data" / "intel.g2o"))
+    free = pg.factor_graph()
+    first, first_values = _intel_update(pg, 2)
+    for graph, values in ((free, pg.initial), (first, first_values)):
+        with pytest.raises(RuntimeError, match="Indeterminate linear system"):
+            gtsam.ISAM2().update(graph, values)
+    running = Smoother()  # intel's first poses, the first update with a prior
+    prior, prior_values = _intel_update(pg, 30)
+    prior.add(gtsam.PriorFactorPose2(0, pg.initial.atPose2(0), gtsam.noiseModel.Unit.Create(3)))
+    running.update(prior, prior_values)
+    snap, components = _snapshot(running), _gauge_state(running)
+    forbid_factorization()
+    for graph, values, size in ((free, pg.initial, 1728), (first, first_values, 2)):
+        s = Smoother()
+        with pytest.raises(IndeterminantLinearSystem, match=r"^the update leaves a variable undetermined: the "
+                           rf"component of 0 \({size} variables\) has no prior: its gauge is free$") as info:
+            s.update(graph, values)
+        assert info.value.variable == 0 and (len(s.keys), s.bf.nv, len(s.gauge)) == (0, 0, 0)
+    M = np.eye(3)[None]
+    with pytest.raises(IndeterminantLinearSystem, match=r"component of 0 \(2 variables\) has no prior"):
+        Smoother().update_arrays("Pose2", [0, 1], np.stack([np.eye(3)] * 2), [[0, 1]], M, np.eye(3)[None])
+    # a new component with no prior beside an anchored one
+    later, later_values = _intel_update(pg, 1000, start=900)
+    with pytest.raises(IndeterminantLinearSystem, match=r"component of 900 \(100 variables\) has no prior"):
+        running.update(later, later_values)
+    with pytest.raises(IndeterminantLinearSystem, match=r"component of 900 \(2 variables\) has no prior") as info:
+        running.update_arrays("Pose2", [900, 901], np.stack([np.eye(3)] * 2), [[900, 901]], M, np.eye(3)[None])
+    assert info.value.variable == 30  # the smoother's variables 0 … 29, then the update's
+    _assert_same(running, snap)
+    assert _gauge_state(running) == components
+
+
+def _translation_x(key: int):
+    """A CustomFactor of one row on the Pose3 ``key``: the x of its translation."""
+    def error(this, values, H):
+        pose = values.atPose3(key)
+        if H is not None:
+            H[0] = np.concatenate([np.zeros(3), pose.rotation().matrix()[0]])[None]
+        return np.array([pose.translation()[0]])
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [key], error)
+
+
+def test_a_new_variable_with_fewer_rows_than_its_dimension_is_refused(forbid_factorization):
+    X = lambda i: gtsam.symbol("x", i)  # noqa: E731
+    s = Smoother()
+    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    g.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Unit.Create(6)))
+    v.insert(X(0), gtsam.Pose3())
+    s.update(g, v)
+    snap, components = _snapshot(s), _gauge_state(s)
+    forbid_factorization()
+    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    g.add(_translation_x(X(1)))
+    v.insert(X(1), gtsam.Pose3())
+    with pytest.raises(IndeterminantLinearSystem, match=r"^the update leaves a variable undetermined: x1 has 1 row "
+                                                        r"of factors for its 6 dimensions") as info:
+        s.update(g, v)
+    assert info.value.variable == 1
+    _assert_same(s, snap)
+    assert _gauge_state(s) == components
+
+
+def test_a_component_with_a_factor_of_unknown_kind_is_left_to_the_elimination():
+    """Two points tied by a CustomFactor offset and nothing else: the structure does not know the
+    factor, the pivot rule refuses the exactly singular system, as gtsam.ISAM2 does."""
+    p, q = gtsam.symbol("p", 0), gtsam.symbol("p", 1)
+
+    def offset(this, values, H):
+        if H is not None:
+            H[0], H[1] = -np.eye(2), np.eye(2)
+        return values.atPoint2(q) - values.atPoint2(p) - np.array([1.0, 0.0])
+
+    g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    g.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), [p, q], offset))
+    v.insert(p, np.array([0.0, 0.0]))
+    v.insert(q, np.array([1.0, 0.0]))
+    with pytest.raises(RuntimeError, match="Indeterminate linear system"):
+        gtsam.ISAM2().update(g, v)
+    s = Smoother()
+    with pytest.raises(IndeterminantLinearSystem, match=r"a pivot of the column of p[01] is not above 1e-13 of its "
+                                                        r"diagonal entry"):
+        s.update(g, v)
+    assert (len(s.keys), s.bf.nv, len(s.gauge)) == (0, 0, 0)
+    g.add(gtsam.PriorFactorPoint2(p, np.array([0.0, 0.0]), gtsam.noiseModel.Unit.Create(2)))
+    s.update(g, v)
+    np.testing.assert_allclose(s.marginalCovariance(q), 2.0 * np.eye(2), rtol=1e-12)
+
+
+@pytest.mark.parametrize("w, refused", [(1e-14, True), (1e-12, False)])
+@pytest.mark.parametrize("arrays", [False, True])
+def test_the_pivot_rule_refuses_a_gauge_held_by_a_prior_of_information_1e_14(w, refused, arrays):
+    """Poses 0 and 1 at the identity, a between factor (identity) of unit information, a prior
+    (identity) of information w·I on 0: each scalar of Λ is [[1 + w, −1], [−1, 1]], and the
+    pivot of the pose eliminated second is w/(1 + w) of its diagonal entry (1 − 1/(1 + w) of 1,
+    or (1 + w) − 1 of 1 + w), rounded by about 2e-16.  w = 1e-14 is refused by the pivot rule
+    (10 times past 1e-13), w = 1e-12 is not (10 times inside), on either path."""
+    I3 = np.eye(3)
+    s = Smoother()
+    if arrays:
+        update = lambda: s.update_arrays("Pose2", [0, 1], np.stack([I3, I3]), [[0, 1]], I3[None], I3[None],  # noqa: E731
+                                         [0], I3[None], w * I3[None])
+    else:
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        g.add(gtsam.BetweenFactorPose2(0, 1, gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))
+        g.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Gaussian.Information(w * I3)))
+        v.insert(0, gtsam.Pose2())
+        v.insert(1, gtsam.Pose2())
+        update = lambda: s.update(g, v)  # noqa: E731
+    if refused:
+        with pytest.raises(IndeterminantLinearSystem, match=r"^the update leaves a variable undetermined: a pivot of "
+                                                            r"the column of [01] is not above 1e-13") as info:
+            update()
+        assert info.value.variable in (0, 1)
+        assert (len(s.keys), s.bf.nv, len(s.gauge)) == (0, 0, 0)
+    else:
+        update()
+        # Λ⁻¹ = [[1, 1], [1, 1 + w]]/w per scalar; Λ's condition number 4/w leaves 1e-4 of it
+        np.testing.assert_allclose(s.marginalCovariance(0), I3 / w, rtol=1e-3)
+        np.testing.assert_allclose(s.marginalCovariance(1), I3 * (1 + w) / w, rtol=1e-3)

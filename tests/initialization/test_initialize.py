@@ -187,8 +187,10 @@ def disconnected():
     return a, truth
 
 
-def test_disconnected_graph_every_graph_method_says_so():
+def test_disconnected_graph_every_graph_method_says_so(forbid_factorization):
+    """The second loop's gauge is free: refused on the structure, before any factorization."""
     graph, _ = disconnected()
+    forbid_factorization()
     for method in ("chordal", "lago", "spanning-tree"):
         with pytest.raises(I.InitializationError, match=f"^{method}: graph is not connected: pose 100"):
             I.initialize(graph, method)

@@ -4,6 +4,7 @@ dense numpy on random sparse SPD matrices; the fill-reducing block order; the in
 from __future__ import annotations
 
 import ctypes
+import re
 
 import numpy as np
 import pytest
@@ -212,3 +213,38 @@ def test_lower_is_the_factor_of_the_permuted_matrix(cholmod_way, natural, densit
         factor.solve(np.ones(n))
     factor.factorize(values)  # a new factorization can be solved with again
     np.testing.assert_allclose(factor.solve(np.ones(n)), np.linalg.solve(A, np.ones(n)), rtol=1e-9)
+
+
+@pytest.mark.parametrize("natural", [True, False])
+@pytest.mark.parametrize("supernodal", [False, True])
+@pytest.mark.parametrize("w, refused", [(1e-14, True), (1e-12, False)])
+def test_a_pivot_not_above_1e_13_of_its_diagonal_entry_is_refused(cholmod_way, natural, supernodal, w, refused):
+    """The block [[1 + w, −1], [−1, 1]] at columns 100 and 200 (a scalar of two poses joined by a
+    between factor of unit information, the first with a prior of information w) beside a
+    definite matrix (a chain: CHOLMOD's simplicial L·D·Lᵀ; dense rows: supernodal L·Lᵀ).
+    Whichever of the two columns is eliminated second, its pivot is w/(1 + w) of its diagonal
+    entry: (1 + w) − 1 of 1 + w, or 1 − 1/(1 + w) of 1.  Rounding moves that by about 2e-16
+    (the spacing of doubles near 1 + w), far from 1e-13 on either side: w = 1e-14 is refused at that column (the matrix's numbering),
+    w = 1e-12 is not, and the sign rule (tolerance 0, Levenberg–Marquardt's) takes both."""
+    from lie_factors.sparse.pivots import PIVOT_TOLERANCE
+
+    assert PIVOT_TOLERANCE == 1e-13
+    n = 300
+    A = (_random_spd(n, 0.01, seed=6, dense_rows=30) if supernodal
+         else 4.0 * np.eye(n) + np.diag(np.ones(n - 1), 1) + np.diag(np.ones(n - 1), -1))
+    A[[100, 200], :] = A[:, [100, 200]] = 0.0
+    A[100, 100], A[200, 200], A[100, 200], A[200, 100] = 1.0 + w, 1.0, -1.0, -1.0
+    colptr, rowind, values = _lower(A)
+    factor = cholmod.Cholesky(colptr, rowind, natural=natural)
+    if refused:
+        with pytest.raises(NotPositiveDefinite, match="not positive definite to double precision") as info:
+            factor.factorize(values)
+        assert info.value.column in (100, 200)
+        ratio = re.search(r"is (\S+) of its diagonal entry, not above 1e-13", str(info.value)).group(1)
+        assert float(ratio) == pytest.approx(w, rel=0.05)  # 1 + w rounds w by 2e-16 / w
+    else:
+        factor.factorize(values)
+        np.testing.assert_allclose(factor.solve(A[:, 100]), np.eye(n)[100], atol=1e-9)
+    factor.factorize(values, pivot_tolerance=0.0)
+    if cholmod_way == "direct":
+        assert factor.supernodal == supernodal
