@@ -54,7 +54,7 @@ C_TAYLOR = 1.0
 C_SERIES = np.array([(-1.0) ** k / math.factorial(2 * k + 3) for k in range(10)])
 
 
-@_jit.kernel
+@_jit.helper_kernel
 def _ab(th):
     """(a_θ, b_θ) of Eade, Eqs. (50), (51)."""
     if abs(th) < ANGLE_TAYLOR:
@@ -65,7 +65,7 @@ def _ab(th):
     return math.sin(th) / th, 2.0 * s * s
 
 
-@_jit.kernel
+@_jit.helper_kernel
 def _c(th):
     """c_θ = (1 - a_θ)/θ² of Eade, Eq. (52)."""
     if abs(th) < C_TAYLOR:
@@ -77,7 +77,7 @@ def _c(th):
     return (th - math.sin(th)) / (th * th * th)
 
 
-@_jit.kernel
+@_jit.helper_kernel
 def _write(out, m00, m01, m02, m10, m11, m12, m22):
     """out = [[m00, m01, m02], [m10, m11, m12], [0, 0, m22]]: the form of every 3×3 matrix of
     SE(2) and Sim(2) (elements, algebra matrices, ad, Ad, D_exp, D_log)."""

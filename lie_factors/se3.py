@@ -31,7 +31,7 @@ from __future__ import annotations
 from lie_factors import so3 as _so3
 from lie_factors.kernels import public as _public, registry as _registry
 from lie_factors.kernels.coeffs import (a_theta, b_theta, c_theta, dot3, e_omega, ef_omega, norm3, qa_theta, qb_theta)
-from lie_factors.kernels.jit import kernel
+from lie_factors.kernels.jit import helper_kernel, kernel
 
 _info = _registry.SE3
 DIM, MAT = _info.dim, _info.mat
@@ -41,13 +41,13 @@ DIM, MAT = _info.dim, _info.mat
 # Row-major 9-tuples stay in registers: the cores allocate nothing.
 
 
-@kernel
+@helper_kernel
 def rod9(w0, w1, w2, p, q):
     """I + p ω× + q ω×² as a 9-tuple (ω×² = ωωᵀ − θ² I, Eade Eq. 47)."""
     return lin9(w0, w1, w2, 1.0, p, q)
 
 
-@kernel
+@helper_kernel
 def lin9(w0, w1, w2, d, p, q):
     """d I + p ω× + q ω×² as a 9-tuple."""
     q01 = q * w0 * w1
@@ -60,13 +60,13 @@ def lin9(w0, w1, w2, d, p, q):
     )
 
 
-@kernel
+@helper_kernel
 def _B9(w0, w1, w2, u0, u1, u2, th):
     g = w0 * u0 + w1 * u1 + w2 * u2
     return _B9c(w0, w1, w2, u0, u1, u2, g, b_theta(th), c_theta(th), qa_theta(th), qb_theta(th))
 
 
-@kernel
+@helper_kernel
 def _B9c(w0, w1, w2, u0, u1, u2, g, b, c, qa, qb):
     """Eade Eq. (74) (= the off-diagonal block of Eq. 71), with u = v:
 
@@ -89,7 +89,7 @@ def _B9c(w0, w1, w2, u0, u1, u2, g, b, c, qa, qb):
     )
 
 
-@kernel
+@helper_kernel
 def _write_block_lower(D, L, out):
     """out = [[D, 0], [L, D]] for 9-tuples D, L."""
     for i in range(3):

@@ -60,7 +60,7 @@ _PHI1_SERIES = np.array([1.0 / math.factorial(k + 1) for k in range(PHI_TERMS)])
 _PHI2_SERIES = np.array([1.0 / math.factorial(k + 2) for k in range(PHI_TERMS)])
 
 
-@_jit.kernel
+@_jit.helper_kernel
 def _phi(lam, th):
     """(p, q, g, h) with φ1(λ + iθ) = p + iq and φ2(λ + iθ) = g + ih."""
     if lam * lam + th * th < PHI_TAYLOR * PHI_TAYLOR:
@@ -94,7 +94,7 @@ def _phi(lam, th):
 # --- cores -----------------------------------------------------------------------------------
 
 
-@_jit.kernel
+@_jit.helper_kernel
 def _write4(out, upper, d):
     """out = [[upper[0] … upper[3]], [upper[4] … upper[7]], [0, 0, d, 0], [0, 0, 0, d]]: the form of
     ad (d = 0), Ad, D_exp and D_log (d = 1) (Eade, Eqs. 88, 100, 110)."""

@@ -83,7 +83,7 @@ import numpy as np
 from lie_factors import so3 as _so3
 from lie_factors.kernels import public as _public, registry as _registry
 from lie_factors.kernels.coeffs import (A_SERIES, C_SERIES, E_SERIES, QA_SERIES, QB_SERIES, A_TAYLOR, C_TAYLOR, E_TAYLOR, QA_TAYLOR, QB_TAYLOR, horner, horner4, a_theta, b_theta, c_theta, dot3, norm3, rounded, theta_dd)
-from lie_factors.kernels.jit import kernel
+from lie_factors.kernels.jit import helper_kernel, kernel
 from lie_factors import se3 as _se3
 from lie_factors.se3 import lin9, rod9
 
@@ -129,7 +129,7 @@ _INV_FACT_ARR = np.array(_INV_FACT)
 # ---------------------------------------------------------------- scalar coefficients
 
 
-@kernel
+@helper_kernel
 def _theta_abc(th):
     """(a, b, c) of the SO(3) coefficient functions at θ ≥ 0 (Eade, Eqs. 50–52) from one sine
     and cosine of θ/2: a = sin θ/θ, b = ½ (sin(θ/2)/(θ/2))² (no cancellation), c = (1 − a)/θ²;
@@ -152,7 +152,7 @@ def _theta_abc(th):
     return a, b, c
 
 
-@kernel
+@helper_kernel
 def _theta5(th):
     """(a, b, c, qa, qb): :func:`_theta_abc` and qa = (a − 2b)/θ² = b′(θ)/θ, qb = (b − 3c)/θ² =
     c′(θ)/θ (Eade, Eq. 64)."""
@@ -169,7 +169,7 @@ def _theta5(th):
     return a, b, c, qa, qb
 
 
-@kernel
+@helper_kernel
 def _lam3(lam):
     """(e^λ, φ1(λ), φ1′(λ)) with φ1′(λ) = (e^λ − φ1(λ))/λ = ∫₀¹ s e^{sλ} ds (Taylor series for
     |λ| < L_TAYLOR, where that difference loses ~ε/|λ|)."""
@@ -183,7 +183,7 @@ def _lam3(lam):
     return E, A, (E - A) / lam
 
 
-@kernel
+@helper_kernel
 def _zseries(lam, T, terms):
     """(a1, b1, c1, d1, e1, a2, b2, c2) for small |z| (module docstring, "z band"), ``terms`` terms.
 
@@ -281,7 +281,7 @@ def _wcoefs(lam, th):
 # ---------------------------------------------------------------- 3×3 helpers on 9-tuples
 
 
-@kernel
+@helper_kernel
 def _mv(M, v0, v1, v2):
     return (
         M[0] * v0 + M[1] * v1 + M[2] * v2,
@@ -290,12 +290,12 @@ def _mv(M, v0, v1, v2):
     )
 
 
-@kernel
+@helper_kernel
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@kernel
+@helper_kernel
 def _skew_times(v0, v1, v2, M):
     """v× M for a 9-tuple M."""
     return (
@@ -305,7 +305,7 @@ def _skew_times(v0, v1, v2, M):
     )
 
 
-@kernel
+@helper_kernel
 def _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J):
     """D_exp's lower-left block Q = ∂(W u)/∂ω + (W u)× J (module docstring), J = SO(3)'s D_exp."""
     Wu = _mv(W, u0, u1, u2)
@@ -331,7 +331,7 @@ def _Q9(w0, w1, w2, u0, u1, u2, b1, c1, d1, e1, W, J):
     )
 
 
-@kernel
+@helper_kernel
 def _winv_coefs(th, a1, b1, c1, r1):
     """W⁻¹ = g(B) = al0 I + al1 Ω + al2 Ω² by (F): g(λ) = 1/a1, g(z) = 1/(r1 + iθ b1),
     al1 = −b1/m, al2 = (b1² − r1 c1)/(a1 m), m = |φ1(z)|² = r1² + θ² b1²; formed from the
@@ -344,13 +344,13 @@ def _winv_coefs(th, a1, b1, c1, r1):
     return s, -b * s / m, (b * b - r * c) * s / m
 
 
-@kernel
+@helper_kernel
 def _Winv(w0, w1, w2, th, a1, b1, c1, r1):
     al0, al1, al2 = _winv_coefs(th, a1, b1, c1, r1)
     return lin9(w0, w1, w2, al0, al1, al2)
 
 
-@kernel
+@helper_kernel
 def _L_product(w, u, th, ek, coefs, winv):
     """D_log's lower-left block L = −W⁻¹ Q J⁻¹ without a 3×3 product (docs/sim3.md §5).
 
@@ -522,7 +522,7 @@ def _Ad(X, out):
     out[6, 6] = 1.0
 
 
-@kernel
+@helper_kernel
 def _write_blocks(A, L, D, p, out):
     """out = [[A, 0, 0], [L, D, p], [0, 0, 1]] for 9-tuples A, L, D and a 3-tuple p."""
     for i in range(3):
@@ -538,7 +538,7 @@ def _write_blocks(A, L, D, p, out):
     out[6, 6] = 1.0
 
 
-@kernel
+@helper_kernel
 def _trig(w0, w1, w2, th):
     """(θ, cos θ, sin θ, 1 − cos θ = 2 sin²(θ/2)) for θ = |ω|; above π from δ = 2π − θ with θ
     in double-double (D_log: sin θ and sin(θ/2) → 0 as θ → 2π, and J⁻¹, W⁻¹ ~ 1/(2π − θ))."""
@@ -554,7 +554,7 @@ def _trig(w0, w1, w2, th):
     return th, 1.0 - omc, 2.0 * sh * math.cos(0.5 * th), omc
 
 
-@kernel
+@helper_kernel
 def _L_spectral(w0, w1, w2, u0, u1, u2, th, gu, AB, CD, GH):
     """Lower-left block (L) of f(ad_x) from A + iB = f[z, iθ], C + iD = f[z, 0], G + iH = f[λ, iθ]
     (module docstring; gu = ω·u)."""
@@ -591,7 +591,7 @@ def _L_spectral(w0, w1, w2, u0, u1, u2, th, gu, AB, CD, GH):
     )
 
 
-@kernel
+@helper_kernel
 def _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2):
     """φ1[z, iθ], φ1[z, 0] = φ2(z), φ1[λ, iθ] for θ < SPECTRAL from the real coefficients; no
     cancellation for |λ| ≥ LAM_SPECTRAL (φ1(λ) is then far from φ1(iθ) ≈ 1)."""
@@ -606,13 +606,13 @@ def _divdiff_small(lam, th, a1, b1, r1, a2, b2, c2):
     return AB, CD, GH
 
 
-@kernel
+@helper_kernel
 def _parts(x):
     """(ω0, ω1, ω2, u0, u1, u2, λ, θ = |ω|) of a tangent x."""
     return x[0], x[1], x[2], x[3], x[4], x[5], x[6], norm3(x[0], x[1], x[2])
 
 
-@kernel
+@helper_kernel
 def _fB(w0, w1, w2, th, fl, fz):
     """f(B) = f(λ) I + (Im f(z)/θ) Ω + ((f(λ) − Re f(z))/θ²) Ω², formula (F), as a 9-tuple."""
     return lin9(w0, w1, w2, fl, fz.imag / th, (fl - fz.real) / (th * th))

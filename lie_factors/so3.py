@@ -30,7 +30,7 @@ import math
 
 from lie_factors.kernels import public as _public, registry as _registry
 from lie_factors.kernels.coeffs import a_theta, b_theta, c_theta, e_omega, norm3
-from lie_factors.kernels.jit import kernel
+from lie_factors.kernels.jit import helper_kernel, kernel
 
 _info = _registry.SO3
 DIM, MAT = _info.dim, _info.mat
@@ -66,7 +66,7 @@ def _vee(X, out):
     out[2] = X[1, 0]
 
 
-@kernel
+@helper_kernel
 def _rodrigues(w0, w1, w2, p, q, out):
     """out = I + p ω× + q ω×², using ω×² = ωωᵀ − θ² I (Eade, Eq. 47).
 

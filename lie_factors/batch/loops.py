@@ -3,9 +3,8 @@
 Every loop is a cached top-level kernel taking the group tag ``g``
 (:mod:`lie_factors.kernels.dispatch`: one specialization per group, holding only
 that group's cores); the per-factor work is the factors' own
-(:func:`lie_factors.factors.between_error`, :func:`~lie_factors.factors.between_jacobians`,
-:func:`~lie_factors.factors.prior_error`, :func:`~lie_factors.factors.prior_jacobian`), so no
-formula is repeated here.
+(:mod:`lie_factors.kernels.relative`: the relative element whose Log is the error, the
+Jacobians), so no formula is repeated here.
 
 Arrays: ``X`` (N, m, m) elements of one group; ``i1``, ``i2`` (F,) indices into
 ``X``; ``Minv``/``Pinv`` (F, m, m); ``R`` (U, n, n) whitening matrices and ``ridx``
@@ -33,7 +32,7 @@ import numpy as np
 from numba import prange
 
 from ..kernels import dispatch as _dispatch
-from .. import factors as _factors
+from ..kernels import relative as _relative
 from ..kernels.jit import inline_kernel, kernel, parallel_kernel
 
 #: Factors per parallel chunk: large enough that thread start-up and scratch allocation vanish.
@@ -99,7 +98,9 @@ def whiten_jacobian(Rf, H, out):
 def _factor_range(g, X, fs, A1, A2, b, sq, f0, f1, jacobians):
     """:func:`_factor_chunks` on the factors f0 … f1 − 1 of ``fs``."""
     n = fs.R.shape[1]
+    m = X.shape[1]
     prior = fs.i2.shape[0] == 0
+    E = np.empty((m, m))
     e = np.empty(n)
     H1 = np.empty((n, n))
     H2 = np.empty((n, n))
@@ -107,20 +108,22 @@ def _factor_range(g, X, fs, A1, A2, b, sq, f0, f1, jacobians):
     scratch = np.empty(n)
     for f in range(f0, f1):
         Rf = fs.R[fs.ridx[f]]
+        # one call of each core for both kinds: the kernel holds one copy of each
         if prior:
-            _factors.prior_error(g, fs.C[f], X[fs.i1[f]], e)
+            _relative.prior_relative(g, fs.C[f], X[fs.i1[f]], E)
         else:
-            _factors.between_error(g, fs.C[f], X[fs.i1[f]], X[fs.i2[f]], e)
+            _relative.between_relative(g, fs.C[f], X[fs.i1[f]], X[fs.i2[f]], E)
+        _dispatch.log(g, E, e)
         if not jacobians:
             sq[f] = whiten_residual(Rf, e, scratch)
             continue
         sq[f] = whiten_residual(Rf, e, b[f])
+        _relative.prior_jacobian(g, e, H2)  # dlog(−e): a prior's Jacobian, a between factor's second
         if prior:
-            _factors.prior_jacobian(g, e, H1)
-            whiten_jacobian(Rf, H1, A1[f])
+            whiten_jacobian(Rf, H2, A1[f])
             continue
         _dispatch.Ad(g, fs.C[f], Ad)
-        _factors.between_jacobians(g, Ad, e, H1, H2)
+        _relative.between_first_jacobian(g, Ad, e, H1)
         whiten_jacobian(Rf, H1, A1[f])
         whiten_jacobian(Rf, H2, A2[f])
 
@@ -187,7 +190,7 @@ def _setup(g, M, Minv, codes):
     n = _dispatch.dim(g)
     Ad = np.empty((n, n))
     for i in range(M.shape[0]):
-        codes[i] = _factors.between_setup(g, M[i], Minv[i], Ad)
+        codes[i] = _relative.between_setup(g, M[i], Minv[i], Ad)
 
 
 class GroupLoops:

@@ -18,12 +18,14 @@ import time
 
 import numpy as np
 
-from ..sparse.pattern import (NativeBlocks, Pattern, add_binary, add_information, add_unary, quadratic_change,
-                              set_diagonal)
+from ..sparse.pattern import NativeBlocks, Pattern, add_factors, add_information, quadratic_change, set_diagonal
 
 #: Factors per batch of :meth:`LinearSystem.linearize_assemble`: its buffer (8192 SE(3) factors:
 #: 5 MB) stays in cache between the linearization and the assembly that reads it.
 BATCH = 8192
+
+#: The second Jacobian blocks of one-variable factors (none), by dimension.
+_NO_BLOCKS = {n: np.empty((0, n, n)) for n in range(1, 8)}
 
 
 class LinearSystem:
@@ -116,10 +118,7 @@ class LinearSystem:
         at = self._scatter[g]
         if start or stop < g.E:
             at = at.part(s)
-        if g.kind == "between":
-            add_binary(A1, A2, b, w, at, self.data, self.rhs)
-        else:
-            add_unary(A1, b, w, at, self.data, self.rhs)
+        add_factors(A1, A2 if A2 is not None else _NO_BLOCKS[A1.shape[1]], b, w, at, self.data, self.rhs)
 
     def _add_native(self) -> None:
         """Add the natively linearized factors, and keep H's undamped diagonal."""

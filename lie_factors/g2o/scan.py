@@ -234,7 +234,11 @@ def fill_records(buf, tags, tag_len, nids, nvals, fragile_tag, ids, values, line
                 elif status == EXACT:
                     if n_exact == len(exact):
                         grown = np.empty((2 * len(exact), 5), dtype=np.int64)
-                        grown[:n_exact] = exact
+                        # entry by entry: a slice assignment compiles numba's shape-mismatch
+                        # message, seconds of a first run
+                        for q in range(n_exact):
+                            for c in range(5):
+                                grown[q, c] = exact[q, c]
                         exact = grown
                     exact[n_exact, 0] = t
                     exact[n_exact, 1] = r

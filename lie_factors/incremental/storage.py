@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.jit import inline_kernel, kernel
+from ..kernels.sort import argsort
 from .structures import packed
 
 
@@ -126,7 +127,7 @@ def _compact_separators(nv, tree, ipool):
             nodes[n] = j
             n += 1
     moved = np.empty(n, dtype=np.int64)
-    it = _move_down(ipool, moved, starts[:n], sizes[:n], np.argsort(starts[:n]))
+    it = _move_down(ipool, moved, starts[:n], sizes[:n], argsort(starts[:n]))
     for k in range(n):
         sep_start[nodes[k]] = moved[k]
     return it
@@ -157,7 +158,7 @@ def _compact_floats(nv, tree, fpool):
             nodes[n] = -1 - j
             n += 1
     moved = np.empty(n, dtype=np.int64)
-    ft = _move_down(fpool, moved, starts[:n], sizes[:n], np.argsort(starts[:n]))
+    ft = _move_down(fpool, moved, starts[:n], sizes[:n], argsort(starts[:n]))
     for k in range(n):
         j = nodes[k]
         if j >= 0:

@@ -120,7 +120,8 @@ def push(buf, n, v):
     the array returned)."""
     if n == buf.shape[0]:
         grown = np.empty(2 * n + 16, dtype=buf.dtype)
-        grown[:n] = buf
+        for i in range(n):  # not grown[:n] = buf: numba's shape-mismatch message costs a first run seconds
+            grown[i] = buf[i]
         buf = grown
     buf[n] = v
     return buf

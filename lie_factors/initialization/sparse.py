@@ -26,13 +26,13 @@ def solve_edges(count: int, ii: np.ndarray, jj: np.ndarray, A1: np.ndarray, A2: 
     order) and factored there by CHOLMOD.  :class:`InitializationError` if the matrix is
     not positive definite.
     """
-    from ..sparse.pattern import Pattern, add_binary  # numba: LAGO's and GTSAM's paths stay without it
+    from ..sparse.pattern import Pattern, add_factors  # numba: LAGO's and GTSAM's paths stay without it
 
     d = A1.shape[2]
     E = len(ii)
     pattern = Pattern(np.full(count, d), np.stack([ii, jj], axis=1))
     data, g = np.zeros(pattern.nnz), np.zeros(pattern.n)
-    add_binary(np.ascontiguousarray(A1, dtype=np.float64), np.ascontiguousarray(A2, dtype=np.float64),
+    add_factors(np.ascontiguousarray(A1, dtype=np.float64), np.ascontiguousarray(A2, dtype=np.float64),
                np.zeros((E, A1.shape[1])), np.ones(E), pattern.scatter(ii, jj), data, g)
     data[pattern.diagpos] += diagonal
     try:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from lie_factors.kernels.jit import kernel
+from lie_factors.kernels.jit import helper_kernel, kernel
 from lie_factors.kernels.registry import NO_CORNER, ONE
 # The tolerances, and the codes of element_code (defined, and worded, in the numba-free module).
 from lie_factors.kernels.validate import (BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, ORTHONORMAL_TOL, REFLECTION, UNIT_TOL)
@@ -29,7 +29,7 @@ _FAST_ORTHONORMAL_TOL = ORTHONORMAL_TOL - 1e-15
 _FAST_UNIT_TOL = UNIT_TOL - 1e-15
 
 
-@kernel
+@helper_kernel
 def finite(a):
     """True when every entry of the array ``a`` is finite (any shape, any memory order)."""
     for v in a.flat:
@@ -38,7 +38,7 @@ def finite(a):
     return True
 
 
-@kernel
+@helper_kernel
 def element_code(X, d, corner, tol):
     """Validate one (m, m) element; returns OK or the code of the first failure.
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from fractions import Fraction
 
-from lie_factors.kernels.jit import kernel
+from lie_factors.kernels.jit import helper_kernel
 
 #: a_θ: sin θ / θ has no cancellation; the band only avoids 0/0 at θ = 0.
 A_TAYLOR = 1e-3
@@ -76,7 +76,7 @@ EF_E_SERIES = rounded(E_COEFFS[1:37])
 EF_F_SERIES = rounded(2 * n * E_COEFFS[n + 1] for n in range(1, 37))
 
 
-@kernel
+@helper_kernel
 def horner(coeffs, t):
     p = 0.0
     for i in range(len(coeffs) - 1, -1, -1):
@@ -84,7 +84,7 @@ def horner(coeffs, t):
     return p
 
 
-@kernel
+@helper_kernel
 def horner4(coeffs, t):
     """Σ coeffs[i] tⁱ as four interleaved Horner chains in t⁴ (len(coeffs) % 4 == 0).
 
@@ -104,7 +104,7 @@ def horner4(coeffs, t):
     return p0 + t * p1 + t2 * (p2 + t * p3)
 
 
-@kernel
+@helper_kernel
 def norm3(x, y, z):
     """|(x, y, z)| without underflow of the squares (θ = 1e-200 stays 1e-200)."""
     s = x * x + y * y + z * z
@@ -119,7 +119,7 @@ def norm3(x, y, z):
     return m * math.sqrt(x * x + y * y + z * z)
 
 
-@kernel
+@helper_kernel
 def a_theta(theta):
     """a_θ = sin θ/θ, Eade Eq. (50)."""
     if theta < A_TAYLOR:
@@ -127,7 +127,7 @@ def a_theta(theta):
     return math.sin(theta) / theta
 
 
-@kernel
+@helper_kernel
 def b_theta(theta):
     """b_θ = (1 − cos θ)/θ² = ½ (sin(θ/2)/(θ/2))², Eade Eq. (51).
 
@@ -137,7 +137,7 @@ def b_theta(theta):
     return 0.5 * h * h
 
 
-@kernel
+@helper_kernel
 def c_theta(theta):
     """c_θ = (1 − a_θ)/θ² = (θ − sin θ)/θ³, Eade Eq. (52)."""
     if theta < C_TAYLOR:
@@ -145,7 +145,7 @@ def c_theta(theta):
     return (theta - math.sin(theta)) / (theta * theta * theta)
 
 
-@kernel
+@helper_kernel
 def e_theta(theta):
     """e_θ, the ω×² coefficient of D_exp⁻¹ (Eade Eqs. 55–57), valid for θ < 2π.
 
@@ -163,7 +163,7 @@ _TWO_PI_LO = 2.4492935982947064e-16
 _SPLIT = 134217729.0  # 2^27 + 1, Dekker's splitter
 
 
-@kernel
+@helper_kernel
 def _two_prod(a, b):
     p = a * b
     t = _SPLIT * a
@@ -175,14 +175,14 @@ def _two_prod(a, b):
     return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
 
 
-@kernel
+@helper_kernel
 def _two_sum(a, b):
     s = a + b
     bb = s - a
     return s, (a - (s - bb)) + (b - bb)
 
 
-@kernel
+@helper_kernel
 def _dot2(x0, x1, x2, y0, y1, y2):
     """x·y as an unevaluated sum s + e (Ogita–Rump–Oishi Dot2): as accurate as if computed in
     twice the working precision."""
@@ -196,7 +196,7 @@ def _dot2(x0, x1, x2, y0, y1, y2):
     return s, e
 
 
-@kernel
+@helper_kernel
 def dot3(x0, x1, x2, y0, y1, y2):
     """x·y with a compensated sum (:func:`_dot2`), then rounded. Needed where ωᵀv
     multiplies (2π/(2π − θ))² in SE(3) D_exp⁻¹."""
@@ -204,7 +204,7 @@ def dot3(x0, x1, x2, y0, y1, y2):
     return s + e
 
 
-@kernel
+@helper_kernel
 def theta_dd(w0, w1, w2):
     """|ω| as an unevaluated sum hi + lo accurate to ~1e-32 relative (|ω| ≥ ~1e-140)."""
     s, e = _dot2(w0, w1, w2, w0, w1, w2)
@@ -214,7 +214,7 @@ def theta_dd(w0, w1, w2):
     return r + lo, lo - ((r + lo) - r)
 
 
-@kernel
+@helper_kernel
 def e_omega(w0, w1, w2):
     """e_θ for θ = |ω| < 2π, accurate also as θ → 2π (see E_REFLECT).
 
@@ -229,7 +229,7 @@ def e_omega(w0, w1, w2):
     return 1.0 / (hi * hi) + math.cos(d) / (2.0 * hi * math.sin(d))
 
 
-@kernel
+@helper_kernel
 def ef_omega(w0, w1, w2):
     """(θ, e_θ, f_θ) for θ = |ω| < 2π, with f_θ = e_θ'/θ (derivative of Eq. 57's e_θ).
 
@@ -250,7 +250,7 @@ def ef_omega(w0, w1, w2):
     return hi, e, f
 
 
-@kernel
+@helper_kernel
 def qa_theta(theta):
     """(a_θ − 2 b_θ)/θ², the ω× coefficient of Q(ω), Eade Eq. (64)."""
     if theta < QA_TAYLOR:
@@ -258,7 +258,7 @@ def qa_theta(theta):
     return (a_theta(theta) - 2.0 * b_theta(theta)) / (theta * theta)
 
 
-@kernel
+@helper_kernel
 def qb_theta(theta):
     """(b_θ − 3 c_θ)/θ², the ω×² coefficient of Q(ω), Eade Eq. (64)."""
     if theta < QB_TAYLOR:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 
 from numba import njit, typeof, types
+from numba.core.registry import CPUDispatcher
 from numba.core import event as _event
 
 from . import cache
@@ -33,6 +34,23 @@ dense_kernel = njit(cache=True, nogil=True, error_model="numpy", fastmath={"reas
 
 #: Like :data:`kernel`, with ``prange`` loops run on numba's threads.
 parallel_kernel = njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+
+class HelperDispatcher(CPUDispatcher):
+    """The dispatcher of a :func:`helper_kernel`: compiled code calls it; a call from Python is
+    a ``TypeError`` (numba would jump into the Python entry point the helper does not have)."""
+
+    def __call__(self, *args, **kwargs):
+        raise TypeError(f"{self.py_func.__module__}.{self.py_func.__qualname__} is called by compiled code "
+                        "only (a helper of the kernels); call the kernel or public function built on it")
+
+
+def helper_kernel(fn):
+    """Decorator for a scalar or small-block helper that only compiled code calls (a coefficient,
+    a 3×3 block): :data:`kernel`'s options without numba's Python entry point, whose generation
+    is a good part of a small function's first-run compilation."""
+    dispatcher = njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)(fn)
+    dispatcher.__class__ = HelperDispatcher
+    return dispatcher
 
 #: A part of a larger kernel, written apart to be read apart: numba inlines its code into each
 #: caller's (``inline="always"``), where it is compiled with the caller's options (a

@@ -245,10 +245,16 @@ def _reverse_kernel(g, Z, S, flip):
         if flip[k]:
             _dispatch.Ad(g, Z[k], Ad)
             _dispatch.inverse(g, Z[k], Zi)
-            Z[k] = Zi
             V = np.zeros((n, n))
             _add_sandwich(Ad, S[k], Ad, V)
-            S[k] = V
+            # entry by entry: an array assignment compiles numba's shape-mismatch message,
+            # seconds of a first run
+            for i in range(m):
+                for j in range(m):
+                    Z[k, i, j] = Zi[i, j]
+            for i in range(n):
+                for j in range(n):
+                    S[k, i, j] = V[i, j]
 
 
 def reverse(group, Z: np.ndarray, S: np.ndarray, flip: np.ndarray) -> None:

@@ -45,6 +45,7 @@ from ..posegraph.graph import PoseGraph
 from ..sparse.cholmod import Cholesky, block_order
 from ..batch.graph import Problem
 from ..batch.loops import parallel_kernel
+from ..kernels.sort import sort
 from ..batch.system import LinearSystem
 
 __all__ = ["leave_out_chi2", "group_gram", "UnitLower"]
@@ -93,7 +94,8 @@ def _group_gram(L, pos, o1, o2, A1, A2, gptr, rows, hptr, H):
                             for q in range(colptr[j] + 1, colptr[j + 1]):
                                 parent = min(parent, rowind[q])
                             j = parent if parent < N else -1
-            reach = np.sort(nodes[:count])  # a child precedes its parent: the order of the sweep
+            reach = nodes[:count].copy()
+            sort(reach)  # a child precedes its parent: the order of the sweep
             for k in range(count):
                 loc[reach[k]] = k
             dg = n * (gptr[g + 1] - gptr[g])

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError
-from ..kernels.jit import kernel
+from ..kernels.jit import helper_kernel, kernel
 from ..util.arrays import sorted_unique
 from .cholmod import order_blocks
 
@@ -93,18 +93,19 @@ class Pattern:
         """The column of every stored entry (nnz,): with ``rowind``, the pattern as triplets."""
         return np.repeat(np.arange(self.n, dtype=np.int64), np.diff(self.colptr))
 
-    def scatter(self, v1: np.ndarray, v2: np.ndarray | None = None):
-        """Where the blocks of factors on the variables ``v1`` (and ``v2``) go: the
-        :class:`UnaryScatter` of one-variable factors, the :class:`BinaryScatter` of two-variable ones."""
+    def scatter(self, v1: np.ndarray, v2: np.ndarray | None = None) -> "Scatter":
+        """Where the blocks of factors on the variables ``v1`` (and ``v2``) go: a :class:`Scatter`
+        (of one-variable factors when ``v2`` is None: its second variable's arrays empty)."""
         v1 = np.asarray(v1, dtype=np.int64)
         base11, stride11, _ = self.lookup(v1, v1)
         if v2 is None:
-            return UnaryScatter(self.offsets[v1], base11, stride11)
+            none = np.zeros(0, dtype=np.int64)
+            return Scatter(self.offsets[v1], none, base11, stride11, none, none, none, none, none)
         v2 = np.asarray(v2, dtype=np.int64)
         base22, stride22, _ = self.lookup(v2, v2)
         base12, stride12, one_is_row = self.lookup(v1, v2)
-        return BinaryScatter(self.offsets[v1], self.offsets[v2], base11, stride11, base22, stride22,
-                             base12, stride12, one_is_row)
+        return Scatter(self.offsets[v1], self.offsets[v2], base11, stride11, base22, stride22,
+                       base12, stride12, one_is_row)
 
     def lookup(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(base, stride, a_is_row) of the blocks {a, b} (arrays of variable indices)."""
@@ -117,24 +118,11 @@ class Pattern:
         return self._base[idx], self._stride[idx], (pa >= pb).astype(np.int64)
 
 
-class UnaryScatter(NamedTuple):
-    """Where each one-variable factor's blocks go (:meth:`Pattern.scatter`): ``o1`` its variable's
-    offset in the right-hand side, ``base11``/``stride11`` its block of ``data``."""
-
-    o1: np.ndarray
-    base11: np.ndarray
-    stride11: np.ndarray
-
-    def part(self, rows: slice) -> "UnaryScatter":
-        """The scatter of the factors ``rows``."""
-        return UnaryScatter(*(a[rows] for a in self))
-
-
-class BinaryScatter(NamedTuple):
-    """Where each two-variable factor's blocks go (:meth:`Pattern.scatter`): ``o1``, ``o2`` its
-    variables' offsets in the right-hand side; (base, stride) of its blocks (1, 1), (2, 2)
-    and (1, 2) in ``data``; ``one_is_row``: the (1, 2) block is stored as A1ᵀA2 (variable 1
-    the row), else as A2ᵀA1."""
+class Scatter(NamedTuple):
+    """Where each factor's blocks go (:meth:`Pattern.scatter`): ``o1``, ``o2`` its variables'
+    offsets in the right-hand side; (base, stride) of its blocks (1, 1), (2, 2) and (1, 2) in
+    ``data``; ``one_is_row``: the (1, 2) block is stored as A1ᵀA2 (variable 1 the row), else as
+    A2ᵀA1.  Of one-variable factors, every array of the second variable is empty."""
 
     o1: np.ndarray
     o2: np.ndarray
@@ -146,9 +134,9 @@ class BinaryScatter(NamedTuple):
     stride12: np.ndarray
     one_is_row: np.ndarray
 
-    def part(self, rows: slice) -> "BinaryScatter":
+    def part(self, rows: slice) -> "Scatter":
         """The scatter of the factors ``rows``."""
-        return BinaryScatter(*(a[rows] for a in self))
+        return Scatter(*(a[rows] for a in self))
 
 
 class NativeBlocks(NamedTuple):
@@ -205,7 +193,7 @@ def _csc(pdims, poffsets, first, brow, T, colstart):
 # Assembly kernels (values only; the pattern and scatter map are fixed)
 # --------------------------------------------------------------------------- #
 
-@kernel
+@helper_kernel
 def _add_gram(A, B, w, base, stride, lower, data):
     """data[base + j·stride − j(j+1)/2 + i] += w·Σ_r A[r, i]·B[r, j] (one block of AᵀB; with
     ``lower``, a diagonal block, only its lower triangle i ≥ j)."""
@@ -218,7 +206,7 @@ def _add_gram(A, B, w, base, stride, lower, data):
             data[p + i] += w * acc
 
 
-@kernel
+@helper_kernel
 def _add_rhs(A, b, w, o, rhs):
     for i in range(A.shape[1]):
         acc = 0.0
@@ -228,14 +216,18 @@ def _add_rhs(A, b, w, o, rhs):
 
 
 @kernel
-def add_binary(A1, A2, b, w, at, data, rhs):
-    """Accumulate w_f·[A1 A2]ᵀ[A1 A2] and w_f·[A1 A2]ᵀb_f of every two-variable factor
-    (``at``: their :class:`BinaryScatter`)."""
+def add_factors(A1, A2, b, w, at, data, rhs):
+    """Accumulate w_f·[A1 A2]ᵀ[A1 A2] and w_f·[A1 A2]ᵀb_f of every factor (``at``: their
+    :class:`Scatter`); of one-variable factors (``A2`` with no rows) w_f·A1ᵀA1 and w_f·A1ᵀb_f."""
+    unary = A2.shape[0] == 0
     for f in range(A1.shape[0]):
         wf = w[f]
         if wf == 0.0:
             continue
         _add_gram(A1[f], A1[f], wf, at.base11[f], at.stride11[f], True, data)
+        if unary:
+            _add_rhs(A1[f], b[f], wf, at.o1[f], rhs)
+            continue
         _add_gram(A2[f], A2[f], wf, at.base22[f], at.stride22[f], True, data)
         if at.one_is_row[f]:
             _add_gram(A1[f], A2[f], wf, at.base12[f], at.stride12[f], False, data)
@@ -243,18 +235,6 @@ def add_binary(A1, A2, b, w, at, data, rhs):
             _add_gram(A2[f], A1[f], wf, at.base12[f], at.stride12[f], False, data)
         _add_rhs(A1[f], b[f], wf, at.o1[f], rhs)
         _add_rhs(A2[f], b[f], wf, at.o2[f], rhs)
-
-
-@kernel
-def add_unary(A1, b, w, at, data, rhs):
-    """Accumulate w_f·A1ᵀA1 and w_f·A1ᵀb_f of every one-variable factor (``at``: their
-    :class:`UnaryScatter`)."""
-    for f in range(A1.shape[0]):
-        wf = w[f]
-        if wf == 0.0:
-            continue
-        _add_gram(A1[f], A1[f], wf, at.base11[f], at.stride11[f], True, data)
-        _add_rhs(A1[f], b[f], wf, at.o1[f], rhs)
 
 
 @kernel
@@ -309,8 +289,6 @@ def quadratic_change(colptr, rowind, data, rhs, delta):
     return lin - 0.5 * quad
 
 
-@kernel
-def set_diagonal(data, diagpos, diagonal, scale):
+def set_diagonal(data, diagpos, diagonal, scale) -> None:
     """data's diagonal = ``diagonal`` + ``scale`` (both in δ's order)."""
-    for c in range(diagpos.shape[0]):
-        data[diagpos[c]] = diagonal[c] + scale[c]
+    data[diagpos] = diagonal + scale

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from lie_factors.kernels import coeffs as C
+from support.compiled import call
 from lie_factors.testing import reference as ref
 from lie_factors import se3, so3
 
@@ -134,9 +135,9 @@ def test_erratum_eq65_coefficient_of_ad_is_b_not_a():
     x = np.array([0.3, -0.9, 1.2, 0.7, 0.2, -0.5])
     w, u = x[:3], x[3:]
     th = np.linalg.norm(w)
-    a, b, c = C.a_theta(th), C.b_theta(th), C.c_theta(th)
+    a, b, c = call(C.a_theta, th), call(C.b_theta, th), call(C.c_theta, th)
     W = so3.hat(w)
-    Q = C.qa_theta(th) * W + C.qb_theta(th) * W @ W
+    Q = call(C.qa_theta, th) * W + call(C.qb_theta, th) * W @ W
     A = se3.ad(x)
     Qb = np.zeros((6, 6))
     Qb[3:, :3] = Q  # Eq. (65)'s upper-right block, in [ω, v] order
