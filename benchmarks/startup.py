@@ -25,9 +25,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ENV = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
-def wall(argv, env=ENV) -> float:
+def wall(argv, env=ENV, cwd=None) -> float:
     t = time.perf_counter()
-    p = subprocess.run(argv, env=env, capture_output=True, text=True)
+    p = subprocess.run(argv, env=env, capture_output=True, text=True, cwd=cwd)
     dt = time.perf_counter() - t
     if p.returncode != 0:
         raise SystemExit(f"{argv} failed: {p.stderr.strip()[-500:]}")
@@ -85,7 +85,7 @@ def _first_run(checkout: str, argv: list, out: str) -> tuple[float, float, float
         if p.returncode != 0:
             raise SystemExit(f"{argv} failed: {p.stderr.strip()[-500:]}")
         note = re.search(r"compiled numba kernels in ([0-9.]+) s", p.stderr)
-        later = wall(cmd, env)
+        later = wall(cmd, env, cwd=out)  # the cwd is first on sys.path: never the working tree's package
     return first, later, float(note.group(1)) if note else None
 
 
