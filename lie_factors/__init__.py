@@ -45,6 +45,7 @@ _EXPORTS = {
     "PoseGraph": "posegraph.graph",
     "Smoother": "incremental", "SmootherParams": "incremental",
     "Events": "events",
+    "factor": "expressions", "KindFactor": "expressions",
     "LieFactorsError": "errors", "InputError": "errors", "InitializationError": "errors",
     "NotPositiveDefinite": "errors", "IndeterminantLinearSystem": "errors",
 }

@@ -39,7 +39,7 @@ RANKS = {
     "util": 0, "errors": 0,
     "kernels": 1, "so3": 1, "se3": 1, "se2": 1, "sim2": 1, "sim3": 1, "quaternion": 1, "dual_quaternion": 1,
     "interop": 2, "evaluation": 2,
-    "factors": 3,
+    "factors": 3, "expressions": 3.5,
     "posegraph": 4,
     "g2o": 5,
     "lm": 6.0, "optimizers": 6.1, "dropin": 6.2, "sparse": 6.3,
@@ -262,6 +262,8 @@ ONE_JOB: dict[Path, str] = {
                          "each needs, one derivation (docs/sim3.md)",
     PACKAGE / "sparse" / "cholmod.py": "the CHOLMOD wrapper: its structures, the factor kept across "
                                        "refactorizations, its two ways in (direct and through cvxopt)",
+    PACKAGE / "batch" / "graph.py": "the batch Problem: a graph read into arrays (groups, kinds, native "
+                                    "factors), its estimate, and its evaluation, linearization and retraction",
 }
 
 

@@ -4,6 +4,10 @@
   constants (``M⁻¹``, ``Ad(M⁻¹)``, whitening ``R``, variable indices) become
   arrays, and the numba loops of :mod:`lie_factors.batch.loops` linearize and
   evaluate a whole group per call;
+* factors of a kind (:mod:`lie_factors.expressions`: a user's own, the ready ones) with
+  Gaussian noise are grouped by kind (:mod:`lie_factors.batch.kinds`): their keys, constants
+  and whitening become arrays, and the kind's kernel linearizes and evaluates them in one call;
+  their variables of other types (Rot2, points, vectors, calibrations) are arrays too;
 * every other factor (native GTSAM factors on any variable type — Pose2/3,
   Point2/3 landmarks, ... — and lie_factors factors with robust or constrained
   noise) is *native*: GTSAM linearizes it (one ``NonlinearFactorGraph.linearize``
@@ -26,11 +30,13 @@ import numpy as np
 
 from .. import factors as _factors
 from ..errors import InputError, first_line
+from ..expressions.kind import KindFactor
 from .. import interop
 from ..posegraph import gauge
 from ..robust.losses import from_gtsam
 # noise_whitening and whitening are imported from here by the incremental smoother, whitening by the tests
 from .groups import FactorGroup, VarBlock, noise_whitening, unique_rows, whitening  # noqa: F401
+from .kinds import KindGroup, ValueBlock, block_name
 
 
 def key_name(key: int) -> str:
@@ -80,7 +86,9 @@ class Problem:
         self.graph = graph
         self.graph_size = int(graph.size())
         self.blocks: dict[str, VarBlock] = {}
+        self.value_blocks: dict[str, ValueBlock] = {}
         self.groups: list[FactorGroup] = []
+        self.kinds: list[KindGroup] = []
         self.native: list = []  # (graph index, factor, keys)
         # graph index → batch.robust.RobustLoss of robust factors grouped by their Gaussian part
         # (only with group_robust: the optimizer must then apply the loss).
@@ -108,6 +116,7 @@ class Problem:
         E, Q = len(pg.edge_keys), len(pg.prior_keys)
         self.graph_size = E + Q
         self.native, self.robust, self._group_robust = [], {}, False
+        self.value_blocks, self.kinds = {}, []
         block = VarBlock(spec)
         self.blocks = {spec.name: block}
         self.groups = []
@@ -198,8 +207,15 @@ class Problem:
             entry = kinds.get(cls)
             if entry is None:
                 kind = ("between" if issubclass(cls, _factors.BetweenFactor)
-                        else "prior" if issubclass(cls, _factors.PriorFactor) else None)
-                if kind is None:
+                        else "prior" if issubclass(cls, _factors.PriorFactor)
+                        else "expression" if issubclass(cls, KindFactor) else None)
+                if kind == "expression":
+                    kg = next((k for k in self.kinds if k.kind is cls.kind), None)
+                    if kg is None:
+                        kg = KindGroup(cls.kind)
+                        self.kinds.append(kg)
+                    entry = kinds[cls] = (kind, kg)
+                elif kind is None:
                     entry = kinds[cls] = (None, None)
                 else:
                     spec = cls.spec
@@ -232,14 +248,25 @@ class Problem:
                                          "is missing from the initial Values")
                 self.native.append((i, f, keys))
                 continue
-            if kind == "between":
+            if kind == "expression":
+                rows.add(i, f._keys_, f._constants, R)
+            elif kind == "between":
                 rows.append((i, f._key1, f._key2, f._Minv, R))
             else:
                 rows.append((i, f._key2, None, f._Minv, R))
         for g in self.groups:
             g.close_rows(self.blocks[g.spec.name])
-        for block in self.blocks.values():
+        for kg in self.kinds:
+            kg.close_rows(self)
+        for block in (*self.blocks.values(), *self.value_blocks.values()):
             block.number_keys()
+
+    def block_of_type(self, t):
+        """The block holding variables of the expression type ``t``: the group's VarBlock for a
+        registered matrix group, else the type's :class:`~lie_factors.batch.kinds.ValueBlock`."""
+        if t.is_group and t.group is not None:
+            return self.blocks.setdefault(t.name, VarBlock(_factors.GROUPS[t.name]))
+        return self.value_blocks.setdefault(t.name, ValueBlock(t))
 
     def _whitening_of(self, nm):
         """(R, robust loss) of a lie_factors factor's noise model; R None if GTSAM must linearize."""
@@ -259,13 +286,16 @@ class Problem:
 
     def _number_variables(self, initial):
         managed = {}
-        for name, block in self.blocks.items():
+        for name, block in (*self.blocks.items(), *self.value_blocks.items()):
             for k in block.keys:
                 if k in managed:
                     raise InputError(f"key {key_name(k)} is used by both {managed[k]} and "
-                                     f"{block.spec.name} factors")
+                                     f"{name} factors")
                 managed[k] = name
-            block.X = _read_matrices(initial, block.spec, block.keys)
+            if name in self.blocks:
+                block.X = _read_matrices(initial, block.spec, block.keys)
+            else:
+                block.read(initial)
         for g in self.groups:
             g.finalize(self.blocks[g.spec.name])
         self.managed = managed
@@ -276,7 +306,7 @@ class Problem:
         dims = []
         for k in active:
             name = managed.get(k)
-            dims.append(self.blocks[name].spec.dim if name is not None else int(np.asarray(zero.at(k)).shape[0]))
+            dims.append(self._dim_of(name) if name is not None else int(np.asarray(zero.at(k)).shape[0]))
         self.var_keys = active
         self.var_dims = np.array(dims, dtype=np.int64)
         self.var_index = {k: v for v, k in enumerate(active)}
@@ -286,10 +316,12 @@ class Problem:
         self.var_offsets = offs
         self.offset = dict(zip(active, offs.tolist()))
         self.total_dim = int(self.var_dims.sum())
-        for block in self.blocks.values():
+        for block in (*self.blocks.values(), *self.value_blocks.values()):
             block.var = np.array([self.var_index[k] for k in block.keys], dtype=np.int64)
             block.offsets = offs[block.var]
             block.X0 = block.X.copy()
+        for kg in self.kinds:
+            kg.finalize(self)
         for g in self.groups:
             b = self.blocks[g.spec.name]
             g.v1, g.o1 = b.var[g.i1], b.offsets[g.i1]
@@ -309,6 +341,10 @@ class Problem:
             self._managed_initial = initial
         self.other_keys = [k for k in native_keys if k not in managed]
         self._native_setup()
+
+    def _dim_of(self, name: str) -> int:
+        block = self.blocks.get(name)
+        return block.spec.dim if block is not None else self.value_blocks[name].t.dim
 
     def _native_setup(self):
         self.native_graph = gtsam.NonlinearFactorGraph()
@@ -367,6 +403,13 @@ class Problem:
                 v.append(g.v2)
             else:
                 anchored.append(g.v1)
+        for kg in self.kinds:  # a kind's invariance is not known: it anchors its component
+            for var in kg.var:
+                rows += kg.kind.dim * np.bincount(var, minlength=V)
+            pairs = kg.pairs()
+            u.append(pairs[:, 0])
+            v.append(pairs[:, 1])
+            anchored.append(kg.var[0])
         nat = self.native_arrays
         if nat is not None:
             count = np.diff(nat.key_start)  # each native factor's variables
@@ -377,7 +420,8 @@ class Problem:
 
     # ---------------------------------------------------------------- state
     def elements(self) -> dict:
-        return {name: b.X for name, b in self.blocks.items()}
+        """Block name (a group's, or a value type's) → its values."""
+        return {name: b.X for name, b in (*self.blocks.items(), *self.value_blocks.items())}
 
     def native_values(self, Xs=None, other=None) -> gtsam.Values | None:
         """A gtsam.Values holding the keys the native factors need (None if there are none)."""
@@ -389,13 +433,17 @@ class Problem:
         for k in self._native_keys:
             name = self.managed.get(k)
             if name is not None:
-                b = self.blocks[name]
-                v.insert(k, to_gtsam(b.spec, Xs[name][b.index[k]]))
+                b = self.blocks.get(name)
+                if b is not None:
+                    v.insert(k, to_gtsam(b.spec, Xs[name][b.index[k]]))
+                else:
+                    vb = self.value_blocks[name]
+                    v.insert(k, vb.gtsam_value(Xs[name][vb.index[k]]))
         return v
 
     def accept(self, Xs, other) -> None:
         for name, X in Xs.items():
-            self.blocks[name].X = X
+            (self.blocks.get(name) or self.value_blocks[name]).X = X
         self.other = other
 
     def values(self) -> gtsam.Values:
@@ -405,7 +453,7 @@ class Problem:
         variable (vectorized on the kernels): faster than constructing
         every pose from Python, and exact to rounding (checked in the tests).
         """
-        if self._managed_initial is None:  # from_pose_graph: no initial Values to retract
+        if self._managed_initial is None:  # from_pose_graph: no initial Values to retract (no kinds)
             out = gtsam.Values()
             for b in self.blocks.values():
                 for k, M in zip(b.keys, b.X):
@@ -419,6 +467,9 @@ class Problem:
             for k, x in zip(b.keys, xi):
                 insert(k, x)
         out = self._managed_initial.retract(vv)
+        for vb in self.value_blocks.values():  # the values themselves: X0 + (X − X0) would round
+            for k, x in zip(vb.keys, vb.X):
+                out.update(k, vb.gtsam_value(x))
         out.insert(self.other)
         return out
 
@@ -437,6 +488,12 @@ class Problem:
             total += 0.5 * float(sq.sum())
             if sq_out is not None:
                 sq_out[g.fidx] = sq
+        for kg in self.kinds:
+            sq = np.empty(kg.E)
+            kg.evaluate(Xs, sq)
+            total += 0.5 * float(sq.sum())
+            if sq_out is not None:
+                sq_out[kg.fidx] = sq
         if self.native:
             nv = self.native_values(Xs, other)
             try:
@@ -471,7 +528,16 @@ class Problem:
         for g in self.groups:
             g.linearize(self.blocks[g.spec.name].X)
             total += 0.5 * float(g.sq.sum())
-        return total + self.linearize_native()
+        return total + self.linearize_kinds() + self.linearize_native()
+
+    def linearize_kinds(self) -> float:
+        """Every kind's factors linearized (their kernels, one call a kind); returns their error."""
+        Xs = self.elements()
+        total = 0.0
+        for kg in self.kinds:
+            kg.linearize(Xs)
+            total += 0.5 * float(kg.sq.sum())
+        return total
 
     def linearize_native(self) -> float:
         """The native factors' part of :meth:`linearize` (GTSAM linearizes them); returns their
@@ -510,7 +576,7 @@ class Problem:
         if their noise model is Robust).  Empty graph slots: 0.
         """
         out = np.zeros(self.graph_size) if out is None else out
-        for g in self.groups:
+        for g in (*self.groups, *self.kinds):
             out[g.fidx] = g.sq
         if self.native_arrays is not None:
             out[self.native_arrays.fidx] = self.native_arrays.sq
@@ -523,6 +589,8 @@ class Problem:
             out = np.empty_like(b.X)
             b.loops.retract(b.X, delta, b.offsets, out)
             Xs[name] = out
+        for name, vb in self.value_blocks.items():
+            Xs[name] = vb.retract(vb.X, delta)
         other = self.other
         if self.other_keys:
             vv = gtsam.VectorValues()

@@ -18,7 +18,8 @@ import time
 
 import numpy as np
 
-from ..sparse.pattern import NativeBlocks, Pattern, add_factors, add_information, quadratic_change, set_diagonal
+from ..sparse.pattern import (NativeBlocks, Pattern, add_blocks, add_factors, add_information, quadratic_change,
+                              set_diagonal)
 
 #: Factors per batch of :meth:`LinearSystem.linearize_assemble`: its buffer (8192 SE(3) factors:
 #: 5 MB) stays in cache between the linearization and the assembly that reads it.
@@ -43,6 +44,7 @@ class LinearSystem:
         self.problem = problem
         P = problem
         pairs = [np.stack([g.v1, g.v2], axis=1) for g in P.groups if g.kind == "between"]
+        pairs += [kg.pairs() for kg in P.kinds]
         pairs += [P.native_pairs]
         self.pattern = pat = Pattern(P.var_dims, np.concatenate(pairs) if pairs else np.zeros((0, 2)), order)
         self.n = pat.n
@@ -53,6 +55,7 @@ class LinearSystem:
         self._damped = False
         #: each factor group's scatter map (pattern.scatter)
         self._scatter = {g: pat.scatter(g.v1, g.v2 if g.kind == "between" else None) for g in P.groups}
+        self._kinds = [self._kind_scatter(kg) for kg in P.kinds]
         self._native = None
         nat = P.native_arrays
         if nat is not None:
@@ -71,12 +74,34 @@ class LinearSystem:
                                         nat.key_dim, pat.offsets[kv], nat.pair_start,
                                         np.where(a_is_row.astype(bool), base, -1), stride)
 
+    def _kind_scatter(self, kg) -> tuple:
+        """Where a kind's factors' blocks go: (col (k,), dim (k,), o (F, k), base, stride, row
+        (F, k, k)) for :func:`~lie_factors.sparse.pattern.add_blocks`."""
+        pat = self.pattern
+        k, F = len(kg.var), kg.E
+        base = np.zeros((F, k, k), dtype=np.int64)
+        stride = np.zeros((F, k, k), dtype=np.int64)
+        row = np.zeros((F, k, k), dtype=np.int64)
+        for p in range(k):
+            for q in range(p, k):
+                base[:, p, q], stride[:, p, q], row[:, p, q] = pat.lookup(kg.var[p], kg.var[q])
+        o = np.stack([pat.offsets[v] for v in kg.var], axis=1) if k else np.zeros((F, 0), dtype=np.int64)
+        col = np.array(kg.kind.offsets, dtype=np.int64)
+        dim = np.array([t.dim for t in kg.kind.variables], dtype=np.int64)
+        return col, dim, np.ascontiguousarray(o), base, stride, row
+
+    def _add_kinds(self) -> None:
+        for kg, (col, dim, o, base, stride, row) in zip(self.problem.kinds, self._kinds):
+            if kg.E:
+                add_blocks(kg.A, kg.b, self.weights[kg.fidx], col, dim, o, base, stride, row, self.data, self.rhs)
+
     def assemble(self) -> None:
         """H and g of the current linearization (``problem.linearize`` must have run)."""
         self.data[:] = 0.0
         self.rhs[:] = 0.0
         for g in self.problem.groups:
             self._add(g, 0, g.E, g.A1, g.A2, g.b)
+        self._add_kinds()
         self._add_native()
 
     def linearize_assemble(self) -> tuple[float, float, float]:
@@ -106,10 +131,14 @@ class LinearSystem:
                 seconds_asm += time.perf_counter() - t1
             total += 0.5 * float(g.sq.sum())
         t0 = time.perf_counter()
-        total += P.linearize_native()
+        total += P.linearize_kinds()
         t1 = time.perf_counter()
+        self._add_kinds()
+        t2 = time.perf_counter()
+        total += P.linearize_native()
+        t3 = time.perf_counter()
         self._add_native()
-        return total, seconds_lin + t1 - t0, seconds_asm + time.perf_counter() - t1
+        return total, seconds_lin + (t1 - t0) + (t3 - t2), seconds_asm + (t2 - t1) + time.perf_counter() - t3
 
     def _add(self, g, start: int, stop: int, A1, A2, b) -> None:
         """Add factors ``start:stop`` of group ``g`` (their blocks ``A1``, ``A2``, ``b``) to H and g."""

@@ -238,6 +238,29 @@ def add_factors(A1, A2, b, w, at, data, rhs):
 
 
 @kernel
+def add_blocks(A, b, w, col, dim, o, base, stride, row, data, rhs):
+    """Accumulate w_f·A_fᵀA_f and w_f·A_fᵀb_f of factors on k variables each: A (F, m, Σd),
+    variable p's columns ``col[p]:col[p] + dim[p]``; ``o`` (F, k) its offset in the right-hand
+    side; block (p, q), p ≤ q, at ``base[f, p, q]``/``stride[f, p, q]`` of ``data``, stored as
+    A_pᵀA_q where ``row[f, p, q]`` (variable p the row), else as A_qᵀA_p."""
+    k = col.shape[0]
+    for f in range(A.shape[0]):
+        wf = w[f]
+        if wf == 0.0:
+            continue
+        for p in range(k):
+            Ap = A[f, :, col[p]:col[p] + dim[p]]
+            _add_gram(Ap, Ap, wf, base[f, p, p], stride[f, p, p], True, data)
+            _add_rhs(Ap, b[f], wf, o[f, p], rhs)
+            for q in range(p + 1, k):
+                Aq = A[f, :, col[q]:col[q] + dim[q]]
+                if row[f, p, q]:
+                    _add_gram(Ap, Aq, wf, base[f, p, q], stride[f, p, q], False, data)
+                else:
+                    _add_gram(Aq, Ap, wf, base[f, p, q], stride[f, p, q], False, data)
+
+
+@kernel
 def add_information(nat, w, data, rhs):
     """Accumulate GTSAM's augmented information [AᵀA Aᵀb; bᵀA bᵀb] of natively linearized factors
     (``nat``: a :class:`NativeBlocks`), factor f weighted by ``w[f]``."""

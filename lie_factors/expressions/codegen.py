@@ -1,0 +1,390 @@
+"""The compiled kernel of a factor kind, generated from its residual's expression.
+
+:func:`generate` writes the source of one numba kernel that evaluates every factor of the kind
+in a range: the residual's nodes in order, each a call of its compiled operation
+(:mod:`lie_factors.expressions.kernels`), then, with ``jacobians``, the chain rule: the
+Jacobian of node k with respect to variable j is
+
+    J_k,j = Σ over the inputs i of k that depend on j of  D_k,i · J_i,j        (J_j,j = I)
+
+where D_k,i is the operation's local Jacobian (a matrix it computes, or ±I, a constant factor,
+a constant matrix, a selection of rows, a place among rows).  Then the residual r is whitened:
+b = −R·e, sq = ‖R·e‖², A_j = R·J_r,j.  :func:`load` writes the source to a file named by its
+digest (with the package's and numba's: a kernel never links an edited callee) under the
+cache directory and imports it, so numba caches the compiled kernel like any other.
+
+The kernel's arguments, in order: the group tags its operations need (``G_Pose3`` …), then for
+each variable j its values ``X<j>`` ((N, m, m) elements or (N, d) vectors) and the index of each
+factor's in them ``I<j>`` (F,), then each constant ``C<c>`` (F, …), then ``R`` (U, m, m), ``ridx``
+(F,), the outputs ``e`` (F, m), ``A`` (F, m, Σ d_j), ``b`` (F, m), ``sq`` (F,), and ``f0``, ``f1``,
+``jacobians``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .expr import Node
+from .types import ValueType
+
+#: How an input's local Jacobian enters the chain rule (see the module docstring).
+MATRIX, EYE, NEG, SCALE, CONST, SELECT, PLACE = "matrix", "eye", "neg", "scale", "const", "select", "place"
+
+
+def topological(residual: Node) -> list[Node]:
+    """The nodes ``residual`` depends on, each after its inputs (one entry per node object)."""
+    order, seen = [], set()
+    stack = [(residual, False)]
+    while stack:
+        node, done = stack.pop()
+        if done:
+            order.append(node)
+            continue
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        stack.append((node, True))
+        for x in reversed(node.inputs):
+            if id(x) not in seen:
+                stack.append((x, False))
+    return order
+
+
+class _Writer:
+    def __init__(self):
+        self.lines: list[str] = []
+
+    def __call__(self, indent: int, text: str) -> None:
+        self.lines.append("    " * indent + text)
+
+
+def _shape(t: ValueType) -> str:
+    return "(" + ", ".join(str(s) for s in t.shape) + ("," if len(t.shape) == 1 else "") + ")"
+
+
+class Generator:
+    """The source of one kind's kernel (see the module docstring)."""
+
+    def __init__(self, name: str, variables: list[ValueType], constants: list[ValueType], residual: Node):
+        self.name = name
+        self.variables = variables
+        self.constants = constants
+        self.residual = residual
+        self.nodes = topological(residual)
+        self.k = {id(n): i for i, n in enumerate(self.nodes)}
+        self.deps: dict[int, tuple] = {}
+        for n in self.nodes:
+            if n.op == "variable":
+                self.deps[id(n)] = (n.attrs["index"],)
+            else:
+                self.deps[id(n)] = tuple(sorted({j for x in n.inputs for j in self.deps[id(x)]}))
+        self.tags = sorted({t.name for n in self.nodes for t in (n.type, *(x.type for x in n.inputs))
+                            if t.is_group and t.group is not None and self._uses_tag(n)})
+        self.globals: list[str] = []
+
+    @staticmethod
+    def _uses_tag(n: Node) -> bool:
+        return n.op in ("compose", "inverse", "between", "localCoordinates", "logmap", "retract", "expmap")
+
+    # ------------------------------------------------------------------ names
+    def v(self, n: Node) -> str:
+        return f"v{self.k[id(n)]}"
+
+    def J(self, n: Node, j: int) -> str:
+        if n.op == "variable":
+            return f"E{self.variables[j].dim}"
+        return f"J{self.k[id(n)]}_{j}"
+
+    def D(self, n: Node, r: int) -> str:
+        return f"D{self.k[id(n)]}_{r}"
+
+    # ------------------------------------------------------------------ source
+    def source(self) -> str:
+        w = _Writer()
+        args = [f"G_{t}" for t in self.tags]
+        for j in range(len(self.variables)):
+            args += [f"X{j}", f"I{j}"]
+        args += [f"C{c}" for c in range(len(self.constants))]
+        args += ["R", "ridx", "e", "A", "b", "sq", "f0", "f1", "jacobians"]
+        body = _Writer()
+        self._allocate(body)
+        body(1, "for f in range(f0, f1):")
+        for n in self.nodes:
+            self._node(body, n)
+        self._outputs(body)
+        w(0, "@kernel")
+        w(0, f"def evaluate({', '.join(args)}):")
+        w(1, f'"""The residual and Jacobians of the factors f0 … f1 − 1 of the kind {self.name}."""')
+        head = ["# Generated by lie_factors.expressions.codegen for the factor kind "
+                f"{self.name}: its residual's expression, compiled.", "import math", "",
+                "import numpy as np", "", "from lie_factors.expressions import kernels as K",
+                "from lie_factors.kernels.jit import kernel", ""]
+        return "\n".join(head + self.globals + ["", ""] + w.lines + body.lines) + "\n"
+
+    def _allocate(self, w) -> None:
+        dims = sorted({t.dim for t in self.variables})
+        for d in dims:
+            w(1, f"E{d} = np.eye({d})")
+        for n in self.nodes:
+            if n.op in ("variable", "constant"):
+                continue
+            w(1, f"{self.v(n)} = np.empty({_shape(n.type)})")
+            for j in self.deps[id(n)]:
+                w(1, f"{self.J(n, j)} = np.empty(({n.type.dim}, {self.variables[j].dim}))")
+            for r, (form, _) in enumerate(self._forms(n)):
+                if form == MATRIX:
+                    w(1, f"{self.D(n, r)} = np.empty(({n.type.dim}, {n.inputs[r].type.dim}))")
+        m = self.residual.type.dim
+        w(1, f"scratch = np.empty({m})")
+
+    def _node(self, w, n: Node) -> None:
+        k = self.k[id(n)]
+        if n.op == "variable":
+            j = n.attrs["index"]
+            w(2, f"v{k} = X{j}[I{j}[f]]")
+            return
+        if n.op == "constant":
+            w(2, f"v{k} = C{n.attrs['index']}[f]")
+            return
+        for line in self._value(n):
+            w(2, line)
+        chain = self._chain(n)
+        if chain:
+            w(2, "if jacobians:")
+            for line in chain:
+                w(3, line)
+
+    # ------------------------------------------------------------------ operations
+    def _tag(self, t: ValueType) -> str:
+        return f"G_{t.name}"
+
+    def _forms(self, n: Node) -> list[tuple[str, object]]:
+        """How each input's local Jacobian enters (form, parameter), per input."""
+        op, ins = n.op, n.inputs
+        rot2 = ins[0].type.name == "Rot2" if ins else False
+        if op in ("compose", "between"):
+            if rot2:
+                return [(EYE if op == "compose" else NEG, None), (EYE, None)]
+            return [(MATRIX, None), (EYE, None)]
+        if op in ("inverse", "logmap", "expmap"):
+            if rot2 or (op == "expmap" and n.type.name == "Rot2"):
+                return [(NEG if op == "inverse" else EYE, None)]
+            return [(MATRIX, None)]
+        if op == "localCoordinates":
+            return [(NEG, None), (EYE, None)] if rot2 else [(MATRIX, None), (MATRIX, None)]
+        if op == "retract":
+            return [(EYE, None), (EYE, None)] if rot2 else [(MATRIX, None), (MATRIX, None)]
+        if op in ("rotation", "translation", "scale", "norm", "bearing", "pinhole"):
+            return [(MATRIX, None)]
+        if op in ("transformFrom", "transformTo", "rotate", "unrotate", "dot", "uncalibrate"):
+            return [(MATRIX, None), (MATRIX, None)]
+        if op == "add":
+            return [(EYE, None), (EYE, None)]
+        if op == "sub":
+            return [(EYE, None), (NEG, None)]
+        if op == "neg":
+            return [(NEG, None)]
+        if op == "scale_by":
+            return [(SCALE, n.attrs["factor"])]
+        if op == "matmul":
+            return [(CONST, self._constant_matrix(n))]
+        if op == "select":
+            return [(SELECT, (n.attrs["start"], n.attrs["stop"]))]
+        if op == "stack":
+            offsets = np.cumsum([0] + [x.type.dim for x in ins])
+            return [(PLACE, int(offsets[r])) for r in range(len(ins))]
+        raise AssertionError(op)
+
+    def _constant_matrix(self, n: Node) -> str:
+        name = f"M{self.k[id(n)]}"
+        if not any(g.startswith(f"{name} =") for g in self.globals):
+            rows = ", ".join("[" + ", ".join(repr(float(x)) for x in row) + "]" for row in n.attrs["matrix"])
+            self.globals.append(f"{name} = np.array([{rows}])")
+        return name
+
+    def _value(self, n: Node) -> list[str]:
+        op, ins = n.op, n.inputs
+        out = self.v(n)
+        a = self.v(ins[0]) if ins else None
+        b = self.v(ins[1]) if len(ins) > 1 else None
+        t0 = ins[0].type if ins else None
+        if t0 is not None and t0.name == "Rot2" and op in ("compose", "inverse", "between", "logmap",
+                                                            "localCoordinates", "retract"):
+            return [f"K.r2_{'local' if op == 'localCoordinates' else op}({', '.join([a] + ([b] if b else []))}, {out})"]
+        if op == "expmap" and n.type.name == "Rot2":
+            return [f"K.r2_expmap({a}, {out})"]
+        D0 = self.D(n, 0)
+        D1 = self.D(n, 1) if len(ins) > 1 else None
+        if op in ("compose", "between"):
+            return [f"K.g_{op}({self._tag(t0)}, {a}, {b}, {out}, {D0}, jacobians)"]
+        if op in ("inverse", "logmap"):
+            return [f"K.g_{op}({self._tag(t0)}, {a}, {out}, {D0}, jacobians)"]
+        if op == "localCoordinates":
+            return [f"K.g_local({self._tag(t0)}, {a}, {b}, {out}, {D0}, {D1}, jacobians)"]
+        if op == "retract":
+            return [f"K.g_retract({self._tag(t0)}, {a}, {b}, {out}, {D0}, {D1}, jacobians)"]
+        if op == "expmap":
+            return [f"K.g_expmap({self._tag(n.type)}, {a}, {out}, {D0}, jacobians)"]
+        if op == "rotation":
+            return [f"K.rotation_of({a}, {t0.rot}, {out}, {D0}, jacobians)"]
+        if op == "translation":
+            first = 3 if t0.rot == 3 else 0
+            sim = "True" if t0.name.startswith("Similarity") else "False"
+            return [f"K.translation_of({a}, {t0.rot}, {first}, {sim}, {out}, {D0}, jacobians)"]
+        if op == "scale":
+            return [f"K.scale_of({a}, {out}, {D0}, jacobians)"]
+        if op in ("transformFrom", "transformTo", "rotate", "unrotate"):
+            kind = 0 if t0.name in ("Rot2", "Rot3") else 2 if t0.name.startswith("Similarity") else 1
+            fn = "transform_from" if op in ("transformFrom", "rotate") else "transform_to"
+            return [f"K.{fn}({a}, {t0.rot}, {kind}, {b}, {out}, {D0}, {D1}, jacobians)"]
+        if op == "norm":
+            return [f"K.v_norm({a}, {out}, {D0}, jacobians)"]
+        if op == "dot":
+            return [f"K.v_dot({a}, {b}, {out}, {D0}, {D1}, jacobians)"]
+        if op == "bearing":
+            return [f"K.bearing2({a}, {out}, {D0}, jacobians)"]
+        if op == "pinhole":
+            return [f"K.pinhole({a}, {out}, {D0}, jacobians)"]
+        if op == "uncalibrate":
+            fn = "uncalibrate_s2" if t0.name == "Cal3_S2" else "uncalibrate_bundler"
+            return [f"K.{fn}({a}, {b}, {out}, {D0}, {D1}, jacobians)"]
+        d = n.type.dim
+        if op == "add":
+            return [f"for i in range({d}):", f"    {out}[i] = {a}[i] + {b}[i]"]
+        if op == "sub":
+            return [f"for i in range({d}):", f"    {out}[i] = {a}[i] - {b}[i]"]
+        if op == "neg":
+            return [f"for i in range({d}):", f"    {out}[i] = -{a}[i]"]
+        if op == "scale_by":
+            return [f"for i in range({d}):", f"    {out}[i] = {n.attrs['factor']!r} * {a}[i]"]
+        if op == "matmul":
+            M = self._constant_matrix(n)
+            return [f"for i in range({d}):", "    acc = 0.0", f"    for c in range({t0.dim}):",
+                    f"        acc += {M}[i, c] * {a}[c]", f"    {out}[i] = acc"]
+        if op == "select":
+            start = n.attrs["start"]
+            return [f"for i in range({d}):", f"    {out}[i] = {a}[{start} + i]"]
+        if op == "stack":
+            lines, off = [], 0
+            for x in ins:
+                lines += [f"for i in range({x.type.dim}):", f"    {out}[{off} + i] = {self.v(x)}[i]"]
+                off += x.type.dim
+            return lines
+        raise AssertionError(op)
+
+    # ------------------------------------------------------------------ chain rule
+    def _chain(self, n: Node) -> list[str]:
+        lines = []
+        forms = self._forms(n)
+        for j in self.deps[id(n)]:
+            target = self.J(n, j)
+            terms = [(r, x) for r, x in enumerate(n.inputs) if j in self.deps[id(x)]]
+            first = True
+            if any(forms[r][0] == PLACE for r, _ in terms):
+                lines += [f"for i in range({n.type.dim}):", f"    for c in range({self.variables[j].dim}):",
+                          f"        {target}[i, c] = 0.0"]
+                first = False
+            for r, x in terms:
+                lines += self._term(n, r, x, j, target, forms[r], first)
+                first = False
+        return lines
+
+    def _term(self, n: Node, r: int, x: Node, j: int, target: str, form, first: bool) -> list[str]:
+        kind, param = form
+        src = self.J(x, j)
+        direct = x.op == "variable"  # J_x,j = I
+        dj = self.variables[j].dim
+        if kind == MATRIX:
+            D = self.D(n, r)
+            if direct:
+                return [f"K.{'copy2' if first else 'add2'}({D}, {target}, 1.0)"]
+            return [f"K.{'mm_set' if first else 'mm_add'}({D}, {src}, {target})"]
+        if kind in (EYE, NEG, SCALE):
+            sign = {EYE: "1.0", NEG: "-1.0"}.get(kind, repr(param))
+            return [f"K.{'copy2' if first else 'add2'}({src}, {target}, {sign})"]
+        if kind == CONST:
+            return [f"K.{'mm_set' if first else 'mm_add'}({param}, {src}, {target})"]
+        if kind == SELECT:
+            start, _ = param
+            op = "=" if first else "+="
+            return [f"for i in range({n.type.dim}):", f"    for c in range({dj}):",
+                    f"        {target}[i, c] {op} {src}[{start} + i, c]"]
+        if kind == PLACE:
+            return [f"for i in range({x.type.dim}):", f"    for c in range({dj}):",
+                    f"        {target}[{param} + i, c] += {src}[i, c]"]
+        raise AssertionError(kind)
+
+    def _outputs(self, w) -> None:
+        r = self.residual
+        m = r.type.dim
+        e = self.v(r)
+        w(2, "Rf = R[ridx[f]]")
+        w(2, "total = 0.0")
+        w(2, f"for i in range({m}):")
+        w(3, f"e[f, i] = {e}[i]")
+        w(3, "acc = 0.0")
+        w(3, f"for c in range({m}):")
+        w(4, f"acc += Rf[i, c] * {e}[c]")
+        w(3, "scratch[i] = acc")
+        w(3, "total += acc * acc")
+        w(2, "sq[f] = total")
+        w(2, "if jacobians:")
+        w(3, f"for i in range({m}):")
+        w(4, "b[f, i] = -scratch[i]")
+        offset = 0
+        for j, t in enumerate(self.variables):
+            w(3, f"for i in range({m}):")
+            w(4, f"for c in range({t.dim}):")
+            if j in self.deps[id(r)]:
+                w(5, "acc = 0.0")
+                w(5, f"for q in range({m}):")
+                w(6, f"acc += Rf[i, q] * {self.J(r, j)}[q, c]")
+                w(5, f"A[f, i, {offset} + c] = acc")
+            else:
+                w(5, f"A[f, i, {offset} + c] = 0.0")
+            offset += t.dim
+
+
+def cache_directory() -> Path:
+    """Where generated kernels are written: ``$NUMBA_CACHE_DIR/lie_factors_kinds`` when numba's
+    cache directory is set, else ``$XDG_CACHE_HOME/lie-factors/kinds`` (``~/.cache/…``)."""
+    numba_dir = os.environ.get("NUMBA_CACHE_DIR")
+    if numba_dir:
+        return Path(numba_dir) / "lie_factors_kinds"
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "lie-factors" / "kinds"
+
+
+def load(name: str, source: str):
+    """The module of ``source`` (a kind's kernel), written under :func:`cache_directory` in a file
+    named by the digest of the source, the package's and numba's versions, then imported."""
+    import numba
+
+    from ..kernels.cache import package_digest
+
+    digest = hashlib.sha256("\0".join((source, package_digest(), numba.__version__)).encode()).hexdigest()[:20]
+    module_name = f"lie_factors_kind_{_identifier(name)}_{digest}"
+    if module_name in sys.modules:
+        return sys.modules[module_name]
+    directory = cache_directory()
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / f"{module_name}.py"
+    if not path.exists() or path.read_text(encoding="utf-8") != source:
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_text(source, encoding="utf-8")
+        os.replace(tmp, path)  # atomic: another process writing the same kind writes the same text
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _identifier(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name)[:40]

@@ -1,0 +1,507 @@
+"""The compiled operations of the vocabulary: each computes its value and, with ``jac``, its local
+Jacobians (the derivative of its output with respect to each input, in GTSAM's right
+perturbation: a group element X moves as X·Exp(δ), a vector p as p + δ).  The generated kernel
+of a factor kind (:mod:`lie_factors.expressions.codegen`) calls them in the order of the
+residual's expression and chains their Jacobians (:func:`mm_set`, :func:`mm_add`).
+
+Group-generic operations take the group tag ``g`` (:mod:`lie_factors.kernels.dispatch`) and run
+the group's own cores (exp, log, dlog, dexp, Ad, compose, inverse).  The identities they rest on
+(Eade, "Derivative of the Exponential Map": Eq. 6, Y·Exp(x) = Exp(Ad_Y x)·Y, and Eq. 12, 35,
+with the right Jacobian J_r(x) = D_exp(−x), ``docs/conventions.md``) are derived in
+docs/factors.md; every formula is tested against differences of the definition.  Rot2 (SO(2),
+tangent [θ], a 2×2 rotation matrix) has its own short forms: Ad = 1, J_r = 1.
+
+Geometry (rotation, translation, scale, points, projection) is written per group type: Pose2
+[x, y, θ], Pose3 [ω, v], Similarity2 [x, y, θ, λ], Similarity3 [ω, u, λ] (element
+[[R, t], [0, 1/s]], s = e^λ, acting as p ↦ s(R p + t), GTSAM's), Rot2, Rot3.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..kernels import dispatch as _dispatch
+from ..kernels.jit import helper_kernel
+
+# --------------------------------------------------------------------------- #
+# Small dense algebra for the chain rule
+# --------------------------------------------------------------------------- #
+
+
+@helper_kernel
+def mm_set(A, B, out):
+    """out = A·B."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            acc = 0.0
+            for k in range(A.shape[1]):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
+@helper_kernel
+def mm_add(A, B, out):
+    """out += A·B."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            acc = 0.0
+            for k in range(A.shape[1]):
+                acc += A[i, k] * B[k, j]
+            out[i, j] += acc
+
+
+@helper_kernel
+def copy2(src, out, sign):
+    """out = sign·src (2-D)."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            out[i, j] = sign * src[i, j]
+
+
+@helper_kernel
+def add2(src, out, sign):
+    """out += sign·src (2-D)."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            out[i, j] += sign * src[i, j]
+
+
+@helper_kernel
+def skew_into(x, out, sign):
+    """out = sign·[x]× (3×3)."""
+    out[0, 0] = 0.0
+    out[0, 1] = -sign * x[2]
+    out[0, 2] = sign * x[1]
+    out[1, 0] = sign * x[2]
+    out[1, 1] = 0.0
+    out[1, 2] = -sign * x[0]
+    out[2, 0] = -sign * x[1]
+    out[2, 1] = sign * x[0]
+    out[2, 2] = 0.0
+
+
+# --------------------------------------------------------------------------- #
+# Group operations: any registered matrix group (tag g), and Rot2
+# --------------------------------------------------------------------------- #
+
+
+@helper_kernel
+def g_compose(g, A, B, out, DA, jac):
+    """out = A·B;  DA = Ad(B⁻¹) (DB = I)."""
+    _dispatch.compose(g, A, B, out)
+    if jac:
+        m = A.shape[0]
+        Bi = np.empty((m, m))
+        _dispatch.inverse(g, B, Bi)
+        _dispatch.Ad(g, Bi, DA)
+
+
+@helper_kernel
+def g_inverse(g, A, out, DA, jac):
+    """out = A⁻¹;  DA = −Ad(A)."""
+    _dispatch.inverse(g, A, out)
+    if jac:
+        _dispatch.Ad(g, A, DA)
+        copy2(DA, DA, -1.0)
+
+
+@helper_kernel
+def g_between(g, A, B, out, DA, jac):
+    """out = A⁻¹·B;  DA = −Ad(out⁻¹) (DB = I)."""
+    m = A.shape[0]
+    Ai = np.empty((m, m))
+    _dispatch.inverse(g, A, Ai)
+    _dispatch.compose(g, Ai, B, out)
+    if jac:
+        oi = np.empty((m, m))
+        _dispatch.inverse(g, out, oi)
+        _dispatch.Ad(g, oi, DA)
+        copy2(DA, DA, -1.0)
+
+
+@helper_kernel
+def g_logmap(g, A, out, DA, jac):
+    """out = Log(A);  DA = J_r⁻¹(out) = dlog(−out)."""
+    _dispatch.log(g, A, out)
+    if jac:
+        neg = -out
+        _dispatch.dlog(g, neg, DA)
+
+
+@helper_kernel
+def g_local(g, A, B, out, DA, DB, jac):
+    """out = Log(A⁻¹·B) (GTSAM's localCoordinates);  DB = J_r⁻¹(out), DA = −DB·Ad((A⁻¹B)⁻¹)."""
+    m = A.shape[0]
+    n = out.shape[0]
+    Ai = np.empty((m, m))
+    E = np.empty((m, m))
+    _dispatch.inverse(g, A, Ai)
+    _dispatch.compose(g, Ai, B, E)
+    _dispatch.log(g, E, out)
+    if jac:
+        neg = -out
+        _dispatch.dlog(g, neg, DB)
+        Ei = np.empty((m, m))
+        Ad = np.empty((n, n))
+        _dispatch.inverse(g, E, Ei)
+        _dispatch.Ad(g, Ei, Ad)
+        mm_set(DB, Ad, DA)
+        copy2(DA, DA, -1.0)
+
+
+@helper_kernel
+def g_expmap(g, v, out, Dv, jac):
+    """out = Exp(v);  Dv = J_r(v) = D_exp(−v)."""
+    _dispatch.exp(g, v, out)
+    if jac:
+        neg = -v
+        _dispatch.dexp(g, neg, Dv)
+
+
+@helper_kernel
+def g_retract(g, A, v, out, DA, Dv, jac):
+    """out = A·Exp(v) (GTSAM's retract and expmap);  DA = Ad(Exp(v)⁻¹), Dv = J_r(v)."""
+    m = A.shape[0]
+    E = np.empty((m, m))
+    _dispatch.exp(g, v, E)
+    _dispatch.compose(g, A, E, out)
+    if jac:
+        Ei = np.empty((m, m))
+        _dispatch.inverse(g, E, Ei)
+        _dispatch.Ad(g, Ei, DA)
+        neg = -v
+        _dispatch.dexp(g, neg, Dv)
+
+
+@helper_kernel
+def rot2(c, s, out):
+    out[0, 0] = c
+    out[0, 1] = -s
+    out[1, 0] = s
+    out[1, 1] = c
+
+
+# Rot2's Jacobians are constants (Ad = 1, J_r = 1): ±1, which the chain rule applies as
+# identities (:mod:`lie_factors.expressions.codegen`); these compute values only.
+
+@helper_kernel
+def r2_compose(A, B, out):
+    """Rot2: out = A·B (D = 1, 1)."""
+    c = A[0, 0] * B[0, 0] - A[1, 0] * B[1, 0]
+    s = A[1, 0] * B[0, 0] + A[0, 0] * B[1, 0]
+    rot2(c, s, out)
+
+
+@helper_kernel
+def r2_inverse(A, out):
+    """Rot2: out = A⁻¹ (D = −1)."""
+    rot2(A[0, 0], -A[1, 0], out)
+
+
+@helper_kernel
+def r2_between(A, B, out):
+    """Rot2: out = A⁻¹·B (D = −1, 1)."""
+    c = A[0, 0] * B[0, 0] + A[1, 0] * B[1, 0]
+    s = A[0, 0] * B[1, 0] - A[1, 0] * B[0, 0]
+    rot2(c, s, out)
+
+
+@helper_kernel
+def r2_logmap(A, out):
+    """Rot2: out = [θ] = atan2(s, c) (D = 1)."""
+    out[0] = math.atan2(A[1, 0], A[0, 0])
+
+
+@helper_kernel
+def r2_local(A, B, out):
+    """Rot2: out = Log(A⁻¹·B) (D = −1, 1)."""
+    c = A[0, 0] * B[0, 0] + A[1, 0] * B[1, 0]
+    s = A[0, 0] * B[1, 0] - A[1, 0] * B[0, 0]
+    out[0] = math.atan2(s, c)
+
+
+@helper_kernel
+def r2_expmap(v, out):
+    """Rot2: out = Exp(θ) (D = 1)."""
+    rot2(math.cos(v[0]), math.sin(v[0]), out)
+
+
+@helper_kernel
+def r2_retract(A, v, out):
+    """Rot2: out = A·Exp(θ) (D = 1, 1)."""
+    c, s = math.cos(v[0]), math.sin(v[0])
+    rot2(A[0, 0] * c - A[1, 0] * s, A[1, 0] * c + A[0, 0] * s, out)
+
+
+# --------------------------------------------------------------------------- #
+# Parts of an element: rotation, translation, scale
+# --------------------------------------------------------------------------- #
+
+
+@helper_kernel
+def rotation_of(X, d, out, DX, jac):
+    """out = the rotation block R = X[:d, :d];  DX = [0 … I_r … 0], the rotation's rows of the
+    tangent (d = 3: ω at columns 0–2; d = 2: θ at column 2), exact: Exp(δ)'s rotation block is
+    Exp of δ's rotation part."""
+    for i in range(d):
+        for j in range(d):
+            out[i, j] = X[i, j]
+    if jac:
+        for i in range(DX.shape[0]):
+            for j in range(DX.shape[1]):
+                DX[i, j] = 0.0
+        if d == 3:
+            for i in range(3):
+                DX[i, i] = 1.0
+        else:
+            DX[0, 2] = 1.0
+
+
+@helper_kernel
+def translation_of(X, d, first, similarity, out, DX, jac):
+    """out = t = X[:d, d];  DX: the rotation times the tangent's translation part (at column
+    ``first``), and for a similarity −t at the scale's column (the last): X·Exp(δ) moves t by
+    R·u and, through the corner 1/s, by −λ·t."""
+    for i in range(d):
+        out[i] = X[i, d]
+    if jac:
+        for i in range(DX.shape[0]):
+            for j in range(DX.shape[1]):
+                DX[i, j] = 0.0
+        for i in range(d):
+            for j in range(d):
+                DX[i, first + j] = X[i, j]
+        if similarity:
+            last = DX.shape[1] - 1
+            for i in range(d):
+                DX[i, last] = -X[i, d]
+
+
+@helper_kernel
+def scale_of(X, out, DX, jac):
+    """out = [s] = [1/X[m−1, m−1]] of a similarity;  DX = [0 … s] (λ last: s' = s·e^λ)."""
+    m = X.shape[0]
+    s = 1.0 / X[m - 1, m - 1]
+    out[0] = s
+    if jac:
+        for j in range(DX.shape[1]):
+            DX[0, j] = 0.0
+        DX[0, DX.shape[1] - 1] = s
+
+
+# --------------------------------------------------------------------------- #
+# Points: transformFrom, transformTo, rotate, unrotate (GTSAM's actions)
+# --------------------------------------------------------------------------- #
+
+
+@helper_kernel
+def transform_from(X, d, kind, p, out, DX, Dp, jac):
+    """out = s·(R p + t) (s = 1 but for a similarity); ``kind``: 0 a rotation (out = R p), 1 a
+    pose, 2 a similarity.  DX (tangent columns: d = 3 [ω, v (, λ)], d = 2 [x, y, θ (, λ)]):
+    the rotation's column(s) s·R·(−[p]×) (3-D) or s·R·J·p (2-D, J = [[0, −1], [1, 0]]), the
+    translation's s·R, the scale's s·R·p;  Dp = s·R."""
+    m = X.shape[0]
+    s = 1.0 / X[m - 1, m - 1] if kind == 2 else 1.0
+    Rp = np.empty(d)
+    for i in range(d):
+        acc = 0.0
+        for j in range(d):
+            acc += X[i, j] * p[j]
+        Rp[i] = acc
+    for i in range(d):
+        out[i] = s * (Rp[i] + (X[i, d] if kind > 0 else 0.0))
+    if not jac:
+        return
+    for i in range(d):
+        for j in range(d):
+            Dp[i, j] = s * X[i, j]
+    for i in range(DX.shape[0]):
+        for j in range(DX.shape[1]):
+            DX[i, j] = 0.0
+    if d == 3:
+        # rotation part: −s R [p]×, columns 0..2
+        for i in range(3):
+            DX[i, 0] = -s * (X[i, 1] * p[2] - X[i, 2] * p[1])
+            DX[i, 1] = -s * (X[i, 2] * p[0] - X[i, 0] * p[2])
+            DX[i, 2] = -s * (X[i, 0] * p[1] - X[i, 1] * p[0])
+        if kind > 0:
+            for i in range(3):
+                for j in range(3):
+                    DX[i, 3 + j] = s * X[i, j]
+        if kind == 2:
+            for i in range(3):
+                DX[i, 6] = s * Rp[i]
+    else:
+        col = 0 if kind == 0 else 2
+        # s R J p, J p = (−p1, p0)
+        for i in range(2):
+            DX[i, col] = s * (X[i, 0] * -p[1] + X[i, 1] * p[0])
+        if kind > 0:
+            for i in range(2):
+                for j in range(2):
+                    DX[i, j] = s * X[i, j]
+        if kind == 2:
+            for i in range(2):
+                DX[i, 3] = s * Rp[i]
+
+
+@helper_kernel
+def transform_to(X, d, kind, p, out, DX, Dp, jac):
+    """out = q = Rᵀ(p/s − t) (the inverse of :func:`transform_from`; s = 1 but for a similarity,
+    t = 0 for a rotation).  DX: the rotation's column(s) [q]× (3-D) or −J·q (2-D), the
+    translation's −I, the scale's −q;  Dp = Rᵀ/s."""
+    m = X.shape[0]
+    s = 1.0 / X[m - 1, m - 1] if kind == 2 else 1.0
+    w = np.empty(d)
+    for i in range(d):
+        w[i] = p[i] / s - (X[i, d] if kind > 0 else 0.0)
+    for i in range(d):
+        acc = 0.0
+        for j in range(d):
+            acc += X[j, i] * w[j]
+        out[i] = acc
+    if not jac:
+        return
+    for i in range(d):
+        for j in range(d):
+            Dp[i, j] = X[j, i] / s
+    for i in range(DX.shape[0]):
+        for j in range(DX.shape[1]):
+            DX[i, j] = 0.0
+    if d == 3:
+        DX[0, 1] = -out[2]
+        DX[0, 2] = out[1]
+        DX[1, 0] = out[2]
+        DX[1, 2] = -out[0]
+        DX[2, 0] = -out[1]
+        DX[2, 1] = out[0]
+        if kind > 0:
+            for i in range(3):
+                DX[i, 3 + i] = -1.0
+        if kind == 2:
+            for i in range(3):
+                DX[i, 6] = -out[i]
+    else:
+        col = 0 if kind == 0 else 2
+        # −J q = (q1, −q0)
+        DX[0, col] = out[1]
+        DX[1, col] = -out[0]
+        if kind > 0:
+            DX[0, 0] = -1.0
+            DX[1, 1] = -1.0
+        if kind == 2:
+            DX[0, 3] = -out[0]
+            DX[1, 3] = -out[1]
+
+
+# --------------------------------------------------------------------------- #
+# Vectors
+# --------------------------------------------------------------------------- #
+
+
+@helper_kernel
+def v_norm(a, out, Da, jac):
+    """out = [‖a‖];  Da = aᵀ/‖a‖ (0 at a = 0, as GTSAM's norm3 and norm2)."""
+    n = 0.0
+    for i in range(a.shape[0]):
+        n += a[i] * a[i]
+    n = math.sqrt(n)
+    out[0] = n
+    if jac:
+        for i in range(a.shape[0]):
+            Da[0, i] = a[i] / n if n > 0.0 else 0.0
+
+
+@helper_kernel
+def v_dot(a, b, out, Da, Db, jac):
+    """out = [a·b];  Da = bᵀ, Db = aᵀ."""
+    acc = 0.0
+    for i in range(a.shape[0]):
+        acc += a[i] * b[i]
+    out[0] = acc
+    if jac:
+        for i in range(a.shape[0]):
+            Da[0, i] = b[i]
+            Db[0, i] = a[i]
+
+
+@helper_kernel
+def bearing2(p, out, Dp, jac):
+    """out = the Rot2 of direction p = (x, y) (GTSAM's Rot2::relativeBearing: c = x/r, s = y/r);
+    Dp = [−y, x]/r²."""
+    x, y = p[0], p[1]
+    r = math.hypot(x, y)
+    if r > 0.0:
+        rot2(x / r, y / r, out)
+    else:
+        rot2(1.0, 0.0, out)
+    if jac:
+        r2 = x * x + y * y
+        Dp[0, 0] = -y / r2 if r2 > 0.0 else 0.0
+        Dp[0, 1] = x / r2 if r2 > 0.0 else 0.0
+
+
+@helper_kernel
+def pinhole(q, out, Dq, jac):
+    """out = (x/z, y/z) of a point in the camera frame (z forward, GTSAM's PinholeCamera);
+    Dq = [[1/z, 0, −x/z²], [0, 1/z, −y/z²]]."""
+    z = q[2]
+    u = q[0] / z
+    v = q[1] / z
+    out[0] = u
+    out[1] = v
+    if jac:
+        Dq[0, 0] = 1.0 / z
+        Dq[0, 1] = 0.0
+        Dq[0, 2] = -u / z
+        Dq[1, 0] = 0.0
+        Dq[1, 1] = 1.0 / z
+        Dq[1, 2] = -v / z
+
+
+@helper_kernel
+def uncalibrate_s2(K, pn, out, DK, Dpn, jac):
+    """Cal3_S2 K = [fx, fy, s, u0, v0]: out = (fx·u + s·v + u0, fy·v + v0) of pn = (u, v);
+    DK = [[u, 0, v, 1, 0], [0, v, 0, 0, 1]], Dpn = [[fx, s], [0, fy]]."""
+    u, v = pn[0], pn[1]
+    out[0] = K[0] * u + K[2] * v + K[3]
+    out[1] = K[1] * v + K[4]
+    if jac:
+        for j in range(5):
+            DK[0, j] = 0.0
+            DK[1, j] = 0.0
+        DK[0, 0] = u
+        DK[0, 2] = v
+        DK[0, 3] = 1.0
+        DK[1, 1] = v
+        DK[1, 4] = 1.0
+        Dpn[0, 0] = K[0]
+        Dpn[0, 1] = K[2]
+        Dpn[1, 0] = 0.0
+        Dpn[1, 1] = K[1]
+
+
+@helper_kernel
+def uncalibrate_bundler(K, pn, out, DK, Dpn, jac):
+    """Cal3Bundler K = [f, k1, k2] (principal point 0): out = f·g·pn, g = 1 + k1 r² + k2 r⁴,
+    r² = |pn|²;  DK = [g·pn, f·r²·pn, f·r⁴·pn], Dpn = f·(g·I + 2(k1 + 2 k2 r²)·pn·pnᵀ)."""
+    f, k1, k2 = K[0], K[1], K[2]
+    u, v = pn[0], pn[1]
+    r2 = u * u + v * v
+    g = 1.0 + (k1 + k2 * r2) * r2
+    out[0] = f * g * u
+    out[1] = f * g * v
+    if jac:
+        DK[0, 0] = g * u
+        DK[1, 0] = g * v
+        DK[0, 1] = f * r2 * u
+        DK[1, 1] = f * r2 * v
+        DK[0, 2] = f * r2 * r2 * u
+        DK[1, 2] = f * r2 * r2 * v
+        h = 2.0 * (k1 + 2.0 * k2 * r2)
+        Dpn[0, 0] = f * (g + h * u * u)
+        Dpn[0, 1] = f * h * u * v
+        Dpn[1, 0] = f * h * u * v
+        Dpn[1, 1] = f * (g + h * v * v)

@@ -1,0 +1,244 @@
+"""Factor kinds: a residual written once in the vocabulary, a GTSAM factor class made from it.
+
+::
+
+    import lie_factors as lf
+
+    @lf.factor("Pose2", "Point2", measured="Point2")
+    def landmark(x, l, z):                 # x: the pose, l: the landmark, z: the measurement
+        return x.transformTo(l) - z        # where the pose sees the landmark, less where it was seen
+
+    graph.add(landmark(X(1), L(7), np.array([4.1, 0.5]), noise))
+
+:func:`factor` traces the residual once on placeholders (:mod:`lie_factors.expressions.expr`),
+generates the kind's kernel (:mod:`lie_factors.expressions.codegen`) and returns a subclass of
+:class:`KindFactor`, a ``gtsam.CustomFactor``: it works in GTSAM's optimizers, ISAM2 and
+Marginals, beside GTSAM's own factors, one compiled call per evaluation; and the batch solver
+reads every factor of a kind into arrays and evaluates them in one call
+(:mod:`lie_factors.batch.graph`).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from ..errors import InputError
+from . import codegen
+from .expr import Expr, Node, Trace, constant, variable
+from .types import ValueType, accessor, as_array, value_type
+
+__all__ = ["factor", "KindFactor", "Kind"]
+
+
+@dataclass
+class Kind:
+    """A factor kind: its name, variables' and constants' types, residual (an expression
+    :class:`Node`, dimension ``dim``) and compiled kernel (``evaluate``, see
+    :mod:`lie_factors.expressions.codegen`; ``tags``: the group tags it takes first)."""
+
+    name: str
+    variables: list
+    constant_names: list
+    constants: list
+    residual: Node
+    source: str
+    module: object
+
+    @property
+    def dim(self) -> int:
+        return self.residual.type.dim
+
+    @property
+    def offsets(self) -> list[int]:
+        """Each variable's first column in the kernel's Jacobian A (F, dim, Σ d_j)."""
+        return [int(x) for x in np.cumsum([0] + [t.dim for t in self.variables])[:-1]]
+
+    @property
+    def columns(self) -> int:
+        return sum(t.dim for t in self.variables)
+
+    @property
+    def tags(self) -> tuple:
+        from ..kernels import registry
+
+        return tuple(registry.BY_GTSAM[name] for name in self.module.TAGS)
+
+    def evaluate(self, *args) -> None:
+        """The kernel (module docstring of :mod:`~lie_factors.expressions.codegen`), typed on
+        its first call and then called through its compiled entry point."""
+        self._entry(*args)
+
+    @property
+    def _entry(self):
+        entry = self.__dict__.get("_direct")
+        if entry is None:
+            from ..kernels.jit import direct
+
+            entry = self.__dict__["_direct"] = direct(self.module.evaluate)
+        return entry
+
+
+def _trace(fn, variables: list, names: list, constants: list) -> Node:
+    trace = Trace(fn)
+    args = [variable(j, t) for j, t in enumerate(variables)]
+    args += [constant(c, names[c], t) for c, t in enumerate(constants)]
+    previous, Trace.current = Trace.current, trace
+    try:
+        out = fn(*args)
+    finally:
+        Trace.current = previous
+    if not isinstance(out, Expr):
+        raise InputError(f"{trace.where(None)}: the residual must be an expression of the variables "
+                         f"(a vector), got {type(out).__name__}")
+    if out.node.type.is_group:
+        raise InputError(f"{trace.where(out.node.line)}: the residual is a {out.node.type}, a group "
+                         "element: return a vector, e.g. measured.localCoordinates(predicted)")
+    return out.node
+
+
+def factor(*variables, measured=None, **constants):
+    """Decorator: a factor kind from a residual function (module docstring).
+
+    ``variables``: the types of the factor's variables, in its keys' order (``"Pose3"``,
+    ``"Point3"``, ``"Vector4"``, ``"Rot2"``, GTSAM classes…).  ``measured``: the type of its
+    measurement, or None for none; ``constants``: more constants by name and type (a calibration:
+    ``K="Cal3_S2"``).  The residual function takes the variables, then the measurement, then the
+    constants, and returns a vector expression.  Returns the factor class; its constructor is
+    ``kind(key_1, …, key_k, measured, noise_model, **constants)``, GTSAM's argument order.
+    """
+    var_types = [value_type(t) for t in variables]
+    names = (["measured"] if measured is not None else []) + list(constants)
+    const_types = ([value_type(measured)] if measured is not None else []) + [value_type(t) for t in constants.values()]
+    if not var_types:
+        raise InputError("a factor needs at least one variable")
+
+    def define(fn):
+        residual = _trace(fn, var_types, names, const_types)
+        gen = codegen.Generator(fn.__name__, var_types, const_types, residual)
+        source = gen.source() + f"\nTAGS = {tuple(gen.tags)!r}\n"
+        kind = Kind(fn.__name__, var_types, names, const_types, residual, source,
+                    codegen.load(fn.__name__, source))
+        cls = type(fn.__name__, (KindFactor,), {
+            "kind": kind, "__module__": getattr(fn, "__module__", __name__), "__qualname__": fn.__qualname__,
+            "__doc__": fn.__doc__ or f"The factor kind {fn.__name__}: {', '.join(map(str, var_types))}.",
+            "residual_function": staticmethod(fn)})
+        return cls
+
+    return define
+
+
+_buffers = threading.local()
+
+
+class KindFactor(gtsam.CustomFactor):
+    """A factor of a kind (made by :func:`factor`): ``kind(key_1, …, key_k, measured,
+    noise_model, **constants)``.  ``keys()``, ``measured()``, ``constants()`` (name → array),
+    ``noiseModel()``; its error is ½‖R·e‖² of the residual e, its Jacobians the chain rule's."""
+
+    kind: Kind
+
+    def __init__(self, *args, **named):
+        kind = self.kind
+        name = type(self).__name__
+        k = len(kind.variables)
+        wanted = k + (1 if kind.constant_names[:1] == ["measured"] else 0) + 1
+        extra = [c for c in kind.constant_names if c != "measured"]
+        if len(args) != wanted:
+            sig = ", ".join([f"key{j + 1}" for j in range(k)]
+                            + (["measured"] if "measured" in kind.constant_names else []) + ["noise_model"]
+                            + [f"{c}=…" for c in extra])
+            raise TypeError(f"{name}({sig}): got {len(args)} positional arguments")
+        keys = [_checked_key(key, name) for key in args[:k]]
+        if len(set(keys)) != k:
+            raise InputError(f"{name}: a factor's keys must differ, got {keys}")
+        noise = args[-1]
+        if not isinstance(noise, gtsam.noiseModel.Base):
+            raise TypeError(f"{name}: noise_model must be a gtsam.noiseModel, got {type(noise).__name__}")
+        if noise.dim() != kind.dim:
+            raise InputError(f"{name}: the noise model has dimension {noise.dim()}, the residual {kind.dim}")
+        given = dict(zip(["measured"], args[k:-1])) if "measured" in kind.constant_names else {}
+        unknown = set(named) - set(extra)
+        if unknown:
+            raise TypeError(f"{name}: unknown constant(s) {sorted(unknown)}; the kind takes {extra or 'none'}")
+        missing = [c for c in extra if c not in named]
+        if missing:
+            raise TypeError(f"{name}: the constant(s) {missing} must be given")
+        given.update(named)
+        self._given = {c: given[c] for c in kind.constant_names}
+        self._constants = [as_array(t, given[c], f"{name}: {c}")
+                           for c, t in zip(kind.constant_names, kind.constants)]
+        gtsam.CustomFactor.__init__(self, noise, keys, self._evaluate)
+        self._keys_ = keys
+        self._noise = noise
+
+    def measured(self):
+        """The measurement, as given."""
+        return self._given["measured"]
+
+    def constants(self) -> dict:
+        """Every constant (the measurement first), as the kernel holds them: name → array."""
+        return dict(zip(self.kind.constant_names, self._constants))
+
+    def _evaluate(self, this, values, H):
+        kind = self.kind
+        buf = getattr(_buffers, kind.name + str(id(kind)), None)
+        if buf is None:
+            buf = _Buffers(kind)
+            setattr(_buffers, kind.name + str(id(kind)), buf)
+        for j, (key, t) in enumerate(zip(self._keys_, kind.variables)):
+            buf.X[j][0] = _fetch(values, key, t, type(self).__name__)
+        for c, value in enumerate(self._constants):
+            buf.C[c][0] = value
+        kind.evaluate(*buf.args, H is not None)
+        if H is not None:
+            for j, (o, t) in enumerate(zip(kind.offsets, kind.variables)):
+                H[j] = buf.A[0, :, o:o + t.dim]
+        return buf.e[0]
+
+
+class _Buffers:
+    """One thread's arrays for evaluating one factor of ``kind`` (a callback's)."""
+
+    def __init__(self, kind: Kind):
+        m = kind.dim
+        self.X = [np.zeros((1,) + t.shape) for t in kind.variables]
+        self.C = [np.zeros((1,) + t.shape) for t in kind.constants]
+        self.e = np.zeros((1, m))
+        self.A = np.zeros((1, m, kind.columns))
+        index = np.zeros(1, dtype=np.int64)
+        args = list(kind.tags)
+        for X in self.X:
+            args += [X, index]
+        args += self.C
+        args += [np.eye(m)[None], index, self.e, self.A, np.zeros((1, m)), np.zeros(1), 0, 1]
+        self.args = args
+
+
+def _checked_key(key, name: str) -> int:
+    if isinstance(key, (bool, np.bool_)) or not isinstance(key, (int, np.integer)) or key < 0:
+        raise TypeError(f"{name}: keys must be non-negative integers, got {key!r}")
+    return int(key)
+
+
+def _fetch(values, key: int, t: ValueType, name: str) -> np.ndarray:
+    try:
+        value = getattr(values, accessor(t))(key)
+    except RuntimeError as exc:
+        raise TypeError(f"{name}: key {gtsam.DefaultKeyFormatter(key)} must hold a {t}: {exc}") from None
+    if t.is_group:
+        if t.name == "Rot2":
+            c, s = value.c(), value.s()
+            return np.array([[c, -s], [s, c]])
+        return value.matrix()
+    if hasattr(value, "vector"):
+        value = value.vector()
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != t.shape:
+        if t.name == "Cal3Bundler" and a.shape == (5,):
+            return a[:3]
+        raise TypeError(f"{name}: key {gtsam.DefaultKeyFormatter(key)} must hold a {t}, holds shape {a.shape}")
+    return a

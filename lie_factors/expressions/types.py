@@ -1,0 +1,130 @@
+"""The types a factor's residual is written in: GTSAM's groups, points, vectors and calibrations.
+
+Each :class:`ValueType` says how a value is stored in the compiled kernels and how it perturbs,
+in GTSAM's conventions (``docs/conventions.md``):
+
+- a **group** (Rot2, Rot3, Pose2, Pose3, Similarity2, Similarity3) is its (m, m) matrix, and a
+  variable of it moves as X·Exp(δ), δ in GTSAM's tangent order (Pose3 [ω, v], Pose2 [x, y, θ],
+  Similarity3 [ω, u, λ], …); Rot2 is the 2×2 rotation matrix, tangent [θ];
+- a **vector** (Point2, Point3, VectorN, and the calibrations Cal3_S2 [fx, fy, s, u0, v0] and
+  Cal3Bundler [f, k1, k2]) is a 1-D array, and moves as p + δ.
+
+:func:`value_type` reads a type by name (``"Pose3"``, ``"Point2"``, ``"Vector4"``) or by GTSAM class.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..kernels import registry
+
+
+@dataclass(frozen=True)
+class ValueType:
+    """A type of the vocabulary.  ``dim``: tangent dimension; ``shape``: the stored array's shape;
+    ``group``: the registry's :class:`~lie_factors.kernels.registry.GroupInfo` of a matrix group
+    (None for Rot2 and for vectors); ``rot``: the rotation's dimension of a group (2 or 3)."""
+
+    name: str
+    kind: str  # "group" or "vector"
+    dim: int
+    shape: tuple
+    group: registry.GroupInfo | None = None
+    rot: int = 0
+
+    @property
+    def is_group(self) -> bool:
+        return self.kind == "group"
+
+    def __str__(self) -> str:
+        return self.name
+
+
+def _group_type(info: registry.GroupInfo) -> ValueType:
+    return ValueType(info.gtsam, "group", info.dim, (info.mat, info.mat), info, info.rot_dim)
+
+
+ROT2 = ValueType("Rot2", "group", 1, (2, 2), None, 2)
+GROUPS = {"Rot2": ROT2, **{info.gtsam: _group_type(info) for info in registry.GROUPS.values()}}
+POINT2 = ValueType("Point2", "vector", 2, (2,))
+POINT3 = ValueType("Point3", "vector", 3, (3,))
+CAL3_S2 = ValueType("Cal3_S2", "vector", 5, (5,))
+CAL3_BUNDLER = ValueType("Cal3Bundler", "vector", 3, (3,))
+NAMED_VECTORS = {t.name: t for t in (POINT2, POINT3, CAL3_S2, CAL3_BUNDLER)}
+
+
+def vector(n: int) -> ValueType:
+    """The plain vector type of dimension ``n`` ≥ 1 (Point2 and Point3 are vectors of 2 and 3
+    that print as points)."""
+    if int(n) < 1:
+        raise InputError(f"a vector needs a dimension of at least 1, got {n}")
+    return ValueType(f"Vector{int(n)}", "vector", int(n), (int(n),))
+
+
+def value_type(spec) -> ValueType:
+    """The :class:`ValueType` named by ``spec``: a ValueType, a name (``"Pose3"``, ``"Point2"``,
+    ``"Vector4"``, ``"Cal3_S2"``), or a GTSAM class (``gtsam.Pose3``, ``gtsam.Cal3_S2``)."""
+    if isinstance(spec, ValueType):
+        return spec
+    name = getattr(spec, "__name__", spec)
+    if not isinstance(name, str):
+        raise InputError(f"a factor's type must be a name such as 'Pose3' or a GTSAM class, got {spec!r}")
+    if name in GROUPS:
+        return GROUPS[name]
+    if name in NAMED_VECTORS:
+        return NAMED_VECTORS[name]
+    match = re.fullmatch(r"Vector(\d+)", name)
+    if match:
+        return vector(int(match.group(1)))
+    known = ", ".join([*GROUPS, *NAMED_VECTORS, "VectorN"])
+    raise InputError(f"unknown type {name!r}: expected one of {known}")
+
+
+def as_array(t: ValueType, value, what: str) -> np.ndarray:
+    """``value`` (a GTSAM object or an array) as ``t``'s stored array, checked: its shape, finite
+    entries, and for a group an element of it (``InputError`` naming ``what``)."""
+    if t.is_group:
+        if hasattr(value, "matrix"):
+            value = value.matrix()
+        elif t.name == "Rot2" and hasattr(value, "theta"):
+            c, s = value.c(), value.s()
+            value = np.array([[c, -s], [s, c]])
+    elif hasattr(value, "vector"):  # a calibration: Cal3_S2, Cal3Bundler
+        value = value.vector()
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected a {t} ({' × '.join(map(str, t.shape))} array), "
+                         f"got {type(value).__name__}") from None
+    if t.name == "Cal3Bundler" and a.shape == (5,):  # GTSAM's vector() adds u0, v0
+        if a[3] != 0.0 or a[4] != 0.0:
+            raise InputError(f"{what}: a Cal3Bundler here has its principal point at the origin (u0 = v0 = 0)")
+        a = a[:3]
+    if a.shape != t.shape:
+        raise InputError(f"{what}: expected a {t} of shape {t.shape}, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{what}: not finite")
+    if t.is_group:
+        _check_element(t, a, what)
+    return np.ascontiguousarray(a)
+
+
+def accessor(t: ValueType) -> str:
+    """The ``gtsam.Values`` method that reads a variable of type ``t``."""
+    if t.is_group or t.name in NAMED_VECTORS:
+        return f"at{t.name}"
+    return "atVector"
+
+
+def _check_element(t: ValueType, a: np.ndarray, what: str) -> None:
+    """The numpy test of an element (the kernels' own, :mod:`lie_factors.kernels.validate`)."""
+    from ..kernels import validate
+
+    validate.rotation_block(a, what, t.rot)
+    info = t.group
+    if info is not None and info.corner != registry.NO_CORNER:
+        validate.bottom_row(a, what, validate.last_row(info), info.corner == registry.POSITIVE)
