@@ -14,7 +14,6 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass, field
 
-
 from ..errors import InputError
 from .types import ValueType, value_type
 
