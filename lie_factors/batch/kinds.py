@@ -86,7 +86,7 @@ class ValueBlock:
         if name == "Cal3_S2":
             return gtsam.Cal3_S2(*x)
         if name == "Cal3Bundler":
-            return gtsam.Cal3Bundler(x[0], x[1], x[2])
+            return gtsam.Cal3Bundler(x[0], x[1], x[2], 0.0, 0.0)
         return np.array(x)
 
 

@@ -177,6 +177,8 @@ class Generator:
                 return [(NEG if op == "inverse" else EYE, None)]
             return [(MATRIX, None)]
         if op == "localCoordinates":
+            if ins[0].type.kind == "unit":
+                return [(MATRIX, None), (MATRIX, None)]
             return [(NEG, None), (EYE, None)] if rot2 else [(MATRIX, None), (MATRIX, None)]
         if op == "retract":
             return [(EYE, None), (EYE, None)] if rot2 else [(MATRIX, None), (MATRIX, None)]
@@ -226,6 +228,8 @@ class Generator:
         if op in ("inverse", "logmap"):
             return [f"K.g_{op}({self._tag(t0)}, {a}, {out}, {D0}, jacobians)"]
         if op == "localCoordinates":
+            if t0.kind == "unit":
+                return [f"K.unit3_local({a}, {b}, {out}, {D0}, {D1}, jacobians)"]
             return [f"K.g_local({self._tag(t0)}, {a}, {b}, {out}, {D0}, {D1}, jacobians)"]
         if op == "retract":
             return [f"K.g_retract({self._tag(t0)}, {a}, {b}, {out}, {D0}, {D1}, jacobians)"]
@@ -248,6 +252,8 @@ class Generator:
         if op == "dot":
             return [f"K.v_dot({a}, {b}, {out}, {D0}, {D1}, jacobians)"]
         if op == "bearing":
+            if t0.dim == 3:
+                return [f"K.unit3_of({a}, {out}, {D0}, jacobians)"]
             return [f"K.bearing2({a}, {out}, {D0}, jacobians)"]
         if op == "pinhole":
             return [f"K.pinhole({a}, {out}, {D0}, jacobians)"]

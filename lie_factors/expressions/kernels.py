@@ -444,6 +444,118 @@ def bearing2(p, out, Dp, jac):
 
 
 @helper_kernel
+def unit3_of(w, out, Dw, jac):
+    """out = w/‖w‖, the Unit3 of a Point3 (GTSAM's ``Unit3(point)``, ``Pose3.bearing``);
+    Dw = (I − out·outᵀ)/‖w‖."""
+    n = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    for i in range(3):
+        out[i] = w[i] / n
+    if jac:
+        for i in range(3):
+            for j in range(3):
+                Dw[i, j] = ((1.0 if i == j else 0.0) - out[i] * out[j]) / n
+
+
+#: θ/sin θ and (sin θ − θ cos θ)/sin³ θ below this θ: their series (relative error < 1e-16 there)
+UNIT3_SERIES = 1e-3
+
+
+@helper_kernel
+def unit3_basis(p, B):
+    """B (3, 2): GTSAM's basis of the tangent plane of the Unit3 p: b1 = p × a/‖p × a‖, with a the
+    coordinate axis of p's smallest |component| (x, then y, then z on ties), and b2 = p × b1.
+    Returns a (3,)."""
+    mx, my, mz = abs(p[0]), abs(p[1]), abs(p[2])
+    a0, a1, a2 = 0.0, 0.0, 1.0
+    if mx <= my and mx <= mz:
+        a0, a2 = 1.0, 0.0
+    elif my <= mx and my <= mz:
+        a1, a2 = 1.0, 0.0
+    c0 = p[1] * a2 - p[2] * a1
+    c1 = p[2] * a0 - p[0] * a2
+    c2 = p[0] * a1 - p[1] * a0
+    n = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    B[0, 0], B[1, 0], B[2, 0] = c0 / n, c1 / n, c2 / n
+    B[0, 1] = p[1] * B[2, 0] - p[2] * B[1, 0]
+    B[1, 1] = p[2] * B[0, 0] - p[0] * B[2, 0]
+    B[2, 1] = p[0] * B[1, 0] - p[1] * B[0, 0]
+    a = np.empty(3)
+    a[0], a[1], a[2] = a0, a1, a2
+    return a
+
+
+@helper_kernel
+def unit3_local(p, q, out, Dp, Dq, jac):
+    """out = g(θ)·B(p)ᵀq, GTSAM's ``Unit3::localCoordinates`` of q in p's basis B (Bᵀp = 0, θ the
+    angle between them, g = θ/sin θ);  Dq = g·Bᵀ − h·(Bᵀq)·pᵀ and Dp = g·[qᵀ·∂b1/∂p; qᵀ·∂b2/∂p]
+    − h·(Bᵀq)·qᵀ, h = (sin θ − θ cos θ)/sin³ θ (dθ = −(qᵀdp + pᵀdq)/sin θ), with the basis's
+    derivative: b1 = w/‖w‖, w = p × a, ∂b1/∂p = (I − b1b1ᵀ)/‖w‖·(−[a]×); b2 = p × b1,
+    ∂b2/∂p = −[b1]× + [p]×·∂b1/∂p."""
+    B = np.empty((3, 2))
+    a = unit3_basis(p, B)
+    c = p[0] * q[0] + p[1] * q[1] + p[2] * q[2]
+    x0 = p[1] * q[2] - p[2] * q[1]
+    x1 = p[2] * q[0] - p[0] * q[2]
+    x2 = p[0] * q[1] - p[1] * q[0]
+    s = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    th = math.atan2(s, c)
+    if th < UNIT3_SERIES:
+        t2 = th * th
+        g = 1.0 + t2 / 6.0 + 7.0 * t2 * t2 / 360.0
+        h = 1.0 / 3.0 + 2.0 * t2 / 15.0
+    else:
+        g = th / s
+        h = (s - th * c) / (s * s * s)
+    u0 = B[0, 0] * q[0] + B[1, 0] * q[1] + B[2, 0] * q[2]
+    u1 = B[0, 1] * q[0] + B[1, 1] * q[1] + B[2, 1] * q[2]
+    out[0] = g * u0
+    out[1] = g * u1
+    if not jac:
+        return
+    for j in range(3):
+        Dq[0, j] = g * B[j, 0] - h * u0 * p[j]
+        Dq[1, j] = g * B[j, 1] - h * u1 * p[j]
+    # ∂b1/∂p = P1·(−[a]×), P1 = (I − b1b1ᵀ)/‖w‖
+    w = np.empty(3)
+    w[0] = p[1] * a[2] - p[2] * a[1]
+    w[1] = p[2] * a[0] - p[0] * a[2]
+    w[2] = p[0] * a[1] - p[1] * a[0]
+    nw = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    Ma = np.empty((3, 3))
+    skew_into(a, Ma, -1.0)
+    db1 = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += ((1.0 if i == k else 0.0) - B[i, 0] * B[k, 0]) * Ma[k, j]
+            db1[i, j] = acc / nw
+    # ∂b2/∂p = −[b1]× + [p]×·∂b1/∂p
+    b1 = np.empty(3)
+    for i in range(3):
+        b1[i] = B[i, 0]
+    Mb = np.empty((3, 3))
+    skew_into(b1, Mb, -1.0)
+    Mp = np.empty((3, 3))
+    skew_into(p, Mp, 1.0)
+    db2 = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = Mb[i, j]
+            for k in range(3):
+                acc += Mp[i, k] * db1[k, j]
+            db2[i, j] = acc
+    for j in range(3):
+        r0 = 0.0
+        r1 = 0.0
+        for i in range(3):
+            r0 += q[i] * db1[i, j]
+            r1 += q[i] * db2[i, j]
+        Dp[0, j] = g * r0 - h * u0 * q[j]
+        Dp[1, j] = g * r1 - h * u1 * q[j]
+
+
+@helper_kernel
 def pinhole(q, out, Dq, jac):
     """out = (x/z, y/z) of a point in the camera frame (z forward, GTSAM's PinholeCamera);
     Dq = [[1/z, 0, −x/z²], [0, 1/z, −y/z²]]."""

@@ -115,6 +115,8 @@ def factor(*variables, measured=None, **constants):
     const_types = ([value_type(measured)] if measured is not None else []) + [value_type(t) for t in constants.values()]
     if not var_types:
         raise InputError("a factor needs at least one variable")
+    if any(t.kind == "unit" for t in var_types):
+        raise InputError("a Unit3 is a measurement or a bearing, not a variable type of a factor")
 
     def define(fn):
         residual = _trace(fn, var_types, names, const_types)
@@ -176,7 +178,9 @@ class KindFactor(gtsam.CustomFactor):
         self._noise = noise
 
     def measured(self):
-        """The measurement, as given."""
+        """The measurement, as given (an AttributeError for a kind declared without one)."""
+        if "measured" not in self._given:
+            raise AttributeError(f"{type(self).__name__} has no measurement; its constants: {list(self._given)}")
         return self._given["measured"]
 
     def constants(self) -> dict:
@@ -234,11 +238,11 @@ def _fetch(values, key: int, t: ValueType, name: str) -> np.ndarray:
             c, s = value.c(), value.s()
             return np.array([[c, -s], [s, c]])
         return value.matrix()
+    if t.name == "Cal3Bundler":
+        return np.array([value.fx(), value.k1(), value.k2()])
     if hasattr(value, "vector"):
         value = value.vector()
     a = np.asarray(value, dtype=np.float64)
     if a.shape != t.shape:
-        if t.name == "Cal3Bundler" and a.shape == (5,):
-            return a[:3]
         raise TypeError(f"{name}: key {gtsam.DefaultKeyFormatter(key)} must hold a {t}, holds shape {a.shape}")
     return a

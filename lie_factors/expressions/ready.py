@@ -12,6 +12,7 @@ class (GTSAM's constructor)        residual                                     
 ``RangeFactor2D/3D``               ‖transformTo(x, l)‖ − r                         ``RangeFactor2D/3D``
 ``RangeFactorPose2/Pose3``         ‖transformTo(x1, t(x2))‖ − r                    ``RangeFactorPose2/3``
 ``BearingRangeFactor2D``           [Log(b⁻¹·bearing(x, l)), range(x, l) − r]       ``BearingRangeFactor2D``
+``BearingRangeFactor3D``           [−bearing(x, l).localCoordinates(b), range − r] ``BearingRangeFactor3D``
 ``GenericProjectionFactorCal3_S2`` project(x, l, K) − z                            the same
 ``BundlerProjectionFactor``        project(x, l, K) − z, K = [f, k1, k2] a         ``GeneralSFMFactorCal3Bundler``
                                    variable                                        (camera = pose and K)
@@ -27,11 +28,18 @@ from .kind import factor
 
 __all__ = ["GPSFactor", "PoseTranslationPrior2D", "PoseTranslationPrior3D", "PoseToPointFactor2D",
            "PoseToPointFactor3D", "RangeFactor2D", "RangeFactor3D", "RangeFactorPose2", "RangeFactorPose3",
-           "BearingRangeFactor2D", "GenericProjectionFactorCal3_S2", "BundlerProjectionFactor"]
+           "BearingRangeFactor2D", "BearingRangeFactor3D", "GenericProjectionFactorCal3_S2",
+           "BundlerProjectionFactor", "from_gtsam"]
 
 
 def _scalar(value) -> np.ndarray:
-    return np.array([value], dtype=np.float64).reshape(1)
+    """A measured number as the (1,) vector the kind holds."""
+    a = np.asarray(value, dtype=np.float64)
+    if a.size != 1:
+        from ..errors import InputError
+
+        raise InputError(f"expected a number, got an array of shape {a.shape}")
+    return a.reshape(1)
 
 
 @factor("Pose3", measured="Point3")
@@ -48,6 +56,10 @@ def PoseTranslationPrior2D(x, z):
 
 class GPSFactor(PoseTranslationPrior3D):
     """A GPS position of a Pose3, translation(x) − z: GTSAM's ``GPSFactor(key, gpsIn, model)``."""
+
+    def measurementIn(self) -> np.ndarray:
+        """The measured position (GTSAM's ``measurementIn()``)."""
+        return self.constants()["measured"].copy()
 
 
 @factor("Pose3", "Point3", measured="Point3")
@@ -86,7 +98,11 @@ def _range_class(kind, name: str, gtsam_name: str):
     def __init__(self, key1, key2, measured, noiseModel):
         kind.__init__(self, key1, key2, _scalar(measured), noiseModel)
 
-    return type(name, (kind,), {"__init__": __init__, "__module__": __name__, "__doc__":
+    def measured(self) -> float:
+        """The measured range (GTSAM's ``measured()``)."""
+        return float(self.constants()["measured"][0])
+
+    return type(name, (kind,), {"__init__": __init__, "measured": measured, "__module__": __name__, "__doc__":
                                 f"‖transformTo(x, l)‖ − r: GTSAM's ``{gtsam_name}(key1, key2, measured, noiseModel)``."})
 
 
@@ -108,6 +124,35 @@ class BearingRangeFactor2D(_bearing_range2):
     def __init__(self, poseKey, pointKey, measuredBearing, measuredRange, noiseModel):
         super().__init__(poseKey, pointKey, noiseModel, bearing=measuredBearing, range=_scalar(measuredRange))
 
+    def measured(self):
+        """The measurement as GTSAM's ``BearingRange2D`` (GTSAM's ``measured()``)."""
+        import gtsam
+
+        c = self.constants()
+        return gtsam.BearingRange2D(gtsam.Rot2.atan2(c["bearing"][1, 0], c["bearing"][0, 0]), float(c["range"][0]))
+
+
+@factor("Pose3", "Point3", bearing="Unit3", range="Vector1")
+def _bearing_range3(x, l, bearing, range):
+    # GTSAM's error of a bearing: −Local(predicted, measured), in the predicted direction's basis
+    return ops.stack(-x.bearing(l).localCoordinates(bearing), x.range(l) - range)
+
+
+class BearingRangeFactor3D(_bearing_range3):
+    """[−bearing(x, l).localCoordinates(b) (GTSAM's Unit3 coordinates, in the predicted
+    direction's basis), ‖transformTo(x, l)‖ − r]: GTSAM's
+    ``BearingRangeFactor3D(poseKey, pointKey, measuredBearing, measuredRange, noiseModel)``."""
+
+    def __init__(self, poseKey, pointKey, measuredBearing, measuredRange, noiseModel):
+        super().__init__(poseKey, pointKey, noiseModel, bearing=measuredBearing, range=_scalar(measuredRange))
+
+    def measured(self):
+        """The measurement as GTSAM's ``BearingRange3D`` (GTSAM's ``measured()``)."""
+        import gtsam
+
+        c = self.constants()
+        return gtsam.BearingRange3D(gtsam.Unit3(c["bearing"]), float(c["range"][0]))
+
 
 @factor("Pose3", "Point3", measured="Point2", K="Cal3_S2")
 def _projection(x, l, z, K):
@@ -127,3 +172,23 @@ def BundlerProjectionFactor(x, K, l, z):
     """project(x, l, K) − z with K = [f, k1, k2] a variable: BAL's camera as a Pose3 and its
     Cal3Bundler, GTSAM's ``GeneralSFMFactorCal3Bundler`` on a ``PinholeCameraCal3Bundler``."""
     return ops.project(x, l, K) - z
+
+
+def from_gtsam(f):
+    """The ready factor equal to GTSAM's factor ``f`` (same keys, measurement and noise model
+    object): ``BearingRangeFactor2D``/``3D``, ``RangeFactor2D``/``3D``/``Pose2``/``Pose3``,
+    ``GPSFactor``; ``f`` itself for any other."""
+    import gtsam
+
+    name = type(f).__name__
+    keys = [int(k) for k in f.keys()]
+    noise = f.noiseModel()
+    if name in ("BearingRangeFactor2D", "BearingRangeFactor3D"):
+        br = f.measured()
+        cls = BearingRangeFactor2D if name.endswith("2D") else BearingRangeFactor3D
+        return cls(keys[0], keys[1], br.bearing(), br.range(), noise)
+    if name in ("RangeFactor2D", "RangeFactor3D", "RangeFactorPose2", "RangeFactorPose3"):
+        return globals()[name](keys[0], keys[1], f.measured(), noise)
+    if isinstance(f, gtsam.GPSFactor):
+        return GPSFactor(keys[0], f.measurementIn(), noise)
+    return f

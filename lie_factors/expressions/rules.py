@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .types import GROUPS, POINT2, POINT3, ValueType, value_type, vector
+from .types import GROUPS, POINT2, POINT3, UNIT3, ValueType, value_type, vector
 
 
 def _number(x) -> float:
@@ -36,6 +36,9 @@ def _vector(t: ValueType, op: str, dim: int | None = None) -> None:
     if t.is_group:
         raise InputError(f"{op} takes a vector, got a {t} (a group element: compose, between, "
                          "localCoordinates …)")
+    if t.kind == "unit":
+        raise InputError(f"{op} takes a vector, got a Unit3 (a direction: compare two with "
+                         "measured.localCoordinates(predicted))")
     if dim is not None and t.dim != dim:
         raise InputError(f"{op} takes a vector of dimension {dim}, got a {t}")
 
@@ -57,6 +60,8 @@ def output_type(op: str, ins: tuple, attrs: dict) -> tuple[ValueType, dict]:
 def _t_binary_group(op):
     def rule(ins, attrs):
         a, b = ins
+        if op == "localCoordinates" and a.kind == "unit" and b.kind == "unit":
+            return vector(2), attrs  # GTSAM's Unit3::localCoordinates, in a's basis
         _group(a, op)
         _same(a, b, op)
         return (vector(a.dim) if op == "localCoordinates" else a), attrs
@@ -204,10 +209,9 @@ def _t_bearing(ins, attrs):
         raise InputError("bearing takes a point, or a pose and a point")
     p = ins[0]
     _vector(p, "bearing")
-    if p.dim != 2:
-        raise InputError(f"bearing of a {p}: the 2-D bearing (a Rot2) of a Point2; 3-D bearings "
-                         "(GTSAM's Unit3) are not in the vocabulary")
-    return GROUPS["Rot2"], attrs
+    if p.dim not in (2, 3):
+        raise InputError(f"bearing of a {p}: the direction of a Point2 (a Rot2) or a Point3 (a Unit3)")
+    return (GROUPS["Rot2"] if p.dim == 2 else UNIT3), attrs
 
 
 def _t_pinhole(ins, attrs):

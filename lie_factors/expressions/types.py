@@ -55,6 +55,10 @@ POINT3 = ValueType("Point3", "vector", 3, (3,))
 CAL3_S2 = ValueType("Cal3_S2", "vector", 5, (5,))
 CAL3_BUNDLER = ValueType("Cal3Bundler", "vector", 3, (3,))
 NAMED_VECTORS = {t.name: t for t in (POINT2, POINT3, CAL3_S2, CAL3_BUNDLER)}
+#: A direction in 3-D (GTSAM's Unit3), held as its unit vector; its Jacobians in the chain rule
+#: are those of the unit vector (3 rows).  A measurement, or a bearing computed from a point: not
+#: a variable.
+UNIT3 = ValueType("Unit3", "unit", 3, (3,))
 
 
 def vector(n: int) -> ValueType:
@@ -77,10 +81,12 @@ def value_type(spec) -> ValueType:
         return GROUPS[name]
     if name in NAMED_VECTORS:
         return NAMED_VECTORS[name]
+    if name == "Unit3":
+        return UNIT3
     match = re.fullmatch(r"Vector(\d+)", name)
     if match:
         return vector(int(match.group(1)))
-    known = ", ".join([*GROUPS, *NAMED_VECTORS, "VectorN"])
+    known = ", ".join([*GROUPS, *NAMED_VECTORS, "VectorN", "Unit3"])
     raise InputError(f"unknown type {name!r}: expected one of {known}")
 
 
@@ -93,23 +99,27 @@ def as_array(t: ValueType, value, what: str) -> np.ndarray:
         elif t.name == "Rot2" and hasattr(value, "theta"):
             c, s = value.c(), value.s()
             value = np.array([[c, -s], [s, c]])
-    elif hasattr(value, "vector"):  # a calibration: Cal3_S2, Cal3Bundler
+    elif t.name == "Unit3" and hasattr(value, "point3"):
+        value = value.point3()
+    elif t.name == "Cal3Bundler" and hasattr(value, "k1"):
+        if value.px() != 0.0 or value.py() != 0.0:
+            raise InputError(f"{what}: a Cal3Bundler here has its principal point at the origin (u0 = v0 = 0)")
+        value = [value.fx(), value.k1(), value.k2()]
+    elif hasattr(value, "vector"):  # Cal3_S2: [fx, fy, s, u0, v0]
         value = value.vector()
     try:
         a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{what}: expected a {t} ({' × '.join(map(str, t.shape))} array), "
                          f"got {type(value).__name__}") from None
-    if t.name == "Cal3Bundler" and a.shape == (5,):  # GTSAM's vector() adds u0, v0
-        if a[3] != 0.0 or a[4] != 0.0:
-            raise InputError(f"{what}: a Cal3Bundler here has its principal point at the origin (u0 = v0 = 0)")
-        a = a[:3]
     if a.shape != t.shape:
         raise InputError(f"{what}: expected a {t} of shape {t.shape}, got shape {a.shape}")
     if not np.all(np.isfinite(a)):
         raise InputError(f"{what}: not finite")
     if t.is_group:
         _check_element(t, a, what)
+    if t.name == "Unit3" and abs(float(np.linalg.norm(a)) - 1.0) > 1e-9:
+        raise InputError(f"{what}: a Unit3 is a unit vector, got one of norm {np.linalg.norm(a):.6g}")
     return np.ascontiguousarray(a)
 
 

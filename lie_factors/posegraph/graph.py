@@ -346,7 +346,8 @@ class PoseGraph:
 
     def factor_graph(self, factors=None, robust=None, robust_all: bool = False):
         """A ``gtsam.NonlinearFactorGraph``: one between factor per edge, one prior factor per prior,
-        then the landmark measurements (GTSAM's own factors, whatever ``factors`` is).
+        then the landmark measurements (GTSAM's own factors with ``gtsam``; with ours, the ready
+        factors equal to them, :func:`lie_factors.expressions.ready.from_gtsam`).
 
         ``factors``: the namespace of the factor classes, ``gtsam`` (default) or
         :mod:`lie_factors.factors` (both name them ``BetweenFactorPose3``, ...).
@@ -382,7 +383,14 @@ class PoseGraph:
         for key, M, info in zip(self.prior_keys.tolist(), self.prior_measured, self.prior_information):
             graph.add(Prior(key, to_gtsam(self.group, M), gtsam.noiseModel.Gaussian.Information(info)))
         if self.landmarks is not None:
-            graph.push_back(self.landmarks.factors)
+            if F is gtsam:
+                graph.push_back(self.landmarks.factors)
+            else:  # ours: GTSAM's landmark measurements as the ready factors equal to them
+                from ..expressions.ready import from_gtsam
+
+                fs = self.landmarks.factors
+                for i in range(fs.size()):
+                    graph.add(from_gtsam(fs.at(i)))
         return graph
 
 
