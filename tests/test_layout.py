@@ -262,6 +262,8 @@ ONE_JOB: dict[Path, str] = {
                          "each needs, one derivation (docs/sim3.md)",
     PACKAGE / "sparse" / "cholmod.py": "the CHOLMOD wrapper: its structures, the factor kept across "
                                        "refactorizations, its two ways in (direct and through cvxopt)",
+    PACKAGE / "expressions" / "kernels.py": "the compiled operations of the vocabulary: each one's value "
+                                            "and local Jacobians, and the small products of the chain rule",
     PACKAGE / "batch" / "graph.py": "the batch Problem: a graph read into arrays (groups, kinds, native "
                                     "factors), its estimate, and its evaluation, linearization and retraction",
 }

@@ -63,9 +63,12 @@ class Kind:
 
     @property
     def tags(self) -> tuple:
-        from ..kernels import registry
+        tags = self.__dict__.get("_tags")
+        if tags is None:
+            from ..kernels import registry
 
-        return tuple(registry.BY_GTSAM[name] for name in self.module.TAGS)
+            tags = self.__dict__["_tags"] = tuple(registry.BY_GTSAM[name] for name in self.module.TAGS)
+        return tags
 
     def evaluate(self, *args) -> None:
         """The kernel (module docstring of :mod:`~lie_factors.expressions.codegen`), typed on
@@ -135,6 +138,10 @@ def factor(*variables, measured=None, **constants):
 
 _buffers = threading.local()
 
+#: The :class:`~lie_factors.expressions.plan.KindPlan` inside whose ``prepared`` block GTSAM is
+#: evaluating (its callbacks return the plan's rows for the Values it prepared), or None.
+active_plan = None
+
 
 class KindFactor(gtsam.CustomFactor):
     """A factor of a kind (made by :func:`factor`): ``kind(key_1, …, key_k, measured,
@@ -188,6 +195,16 @@ class KindFactor(gtsam.CustomFactor):
         return dict(zip(self.kind.constant_names, self._constants))
 
     def _evaluate(self, this, values, H):
+        plan = active_plan
+        if plan is not None and plan.values is values:
+            slot = plan.slots.get(self)
+            if slot is not None:  # computed for this very Values, with every factor of the kind
+                group, k = slot
+                e, Hs = group.rows(k)
+                if H is not None:
+                    for j, block in enumerate(Hs):
+                        H[j] = block
+                return e
         kind = self.kind
         buf = getattr(_buffers, kind.name + str(id(kind)), None)
         if buf is None:

@@ -40,6 +40,7 @@ import numpy as np
 from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
 from .. import factors, lm
+from ..expressions.plan import KindPlan
 
 __all__ = ["LevenbergMarquardtOptimizer", "GaussNewtonOptimizer", "DoglegOptimizer"]
 
@@ -51,6 +52,26 @@ _EPS = float(np.finfo(float).eps)
 
 def _is_indeterminant(exc: BaseException) -> bool:
     return isinstance(exc, RuntimeError) and _INDETERMINANT in str(exc)
+
+
+
+class _Plans:
+    """The evaluation plans of a graph's factors (our Between/Prior groups, the kinds) as one:
+    true when either holds a factor; ``prepared(values)`` prepares both."""
+
+    def __init__(self, *plans):
+        self._plans = [p for p in plans if p]
+
+    def __bool__(self) -> bool:
+        return bool(self._plans)
+
+    def prepared(self, values):
+        import contextlib
+
+        stack = contextlib.ExitStack()
+        for plan in self._plans:
+            stack.enter_context(plan.prepared(values))
+        return stack
 
 
 class _LinearizedCost:
@@ -176,7 +197,7 @@ class _NonlinearOptimizer:
         self._values = gtsam.Values(initialValues)
         # lie_factors' factors in the graph answer their callbacks from one kernel call
         # per group for each Values the optimizer hands GTSAM (factors.EvaluationPlan).
-        self._plan = factors.EvaluationPlan(graph)
+        self._plan = _Plans(factors.EvaluationPlan(graph), KindPlan(graph))
         self._error = self._graph_error(self._values)
         self._iterations = 0
         self._ordering = self._ordering_for(graph, params, ordering)

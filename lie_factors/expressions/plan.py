@@ -1,0 +1,111 @@
+"""Every factor of a kind in a graph evaluated in one kernel call, for a ``Values`` an optimizer holds.
+
+For GTSAM's algorithms run by our drop-in optimizers (:mod:`lie_factors.optimizers`), which hold
+the ``Values`` GTSAM linearizes at::
+
+    plan = KindPlan(graph)
+    with plan.prepared(values):            # reads each variable once, evaluates every factor
+        linear = graph.linearize(values)   # each kind factor's callback returns its row
+
+Inside the ``with``, a factor's callback, when GTSAM hands it that very ``values`` object,
+returns its rows of the results (the same kernel, on the same values) instead of fetching its
+variables and calling the kernel itself; for any other object it evaluates as usual.  The
+values must not change inside the ``with``.  If reading the variables fails (a missing key, a
+wrong type), nothing is prepared and the callbacks raise their usual errors.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import kind as _kind
+from .kind import KindFactor, _fetch
+
+
+class _KindEvaluation:
+    """The factors of one kind in a graph: their keys per variable slot, constants stacked, and
+    the results of the last evaluation (unwhitened: GTSAM whitens a CustomFactor's rows)."""
+
+    def __init__(self, kind, members: list):
+        self.kind = kind
+        self.members = members
+        F = len(members)
+        keys = np.array([f._keys_ for f in members], dtype=np.int64).reshape(F, len(kind.variables))
+        self.slot_keys = []
+        self.index = []
+        for j in range(len(kind.variables)):
+            unique, inverse = np.unique(keys[:, j], return_inverse=True)
+            self.slot_keys.append(unique.tolist())
+            self.index.append(inverse.astype(np.int64))
+        self.C = [np.ascontiguousarray(np.array([f._constants[c] for f in members])) for c in range(len(kind.constants))]
+        m = kind.dim
+        self.e = np.zeros((F, m))
+        self.A = np.zeros((F, m, kind.columns))
+        self._R = np.eye(m)[None]
+        self._ridx = np.zeros(F, dtype=np.int64)
+        self._b = np.zeros((F, m))
+        self._sq = np.zeros(F)
+
+    def evaluate(self, values) -> None:
+        kind = self.kind
+        args = list(kind.tags)
+        name = type(self.members[0]).__name__
+        for j, t in enumerate(kind.variables):
+            X = np.empty((len(self.slot_keys[j]),) + t.shape)
+            for i, key in enumerate(self.slot_keys[j]):
+                X[i] = _fetch(values, key, t, name)
+            args += [X, self.index[j]]
+        args += self.C
+        args += [self._R, self._ridx, self.e, self.A, self._b, self._sq, 0, len(self.members), True]
+        kind.evaluate(*args)
+
+    def rows(self, f: int) -> tuple:
+        kind = self.kind
+        return self.e[f], [self.A[f, :, o:o + t.dim] for o, t in zip(kind.offsets, kind.variables)]
+
+
+class KindPlan:
+    """Every kind factor of ``graph``, evaluated one kind at a time (module docstring)."""
+
+    def __init__(self, graph):
+        members: dict = {}
+        for i in range(graph.size()):
+            f = graph.at(i)
+            if isinstance(f, KindFactor):
+                members.setdefault(id(f.kind), []).append(f)
+        self.groups = [_KindEvaluation(fs[0].kind, fs) for fs in members.values()]
+        self.slots: dict = {}
+        for group in self.groups:
+            self.slots.update((f, (group, k)) for k, f in enumerate(group.members))
+        self.values = None
+        self.last = None
+
+    def __bool__(self) -> bool:
+        return bool(self.groups)
+
+    def prepared(self, values):
+        return _Prepared(self, values)
+
+
+class _Prepared:
+    def __init__(self, plan: KindPlan, values):
+        self.plan, self.values = plan, values
+
+    def __enter__(self):
+        plan, values = self.plan, self.values
+        if plan.last is not values:
+            plan.last = None
+            try:
+                for group in plan.groups:
+                    group.evaluate(values)
+            except Exception:  # the callbacks will report it, as without a plan
+                return self
+            plan.last = values  # held: its id cannot be reused by another object while it is `last`
+        plan.values = values
+        _kind.active_plan = plan
+        return self
+
+    def __exit__(self, *exc):
+        _kind.active_plan = None
+        self.plan.values = None
+        return False
