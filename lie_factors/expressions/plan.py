@@ -24,7 +24,8 @@ from .kind import KindFactor, _fetch
 
 class _KindEvaluation:
     """The factors of one kind in a graph: their keys per variable slot, constants stacked, and
-    the results of the last evaluation (unwhitened: GTSAM whitens a CustomFactor's rows)."""
+    the results of the last evaluation (unwhitened, as a CustomFactor's callback returns them,
+    unless :meth:`whiten` gave each factor's whitening)."""
 
     def __init__(self, kind, members: list):
         self.kind = kind
@@ -43,8 +44,15 @@ class _KindEvaluation:
         self.A = np.zeros((F, m, kind.columns))
         self._R = np.eye(m)[None]
         self._ridx = np.zeros(F, dtype=np.int64)
-        self._b = np.zeros((F, m))
+        self.b = np.zeros((F, m))
         self._sq = np.zeros(F)
+
+    def whiten(self, R: list) -> None:
+        """Whiten the results by each factor's R (RᵀR = its information): A = R·J, b = −R·e."""
+        table = {id(r): r for r in R}
+        entry = {k: i for i, k in enumerate(table)}
+        self._R = np.ascontiguousarray(np.array(list(table.values()), dtype=np.float64))
+        self._ridx = np.array([entry[id(r)] for r in R], dtype=np.int64)
 
     def evaluate(self, values) -> None:
         kind = self.kind
@@ -56,7 +64,7 @@ class _KindEvaluation:
                 X[i] = _fetch(values, key, t, name)
             args += [X, self.index[j]]
         args += self.C
-        args += [self._R, self._ridx, self.e, self.A, self._b, self._sq, 0, len(self.members), True]
+        args += [self._R, self._ridx, self.e, self.A, self.b, self._sq, 0, len(self.members), True]
         kind.evaluate(*args)
 
     def rows(self, f: int) -> tuple:
@@ -109,3 +117,20 @@ class _Prepared:
         _kind.active_plan = None
         self.plan.values = None
         return False
+
+
+def whitened_rows(factors: list, whitening: list, values) -> list:
+    """[A | b] (m, Σd + 1) of each factor of a kind in ``factors`` at ``values``: its Jacobians
+    whitened by ``whitening`` (its R, RᵀR = its information) and b = −R·e, what GTSAM's
+    linearization of it gives; one kernel call per kind."""
+    out: list = [None] * len(factors)
+    by_kind: dict = {}
+    for i, f in enumerate(factors):
+        by_kind.setdefault(id(f.kind), []).append(i)
+    for rows in by_kind.values():
+        group = _KindEvaluation(factors[rows[0]].kind, [factors[i] for i in rows])
+        group.whiten([whitening[i] for i in rows])
+        group.evaluate(values)
+        for k, i in enumerate(rows):
+            out[i] = np.concatenate([group.A[k], group.b[k][:, None]], axis=1)
+    return out

@@ -4,7 +4,8 @@
 a ``gtsam.Values``) as the batch solver reads a graph: lie_factors'
 Between/Prior factors and GTSAM's own on the registry's groups with a
 Gaussian noise model become arrays (:class:`~lie_factors.incremental.factor_arrays.NewFactors`);
-any other factor stays an object, linearized by GTSAM (:func:`native_jacobian`).
+any other factor stays an object, linearized by GTSAM (:func:`native_jacobian`), or, a factor
+kind's, by its kernel, a kind at a time (:func:`native_rows`).
 :func:`make_factor` makes GTSAM's factor of an array factor back, and
 :func:`typed_estimate` ISAM2's typed ``calculateEstimate<Type>`` accessors.
 """
@@ -19,6 +20,8 @@ import numpy as np
 from .. import factors as _factors
 from ..batch.graph import key_name, noise_whitening
 from ..errors import InputError
+from ..expressions.kind import KindFactor
+from ..expressions.plan import whitened_rows
 from ..interop import to_gtsam
 from .factor_arrays import FactorKind, NewFactors
 
@@ -191,6 +194,27 @@ def native_jacobian(f, theta: gtsam.Values) -> np.ndarray:
     if not np.all(np.isfinite(J)):
         raise InputError(f"{type(f).__name__} linearized to non-finite numbers")
     return J
+
+
+def native_rows(factors: list, theta: gtsam.Values) -> list:
+    """[A | b] of each factor GTSAM would linearize, at ``theta``: a factor kind's with Gaussian
+    noise by its kernel, every factor of a kind in one call
+    (:func:`lie_factors.expressions.plan.whitened_rows`), any other by GTSAM (:func:`native_jacobian`)."""
+    out: list = [None] * len(factors)
+    kinds, whitening = [], []
+    for i, f in enumerate(factors):
+        R = noise_whitening(f.noiseModel()) if isinstance(f, KindFactor) else None
+        if R is None:
+            out[i] = native_jacobian(f, theta)
+        else:
+            kinds.append(i)
+            whitening.append(np.ascontiguousarray(R, dtype=np.float64))
+    if kinds:
+        for i, J in zip(kinds, whitened_rows([factors[i] for i in kinds], whitening, theta)):
+            if not np.all(np.isfinite(J)):
+                raise InputError(f"{type(factors[i]).__name__} linearized to non-finite numbers")
+            out[i] = J
+    return out
 
 
 def make_factor(store: FactorKind, local: int, keys: list):

@@ -47,7 +47,7 @@ from ..sparse.pivots import PIVOT_TOLERANCE
 from .array_path import try_update
 from .cholesky import BlockFactor
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
-from .gtsam_objects import VALUE_TYPES, insert_from, make_factor, native_jacobian, read_update, typed_estimate
+from .gtsam_objects import VALUE_TYPES, insert_from, make_factor, native_rows, read_update, typed_estimate
 from .params import SmootherParams, UpdateResult
 from .structures import grow
 from .undo import Undo
@@ -397,11 +397,12 @@ class Smoother:
         if nf.native:
             undo.native(len(self.native))
             base = self.bf.nf + sum(len(o[0]) for o in out)
-            for q, (f, keys) in enumerate(nf.native):
+            rows = native_rows([f for f, _ in nf.native], self.native_theta)
+            for q, ((f, keys), J) in enumerate(zip(nf.native, rows)):
                 vs = np.array([var[k] for k in keys], dtype=np.int64)
                 self.native.append((f, vs, base + q))
                 self._register(np.array([base + q]), -1, np.array([len(self.native) - 1]))
-                out.append((vs[None, :], native_jacobian(f, self.native_theta)[None]))
+                out.append((vs[None, :], J[None]))
         return out
 
     def _register(self, fids: np.ndarray, code: int, local: np.ndarray) -> None:
@@ -459,9 +460,9 @@ class Smoother:
             idx = fl[fk == store.code]
             if len(idx):
                 out.append((store.fid[idx], store.jacobians(idx)))
-        for local in fl[fk < 0].tolist():
-            f, _, fid = self.native[local]
-            out.append((np.array([fid]), native_jacobian(f, self.native_theta)[None]))
+        natives = [self.native[local] for local in fl[fk < 0].tolist()]
+        for (f, _, fid), J in zip(natives, native_rows([f for f, _, _ in natives], self.native_theta)):
+            out.append((np.array([fid]), J[None]))
         return out
 
     # ------------------------------------------------------------------ solving and reading

@@ -199,3 +199,35 @@ def test_robust_noise_on_a_kind_in_the_batch_solver():
     ref = gtsam.LevenbergMarquardtOptimizer(native, initial, gtsam.LevenbergMarquardtParams()).optimize()
     result = lf.optimize(ours, initial)
     assert result.error == pytest.approx(native.error(ref), rel=1e-8)
+
+
+def test_the_smoother_linearizes_a_kind_in_one_kernel_call_per_update(monkeypatch):
+    """In lf.Smoother, an update's factors of a kind are linearized by one call of its kernel
+    (no GTSAM callback per factor), and the estimate is gtsam.ISAM2's on the same factors."""
+    from lie_factors.expressions import kind as kind_module
+    from lie_factors.incremental import gtsam_objects
+
+    ours, native, initial = _landmark_problem(seed=4, poses=8, landmarks=4)
+    calls = {"kernel": 0, "callbacks": 0}
+    real_rows = gtsam_objects.whitened_rows
+
+    def counted(factors, whitening, values):
+        calls["kernel"] += len({id(f.kind) for f in factors})
+        return real_rows(factors, whitening, values)
+
+    real_callback = kind_module.KindFactor._evaluate
+
+    def callback(self, this, values, H):
+        calls["callbacks"] += 1
+        return real_callback(self, this, values, H)
+
+    monkeypatch.setattr(gtsam_objects, "whitened_rows", counted)
+    monkeypatch.setattr(kind_module.KindFactor, "_evaluate", callback)
+    smoother = lf.Smoother()
+    smoother.update(ours, initial)
+    assert calls == {"kernel": 1, "callbacks": 0}
+    isam = gtsam.ISAM2()  # GTSAM's ISAM2 on the same factors, through their callbacks
+    isam.update(ours, initial)
+    ours_estimate, theirs = smoother.calculateEstimate(), isam.calculateEstimate()
+    for j in range(4):
+        np.testing.assert_allclose(ours_estimate.atPoint2(L(j)), theirs.atPoint2(L(j)), atol=1e-9)
