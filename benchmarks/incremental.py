@@ -32,9 +32,13 @@ peak resident memory, and each against native's.
 each pose's new factors (a ``gtsam.NonlinearFactorGraph``) and its start (the previous
 estimate composed with the odometry, a ``gtsam.Values``) to ``update`` and reads the new
 pose's estimate back, on the generated helix of ``--helix-poses`` poses (``--api-poses``,
-default 2000: a loop closure every 10th pose from the second turn).  Legs, alternated, best
+default 2000), with ``--api-closures``: ``far`` (a loop closure every 10th pose from the
+second turn, to the pose a turn back) and ``local`` (every 10th pose, to a pose 10–40 back:
+the loop whose updates touch few cliques, where fixed costs show).  Legs, alternated, best
 of ``--repeat``: ``gtsam.ISAM2`` with GTSAM's factors, :class:`~lie_factors.incremental.Smoother`
-with GTSAM's factors, and the Smoother with lie_factors' factors (as the README's example).
+with GTSAM's factors, the Smoother with lie_factors' factors (as the README's example), and
+the Smoother's arrays-in update (``update_arrays``: keys, 4×4 measurements and 6×6
+information matrices, no factor object).
 
 ``--accuracy`` replays each graph through ``gtsam.ISAM2`` (GTSAM's factors) and the smoother
 side by side and prints the error of the graph so far at each one's estimate at every tenth
@@ -71,9 +75,16 @@ LEGS = ("native", "plain", "dropin", "batch")
 SIGMA_ROT, SIGMA_TRANS = 0.01, 0.05
 
 
-def helix(poses: int, seed: int = 0, per_turn: int = 100, radius: float = 10.0, rise: float = 0.05):
-    """The generated graph: (native graph, dead-reckoned initial Values, true Pose3 list)."""
+def helix(poses: int, seed: int = 0, per_turn: int = 100, radius: float = 10.0, rise: float = 0.05,
+          closures: str = "far"):
+    """The generated graph: (native graph, dead-reckoned initial Values, true Pose3 list).
+
+    ``closures``: ``far``, at every 10th pose from the second turn, a closure to the pose a turn
+    back; ``local``, at every 10th pose from the 40th, a closure to a pose 10–40 back (drawn)."""
+    if closures not in ("far", "local"):
+        raise ValueError(f"closures: far or local, got {closures!r}")
     rng = np.random.default_rng(seed)
+    back = np.random.default_rng(seed + 1).integers(10, 41, size=poses)
     truth = []
     for i in range(poses):
         a = 2 * math.pi * i / per_turn
@@ -93,8 +104,11 @@ def helix(poses: int, seed: int = 0, per_turn: int = 100, radius: float = 10.0, 
         m = measure(i - 1, i)
         graph.add(gtsam.BetweenFactorPose3(i - 1, i, m, noise))
         initial.insert(i, initial.atPose3(i - 1).compose(m))
-        if i % 10 == 0 and i >= per_turn:
+        if closures == "far" and i % 10 == 0 and i >= per_turn:
             graph.add(gtsam.BetweenFactorPose3(i - per_turn, i, measure(i - per_turn, i), noise))
+        elif closures == "local" and i % 10 == 0 and i >= 40:
+            j = i - int(back[i])
+            graph.add(gtsam.BetweenFactorPose3(j, i, measure(j, i), noise))
     return graph, initial, truth
 
 
@@ -281,12 +295,12 @@ def accuracy_rows(datasets, data_dir: str, tmp: str, helix_poses: int) -> None:
               flush=True)
 
 
-def api_rows(poses: int, repeat: int) -> None:
-    """The README's loop, three ways (see the module docstring)."""
+def api_rows(poses: int, repeat: int, closures: str = "far") -> None:
+    """The README's loop, four ways (see the module docstring), on the helix with ``closures``."""
     from lie_factors import factors as lf_factors
     from lie_factors.incremental import Smoother
 
-    graph, _, _ = helix(poses)
+    graph, _, _ = helix(poses, closures=closures)
     by_pose: dict = {}
     for k in range(graph.size()):
         f = graph.at(k)
@@ -301,6 +315,7 @@ def api_rows(poses: int, repeat: int) -> None:
                                          gtsam.PriorFactorPose3),
         "Smoother, GTSAM's factors": (Smoother, lambda f: f, gtsam.PriorFactorPose3),
         "Smoother, lie_factors' factors": (Smoother, ours, lf_factors.PriorFactorPose3),
+        "Smoother.update_arrays": None,
     }
 
     def run(make, convert, prior):
@@ -329,18 +344,47 @@ def api_rows(poses: int, repeat: int) -> None:
         final = graph.error(isam.calculateEstimate())
         return times, final
 
+    def run_arrays():
+        # each pose's factors as arrays (keys, measured 4×4, information 6×6), made before the clock
+        info0 = np.linalg.inv(prior_noise.covariance())[None]
+        steps = []
+        for i in range(poses):
+            fs = by_pose.get(i, [])
+            keys = np.array([list(f.keys()) for f in fs], dtype=np.int64).reshape(-1, 2)
+            Z = np.array([f.measured().matrix() for f in fs]).reshape(-1, 4, 4)
+            info = np.array([np.linalg.inv(f.noiseModel().covariance()) for f in fs]).reshape(-1, 6, 6)
+            odometry = next((q for q, f in enumerate(fs) if min(f.keys()) == i - 1), None)
+            steps.append((keys, Z, info, odometry))
+        s = Smoother()
+        times = np.empty(poses)
+        last = np.eye(4)
+        for i, (keys, Z, info, odometry) in enumerate(steps):
+            t0 = time.perf_counter()
+            if i == 0:
+                s.update_arrays("Pose3", [0], np.eye(4)[None], keys, Z, info, [0], np.eye(4)[None], info0)
+            else:
+                s.update_arrays("Pose3", [i], (last @ Z[odometry])[None], keys, Z, info)
+            last = s.estimate_matrix(i)
+            times[i] = time.perf_counter() - t0
+        final = graph.error(s.calculateEstimate())
+        return times, final
+
+    def leg(name):
+        return run_arrays() if legs[name] is None else run(*legs[name])
+
     run(Smoother, ours, lf_factors.PriorFactorPose3)  # numba's kernels loaded before any clock
+    run_arrays()
     best: dict = {}
     names = list(legs)
     for r in range(repeat):
         for name in (names if r % 2 == 0 else names[::-1]):
-            times, final = run(*legs[name])
+            times, final = leg(name)
             print(f"# repeat {r + 1} {name}: {times.sum():.3f} s", file=sys.stderr, flush=True)
             if name not in best or times.sum() < best[name][0].sum():
                 best[name] = (times, final)
     ref = best[names[0]][0]
-    print(f"| loop ({poses} SE(3) poses) | update + estimate s | p50 ms | p99 ms | × gtsam.ISAM2 | p99 × "
-          f"| final error (odometry and closures) |")
+    print(f"| loop ({poses} SE(3) poses, {closures} closures) | update + estimate s | p50 ms | p99 ms "
+          f"| × gtsam.ISAM2 | p99 × | final error (odometry and closures) |")
     print("|---|---|---|---|---|---|---|")
     for name in names:
         times, final = best[name]
@@ -365,10 +409,13 @@ def main(argv=None) -> int:
                     help="with --cli: also time the default backend of another checkout (PYTHONPATH=DIR)")
     ap.add_argument("--api", action="store_true", help="the README's online loop from Python instead")
     ap.add_argument("--api-poses", type=int, default=2000)
+    ap.add_argument("--api-closures", nargs="+", default=["far", "local"], choices=("far", "local"),
+                    help="with --api: closures a turn back (far) or 10-40 poses back (local)")
     ap.add_argument("--accuracy", action="store_true", help="errors against gtsam.ISAM2 and batch LM instead")
     args = ap.parse_args(argv)
     if args.api:
-        api_rows(args.api_poses, args.repeat)
+        for closures in args.api_closures:
+            api_rows(args.api_poses, args.repeat, closures)
         return 0
     if args.accuracy:
         with tempfile.TemporaryDirectory() as tmp:

@@ -128,6 +128,13 @@ class BlockFactor:
         self.totals = UpdateStats()
         self.updates = 0
         self.compactions = 0
+        #: :func:`~lie_factors.incremental.structures.pool_plan`'s room factor
+        self.pool_room = st.POOL_ROOM
+        #: pool entries (ints, floats) written by re-eliminations and moved by compactions,
+        #: and re-eliminations that found a pool short
+        self.pool_written = np.zeros(2, dtype=np.int64)
+        self.pool_moved = np.zeros(2, dtype=np.int64)
+        self.pool_requests = 0
         # scratch reused by every update
         self._marks = np.zeros(0, dtype=np.int64)
         self._graph_ptr = np.zeros(0, dtype=np.int64)
@@ -293,7 +300,9 @@ class BlockFactor:
         # a batch step rewrites every node: into new pools (nothing in the old ones is read),
         # which replace the old ones whole, with nothing freed left in them
         # (sized by the kernel's own count: it asks for the room after its symbolic pass)
-        pools, itop, ftop = (st.Pools(np.empty(self.itop + 1024, dtype=np.int64), np.empty(0)), 0, 0) if batch \
+        # (as long as the old ones: np.empty touches no page, so only what is written is resident)
+        pools, itop, ftop = (st.Pools(np.empty(self.pools.ipool.shape[0], dtype=np.int64),
+                                      np.empty(self.pools.fpool.shape[0])), 0, 0) if batch \
             else (self.pools, self.itop, self.ftop)
         while True:
             status, detail, it, ft = reeliminate(order, orphans, self.next_pos, self.tree, pools, itop, ftop,
@@ -305,12 +314,16 @@ class BlockFactor:
                 raise IndeterminantLinearSystem(
                     f"the linear system is not positive definite at variable {int(detail)}: it is not "
                     "determined by the factors so far", int(detail))
+            self.pool_requests += 1
             if batch:
-                pools = self._grown_pools(pools, status, int(detail))
+                pool = pools.ipool if status == st.NEED_INT else pools.fpool
+                _, capacity = st.pool_plan(0, 0, pool.shape[0], int(detail), self.pool_room)
+                pools = self._grown_pools(pools, status, capacity)
             else:
                 self._make_room(status, int(detail))
                 pools, itop, ftop = self.pools, self.itop, self.ftop
         self.pools = pools
+        self.pool_written += (int(it) - itop, int(ft) - ftop)
         if batch:
             stats[4:6] = 0
         self.itop, self.ftop = int(it), int(ft)
@@ -328,18 +341,18 @@ class BlockFactor:
         return pools._replace(fpool=st.grow_pool(pools.fpool, size))
 
     def _make_room(self, status: int, size: int) -> None:
-        """Room in the pools for a re-elimination that asked for ``size`` entries: compacted in
-        place when most of the pool is freed (and that makes room), else grown."""
-        freed_floats, freed_ints = int(self.work.stats[4]), int(self.work.stats[5])
-        if status == st.NEED_INT:
-            if 2 * freed_ints > self.itop:
-                self._compact()
-            else:
-                self.pools = self._grown_pools(self.pools, status, size)
-        elif 2 * freed_floats > self.ftop and size - freed_floats <= self.pools.fpool.shape[0]:
+        """Room in the pools for a re-elimination that asked for ``size`` entries of one:
+        compacted in place and grown as :func:`~lie_factors.incremental.structures.pool_plan`
+        says."""
+        ints = status == st.NEED_INT
+        pool = self.pools.ipool if ints else self.pools.fpool
+        top = self.itop if ints else self.ftop
+        freed = int(self.work.stats[5 if ints else 4])
+        compact, capacity = st.pool_plan(top, freed, pool.shape[0], size, self.pool_room)
+        if compact:
             self._compact()
-        else:
-            self.pools = self._grown_pools(self.pools, status, size)
+        if capacity > pool.shape[0]:
+            self.pools = self._grown_pools(self.pools, status, capacity)
 
     def _order(self, affected: np.ndarray, orphans: np.ndarray, observed: np.ndarray) -> np.ndarray:
         """The affected variables in elimination order: minimum degree (at most
@@ -390,6 +403,7 @@ class BlockFactor:
         """Move the live entries of the pools down over the freed ones, in place: when a pool is
         full and most of it is freed, instead of growing it."""
         self.itop, self.ftop = compact_pools(self.nv, self.tree, self.pools)
+        self.pool_moved += (self.itop, self.ftop)
         self.work.stats[4:6] = 0
         self.compactions += 1
 

@@ -43,6 +43,7 @@ call to never grow, and the dense kernels are called from the top of a pass.
 
 from __future__ import annotations
 
+import math
 from collections import namedtuple
 
 import numpy as np
@@ -139,14 +140,33 @@ def grow(a: np.ndarray, n: int, fill=None) -> np.ndarray:
     return out
 
 
+#: When a re-elimination finds a pool short, the pool is left with room for this many times
+#: what is live in it plus what was asked: the next shortage comes only after half the live
+#: entries' size more is written, so compactions move at most two entries per entry written
+#: (:func:`pool_plan`), for a pool at most 1.5 times what it holds after a shortage.
+POOL_ROOM = 1.5
+
+
+def pool_plan(top: int, freed: int, capacity: int, size: int, room: float = POOL_ROOM) -> tuple:
+    """What to do for a re-elimination that asked a pool of ``capacity`` entries, filled to
+    ``top`` (``freed`` of them by nodes since replaced), for ``size`` entries in all: returns
+    (compact, capacity to grow to).  Compacted when more than half of what is filled is freed;
+    grown, to ``room`` × (what is then live + what was asked), when that does not fit ``room``
+    times in it."""
+    compact = 2 * freed > top
+    live = top - freed if compact else top
+    want = live + (size - top)
+    return compact, max(capacity, math.ceil(room * want)) if capacity < room * want else capacity
+
+
 def grow_pool(a: np.ndarray, n: int) -> np.ndarray:
-    """The pool ``a`` with room for ``n`` entries and a quarter more, its entries kept.  Pools
-    are most of the factor's memory: they grow by less than doubling, and in place
-    (``ndarray.resize``: a large block is remapped, not copied, so the old and the new pool
-    are never both in memory); no view of a pool outlives a call."""
+    """The pool ``a`` with room for ``n`` entries, its entries kept.  Pools are most of the
+    factor's memory: they grow in place (``ndarray.resize``: a large block is remapped, not
+    copied, so the old and the new pool are never both in memory); no view of a pool
+    outlives a call."""
     if a.shape[0] >= n:
         return a
-    a.resize(n + n // 4, refcheck=False)
+    a.resize(n, refcheck=False)
     return a
 
 
