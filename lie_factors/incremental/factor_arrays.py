@@ -120,6 +120,9 @@ class FactorArrays:
                                     f"({F}, {n}, {n}), got {M.shape} and {info.shape}")
             if not (np.all(np.isfinite(M)) and np.all(np.isfinite(info))):
                 raise InputError(f"{kind} factors: a measurement or information matrix is not finite")
+            if F == 0:  # (an update often has no prior: no compiled call for nothing)
+                parts[kind] = (k, np.zeros((0, m, m)), np.zeros((0, n, n)))
+                continue
             if kind == "between" and np.any(k[:, 0] == k[:, 1]):
                 raise InputError("between factors: a factor connects a key to itself")
             Minv, codes = loops.setup(M)
@@ -129,7 +132,7 @@ class FactorArrays:
                 raise InputError(str(_factors.element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
                                                                 "update")))
             try:
-                R = whitening(info) if F else np.zeros((0, n, n))
+                R = whitening(info)
             except np.linalg.LinAlgError:
                 raise InputError(f"{kind} factors: an information matrix is not positive definite") from None
             parts[kind] = (k, Minv, R)
