@@ -114,7 +114,7 @@ def as_array(t: ValueType, value, what: str) -> np.ndarray:
                          f"got {type(value).__name__}") from None
     if a.shape != t.shape:
         raise InputError(f"{what}: expected a {t} of shape {t.shape}, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise InputError(f"{what}: not finite")
     if t.is_group:
         _check_element(t, a, what)
@@ -131,10 +131,17 @@ def accessor(t: ValueType) -> str:
 
 
 def _check_element(t: ValueType, a: np.ndarray, what: str) -> None:
-    """The numpy test of an element (the kernels' own, :mod:`lie_factors.kernels.validate`)."""
+    """The test of an element: the public functions' compiled fast path first
+    (:func:`lie_factors.kernels.checks.element_ok`, which accepts nothing the numpy test
+    refuses), then, for what it does not accept, the numpy test that words the defect
+    (:mod:`lie_factors.kernels.validate`)."""
     from ..kernels import validate
+    from ..kernels.checks import element_ok
 
-    validate.rotation_block(a, what, t.rot)
     info = t.group
-    if info is not None and info.corner != registry.NO_CORNER:
-        validate.bottom_row(a, what, validate.last_row(info), info.corner == registry.POSITIVE)
+    corner = registry.NO_CORNER if info is None else info.corner
+    if element_ok(a, t.rot, corner):
+        return
+    validate.rotation_block(a, what, t.rot)
+    if corner != registry.NO_CORNER:
+        validate.bottom_row(a, what, validate.last_row(info), corner == registry.POSITIVE)

@@ -80,6 +80,32 @@ def test_construction_checks_shapes_values_and_the_noise_model():
         rot(1, np.diag([1.0, 1.0, 2.0, 1.0]), gtsam.noiseModel.Isotropic.Sigma(6, 0.1))
 
 
+@pytest.mark.parametrize("group,m,d,n", [("Pose3", 4, 3, 6), ("Rot2", 2, 2, 1), ("Similarity2", 3, 2, 4)])
+def test_a_group_constant_is_checked_at_the_orthonormality_bound(group, m, d, n):
+    # RᵀR − I = (1+ε)² − 1 ≈ 2ε on the first diagonal entry: straddle ORTHONORMAL_TOL (1e-9)
+    from lie_factors.kernels.validate import ORTHONORMAL_TOL
+
+    kind = lf.factor(group, measured=group)(lambda x, z: z.localCoordinates(x))
+    noise = gtsam.noiseModel.Isotropic.Sigma(n, 0.1)
+    for factor_ in (0.9, 1.1):
+        M = np.eye(m)
+        M[0, 0] = np.sqrt(1.0 + factor_ * ORTHONORMAL_TOL)
+        if factor_ < 1:
+            kind(1, M, noise)
+        else:
+            with pytest.raises(InputError, match="orthonormal"):
+                kind(1, M, noise)
+    reflection = np.eye(m)
+    reflection[1, 1] = -1.0
+    with pytest.raises(InputError, match="reflection"):
+        kind(1, reflection, noise)
+    if m > d:
+        bad_corner = np.eye(m)
+        bad_corner[-1, 0] = 0.5
+        with pytest.raises(InputError, match="last row"):
+            kind(1, bad_corner, noise)
+
+
 def test_a_key_holding_another_type_is_named_when_evaluated():
     f = landmark(1, 2, np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 0.1))
     values = gtsam.Values()
