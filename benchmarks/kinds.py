@@ -8,8 +8,8 @@ landmark and bundle-adjustment data against GTSAM's C++ factors.
   that kind again (loaded from the cache; measured after a cached package kernel has run, so
   numba's own first-call cost is not counted).
 * ``callback``: one ``factor.linearize(values)`` (GTSAM's call of a CustomFactor's callback,
-  with pybind11's fixed cost), best of 7 timeit runs, for our hand-written ``BetweenFactorPose3``,
-  the ready factors, and GTSAM's C++ factors for scale.
+  with pybind11's fixed cost), and one construction, best of 7 timeit runs, for our
+  hand-written ``BetweenFactorPose3``, the ready factors, and GTSAM's C++ factors for scale.
 * ``optimize``: on ``cityTrees_reduced_1k.g2o``, ``victoriaPark_reduced_1k.g2o``,
   ``known_landmark_localization_*.g2o``, ``victoria_park.txt`` (``lf.read_g2o``: GTSAM's landmark
   measurements become the ready factors) and the BAL files ``dubrovnik-*-pre.txt``
@@ -97,27 +97,34 @@ def callback_table() -> None:
     K = gtsam.Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
     n2, n3, n6 = (gtsam.noiseModel.Unit.Create(d) for d in (2, 3, 6))
     Z = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3))
-    pairs = {
-        "BetweenFactorPose3 (hand-written)": (BetweenFactorPose3(1, 2, Z, n6), gtsam.BetweenFactorPose3(1, 2, Z, n6)),
-        "BearingRangeFactor2D": (ready.BearingRangeFactor2D(4, 5, gtsam.Rot2(0.2), 2.0, n2),
-                                 gtsam.BearingRangeFactor2D(4, 5, gtsam.Rot2(0.2), 2.0, n2)),
-        "BearingRangeFactor3D": (ready.BearingRangeFactor3D(1, 3, gtsam.Unit3(np.array([0, 0, 1.0])), 4.0, n3),
-                                 gtsam.BearingRangeFactor3D(1, 3, gtsam.Unit3(np.array([0, 0, 1.0])), 4.0, n3)),
-        "GenericProjectionFactorCal3_S2": (ready.GenericProjectionFactorCal3_S2(np.array([300.0, 200.0]), n2, 1, 3, K),
-                                           gtsam.GenericProjectionFactorCal3_S2(np.array([300.0, 200.0]), n2, 1, 3, K)),
-        "GPSFactor": (ready.GPSFactor(1, np.array([1.0, 2.0, 3.0]), n3), gtsam.GPSFactor(1, np.array([1.0, 2.0, 3.0]), n3)),
+    U3 = gtsam.Unit3(np.array([0, 0, 1.0]))
+    z2, g3 = np.array([300.0, 200.0]), np.array([1.0, 2.0, 3.0])
+    makers = {  # (ours, GTSAM's C++ factor), each a constructor call
+        "BetweenFactorPose3 (hand-written)": (lambda: BetweenFactorPose3(1, 2, Z, n6),
+                                              lambda: gtsam.BetweenFactorPose3(1, 2, Z, n6)),
+        "BearingRangeFactor2D": (lambda: ready.BearingRangeFactor2D(4, 5, gtsam.Rot2(0.2), 2.0, n2),
+                                 lambda: gtsam.BearingRangeFactor2D(4, 5, gtsam.Rot2(0.2), 2.0, n2)),
+        "BearingRangeFactor3D": (lambda: ready.BearingRangeFactor3D(1, 3, U3, 4.0, n3),
+                                 lambda: gtsam.BearingRangeFactor3D(1, 3, U3, 4.0, n3)),
+        "GenericProjectionFactorCal3_S2": (lambda: ready.GenericProjectionFactorCal3_S2(z2, n2, 1, 3, K),
+                                           lambda: gtsam.GenericProjectionFactorCal3_S2(z2, n2, 1, 3, K)),
+        "GPSFactor": (lambda: ready.GPSFactor(1, g3, n3), lambda: gtsam.GPSFactor(1, g3, n3)),
     }
+    pairs = {name: (ours(), theirs()) for name, (ours, theirs) in makers.items()}
     for ours, _ in pairs.values():
         ours.linearize(v)  # compile or load first
     N = 20000
-    best = {}
+    best, made = {}, {}
     for name, (ours, theirs) in pairs.items():
         best[name] = [min(timeit.repeat(lambda f=f: f.linearize(v), number=N, repeat=7)) / N * 1e6 for f in (ours, theirs)]
+        made[name] = [min(timeit.repeat(make, number=N, repeat=7)) / N * 1e6 for make in makers[name]]
     base = best["BetweenFactorPose3 (hand-written)"][0]
-    print("One `factor.linearize(values)` (GTSAM's call of the callback), µs, best of 7 × 20 000:\n")
-    print("| factor | ours µs | × our BetweenFactorPose3 | GTSAM's C++ µs |\n|---|---|---|---|")
+    print("One `factor.linearize(values)` (GTSAM's call of the callback) and one construction, µs, "
+          "best of 7 × 20 000:\n")
+    print("| factor | ours µs | × our BetweenFactorPose3 | GTSAM's C++ µs | construction ours µs | GTSAM's µs |\n"
+          "|---|---|---|---|---|---|")
     for name, (a, b) in best.items():
-        print(f"| {name} | {a:.2f} | {a / base:.2f} | {b:.2f} |")
+        print(f"| {name} | {a:.2f} | {a / base:.2f} | {b:.2f} | {made[name][0]:.2f} | {made[name][1]:.2f} |")
 
 
 def _g2o_problems():

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -29,7 +30,7 @@ import numpy as np
 from ..errors import InputError
 from . import codegen
 from .expr import Expr, Node, Trace, constant, variable
-from .types import ValueType, accessor, as_array, value_type
+from .types import ValueType, as_array, value_type
 
 __all__ = ["factor", "KindFactor", "Kind"]
 
@@ -52,14 +53,25 @@ class Kind:
     def dim(self) -> int:
         return self.residual.type.dim
 
-    @property
+    # (cached: a callback reads them for every factor it evaluates)
+    @cached_property
     def offsets(self) -> list[int]:
         """Each variable's first column in the kernel's Jacobian A (F, dim, Σ d_j)."""
         return [int(x) for x in np.cumsum([0] + [t.dim for t in self.variables])[:-1]]
 
-    @property
+    @cached_property
     def columns(self) -> int:
         return sum(t.dim for t in self.variables)
+
+    @cached_property
+    def blocks(self) -> list[tuple[int, int]]:
+        """Each variable's columns (first, end) in A."""
+        return [(o, o + t.dim) for o, t in zip(self.offsets, self.variables)]
+
+    @cached_property
+    def buffer_name(self) -> str:
+        """The name of this kind's one-factor buffers in a thread's storage."""
+        return self.name + str(id(self))
 
     @property
     def tags(self) -> tuple:
@@ -206,18 +218,19 @@ class KindFactor(gtsam.CustomFactor):
                         H[j] = block
                 return e
         kind = self.kind
-        buf = getattr(_buffers, kind.name + str(id(kind)), None)
+        buf = getattr(_buffers, kind.buffer_name, None)
         if buf is None:
             buf = _Buffers(kind)
-            setattr(_buffers, kind.name + str(id(kind)), buf)
+            setattr(_buffers, kind.buffer_name, buf)
         for j, (key, t) in enumerate(zip(self._keys_, kind.variables)):
             buf.X[j][0] = _fetch(values, key, t, type(self).__name__)
         for c, value in enumerate(self._constants):
             buf.C[c][0] = value
-        kind.evaluate(*buf.args, H is not None)
+        kind._entry(*buf.args, H is not None)
         if H is not None:
-            for j, (o, t) in enumerate(zip(kind.offsets, kind.variables)):
-                H[j] = buf.A[0, :, o:o + t.dim]
+            A = buf.A[0]
+            for j, (o, end) in enumerate(kind.blocks):
+                H[j] = A[:, o:end]
         return buf.e[0]
 
 
@@ -247,7 +260,7 @@ def _checked_key(key, name: str) -> int:
 
 def _fetch(values, key: int, t: ValueType, name: str) -> np.ndarray:
     try:
-        value = getattr(values, accessor(t))(key)
+        value = getattr(values, t.accessor)(key)
     except RuntimeError as exc:
         raise TypeError(f"{name}: key {gtsam.DefaultKeyFormatter(key)} must hold a {t}: {exc}") from None
     if t.is_group:

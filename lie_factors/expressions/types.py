@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -39,6 +40,11 @@ class ValueType:
     @property
     def is_group(self) -> bool:
         return self.kind == "group"
+
+    @cached_property
+    def accessor(self) -> str:
+        """The ``gtsam.Values`` method that reads a variable of this type (:func:`accessor`)."""
+        return accessor(self)
 
     def __str__(self) -> str:
         return self.name
