@@ -84,10 +84,32 @@ def _duration(seconds: float) -> str:
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
 
+def _check_reachable(address: str) -> None:
+    """For a TCP address (``tcp://host:port`` or ``host:port``), a one-line InputError now if nothing
+    listens there (Dask's own client would retry until its timeout)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    if "://" in address and not address.startswith("tcp://"):
+        return  # TLS, in-process, ...: Dask's client says
+    try:
+        parts = urlsplit(address if "://" in address else f"tcp://{address}")
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        raise InputError(f"scheduler: {address} is not an address such as tcp://host:8786") from None
+    if not host or port is None:
+        raise InputError(f"scheduler: {address} is not an address such as tcp://host:8786")
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT).close()
+    except OSError as exc:
+        raise InputError(f"cannot reach the Dask scheduler at {address} ({exc.strerror or first_line(exc)})") from None
+
+
 def _client(distributed, scheduler: str | None, workers: int | None):
     """A Dask client of the scheduler at ``scheduler``, or of a new LocalCluster of ``workers`` worker
     processes (default: one per core), one thread each; and the cluster to close (None)."""
     if scheduler is not None:
+        _check_reachable(scheduler)
         try:
             return distributed.Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False), None
         except (OSError, TimeoutError, ValueError) as exc:

@@ -234,7 +234,9 @@ class _Checker:
             else:
                 solve.replay_options(**options)
         except InputError as exc:
-            bad = next((k for k in options if str(exc).startswith(k)), None)
+            # the option the message names: the one it starts with, else the one it mentions
+            bad = next((k for k in options if str(exc).startswith(k)), None) or \
+                next((k for k in options if re.search(rf"\b{re.escape(k)}\b", str(exc))), None)
             raise self.fail((*keys, bad) if bad else keys, str(exc)) from None
         except TypeError as exc:
             raise self.fail(keys, str(exc)) from None
