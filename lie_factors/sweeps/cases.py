@@ -177,12 +177,14 @@ def fork_safe_threads() -> bool:
     """Choose numba's ``workqueue`` threads for this process unless its threads already run (GNU
     OpenMP's cannot survive a fork); whether a child forked now can run numba's parallel code."""
     import numba
+    from numba.core import config
 
     try:
         return numba.threading_layer() in ("workqueue", "tbb")
     except ValueError:  # no parallel code has run yet: the layer is still ours to choose
-        if numba.config.THREADING_LAYER in ("default", "safe", "threadsafe", "forksafe", "omp"):
-            numba.config.THREADING_LAYER = "workqueue"
+        # numba.core.config sets its names from the environment at run time: no attribute a checker sees
+        if getattr(config, "THREADING_LAYER") in ("default", "safe", "threadsafe", "forksafe", "omp"):
+            setattr(config, "THREADING_LAYER", "workqueue")
         return True
 
 

@@ -53,7 +53,7 @@ def _pyarrow():
         import pyarrow.parquet
     except ImportError:
         raise InputError("a .parquet results file needs pyarrow (pip install pyarrow, or the extra: "
-                         "pip install \"lie-factors[parquet]\"); or write .csv") from None
+                         "pip install -e \".[parquet]\"); or write .csv") from None
     return pyarrow
 
 

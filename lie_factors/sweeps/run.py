@@ -32,7 +32,7 @@ def _distributed():
         import distributed
     except ImportError:
         raise InputError("the sweep needs Dask: pip install \"dask[distributed]\" (or the extra: "
-                         "pip install \"lie-factors[sweep]\")") from None
+                         "pip install -e \".[sweep]\")") from None
     return distributed
 
 

@@ -267,7 +267,9 @@ def _dotted(text: str) -> tuple[str, ...]:
 def _line_of(lines: list[str], keys: tuple[str, ...]) -> int:
     """The 1-based line defining ``keys`` (a table header or a key), or the nearest enclosing
     one's; 1 if none does (a key missing from the file)."""
-    best, best_len, table = 1, 0, ()
+    best, best_len = 1, 0
+    table: tuple[str, ...] = ()
+    full: tuple[str, ...]
     for number, line in enumerate(lines, 1):
         header = _HEADER.match(line)
         if header:
