@@ -69,6 +69,7 @@ def timed(argv: list[str]) -> float:
     p = subprocess.run(argv, env=ENV, capture_output=True, text=True)
     seconds = time.perf_counter() - t
     print(f"#   after:  {uptime()}", flush=True)
+    print(f"#   {seconds:.1f} s", flush=True)
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(argv)} failed: {p.stderr.strip()[-800:]}")
     return seconds
@@ -90,7 +91,7 @@ def main(argv=None) -> int:
     spec = os.path.join(tmp, "spec.toml")
     with open(spec, "w") as fh:
         fh.write(spec_text(args.graphs))
-    print("# spec:\n" + "".join(f"#   {line}\n" for line in spec_text(args.graphs).splitlines()), end="")
+    print("# spec:\n" + "".join(f"#   {line}\n" for line in spec_text(args.graphs).splitlines()), end="", flush=True)
     best = {"serial": float("inf"), "sweep": float("inf")}
     rows, figures = [], {}
     for k in range(args.repeat):
