@@ -230,7 +230,9 @@ def run_case(case: Case, data: GraphData, clean: CleanOptimum, timeout: float | 
                 "seed": case.seed, "method": case.method, "run": case.run,
                 "options": json.dumps(case.options, sort_keys=True), "sweep_run": sweep_run,
                 "worker": f"{socket.gethostname()}:{os.getpid()}"}
-    if timeout is not None and hasattr(os, "fork") and fork_safe_threads():
+    # chosen before any case's parallel code runs in this worker: a later sweep's timeout forks it
+    forkable = hasattr(os, "fork") and fork_safe_threads()
+    if timeout is not None and forkable:
         row = _in_child(case, data, clean, timeout)
     else:
         row = _measured(case, data, clean)
