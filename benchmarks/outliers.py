@@ -41,6 +41,11 @@ under their own noise model) and precision and recall with those left out of
 the count (riSAM's rule: such a closure is not an outlier).  GTSAM's results
 are stored in ``--native-cache``; ``--reuse-native`` reads them instead of
 running GTSAM again (its seconds, from the earlier run, are marked ``*``).
+``--sweep RESULTS`` runs the suite's cases through :func:`lie_factors.sweep`
+(Dask: a LocalCluster of ``--workers``, or ``--scheduler ADDRESS``), a row per case in RESULTS
+that a rerun resumes, and prints the same tables from the rows (one run per case; GTSAM's
+``GncOptimizer`` as ``lf.optimize(..., backend="native", gnc="tls", consistency=False)``,
+abandoned after ``--native-timeout``).
 ``--clean`` runs the suite's graphs without false closures (``--gnc tls``
 against plain LM); ``--tails`` prints the true closures' leave-one-out
 statistics at each clean optimum against χ² (the final check's tail model).
@@ -53,6 +58,7 @@ Usage::
     python benchmarks/outliers.py --suite --graphs intel CSAIL --seeds 0 1 --repeat 2
     python benchmarks/outliers.py --suite --graphs intel manhattan --kinds uniform group --fractions 0.2 --seeds 1 2 3
     python benchmarks/outliers.py --suite --generator testing --kinds uniform clustered --seeds 0
+    python benchmarks/outliers.py --suite --graphs intel CSAIL --kinds uniform group --seeds 1 2 --sweep suite.csv
     python benchmarks/outliers.py --tails --graphs intel CSAIL manhattan city10000 sphere2500
 
 Timing: best of ``--repeat`` runs, native and batch alternated (on a shared
@@ -88,6 +94,7 @@ from lie_factors.robust import gnc as gncm  # noqa: E402
 from lie_factors.robust import inner  # noqa: E402
 from lie_factors.robust.losses import LOSSES, RobustLoss  # noqa: E402
 from lie_factors.robust.weighted import WeightedLevenbergMarquardt  # noqa: E402
+from lie_factors.sweeps.metrics import consistent_planted, diagonal, map_error_percent, rmse, stage_counts  # noqa: E402
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data")
 GRAPHS = ("sphere2500", "intel", "city10000", "chain1000")
@@ -252,10 +259,6 @@ def prepare(name, fraction, seed, reference=True, start="file", kind="uniform"):
     return planted_pg, planted, ref, label
 
 
-def rmse(P, ref) -> float:
-    return float(np.sqrt(np.mean(np.sum((P - ref) ** 2, axis=1))))
-
-
 # --------------------------------------------------------------------------- #
 # The suite: lie-factors' --gnc (consistency stage, GNC, final check) against GTSAM's GncOptimizer
 # --------------------------------------------------------------------------- #
@@ -307,24 +310,6 @@ def store_native(cache, name, fraction, kind, seed, out, timeout):
         np.savez(path, timeout=False, seconds=out[1], positions=out[0], rejected=np.asarray(out[2], np.int64))
 
 
-def consistent_planted(between, planted, ref_values, dim) -> np.ndarray:
-    """The planted closures that fit the clean optimum: χ² = 2·error ≤ χ²_dim(0.95) under their
-    own noise model (riSAM's rule: such a closure is not an outlier, whatever it was planted as)."""
-    from lie_factors.robust.statistics import chi2_inlier_threshold
-
-    limit = 2.0 * chi2_inlier_threshold(dim, 0.95)
-    return np.array([k for k in planted.tolist() if 2.0 * between.at(int(k)).error(ref_values) <= limit],
-                    dtype=np.int64)
-
-
-def stage_counts(rejected_by: dict) -> str:
-    """How many closures each stage rejected, in the stages' order ("gate 28, clique 107, gnc 21")."""
-    counts = {}
-    for v in rejected_by.values():
-        counts[v] = counts.get(v, 0) + 1
-    return ", ".join(f"{k} {counts[k]}" for k in ("gate", "clique", "gnc", "final") if k in counts)
-
-
 def _suite_case(args, name, base, ref_values, fraction, kind, seed):
     """One cell of the suite at one seed: {method: (positions, seconds, rejected, rejected_by) or
     "timeout"}, the planted slots, those that fit the clean optimum, and the cache key's kind."""
@@ -355,33 +340,27 @@ def _suite_case(args, name, base, ref_values, fraction, kind, seed):
 
 
 def _summary(records, tuning) -> None:
-    """Worst and median per graph, fraction, kind and method over the seeds not in ``tuning``."""
-    cells: dict = {}
-    for r in records:
-        if r["seed"] not in tuning:
-            cells.setdefault((r["graph"], r["fraction"], r["kind"], r["method"]), []).append(r)
+    """Worst and median per graph, fraction, kind and method over the seeds not in ``tuning``
+    (:func:`lie_factors.sweeps.summary.summary` of the records as a sweep's rows)."""
+    from lie_factors.sweeps.summary import summary
+
     print()
-    print(f"# worst and median over the report seeds (tuning seeds {sorted(tuning)} left out); GTSAM's "
-          "runs abandoned at the timeout count as failed in precision, recall and map error")
-    print("| graph | false | kind | method | seeds | precision worst / median | recall worst / median | "
-          "map error / diag worst / median | seconds worst / median |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for (graph, fraction, kind, method), rs in cells.items():
-        seeds = ",".join(str(r["seed"]) for r in rs)
-        timeouts = sum(r["timeout"] for r in rs)
-        pr = np.array([0.0 if r["timeout"] else r["precision"] for r in rs])
-        rc = np.array([0.0 if r["timeout"] else r["recall"] for r in rs])
-        mp_ = np.array([np.inf if r["timeout"] else r["map"] for r in rs])
-        sec = np.array([r["seconds"] for r in rs])
-        over = f" ({timeouts} > {max(sec):.0f} s)" if timeouts else ""
-        print(f"| {graph} | {fraction:.0%} | {kind} | {method}{over} | {seeds} | {pr.min():.3f} / {np.median(pr):.3f} | "
-              f"{rc.min():.3f} / {np.median(rc):.3f} | {mp_.max():.3g} % / {np.median(mp_):.3g} % | "
-              f"{sec.max():.2f} / {np.median(sec):.2f} |", flush=True)
+    print(summary(records, tuning), flush=True)
+
+
+def _record(graph, fraction, kind, seed, method, timeout, **figures) -> dict:
+    """A run of the suite as a sweep's row (:data:`lie_factors.sweeps.results.COLUMNS`)."""
+    return {"graph": graph, "fraction": fraction, "kind": kind, "seed": seed, "method": method,
+            "status": "timeout" if timeout else "ok", **figures}
 
 
 def suite(args) -> int:
     fractions = args.fractions or [0.2, 0.5]
     kinds = args.kinds or list(GENERATORS[args.generator])
+    if args.sweep is not None:
+        return suite_on_sweep(args, fractions, kinds)
+    if args.scheduler is not None or args.workers is not None:
+        raise SystemExit("outliers.py: --scheduler and --workers go with --sweep RESULTS")
     tuning = set(args.tuning_seeds)
     print(f"# outliers suite: generator {args.generator}, kinds {kinds}, fractions {fractions}, seeds {args.seeds} "
           f"(tuning seeds {sorted(tuning)}: shown, left out of the summary), best of {args.repeat} (ours and "
@@ -396,7 +375,6 @@ def suite(args) -> int:
         base = load_graph(name)
         ref_values = reference_values(base)
         ref = positions(ref_values, base)
-        diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
         for fraction in fractions:
             for kind in kinds:
                 for seed in args.seeds:
@@ -409,11 +387,8 @@ def suite(args) -> int:
                         if b is None:
                             continue
                         title = "GTSAM GNC" if method == "gtsam" else "lie-factors"
-                        rec = {"graph": base.name, "fraction": fraction, "kind": kind, "seed": seed,
-                               "method": title, "timeout": _timed_out(b)}
                         if _timed_out(b):
-                            rec["seconds"] = b[1]
-                            records.append(rec)
+                            records.append(_record(base.name, fraction, kind, seed, title, True, seconds=b[1]))
                             print(f"| {label} | GTSAM GNC | – | – | – | > {b[1]:.0f}{star} | – | – | – |", flush=True)
                             continue
                         P, sec, rejected, by = b
@@ -422,13 +397,77 @@ def suite(args) -> int:
                         keep = np.setdiff1d(planted, consistent)
                         c2 = outliers.classify(np.setdiff1d(rejected, consistent), keep)
                         stages = "–" if by is None else stage_counts(by)
-                        err = 100 * rmse(P, ref) / diag
-                        rec.update(precision=c.precision, recall=c.recall, map=err, seconds=sec)
-                        records.append(rec)
+                        err = map_error_percent(P, ref)
+                        records.append(_record(base.name, fraction, kind, seed, title, False, precision=c.precision,
+                                               recall=c.recall, map_error=err, seconds=sec))
                         print(f"| {label} | {title} | {c.precision:.3f} | {c.recall:.3f} | {err:.3g} % | "
                               f"{sec:.2f}{star if method == 'gtsam' else ''} | {stages} | {len(consistent)} | "
                               f"{c2.precision:.3f}, {c2.recall:.3f} |", flush=True)
     _summary(records, tuning)
+    return 0
+
+
+#: The suite's methods as a sweep's: name → (title in the tables, lf.optimize's keywords). GTSAM's is its
+#: GncOptimizer on its own factors (backend native, no consistency stage).
+SWEEP_METHODS = {"gtsam-gnc": ("GTSAM GNC", 'backend = "native"\ngnc = "tls"\nconsistency = false'),
+                 "lie-factors": ("lie-factors", 'gnc = "tls"')}
+
+
+def graph_path(name: str) -> str:
+    """The g2o file of a suite graph's name (what :func:`load_graph` reads), for the sweep's spec:
+    data/NAME.g2o, ``helixN`` written to the temp dir, or a GTSAM example's name."""
+    if name.startswith("chain"):
+        raise SystemExit("outliers.py: --sweep runs graphs from files; chainN is built in memory")
+    if name.startswith("helix"):
+        load_graph(name)  # writes the file
+        return os.path.join(tempfile.gettempdir(), f"lie_factors_outliers_{name}.g2o")
+    path = os.path.join(DATA, name + ".g2o")
+    return path if os.path.exists(path) else name
+
+
+def sweep_spec(args, fractions, kinds) -> str:
+    """The suite as a sweep's spec (TOML): its graphs, kinds, fractions, seeds and both methods, GTSAM's
+    abandoned after ``--native-timeout`` seconds (every case is, in the sweep)."""
+    import json
+
+    graphs = "\n".join(f"{json.dumps(n)} = {json.dumps(graph_path(n))}" for n in args.graphs)
+    methods = [m for m in SWEEP_METHODS if not (args.no_native and m == "gtsam-gnc")]
+    return (f"timeout = {args.native_timeout}\n[graphs]\n{graphs}\n[corruption]\nkinds = {json.dumps(kinds)}\n"
+            f"fractions = {json.dumps(fractions)}\nseeds = {json.dumps(args.seeds)}\n"
+            + "".join(f"[methods.{m}]\n{SWEEP_METHODS[m][1]}\n" for m in methods))
+
+
+def suite_on_sweep(args, fractions, kinds) -> int:
+    """The suite's cases as one sweep (:func:`lie_factors.sweep`): on a LocalCluster of ``--workers``
+    or the cluster of ``--scheduler``, the rows in ``--sweep`` (a rerun resumes), then the suite's tables
+    from them. One run per case (no ``--repeat``), GTSAM run (not read from ``--native-cache``)."""
+    import lie_factors as lf
+    from lie_factors.sweeps.spec import parse_spec
+
+    if args.generator != "corrupt" or args.reuse_native or args.repeat != 1:
+        raise SystemExit("outliers.py: --sweep plants with lf.corrupt (--generator corrupt), runs each case "
+                         "once and GTSAM every time (no --repeat, --reuse-native)")
+    spec = parse_spec(sweep_spec(args, fractions, kinds), os.path.join(DATA, "outliers-suite.toml"))
+    rows = lf.sweep(spec, args.sweep, scheduler=args.scheduler, workers=args.workers, progress=True)
+    order = {c: k for k, c in enumerate(sorted({r["case"] for r in rows}))}
+    titles = {m: t for m, (t, _) in SWEEP_METHODS.items()}
+    print("| graph | false | kind | seed | method | precision | recall | map error / diag | seconds | "
+          "rejected by | planted consistent | precision, recall (riSAM) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    records = []
+    for r in sorted(rows, key=lambda r: order[r["case"]]):
+        title = titles.get(r["method"], r["method"])
+        label = f"{r['graph']} | {r['fraction']:.0%} ({r['planted'] if r['planted'] is not None else '?'}) | " \
+                f"{r['kind']} | {r['seed']}"
+        records.append({**r, "method": title})
+        if r["status"] != "ok":
+            print(f"| {label} | {title} | – | – | – | {r['status']}: {r['error']} | – | – | – |")
+            continue
+        stages = r["rejected_by"] or "–"
+        print(f"| {label} | {title} | {r['precision']:.3f} | {r['recall']:.3f} | {r['map_error']:.3g} % | "
+              f"{r['seconds']:.2f} | {stages if title != 'GTSAM GNC' else '–'} | {r['planted_consistent']} | "
+              f"{r['precision_consistent']:.3f}, {r['recall_consistent']:.3f} |")
+    _summary(records, set(args.tuning_seeds))
     return 0
 
 
@@ -513,6 +552,13 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse-native", action="store_true",
                     help="with --suite: read GTSAM's results from --native-cache where stored instead of "
                          "running it (its seconds are then from an earlier run: marked *)")
+    ap.add_argument("--sweep", metavar="RESULTS",
+                    help="with --suite: run its cases as one sweep (lf.sweep, Dask), a row per case in RESULTS "
+                         "(.csv or .parquet; a rerun resumes), then print the tables from the rows")
+    ap.add_argument("--scheduler", metavar="ADDRESS",
+                    help="with --sweep: a running Dask scheduler (default: a LocalCluster on this machine)")
+    ap.add_argument("--workers", type=int, help="with --sweep: the LocalCluster's worker processes "
+                                                "(default: one per core)")
     args = ap.parse_args(argv)
     if args.tails:
         if args.graphs == list(GRAPHS):
@@ -535,7 +581,7 @@ def main(argv=None) -> int:
     for name in args.graphs:
         pg, planted, ref, start = prepare(name, args.fraction, args.seed, start=args.start)
         print(f"# {pg.name}: start {start}", flush=True)
-        diag = float(np.linalg.norm(ref.max(axis=0) - ref.min(axis=0)))
+        diag = diagonal(ref)
         label = f"{pg.name} ({pg.pose_count} poses, {len(planted)} false / " \
                 f"{len(pg.loop_closures()) - len(planted)} true LC)"
         for method in args.methods:

@@ -13,6 +13,7 @@ The front door (``import lie_factors as lf``)::
     result.covariances()                       # (n, d, d) marginal covariances, GTSAM's tangent order
     replay = lf.replay(pg)                     # online, through the incremental smoother
     isam = lf.Smoother()                       # gtsam.ISAM2's interface
+    lf.sweep("spec.toml", "results.csv")       # many graphs, corruptions, seeds, methods on Dask
 
 Every option of ``lie-factors posegraph`` is a keyword of the same name
 (``docs/api.md``). The kernels (tangent orderings are GTSAM's, ``docs/conventions.md``):
@@ -41,6 +42,7 @@ _EXPORTS = {
     "Marginals": "batch.marginals",
     "corrupt": "corruption", "write_corruption": "corruption", "Corruption": "corruption",
     "optimize": "solve", "replay": "solve",
+    "sweep": "sweeps", "sweep_summary": "sweeps", "plot_sweep": "sweeps",
     "Result": "result", "ReplayResult": "result",
     "PoseGraph": "posegraph.graph",
     "Smoother": "incremental", "SmootherParams": "incremental",

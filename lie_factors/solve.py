@@ -34,7 +34,8 @@ if TYPE_CHECKING:
     from .robust.losses import RobustLoss
 
 __all__ = ["BACKENDS", "DEFAULT_BACKEND", "ROBUST_LOSSES", "GNC_LOSSES", "INIT_METHODS", "Options", "options",
-           "check_graph", "optimize", "optimize_pose_graph", "replay", "RELINEARIZE_THRESHOLD", "RELINEARIZE_SKIP"]
+           "check_graph", "optimize", "optimize_pose_graph", "replay", "replay_options", "RELINEARIZE_THRESHOLD",
+           "RELINEARIZE_SKIP"]
 
 #: The robust losses ``robust=`` names (``name`` or ``name:k``).
 ROBUST_LOSSES = ("huber", "cauchy", "tukey", "gm", "dcs")
@@ -422,6 +423,20 @@ RELINEARIZE_THRESHOLD = 0.1
 RELINEARIZE_SKIP = 10
 
 
+def replay_options(*, backend: str = DEFAULT_BACKEND, relinearize_threshold: float = RELINEARIZE_THRESHOLD,
+                   relinearize_skip: int = RELINEARIZE_SKIP) -> None:
+    """The options of :func:`replay`, checked: a one-line :class:`~lie_factors.errors.InputError`
+    for anything wrong (as :func:`options` for :func:`optimize`)."""
+    if backend not in BACKENDS:
+        raise InputError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
+    if isinstance(relinearize_threshold, bool) or not isinstance(relinearize_threshold, (int, float)) \
+            or not 0 < relinearize_threshold < float("inf"):
+        raise InputError(f"relinearize_threshold: must be a finite number > 0, got {relinearize_threshold!r}")
+    if isinstance(relinearize_skip, bool) or not isinstance(relinearize_skip, (int, np.integer)) \
+            or not 1 <= relinearize_skip <= MAX_ITERATIONS:
+        raise InputError(f"relinearize_skip: must be an integer from 1 to {MAX_ITERATIONS}, got {relinearize_skip!r}")
+
+
 def replay(pose_graph: PoseGraph, *, backend: str = DEFAULT_BACKEND,
            relinearize_threshold: float = RELINEARIZE_THRESHOLD, relinearize_skip: int = RELINEARIZE_SKIP,
            events: Events | None = None) -> "ReplayResult":
@@ -436,13 +451,7 @@ def replay(pose_graph: PoseGraph, *, backend: str = DEFAULT_BACKEND,
     ``relinearize_threshold`` and ``relinearize_skip``: ISAM2's. ``events.replayed`` hears
     the progress every thousand updates.
     """
-    if backend not in BACKENDS:
-        raise InputError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
-    if not (isinstance(relinearize_threshold, (int, float)) and 0 < relinearize_threshold < float("inf")):
-        raise InputError(f"relinearize_threshold: must be a finite number > 0, got {relinearize_threshold!r}")
-    if isinstance(relinearize_skip, bool) or not isinstance(relinearize_skip, (int, np.integer)) \
-            or not 1 <= relinearize_skip <= MAX_ITERATIONS:
-        raise InputError(f"relinearize_skip: must be an integer from 1 to {MAX_ITERATIONS}, got {relinearize_skip!r}")
+    replay_options(backend=backend, relinearize_threshold=relinearize_threshold, relinearize_skip=relinearize_skip)
     if not isinstance(pose_graph, PoseGraph):
         raise InputError(f"replay: expected a PoseGraph, got {type(pose_graph).__name__}")
     from .incremental.replay import replay as run

@@ -12,7 +12,8 @@ prefix listed, and may import only modules of its rank or below:
    ``robust.losses`` and ``robust.statistics`` (the batch solver's robust costs) < ``batch`` <
    ``initialization`` < ``incremental`` < the rest of ``robust`` < ``backends``;
 7. the front door (``solve``, ``events``, the package's ``__init__``);
-8. the app: ``app``.
+8. the app: ``app``, and ``sweeps`` (the front door's runs over many cases, on Dask: the app's
+   plot styles, the test generators' scoring of rejected closures).
 
 ``testing`` (oracles and generators) stands apart: no library module imports it; the app may
 (``lie-factors crosscheck`` prints the oracles' verdicts).  Every import counts, at module level
@@ -47,7 +48,7 @@ RANKS = {
     "batch": 6.5, "initialization": 6.6, "incremental": 6.7, "robust": 6.8, "backends": 6.9,
     "result": 5.5,
     "events": 7, "solve": 7, "files": 7, "corruption": 7, "": 7,
-    "app": 8,
+    "app": 8, "sweeps": 8,
 }
 APART = "testing"
 

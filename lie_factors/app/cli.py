@@ -408,6 +408,19 @@ def _run_corrupt(args) -> int:
     return corrupt.run(args)
 
 
+def _add_sweep(p: argparse.ArgumentParser) -> None:
+    from lie_factors.app import sweep
+
+    sweep.add_arguments(p, _positive_float, _bounded_int)
+
+
+def _run_sweep(args) -> int:
+    """``lie-factors sweep``: :mod:`lie_factors.app.sweep`."""
+    from lie_factors.app import sweep
+
+    return sweep.run(args)
+
+
 #: name → (help, add_arguments(parser), run(args) -> exit status)
 SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
     "demo": ("simulate and optimize a pose graph: SE(3) odometry with loop closures, or "
@@ -417,6 +430,8 @@ SUBCOMMANDS: dict[str, tuple[str, Callable, Callable]] = {
                  "computes them", _add_evaluate, _run_evaluate),
     "corrupt": ("plant false loop closures in a g2o pose graph (uniform, local, group or near), and list "
                 "them", _add_corrupt, _run_corrupt),
+    "sweep": ("run many cases (graphs, false closures, seeds, methods) on Dask, a row per case in a results "
+              "file that a rerun resumes; or summarize and plot one", _add_sweep, _run_sweep),
 }
 
 #: Subcommands living in their own module, offered only if the module imports.
