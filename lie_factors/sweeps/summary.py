@@ -66,8 +66,10 @@ def summary(results, tuning: Iterable[int] = ()) -> str:
              "| graph | false | kind | method | seeds | precision worst / median | recall worst / median | "
              "map error / diag worst / median | seconds worst / median |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for (graph, fraction, kind, method), rs in cells(rows, tuning).items():
-        seeds = ",".join(str(r["seed"]) for r in rs)
+    # cells in reading order (graph, kind, fraction, method), whatever order the cases finished in
+    ordered = sorted(cells(rows, tuning).items(), key=lambda item: (item[0][0], item[0][2], item[0][1], item[0][3]))
+    for (graph, fraction, kind, method), rs in ordered:
+        seeds = ",".join(str(s) for s in sorted(r["seed"] for r in rs))
         failed = [r for r in rs if _failed(r)]
         pr = np.array([_figure(r, "precision") for r in rs])
         rc = np.array([_figure(r, "recall") for r in rs])
