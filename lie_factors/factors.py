@@ -48,6 +48,7 @@ before (GTSAM's own methods run on the graph itself).
 from __future__ import annotations
 
 import importlib
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from types import ModuleType
 
@@ -167,7 +168,8 @@ def _checked_noise(spec: GroupSpec, noise_model, factor: str):
     return noise_model
 
 
-def _checked_key(key, factor: str) -> int:
+def checked_key(key, factor: str) -> int:
+    """``key`` as an int, or a TypeError naming ``factor`` for anything but a non-negative integer."""
     if type(key) is int and key >= 0:  # the common case, without the tuple isinstance checks
         return key
     if isinstance(key, (bool, np.bool_)) or not isinstance(key, (int, np.integer)) or key < 0:
@@ -268,8 +270,8 @@ class BetweenFactor(_Factor):
 
     def __init__(self, key1, key2, measured, noise_model):
         if type(key1) is not int or type(key2) is not int or key1 < 0 or key2 < 0:
-            key1 = _checked_key(key1, type(self).__name__)
-            key2 = _checked_key(key2, type(self).__name__)
+            key1 = checked_key(key1, type(self).__name__)
+            key2 = checked_key(key2, type(self).__name__)
         self._setup(key1, key2, measured, "measured", noise_model)
         self._measured = measured
 
@@ -288,7 +290,7 @@ class PriorFactor(_Factor):
 
     def __init__(self, key, prior, noise_model):
         if type(key) is not int or key < 0:
-            key = _checked_key(key, type(self).__name__)
+            key = checked_key(key, type(self).__name__)
         self._setup(None, key, prior, "prior", noise_model)
         self._prior = prior
 
@@ -420,7 +422,26 @@ class _GroupEvaluation:
                      self.e, self.H1, self.H2)
 
 
-class EvaluationPlan:
+class PlanBase(ABC):
+    """What an evaluation plan shares (:class:`EvaluationPlan`, and the factor kinds'
+    :class:`lie_factors.expressions.plan.KindPlan`): ``groups``, each with ``evaluate(values)``;
+    ``prepared(values)``, the ``with`` block inside which the callbacks read the results; and
+    :meth:`_activate`, which tells the plan's callbacks which plan is prepared (or None)."""
+
+    groups: list
+
+    def __bool__(self) -> bool:
+        return bool(self.groups)
+
+    def prepared(self, values):
+        return _Prepared(self, values)
+
+    @abstractmethod
+    def _activate(self, plan) -> None:
+        """Point the callbacks at ``plan`` (None: no plan prepared)."""
+
+
+class EvaluationPlan(PlanBase):
     """Every factor of this module in ``graph``, evaluated in one kernel call per group.
 
     For an optimizer that holds its ``Values`` (:mod:`lie_factors.optimizers`)::
@@ -458,35 +479,31 @@ class EvaluationPlan:
             between_many(res.spec.group, res.Minv[:0], res.AdMinv[:0], res.X, none, none,
                          res.e[:0], res.H1[:0], res.H2[:0])
 
-    def __bool__(self) -> bool:
-        return bool(self.groups)
-
-    def prepared(self, values):
-        return _Prepared(self, values)
+    def _activate(self, plan) -> None:
+        global _prepared
+        _prepared = plan
 
 
 class _Prepared:
-    def __init__(self, plan: EvaluationPlan, values):
+    def __init__(self, plan: PlanBase, values):
         self.plan, self.values = plan, values
 
     def __enter__(self):
-        global _prepared
         plan, values = self.plan, self.values
         if plan.last is not values:
             plan.last = None
             try:
-                for res in plan.groups:
-                    res.evaluate(values)
+                for group in plan.groups:
+                    group.evaluate(values)
             except Exception:  # the callbacks will report it, as without a plan
                 return self
             # Held, so that its id cannot be reused by another object while it is `last`.
             plan.last = values
         plan.values = values
-        _prepared = plan
+        plan._activate(plan)
         return self
 
     def __exit__(self, *exc):
-        global _prepared
-        _prepared = None
+        self.plan._activate(None)
         self.plan.values = None
         return False

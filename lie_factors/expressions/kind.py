@@ -28,6 +28,7 @@ import gtsam
 import numpy as np
 
 from ..errors import InputError
+from ..factors import checked_key
 from . import codegen
 from .expr import Expr, Node, Trace, constant, variable
 from .types import ValueType, as_array, value_type
@@ -173,7 +174,7 @@ class KindFactor(gtsam.CustomFactor):
                             + (["measured"] if "measured" in kind.constant_names else []) + ["noise_model"]
                             + [f"{c}=…" for c in extra])
             raise TypeError(f"{name}({sig}): got {len(args)} positional arguments")
-        keys = [_checked_key(key, name) for key in args[:k]]
+        keys = [checked_key(key, name) for key in args[:k]]
         if len(set(keys)) != k:
             raise InputError(f"{name}: a factor's keys must differ, got {keys}")
         noise = args[-1]
@@ -250,12 +251,6 @@ class _Buffers:
         args += self.C
         args += [np.eye(m)[None], index, self.e, self.A, np.zeros((1, m)), np.zeros(1), 0, 1]
         self.args = args
-
-
-def _checked_key(key, name: str) -> int:
-    if isinstance(key, (bool, np.bool_)) or not isinstance(key, (int, np.integer)) or key < 0:
-        raise TypeError(f"{name}: keys must be non-negative integers, got {key!r}")
-    return int(key)
 
 
 def _fetch(values, key: int, t: ValueType, name: str) -> np.ndarray:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..factors import PlanBase
 from . import kind as _kind
 from .kind import KindFactor, _fetch
 
@@ -72,7 +73,7 @@ class _KindEvaluation:
         return self.e[f], [self.A[f, :, o:o + t.dim] for o, t in zip(kind.offsets, kind.variables)]
 
 
-class KindPlan:
+class KindPlan(PlanBase):
     """Every kind factor of ``graph``, evaluated one kind at a time (module docstring)."""
 
     def __init__(self, graph):
@@ -88,35 +89,8 @@ class KindPlan:
         self.values = None
         self.last = None
 
-    def __bool__(self) -> bool:
-        return bool(self.groups)
-
-    def prepared(self, values):
-        return _Prepared(self, values)
-
-
-class _Prepared:
-    def __init__(self, plan: KindPlan, values):
-        self.plan, self.values = plan, values
-
-    def __enter__(self):
-        plan, values = self.plan, self.values
-        if plan.last is not values:
-            plan.last = None
-            try:
-                for group in plan.groups:
-                    group.evaluate(values)
-            except Exception:  # the callbacks will report it, as without a plan
-                return self
-            plan.last = values  # held: its id cannot be reused by another object while it is `last`
-        plan.values = values
+    def _activate(self, plan) -> None:
         _kind.active_plan = plan
-        return self
-
-    def __exit__(self, *exc):
-        _kind.active_plan = None
-        self.plan.values = None
-        return False
 
 
 def whitened_rows(factors: list, whitening: list, values) -> list:
