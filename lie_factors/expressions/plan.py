@@ -70,7 +70,7 @@ class _KindEvaluation:
 
     def rows(self, f: int) -> tuple:
         kind = self.kind
-        return self.e[f], [self.A[f, :, o:o + t.dim] for o, t in zip(kind.offsets, kind.variables)]
+        return self.e[f], [self.A[f, :, o:end] for o, end in kind.blocks]
 
 
 class KindPlan(PlanBase):

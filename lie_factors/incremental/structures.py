@@ -156,7 +156,7 @@ def pool_plan(top: int, freed: int, capacity: int, size: int, room: float = POOL
     compact = 2 * freed > top
     live = top - freed if compact else top
     want = live + (size - top)
-    return compact, max(capacity, math.ceil(room * want)) if capacity < room * want else capacity
+    return compact, math.ceil(room * want) if capacity < room * want else capacity
 
 
 def grow_pool(a: np.ndarray, n: int) -> np.ndarray:
