@@ -124,8 +124,8 @@ def prepared(fa) -> Prepared:
 def takes(s, fa) -> bool:
     """Whether the smoother ``s`` can take an update of ``fa``'s factors on the array path: it
     holds only ``fa``'s group and array factors, and this update relinearizes nothing."""
-    p = s.params
-    if s.native or s.other_types or (s.group_names and s.group_names != [fa.group]):
+    p = s.smoother_params
+    if s.native or s.other_types or (s.group_names and s.group_names != [fa.group]) or p.evaluateNonlinearError:
         return False
     return not (p.enableRelinearization and (s.update_count + 1) % p.relinearizeSkip == 0 and s.bf.nv)
 
@@ -204,7 +204,7 @@ def try_update(s, fa, keys, values, edges, priors):
         v = np.array(obs[at:at + k * len(idx)], dtype=np.int64).reshape(-1, k)
         local = kind.append(v, s.velem[v], C[idx], R[idx], [None] * len(idx))
         kind.fid[local] = np.arange(fid, fid + len(idx))
-        s._register(kind.fid[local], kind.code, local)
+        s._register(kind.fid[local], kind.code, local, kind.kind == "between")
         at += k * len(idx)
         fid += len(idx)
     plan = np.array(edges + priors + obs, dtype=np.int64)

@@ -41,25 +41,27 @@ from numba import typeof
 from ..errors import IndeterminantLinearSystem
 
 from ..kernels.jit import direct, entry_point
-from . import array_path, elimination, marking, ordering, storage, substitution
+from . import array_path, elimination, marking, ordering, storage
 from . import structures as st
 from .elimination import KEEP_UPDATE
-from .marking import factors_of, marked_among
+from .marking import marked_among
 from .storage import compact_pools
-from .substitution import marginal_covariance, max_abs_blocks
+from .factor_reading import FactorReading
 
 # The kernels every update calls, through their entry points (:func:`~lie_factors.kernels.jit.direct`):
 # their arguments are the structures and arrays allocated here, whose types never change.
 init_variables = direct(storage.init_variables)
 append_factors = direct(storage.append_factors)
 link_adjacency = direct(storage.link_adjacency)
+unlink_factors = direct(storage.unlink_factors)
+relink = direct(storage.relink)
+clear_nodes = direct(storage.clear_nodes)
 mark_affected = direct(marking.mark_affected)
 ordering_graph = direct(marking.ordering_graph)
 order_small = direct(ordering.order_small)
 reeliminate = direct(elimination.reeliminate)
 #: The array path's kernel, through its entry point for each group (its tag's type differs).
 _add_and_mark: dict = {}
-back_substitute = direct(substitution.back_substitute)
 
 
 #: ISAM2's share of re-eliminated variables from which an update orders and eliminates everything.
@@ -90,7 +92,7 @@ class UpdateStats:
         self.batch += other.batch
 
 
-class BlockFactor:
+class BlockFactor(FactorReading):
     """Variables with block dimensions, factors as whitened Jacobians, and the incremental factor.
 
     Variables and factors are numbered from 0 in the order they are added.
@@ -124,6 +126,10 @@ class BlockFactor:
         self.fstamp_box = 0
         self.next_pos = 0
         self.delta = np.zeros(0)
+        #: (F,) factors removed (their ids stay taken); (V,) variables removed (no node, no factor)
+        self.fremoved = np.zeros(0, dtype=bool)
+        self.vdead = np.zeros(0, dtype=np.uint8)
+        self.ndead = 0
         self.last = UpdateStats()
         self.totals = UpdateStats()
         self.updates = 0
@@ -148,11 +154,13 @@ class BlockFactor:
         self.work = st.grown(self.work, n, st.WORKSPACE_FILL)
         self.wildfire = st.grown(self.wildfire, n, dict.fromkeys(st.Wildfire._fields, 0))
         self.store = self.store._replace(ahead=st.grow(self.store.ahead, n, -1))
+        self.vdead = st.grow(self.vdead, n, 0)
 
     def _reserve_factors(self, n: int, nfv: int, njac: int) -> None:
         store = self.store
         if store.fnv.shape[0] < n:
             store = st.grown(store, n, dict.fromkeys(st.FACTOR_FIELDS, 0))
+            self.fremoved = st.grow(self.fremoved, store.fnv.shape[0], False)
         store = st.grown(store, nfv, dict.fromkeys(st.ENTRY_FIELDS))
         self.store = store._replace(jac=st.grow(store.jac, njac))
 
@@ -160,41 +168,95 @@ class BlockFactor:
         self.delta = st.grow(self.delta, n, 0.0)
 
     # ------------------------------------------------------------------ updates
-    def update(self, new_dims=(), new_factors=(), refreshed=(), relinearized=(), observed=()) -> UpdateStats:
-        """Add variables and factors, replace Jacobians, and re-eliminate what changed.
+    @property
+    def live(self) -> int:
+        """Variables that have not been removed."""
+        return self.nv - self.ndead
+
+    def update(self, new_dims=(), new_factors=(), refreshed=(), relinearized=(), observed=(), removed=(),
+               dead=(), groups=None) -> UpdateStats:
+        """Add variables and factors, remove factors and variables, replace Jacobians, and
+        re-eliminate what changed.
 
         ``new_dims`` (P,): dimensions of the new variables (they get the next
         indices).  ``new_factors``: sequence of ``(vars (F, k), jac (F, r, D + 1))``,
         the variables of F factors of k variables each and their whitened
-        Jacobians ``[A_1 … A_k | b]`` (D = the sum of the k dimensions).
+        Jacobians ``[A_1 … A_k | b]`` (D = the sum of the k dimensions), numbered in order;
+        or ``(vars, jac, fids)``, numbered ``fids`` (F,): then the update's factors together
+        take the ids ``nf, nf + 1, …`` each once.
         ``refreshed``: sequence of ``(factor ids (F,), jac (F, r, D + 1))``:
         new Jacobians of existing factors (relinearized).  ``relinearized``:
         variables whose factors all changed (their row subtrees are
         re-eliminated).  ``observed``: more variables to re-eliminate; the
-        variables of the new factors and the new variables are always
-        re-eliminated and ordered last.  Raises
-        :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive.
+        variables of the new and removed factors and the new variables are always
+        re-eliminated and ordered last.  ``removed``: ids of factors to take out (their
+        rows leave Λ; the ids stay taken).  ``dead``: variables to take out, every factor on
+        them removed (by this update or before): they leave the tree and the order.
+        ``groups`` (nv,): when given, the re-eliminated variables are ordered group by group
+        (smaller first), instead of the observed ones last.  Raises
+        :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive,
+        ``ValueError`` (state unchanged) for a removal that is not one.
         """
         new_dims = np.ascontiguousarray(new_dims, dtype=np.int64).reshape(-1)
+        removed = np.ascontiguousarray(removed, dtype=np.int64).reshape(-1)
+        dead = np.ascontiguousarray(dead, dtype=np.int64).reshape(-1)
         counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
         undo = []  # (array, indices, old values) to put back if the update fails
+        unlinked = None
         try:
             self._add_variables(new_dims)
             observed_parts = [np.asarray(observed, dtype=np.int64).reshape(-1),
                               np.arange(counts[0], self.nv, dtype=np.int64)]
             observed_parts += self._add_factors(new_factors, undo)
+            if removed.size:
+                unlinked, touched = self._remove_factors(removed, counts[1], undo)
+                observed_parts.append(touched)
+            if dead.size:
+                self._check_dead(dead)
+                undo.append((self.vdead, dead, self.vdead[dead].copy()))
+                self.vdead[dead] = 1
             self._refresh(refreshed, undo)
             observed_all = np.concatenate(observed_parts)  # repeats allowed
             relin = np.unique(np.asarray(relinearized, dtype=np.int64).reshape(-1)) if len(relinearized) else \
                 np.zeros(0, dtype=np.int64)
-            self._reeliminate(observed_all, relin)
+            self._reeliminate(observed_all, relin, dead, groups)
         except BaseException:
+            if unlinked is not None:
+                relink(*unlinked, self.store)
             for array, idx, old in reversed(undo):
                 array[idx] = old
             self.nv, self.nf, self.nfv, self.njac, self.nscalar = counts
             raise
+        self.ndead += len(dead)
         self.updates += 1
         return self.last
+
+    def _remove_factors(self, fids: np.ndarray, nf0: int, undo: list) -> tuple:
+        """Take the factors ``fids`` (ids below ``nf0``, each once, none removed before) out of
+        the adjacency lists; returns (what :func:`relink` needs to undo it, their variables)."""
+        if fids.min() < 0 or fids.max() >= nf0:
+            raise ValueError(f"factor ids must be in [0, {nf0}), got {fids.tolist()}")
+        if len(np.unique(fids)) != len(fids) or self.fremoved[fids].any():
+            raise ValueError("a factor is removed twice")
+        store = self.store
+        k = store.fnv[fids]
+        touched = np.concatenate([store.fvars[a:a + b] for a, b in zip(store.fvstart[fids].tolist(), k.tolist())]
+                                 + [np.zeros(0, dtype=np.int64)])
+        slots = np.empty(int(k.sum()), dtype=np.int64)
+        old = np.empty_like(slots)
+        n = unlink_factors(fids, store, slots, old)
+        undo.append((self.fremoved, fids, self.fremoved[fids].copy()))
+        self.fremoved[fids] = True
+        return (slots, old, n), touched
+
+    def _check_dead(self, dead: np.ndarray) -> None:
+        """Variables to take out must be live and have no factor left."""
+        if dead.min() < 0 or dead.max() >= self.nv or len(np.unique(dead)) != len(dead):
+            raise ValueError(f"variables to remove must be distinct, in [0, {self.nv}), got {dead.tolist()}")
+        if self.vdead[dead].any():
+            raise ValueError("a variable is removed twice")
+        if (self.store.ahead[dead] >= 0).any():
+            raise ValueError("a variable to remove still has factors")
 
     def update_arrays(self, g, X: np.ndarray, velem: np.ndarray, prep, plan: np.ndarray, sizes: tuple) -> None:
         """The array path's update (:mod:`~lie_factors.incremental.array_path`): P new variables
@@ -240,24 +302,37 @@ class BlockFactor:
     def _add_factors(self, new_factors, undo: list) -> list:
         """Store the new factors and link them to their variables; returns their variables."""
         nf0 = self.nf
+        chunks = []
+        for chunk in new_factors:
+            fvars = np.ascontiguousarray(chunk[0], dtype=np.int64)
+            jac = np.ascontiguousarray(chunk[1], dtype=np.float64)
+            if fvars.shape[0]:
+                chunks.append((fvars, jac, None if len(chunk) < 3 else np.ascontiguousarray(chunk[2], dtype=np.int64)))
+        if not chunks:
+            return []
+        total = sum(len(c[0]) for c in chunks)
+        numbered = [c[2] for c in chunks if c[2] is not None]
+        if numbered:
+            ids = np.concatenate(numbered)
+            if len(numbered) != len(chunks) or not np.array_equal(np.sort(ids), np.arange(nf0, nf0 + total)):
+                raise ValueError(f"the new factors' ids must be {nf0} … {nf0 + total - 1}, each once")
+        self._reserve_factors(nf0 + total, self.nfv + sum(c[0].size for c in chunks),
+                              self.njac + sum(c[1].size for c in chunks))
         touched = []
-        for fvars, jac in new_factors:
-            fvars = np.ascontiguousarray(fvars, dtype=np.int64)
-            jac = np.ascontiguousarray(jac, dtype=np.float64)
+        nf = nf0
+        for fvars, jac, fids in chunks:
             F, k = fvars.shape
-            if F == 0:
-                continue
-            r, D1 = jac.shape[1], jac.shape[2]
-            self._reserve_factors(self.nf + F, self.nfv + F * k, self.njac + F * r * D1)
-            append_factors(fvars, jac, (self.nf, self.nfv, self.njac), self.store)
+            if fids is None:
+                fids = np.arange(nf, nf + F, dtype=np.int64)
+            append_factors(fvars, jac, fids, (self.nfv, self.njac), self.store)
             touched.append(fvars.ravel())
-            self.nf += F
+            nf += F
             self.nfv += F * k
-            self.njac += F * r * D1
-        if touched:
-            allv = np.concatenate(touched)
-            undo.append((self.store.ahead, allv, self.store.ahead[allv].copy()))  # repeats: equal heads
-            link_adjacency(self.store, nf0, self.nf)
+            self.njac += jac.size
+        self.nf = nf
+        allv = np.concatenate(touched)
+        undo.append((self.store.ahead, allv, self.store.ahead[allv].copy()))  # repeats: equal heads
+        link_adjacency(self.store, nf0, self.nf)
         return touched
 
     def _refresh(self, refreshed, undo: list) -> None:
@@ -283,18 +358,29 @@ class BlockFactor:
         na, no = mark_affected(observed, relin, self.tree, self.pools.ipool, self.work.flag, affected, orphans)
         return affected[:na].copy(), orphans[:no].copy()
 
-    def _reeliminate(self, observed: np.ndarray, relin: np.ndarray) -> None:
+    def _reeliminate(self, observed: np.ndarray, relin: np.ndarray, dead: np.ndarray | None = None,
+                     groups: np.ndarray | None = None) -> None:
         affected, orphans = self._affected(observed, relin)
-        self._reeliminate_set(affected, orphans, observed)
+        if self.ndead or (dead is not None and dead.size):
+            # a variable taken out has no node: it is not re-eliminated (nothing hangs from it,
+            # since every node whose separator held it held one of its factors' variables)
+            keep = self.vdead[affected] == 0
+            affected = affected[keep]
+            observed = observed[self.vdead[observed] == 0]
+        self._reeliminate_set(affected, orphans, observed, dead, groups)
 
-    def _reeliminate_set(self, affected: np.ndarray, orphans: np.ndarray, observed: np.ndarray) -> None:
+    def _reeliminate_set(self, affected: np.ndarray, orphans: np.ndarray, observed: np.ndarray,
+                         dead: np.ndarray | None = None, groups: np.ndarray | None = None) -> None:
         """Order and re-eliminate the ``affected`` variables on top of the ``orphans`` (or every
-        variable, when they are :data:`BATCH_SHARE` of them), the ``observed`` ones last."""
-        batch = len(affected) >= BATCH_SHARE * self.nv
+        live variable, when they are :data:`BATCH_SHARE` of them), the ``observed`` ones last
+        (or by ``groups``); then take the nodes of ``dead`` out of the tree."""
+        batch = len(affected) >= BATCH_SHARE * self.live
         if batch:
-            affected = np.arange(self.nv, dtype=np.int64)
+            affected = np.flatnonzero(self.vdead[:self.nv] == 0).astype(np.int64) if self.ndead or \
+                (dead is not None and dead.size) else np.arange(self.nv, dtype=np.int64)
             orphans = orphans[:0]
-        order = self._order(affected, orphans, observed)
+        order = self._order(affected, orphans, observed) if groups is None else \
+            self._order_groups(affected, orphans, groups)
         stats = self.work.stats
         before = stats.copy()
         # a batch step rewrites every node: into new pools (nothing in the old ones is read),
@@ -324,6 +410,8 @@ class BlockFactor:
                 pools, itop, ftop = self.pools, self.itop, self.ftop
         self.pools = pools
         self.pool_written += (int(it) - itop, int(ft) - ftop)
+        if dead is not None and dead.size:
+            clear_nodes(dead, self.vdead, self.tree, self.delta, stats)
         if batch:
             stats[4:6] = 0
         self.itop, self.ftop = int(it), int(ft)
@@ -386,6 +474,19 @@ class BlockFactor:
             ordering_ = gtsam.Ordering.ColamdSymbolicFactorGraph(g)
         return np.fromiter(map(ordering_.at, range(ordering_.size())), dtype=np.int64, count=ordering_.size())
 
+    def _order_groups(self, affected: np.ndarray, orphans: np.ndarray, groups: np.ndarray) -> np.ndarray:
+        """The affected variables in an elimination order that takes them group by group
+        (``groups[v]``, smaller first; GTSAM's constrained ordering of ISAM2's
+        ``constrainedKeys``): ordered as :meth:`_order` orders them with every variable above the
+        smallest group last, then sorted stably by group (with two groups, as constrained
+        COLAMD orders them)."""
+        g = groups[affected]
+        if not len(g):
+            return affected
+        later = affected[g > g.min()]
+        order = self._order(affected, orphans, later)
+        return order[np.argsort(groups[order], kind="stable")]
+
     def _graph_room(self, affected: np.ndarray, orphans: np.ndarray) -> int:
         """Room in ``_graph_ptr``/``_graph_vars`` for the graph the affected variables are
         ordered on (:func:`~lie_factors.incremental.marking.ordering_graph`); returns a new
@@ -406,78 +507,6 @@ class BlockFactor:
         self.pool_moved += (self.itop, self.ftop)
         self.work.stats[4:6] = 0
         self.compactions += 1
-
-    # ------------------------------------------------------------------ solving
-    def solve(self, threshold: float = 0.0) -> int:
-        """Bring ``delta`` up to date after updates (wildfire, see
-        :func:`~lie_factors.incremental.substitution.back_substitute`); returns the nodes solved."""
-        return int(back_substitute(float(threshold), self.tree, self.pools, self.delta, self.wildfire))
-
-    def replace_all(self) -> None:
-        """Count every node as re-eliminated: the next :meth:`solve` solves them all (exactly)."""
-        self.wildfire.replaced[:self.nv] = 1
-
-    def variable_delta(self, v: int) -> np.ndarray:
-        o = int(self.tree.voff[v])
-        return self.delta[o:o + int(self.tree.dim[v])]
-
-    def largest_steps(self) -> np.ndarray:
-        """(nv,): max_i |δ_v[i]| of every variable v."""
-        return max_abs_blocks(self.delta, self.tree.voff[:self.nv], self.tree.dim[:self.nv])
-
-    def factors_of(self, variables: np.ndarray) -> np.ndarray:
-        """The factors on any of ``variables``, each once, increasing."""
-        return factors_of(variables, self.store, self.nf)
-
-    def marginal_covariance(self, v: int) -> np.ndarray:
-        """(d, d): the block of Λ⁻¹ of variable ``v`` (only the path from ``v`` to its root is read)."""
-        d = int(self.tree.dim[v])
-        out = np.empty((d, d))
-        marginal_covariance(int(v), self.tree, self.pools, out)
-        return out
-
-    # ------------------------------------------------------------------ inspection (tests, small problems)
-    def ordering(self) -> np.ndarray:
-        """Variable indices in elimination order."""
-        return np.argsort(self.tree.pos[:self.nv], kind="stable")
-
-    def dense_system(self) -> tuple[np.ndarray, np.ndarray]:
-        """(Λ, η) = (Σ AᵀA, Σ Aᵀb) as dense arrays in variable-offset order, from the stored Jacobians."""
-        n = self.nscalar
-        store, tree = self.store, self.tree
-        H = np.zeros((n + 1, n + 1))
-        for f in range(self.nf):
-            k, v0 = int(store.fnv[f]), int(store.fvstart[f])
-            vs = store.fvars[v0:v0 + k]
-            r, D1 = int(store.frows[f]), int(store.fcols[f])
-            J = store.jac[int(store.fjstart[f]):int(store.fjstart[f]) + r * D1].reshape(r, D1)
-            cols = np.concatenate([tree.voff[v] + np.arange(tree.dim[v]) for v in vs] + [[n]])
-            H[np.ix_(cols, cols)] += J.T @ J
-        return H[:n, :n], H[:n, n]
-
-    def dense_factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(perm, L, y): scalar permutation of the elimination order, the lower-triangular
-        L with L Lᵀ = Λ[perm][:, perm], and y = L⁻¹ η[perm], assembled from the nodes."""
-        tree, (ipool, fpool) = self.tree, self.pools
-        order = self.ordering()
-        perm = np.concatenate([tree.voff[v] + np.arange(tree.dim[v]) for v in order]).astype(np.int64)
-        where = np.empty(self.nscalar, dtype=np.int64)
-        where[perm] = np.arange(self.nscalar)
-        n = self.nscalar
-        L = np.zeros((n, n))
-        y = np.zeros(n)
-        for v in order:
-            d = int(tree.dim[v])
-            sep = ipool[int(tree.sep_start[v]):int(tree.sep_start[v]) + int(tree.sep_len[v])]
-            s = int(tree.sep_dim[v])
-            N = d + s + 1
-            C = fpool[int(tree.cond[v]):int(tree.cond[v]) + d * N].reshape(d, N)
-            rows = np.concatenate([where[tree.voff[w] + np.arange(tree.dim[w])] for w in [v, *sep]]).astype(np.int64)
-            cols = where[tree.voff[v] + np.arange(d)]
-            L[np.ix_(rows, cols)] = C[:, :d + s].T
-            y[cols] = C[:, N - 1]
-        return perm, L, y
-
 
 def _symbolic_graph(ptr: np.ndarray, out: np.ndarray, n: int, m: int):
     """The ``gtsam.SymbolicFactorGraph`` of the ``n`` lists in ``ptr``/``out`` (CSR, ``m``

@@ -150,7 +150,14 @@ class NewFactors:
     kinds: list  # group name (array variable) or None (GTSAM's values)
     values: list  # element matrix (m, m) or the gtsam value
     dims: list
-    arrays: dict  # (kind, group) -> dict(keys, C, R, src)
+    arrays: dict  # (kind, group) -> dict(keys, C, R, src, pos)
     native: list  # (factor, keys)
     theta: object = None  # the gtsam.Values the variables GTSAM holds come from
     types: dict = field(default_factory=dict)  # their keys -> type names (``Values.at<Type>``)
+    native_pos: list = field(default_factory=list)  # each native factor's place in the update
+    nulls: list = field(default_factory=list)  # the places of the update's empty slots
+    count: int = 0  # the update's factors, empty slots included: its factor indices
+
+    def __post_init__(self):
+        if not self.count:
+            self.count = sum(len(e["keys"]) for e in self.arrays.values()) + len(self.native) + len(self.nulls)

@@ -80,21 +80,24 @@ def classify(f):
     return kind, spec, keys, f._Minv, np.asarray(R, dtype=np.float64), None
 
 
-def _read_factors(newFactors: gtsam.NonlinearFactorGraph) -> tuple[dict, list, dict]:
-    """(arrays, native, group_of): the factors read as arrays by (kind, group), as lists; the
-    others with their keys; the group of every key an array factor uses."""
+def _read_factors(newFactors: gtsam.NonlinearFactorGraph) -> tuple[dict, list, dict, list, list]:
+    """(arrays, native, group_of, native_pos, nulls): the factors read as arrays by (kind,
+    group), as lists with their places in the graph; the others with their keys, and their
+    places; the group of every key an array factor uses; the places of empty slots."""
     arrays: dict = {}
-    native = []
+    native, native_pos, nulls = [], [], []
     group_of: dict[int, str] = {}
     for i in range(newFactors.size()):
         f = newFactors.at(i)
         if f is None:
+            nulls.append(i)
             continue
         c = classify(f)
         if c is None:
             if not isinstance(f, gtsam.NonlinearFactor):
                 raise InputError(f"factor {i}: unsupported type {type(f).__name__}")
             native.append((f, [int(k) for k in f.keys()]))
+            native_pos.append(i)
             continue
         kind, spec, keys, Minv, R, M = c
         if not np.all(np.isfinite(R)):
@@ -105,13 +108,14 @@ def _read_factors(newFactors: gtsam.NonlinearFactorGraph) -> tuple[dict, list, d
             g = group_of.setdefault(k, spec.name)
             if g != spec.name:
                 raise InputError(f"key {key_name(k)} is used by both {g} and {spec.name} factors")
-        entry = arrays.setdefault((kind, spec.name), dict(keys=[], Minv=[], R=[], M=[], src=[]))
+        entry = arrays.setdefault((kind, spec.name), dict(keys=[], Minv=[], R=[], M=[], src=[], pos=[]))
+        entry["pos"].append(i)
         entry["keys"].append(keys)
         entry["Minv"].append(Minv)
         entry["R"].append(R)
         entry["M"].append(M)
         entry["src"].append(f)
-    return arrays, native, group_of
+    return arrays, native, group_of, native_pos, nulls
 
 
 def _constants(arrays: dict, setup: Callable) -> dict:
@@ -129,7 +133,8 @@ def _constants(arrays: dict, setup: Callable) -> dict:
         if need:
             Minv[need] = setup(spec, np.array([entry["M"][q] for q in need]), "measurement")
         keys = np.array(entry["keys"], dtype=np.int64).reshape(F, -1)
-        out[(kind, name)] = dict(keys=keys, C=Minv, R=np.array(entry["R"], dtype=np.float64), src=entry["src"])
+        out[(kind, name)] = dict(keys=keys, C=Minv, R=np.array(entry["R"], dtype=np.float64), src=entry["src"],
+                                 pos=entry["pos"])
     return out
 
 
@@ -144,7 +149,7 @@ def read_update(newFactors, newTheta, setup: Callable) -> NewFactors:
         raise TypeError(f"newFactors must be a gtsam.NonlinearFactorGraph, got {type(newFactors).__name__}")
     if not isinstance(newTheta, gtsam.Values):
         raise TypeError(f"newTheta must be a gtsam.Values, got {type(newTheta).__name__}")
-    arrays, native, group_of = _read_factors(newFactors)
+    arrays, native, group_of, native_pos, nulls = _read_factors(newFactors)
     out = _constants(arrays, setup)
     new_keys = [int(k) for k in newTheta.keys()]
     kinds, values, dims, types = [], [], [], {}
@@ -171,7 +176,8 @@ def read_update(newFactors, newTheta, setup: Callable) -> NewFactors:
             kinds.append(None)
             values.append(None)
             dims.append(int(np.asarray(zero.at(k)).shape[0]))
-    return NewFactors(new_keys, kinds, values, dims, out, native, newTheta, types)
+    return NewFactors(new_keys, kinds, values, dims, out, native, newTheta, types, native_pos, nulls,
+                      int(newFactors.size()))
 
 
 def native_jacobian(f, theta: gtsam.Values) -> np.ndarray:

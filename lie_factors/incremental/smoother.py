@@ -35,6 +35,8 @@ relative factors only), then by the pivot rule of :mod:`lie_factors.sparse.pivot
 
 from __future__ import annotations
 
+import dataclasses
+
 import gtsam
 import numpy as np
 
@@ -46,9 +48,16 @@ from ..posegraph import gauge
 from ..sparse.pivots import PIVOT_TOLERANCE
 from .array_path import try_update
 from .cholesky import BlockFactor
+from .dogleg import dogleg_step
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
-from .gtsam_objects import VALUE_TYPES, insert_from, make_factor, native_rows, read_update, typed_estimate
+from .gtsam_objects import VALUE_TYPES, insert_from, native_rows, read_update, typed_estimate
 from .params import SmootherParams, UpdateResult
+from .queries import Queries
+from .removal import check_keys, forget, users
+from .reports import adaptive_reorder, error_before, update_result
+from .removal import plan as removal_plan
+from .removal import structure as removal_structure
+from .update_args import PLAIN, UpdateArgs, order_groups, read_args
 from .structures import grow
 from .undo import Undo
 
@@ -56,7 +65,7 @@ from .undo import Undo
 UNDETERMINED = "the update leaves a variable undetermined"
 
 
-class Smoother:
+class Smoother(Queries):
     """Incremental smoothing and mapping with ``gtsam.ISAM2``'s everyday interface.
 
     ``params``: a :class:`SmootherParams`, a ``gtsam.ISAM2Params`` (its
@@ -73,6 +82,7 @@ class Smoother:
     """
 
     def __init__(self, params=None, **overrides):
+        given = params
         if params is None:
             params = SmootherParams(**overrides)
         elif isinstance(params, gtsam.ISAM2Params):
@@ -80,22 +90,27 @@ class Smoother:
             for k, v in overrides.items():
                 setattr(params, k, v)
             params.__post_init__()
-        elif not isinstance(params, SmootherParams):
+        elif isinstance(params, SmootherParams):
+            params = dataclasses.replace(params, **overrides)
+        else:
             raise TypeError(f"params must be SmootherParams or gtsam.ISAM2Params, got {type(params).__name__}")
-        self.params = params
+        self.smoother_params = params
+        self._given_params = given if isinstance(given, gtsam.ISAM2Params) and not overrides else None
         self.bf = BlockFactor()
         self.keys: list[int] = []  # variable index -> key
-        self.var: dict[int, int] = {}  # key -> variable index
+        self.var: dict[int, int] = {}  # key -> variable index (the variables not removed)
         self.vgroup: list = []  # variable index -> group name or None
         self.velem = np.zeros(0, dtype=np.int64)  # variable index -> element index in its group
         self.elements: dict[str, Elements] = {}
         self.vcode = np.zeros(0, dtype=np.int64)  # variable index -> index in group_names, or -1
         self.vnative = np.zeros(0, dtype=bool)  # variable index -> a native factor uses it
+        self.vfixed = np.zeros(0, dtype=bool)  # variable index -> in a marginal factor: never relinearized
         self.group_names: list[str] = []
         self.kinds: dict[tuple, FactorKind] = {}
         self.kind_list: list[FactorKind] = []
-        self.fkind = np.zeros(0, dtype=np.int64)  # factor id -> index in kind_list, or -1 (native)
+        self.fkind = np.zeros(0, dtype=np.int64)  # factor id -> index in kind_list, or -1 (native), -2 (none)
         self.flocal = np.zeros(0, dtype=np.int64)  # factor id -> index in its kind (or in native)
+        self.frelative = np.zeros(0, dtype=bool)  # factor id -> known to be relative (lie_factors.posegraph.gauge)
         self.native: list = []  # (factor, var indices, factor id)
         self.native_theta = gtsam.Values()  # θ of every variable a native factor touches
         self.other = gtsam.Values()  # θ of the variables GTSAM holds (no group of ours)
@@ -105,6 +120,15 @@ class Smoother:
         self.relinearizations = 0
         self.reorderings = 0
         self._fresh = True  # δ up to date
+        self._full_solve = False  # the next solve back-substitutes exactly (forceFullSolve)
+        self._nnz_at_reorder = 0  # the factor's entries after the last adaptive reordering
+        self._dogleg_step = None  # with Dogleg parameters: the step δ (the factor's delta is Gauss–Newton's)
+        self._dogleg_delta = params.initialDelta  # and the trust region's radius
+
+    def params(self):
+        """The parameters (ISAM2's ``params()``): the ``gtsam.ISAM2Params`` the smoother was made
+        with, or its :class:`SmootherParams`."""
+        return self._given_params if self._given_params is not None else self.smoother_params
 
     # ------------------------------------------------------------------ reading
     def _setup(self, spec, M: np.ndarray, what: str):
@@ -124,13 +148,18 @@ class Smoother:
         return el
 
     # ------------------------------------------------------------------ updates
-    def update(self, newFactors=None, newTheta=None, *args, **kwargs) -> UpdateResult:
-        """ISAM2's ``update(newFactors, newTheta)``: add factors and variables, relinearize what
-        moved (every ``relinearizeSkip`` updates) and re-eliminate what changed."""
-        if args or kwargs:
-            raise TypeError("Smoother.update takes newFactors and newTheta only "
-                            "(factor removal, constrained and extra keys are not supported)")
-        return self._apply(read_update(newFactors, newTheta, self._setup))
+    def update(self, newFactors=None, newTheta=None, removeFactorIndices=None, constrainedKeys=None,
+               noRelinKeys=None, extraReelimKeys=None, force_relinearize=False) -> UpdateResult:
+        """ISAM2's ``update``: add factors and variables, take factors out, relinearize what moved
+        (every ``relinearizeSkip`` updates, or now with ``force_relinearize``) and re-eliminate
+        what changed.  ``removeFactorIndices``: indices of factors to take out (as
+        ``getNewFactorsIndices()`` gave them; a variable left in no factor is taken out too);
+        ``constrainedKeys``: key → group of the elimination order (smaller first; a dict or a
+        ``gtsam.KeyGroupMap``); ``noRelinKeys``: keys held at their linearization point;
+        ``extraReelimKeys``: keys re-eliminated whatever their δ.  Or ``update(newFactors,
+        newTheta, gtsam.ISAM2UpdateParams)``."""
+        args = read_args(removeFactorIndices, constrainedKeys, noRelinKeys, extraReelimKeys, force_relinearize)
+        return self._apply(read_update(newFactors, newTheta, self._setup), args)
 
     def update_arrays(self, group: str, keys=(), values=None, edge_keys=None, measured=None, information=None,
                       prior_keys=None, prior_measured=None, prior_information=None) -> UpdateResult:
@@ -164,10 +193,11 @@ class Smoother:
         priors = np.asarray(priors, dtype=np.int64).reshape(-1)
         if len(edges):
             arrays[("between", fa.group)] = dict(keys=fa.edge_keys[edges], C=fa.Minv[edges], R=fa.R[edges],
-                                                 src=[None] * len(edges))
+                                                 src=[None] * len(edges), pos=np.arange(len(edges)))
         if len(priors):
             arrays[("prior", fa.group)] = dict(keys=fa.prior_keys[priors, None], C=fa.Pinv[priors],
-                                               R=fa.prior_R[priors], src=[None] * len(priors))
+                                               R=fa.prior_R[priors], src=[None] * len(priors),
+                                               pos=len(edges) + np.arange(len(priors)))
         return self._apply(NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, []))
 
     def estimate_matrices(self, keys) -> np.ndarray:
@@ -179,7 +209,7 @@ class Smoother:
             raise InputError("estimate_matrices: the keys must all hold elements of one group")
         el = self.elements[names.pop()]
         out = np.empty((len(vs), el.spec.mat, el.spec.mat))
-        el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.bf.delta, self.bf.tree.voff[vs], out)
+        el.loops.retract(np.ascontiguousarray(el.X[self.velem[vs]]), self.step, self.bf.tree.voff[vs], out)
         return out
 
     def estimate_matrix(self, key) -> np.ndarray:
@@ -224,43 +254,55 @@ class Smoother:
             if k not in used:
                 raise InputError(f"new key {key_name(k)} is in no new factor: it would be unconstrained")
 
-    def _apply(self, nf: NewFactors) -> UpdateResult:
+    def _apply(self, nf: NewFactors, args: UpdateArgs = PLAIN) -> UpdateResult:
         self._validate(nf)
-        plan = self._structure(nf)
-        p = self.params
+        n0 = len(self.keys)
+        new = dict(zip(nf.keys, range(n0, n0 + len(nf.keys))))
+        removal = removal_plan(self, args.remove, users(self, nf, new))
+        extra = check_keys(self, args.extra, new, "extraReelimKeys")
+        frozen = check_keys(self, args.no_relin, new, "noRelinKeys")
+        groups = order_groups(self, args, len(nf.keys), new)
+        commit_structure = self._structure(nf, removal)
+        p = self.smoother_params
         count = self.update_count + 1
         relin_vars = np.zeros(0, dtype=np.int64)
-        if p.enableRelinearization and count % p.relinearizeSkip == 0 and self.bf.nv:
+        if p.enableRelinearization and (args.force_relinearize or count % p.relinearizeSkip == 0) and self.bf.nv:
             self._solve()
-            relin_vars = self._relinearize_set()
+            relin_vars = self._relinearize_set(frozen)
+        before = error_before(self, nf, removal) if p.evaluateNonlinearError else None
+        batch = adaptive_reorder(self)
         undo = Undo(self)
         try:
             self._add_variables(nf, undo)
             refreshed = self._relinearize(relin_vars, undo) if len(relin_vars) else []
             new_factors = self._add_factors(nf, undo)
             self.bf.update(new_dims=np.array(nf.dims, dtype=np.int64), new_factors=new_factors,
-                           refreshed=refreshed, relinearized=relin_vars)
+                           refreshed=refreshed, relinearized=relin_vars, observed=np.array(extra, dtype=np.int64)
+                           if batch is None else batch, removed=removal.fids, dead=removal.dead, groups=groups)
         except IndeterminantLinearSystem as exc:
             undo.run()
             raise self._indeterminant(exc, nf.keys) from None
         except BaseException:
             undo.run()
             raise
-        self.gauge.commit(plan)
-        return self._updated(len(relin_vars))
+        commit_structure()
+        forget(self, removal.dead)
+        self._full_solve = self._full_solve or args.full_solve
+        return self._updated(len(relin_vars), nf, removal, extra, relin_vars, before, batch is not None)
 
-    def _structure(self, nf: NewFactors) -> tuple:
+    def _structure(self, nf: NewFactors, removal=None):
         """The structural rule on the update (:mod:`lie_factors.posegraph.gauge`), before anything
         changes: a new variable whose new factors have fewer rows than its dimension, or a
         component the update touches whose factors are all relative (no prior: a free gauge),
-        raises :class:`IndeterminantLinearSystem`.  Returns the plan to commit once the update
-        has succeeded."""
+        raises :class:`IndeterminantLinearSystem`; with a removal, also a variable that keeps
+        too few rows, or a component the removal leaves unanchored.  Returns what to call once
+        the update has succeeded."""
         n0, P = len(self.keys), len(nf.keys)
         var = self.var
         new = dict(zip(nf.keys, range(n0, n0 + P)))
         u, v, anchored = [], [], []
         touched = list(range(n0, n0 + P))
-        rows = [0] * P
+        rows: dict = {}
         for (kind, name), entry in nf.arrays.items():
             ids = [new[k] if k in new else var[k] for k in entry["keys"].ravel().tolist()]
             touched += ids
@@ -271,8 +313,7 @@ class Smoother:
                 anchored += ids
             n = _factors.GROUPS[name].dim
             for w in ids:
-                if w >= n0:
-                    rows[w - n0] += n
+                rows[w] = rows.get(w, 0) + n
         for f, keys in nf.native:
             ids = [new[k] if k in new else var[k] for k in keys]
             touched += ids
@@ -281,14 +322,17 @@ class Smoother:
             if ids and not gauge.is_relative(f):
                 anchored.append(ids[0])
             for w in set(ids):
-                if w >= n0:
-                    rows[w - n0] += int(f.dim())
-        finding = gauge.short_rows(n0, nf.dims, rows)
+                rows[w] = rows.get(w, 0) + int(f.dim())
+        finding = gauge.short_rows(n0, nf.dims, [rows.get(w, 0) for w in range(n0, n0 + P)])
+        if finding is None and removal is not None and not removal.empty:
+            comps, finding = removal_structure(self, P, nf.dims, u, v, anchored, rows, removal)
+            if finding is None:
+                return lambda: setattr(self, "gauge", comps)
         if finding is None:
             plan, finding = self.gauge.join(P, u, v, anchored, touched)
         if finding is not None:
             raise self._refusal(finding, nf.keys)
-        return plan
+        return lambda: self.gauge.commit(plan)
 
     def _name(self, v: int, new_keys: list) -> str:
         """The key of variable ``v`` (``new_keys``: the update's, the variables past the smoother's)."""
@@ -308,19 +352,22 @@ class Smoother:
             f"{UNDETERMINED}: a pivot of the column of {self._name(v, new_keys)} is not above "
             f"{PIVOT_TOLERANCE:g} of its diagonal entry: the factors so far do not determine it", v)
 
-    def _updated(self, relinearized: int) -> UpdateResult:
-        """The counts after an update that succeeded, and what it reports."""
+    def _updated(self, relinearized: int, nf: NewFactors | None = None, removal=None, extra=(), relin=(),
+                 before=None, adaptive: bool = False) -> UpdateResult:
+        """The counts after an update that succeeded, and what it reports
+        (:func:`~lie_factors.incremental.reports.update_result`)."""
         self.update_count += 1
         self.relinearizations += relinearized
         self.reorderings += int(self.bf.last.batch)
         self._fresh = False
-        return UpdateResult(self.bf.last.columns, relinearized, self.bf.nv, self.bf.last.batch)
+        return update_result(self, relinearized, nf, removal, extra, relin, before, adaptive)
 
     def _grow_variables(self, n: int) -> None:
         """Room for ``n`` variables in the per-variable arrays."""
         self.velem = grow(self.velem, n)
         self.vcode = grow(self.vcode, n)
         self.vnative = grow(self.vnative, n)
+        self.vfixed = grow(self.vfixed, n, False)
 
     def _kind(self, kind: str, name: str) -> FactorKind:
         """The array factors of (``kind``, group ``name``), made on first use."""
@@ -381,8 +428,11 @@ class Smoother:
         insert_from(dest, src, key, self.other_types[key])
 
     def _add_factors(self, nf: NewFactors, undo) -> list:
+        """The update's factors stored as arrays or native factors, numbered by their place in
+        the update (ISAM2's factor indices: every factor added so far counted, in order)."""
         out = []
         var = self.var
+        base = self.bf.nf
         for (kind, name), entry in nf.arrays.items():
             store = self._kind(kind, name)
             undo.kind(store)
@@ -390,37 +440,62 @@ class Smoother:
             v = np.fromiter((var[k] for k in keys.ravel().tolist()), dtype=np.int64, count=keys.size).reshape(keys.shape)
             e = self.velem[v]
             idx = store.append(v, e, entry["C"], entry["R"], entry["src"])
-            fids = np.arange(self.bf.nf + sum(len(o[0]) for o in out), self.bf.nf + sum(len(o[0]) for o in out) + len(v))
+            fids = base + np.asarray(entry["pos"], dtype=np.int64)
             store.fid[idx] = fids
-            self._register(fids, store.code, idx)
-            out.append((v, store.jacobians(idx)))
+            self._register(fids, store.code, idx, kind == "between")
+            out.append((v, store.jacobians(idx), fids))
         if nf.native:
             undo.native(len(self.native))
-            base = self.bf.nf + sum(len(o[0]) for o in out)
             rows = native_rows([f for f, _ in nf.native], self.native_theta)
-            for q, ((f, keys), J) in enumerate(zip(nf.native, rows)):
+            for (f, keys), J, pos in zip(nf.native, rows, nf.native_pos):
                 vs = np.array([var[k] for k in keys], dtype=np.int64)
-                self.native.append((f, vs, base + q))
-                self._register(np.array([base + q]), -1, np.array([len(self.native) - 1]))
-                out.append((vs[None, :], J[None]))
+                self.native.append((f, vs, base + pos))
+                self._register(np.array([base + pos]), -1, np.array([len(self.native) - 1]), gauge.is_relative(f))
+                out.append((vs[None, :], J[None], np.array([base + pos])))
+        if nf.nulls:
+            # an empty slot of the graph keeps its index, as in ISAM2's factor graph
+            fids = base + np.asarray(nf.nulls, dtype=np.int64)
+            self._register(fids, -2, np.zeros(len(fids), dtype=np.int64), True)
+            out.append((np.zeros((len(fids), 0), dtype=np.int64), np.zeros((len(fids), 0, 1)), fids))
         return out
 
-    def _register(self, fids: np.ndarray, code: int, local: np.ndarray) -> None:
-        """Factor ids ``fids`` are entries ``local`` of kind ``code`` (−1: native factors).  (Ids
-        past the block factor's count are dropped with it if the update fails.)"""
+    def _register(self, fids: np.ndarray, code: int, local: np.ndarray, relative) -> None:
+        """Factor ids ``fids`` are entries ``local`` of kind ``code`` (−1: native factors, −2: an
+        empty slot), ``relative`` or not (:func:`lie_factors.posegraph.gauge.is_relative`).
+        (Ids past the block factor's count are dropped with it if the update fails.)"""
         n = int(fids.max()) + 1
         self.fkind = grow(self.fkind, n)
         self.flocal = grow(self.flocal, n)
+        self.frelative = grow(self.frelative, n)
         self.fkind[fids] = code
         self.flocal[fids] = local
+        self.frelative[fids] = relative
 
-    def _relinearize_set(self) -> np.ndarray:
+    def _relinearize_set(self, frozen=()) -> np.ndarray:
+        """The variables to relinearize: ISAM2's check of δ against the threshold (per variable,
+        or per type with a threshold map), less the variables held (``frozen``, ISAM2's
+        ``noRelinKeys``, and those of marginal factors) and those taken out."""
         bf = self.bf
-        th = self.params.relinearizeThreshold
-        moved = bf.largest_steps()
-        if self.params.relinearizePolicy == "global":
-            return np.arange(bf.nv, dtype=np.int64) if moved.size and moved.max() >= th else moved[:0].astype(np.int64)
-        return np.flatnonzero(moved >= th).astype(np.int64)
+        p = self.smoother_params
+        th = p.relinearizeThreshold
+        if isinstance(th, dict):
+            relin = []
+            tree = bf.tree
+            for w in np.flatnonzero(bf.vdead[:bf.nv] == 0).tolist():
+                t = p.threshold_of(self.keys[w], int(tree.dim[w]))
+                if np.any(np.abs(self._variable_step(w)) > t):
+                    relin.append(w)
+            out = np.array(relin, dtype=np.int64)
+        else:
+            moved = bf.largest_steps(self.step)
+            if p.relinearizePolicy == "global":
+                out = np.arange(bf.nv, dtype=np.int64) if moved.size and moved.max() >= th else moved[:0].astype(np.int64)
+            else:
+                out = np.flatnonzero(moved >= th).astype(np.int64)
+        held = self.vfixed[out] | (bf.vdead[out] != 0)
+        if len(frozen):
+            held[np.isin(out, np.asarray(frozen, dtype=np.int64))] = True
+        return out[~held] if held.any() else out
 
     def _relinearize(self, relin: np.ndarray, undo) -> list:
         """θ ← θ ⊕ δ on ``relin``, and new Jacobians for every factor on them."""
@@ -433,7 +508,7 @@ class Smoother:
             e = self.velem[vs]
             undo.theta(el, e)
             out = np.empty((len(e), el.spec.mat, el.spec.mat))
-            el.loops.retract(np.ascontiguousarray(el.X[e]), bf.delta, bf.tree.voff[vs], out)
+            el.loops.retract(np.ascontiguousarray(el.X[e]), self.step, bf.tree.voff[vs], out)
             el.X[e] = out
         # the variables GTSAM holds: retracted one by one, in place (the old values kept for undo)
         for v in relin[codes < 0].tolist():
@@ -441,7 +516,7 @@ class Smoother:
             one = gtsam.Values()
             self._insert_from(one, self.other, k)
             vv = gtsam.VectorValues()
-            vv.insert(k, bf.variable_delta(v).copy())
+            vv.insert(k, self._variable_step(v).copy())
             moved = getattr(one.retract(vv), f"at{self.other_types[k]}")(k)
             for values in (self.other, self.native_theta):
                 if values.exists(k):
@@ -467,98 +542,26 @@ class Smoother:
 
     # ------------------------------------------------------------------ solving and reading
     def _solve(self) -> None:
-        if not self._fresh:
-            self.bf.solve(self.params.wildfireThreshold)
-            self._fresh = True
+        """Bring δ up to date: wildfire back-substitution (exact once after ``forceFullSolve``),
+        then, with Dogleg parameters, ISAM2's Dogleg step from it (:mod:`lie_factors.incremental.dogleg`)."""
+        if self._fresh:
+            return
+        p = self.smoother_params
+        self.bf.solve(0.0 if self._full_solve else p.wildfireThreshold)
+        self._full_solve = False
+        if p.optimizer != "GaussNewton":
+            self._dogleg_step, self._dogleg_delta = dogleg_step(self, self._dogleg_delta)
+        self._fresh = True
 
-    def getDelta(self) -> gtsam.VectorValues:
-        """δ (the step from θ to the estimate) as a ``gtsam.VectorValues``."""
-        self._solve()
-        vv = gtsam.VectorValues()
-        for v, k in enumerate(self.keys):
-            vv.insert(k, self.bf.variable_delta(v).copy())
-        return vv
+    @property
+    def step(self) -> np.ndarray:
+        """The step δ from θ to the estimate, (nscalar,) or longer: the Gauss–Newton step of the
+        factor, or ISAM2's Dogleg step."""
+        return self.bf.delta if self._dogleg_step is None else self._dogleg_step
 
-    def _var_of(self, key) -> int:
-        v = self.var.get(int(key))
-        if v is None:
-            raise InputError(f"key {key_name(int(key))} is not a variable of the smoother")
-        return v
-
-    def _estimate_matrix(self, v: int) -> np.ndarray:
-        el = self.elements[self.vgroup[v]]
-        out = np.empty((1, el.spec.mat, el.spec.mat))
-        e = self.velem[v:v + 1]
-        el.loops.retract(np.ascontiguousarray(el.X[e]), self.bf.delta, self.bf.tree.voff[v:v + 1], out)
-        return out[0]
-
-    def calculateEstimate(self, key=None):
-        """θ ⊕ δ: a ``gtsam.Values`` of every variable, or the value of ``key``."""
-        self._solve()
-        if key is not None:
-            v = self._var_of(key)
-            name = self.vgroup[v]
-            if name is not None:
-                return to_gtsam(name, self._estimate_matrix(v))
-            return self._other_estimate(v)
-        out = gtsam.Values()
-        bf = self.bf
-        for name, el in self.elements.items():
-            X = np.empty_like(el.X[:el.n])
-            el.loops.retract(np.ascontiguousarray(el.X[:el.n]), bf.delta, bf.tree.voff[el.var[:el.n]], X)
-            spec = el.spec
-            for v, M in zip(el.var[:el.n].tolist(), X):
-                out.insert(self.keys[v], to_gtsam(spec.name, M))
-        if self.other.size():
-            vv = gtsam.VectorValues()
-            for v, k in enumerate(self.keys):
-                if self.vgroup[v] is None:
-                    vv.insert(k, bf.variable_delta(v).copy())
-            out.insert(self.other.retract(vv))
-        return out
-
-    def _other_estimate(self, v: int):
-        k = self.keys[v]
-        vv = gtsam.VectorValues()
-        vv.insert(k, self.bf.variable_delta(v).copy())
-        one = gtsam.Values()
-        self._insert_from(one, self.other, k)
-        return getattr(one.retract(vv), f"at{self.other_types[k]}")(k)
-
-    def getLinearizationPoint(self) -> gtsam.Values:
-        """θ as a ``gtsam.Values`` (a copy)."""
-        out = gtsam.Values()
-        for name, el in self.elements.items():
-            for v, M in zip(el.var[:el.n].tolist(), el.X[:el.n]):
-                out.insert(self.keys[v], to_gtsam(el.spec.name, M))
-        if self.other.size():
-            out.insert(self.other)
-        return out
-
-    def getFactorsUnsafe(self) -> gtsam.NonlinearFactorGraph:
-        """Every factor added, in the order added (factors given as arrays are made as GTSAM's
-        ``BetweenFactor``/``PriorFactor`` with ``noiseModel.Gaussian.Information``)."""
-        graph = gtsam.NonlinearFactorGraph()
-        for code, local in zip(self.fkind[:self.bf.nf].tolist(), self.flocal[:self.bf.nf].tolist()):
-            if code < 0:
-                graph.push_back(self.native[local][0])
-                continue
-            store = self.kind_list[code]
-            f = store.source[local]
-            if f is None:
-                f = make_factor(store, local, self.keys)
-            graph.push_back(f)
-        return graph
-
-    def marginalCovariance(self, key) -> np.ndarray:
-        """The marginal covariance of ``key`` at θ, (d, d): its block of Λ⁻¹, from the path of
-        its column to the root of the factor (cheapest for the newest variables)."""
-        return self.bf.marginal_covariance(self._var_of(key))
-
-    def error(self, values: gtsam.Values | None = None) -> float:
-        """The graph's error ½Σ‖whitened residual‖² at ``values`` (default: the estimate)."""
-        values = self.calculateEstimate() if values is None else values
-        return float(self.getFactorsUnsafe().error(values))
+    def _variable_step(self, v: int) -> np.ndarray:
+        o = int(self.bf.tree.voff[v])
+        return self.step[o:o + int(self.bf.tree.dim[v])]
 
     def optimize(self, max_iterations: int = 100, tolerance: float = 1e-10) -> int:
         """Relinearize every variable and take Gauss–Newton steps until the largest step
@@ -567,12 +570,12 @@ class Smoother:
         for it in range(1, max_iterations + 1):
             bf.replace_all()  # the exact solution of the current system
             self._fresh = False
-            saved = self.params.wildfireThreshold
-            self.params.wildfireThreshold = 0.0
+            saved = self.smoother_params.wildfireThreshold
+            self.smoother_params.wildfireThreshold = 0.0
             try:
                 self._solve()
             finally:
-                self.params.wildfireThreshold = saved
+                self.smoother_params.wildfireThreshold = saved
             step = float(np.max(np.abs(bf.delta[:bf.nscalar]))) if bf.nscalar else 0.0
             relin = np.arange(bf.nv, dtype=np.int64)
             undo = Undo(self)

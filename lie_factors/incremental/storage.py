@@ -47,10 +47,9 @@ def init_variables(nv0, dims, ns0, tree, ahead, delta):
 
 
 @kernel
-def append_factors(fv, J, counts, store):
-    """Factors ``counts`` = (nf, nfv, njac), nf + 1, … on the variables ``fv`` (F, k) with
-    Jacobians ``J`` (F, r, D + 1), stored from entry ``nfv`` of ``store.fvars`` and ``njac`` of
-    ``store.jac``."""
+def append_factors(fv, J, fids, counts, store):
+    """Factors ``fids`` (F,) on the variables ``fv`` (F, k) with Jacobians ``J`` (F, r, D + 1),
+    stored from entry ``counts`` = (nfv, njac) of ``store.fvars`` and ``store.jac``."""
     fcols = store.fcols
     fjstart = store.fjstart
     fnv = store.fnv
@@ -59,11 +58,11 @@ def append_factors(fv, J, counts, store):
     fvars = store.fvars
     fvstart = store.fvstart
     jac = store.jac
-    nf, nfv, njac = counts
+    nfv, njac = counts
     F, k = fv.shape
     r, D1 = J.shape[1], J.shape[2]
     for q in range(F):
-        f = nf + q
+        f = fids[q]
         fnv[f] = k
         fvstart[f] = nfv + q * k
         for t in range(k):
@@ -92,6 +91,97 @@ def link_adjacency(store, f0, f1):
             afac[t] = f
             anext[t] = ahead[v]
             ahead[v] = t
+
+
+@kernel
+def unlink_factors(fids, store, slots, old):
+    """Take the factors ``fids`` out of their variables' adjacency lists (the lists keep their
+    order).  Each entry taken out changes one slot: ``ahead[v]`` (recorded as −1 − v) or
+    ``anext[p]`` of the entry before it (recorded as p); ``slots``/``old`` (Σ fnv,) receive the
+    slots and their old values in the order changed, for :func:`relink`.  Returns the count."""
+    ahead = store.ahead
+    anext = store.anext
+    fnv = store.fnv
+    fvars = store.fvars
+    fvstart = store.fvstart
+    n = 0
+    for q in range(fids.shape[0]):
+        f = fids[q]
+        for t in range(fvstart[f], fvstart[f] + fnv[f]):
+            v = fvars[t]
+            if ahead[v] == t:
+                slots[n] = -1 - v
+                ahead[v] = anext[t]
+            else:
+                p = ahead[v]
+                while anext[p] != t:
+                    p = anext[p]
+                slots[n] = p
+                anext[p] = anext[t]
+            old[n] = t
+            n += 1
+    return n
+
+
+@kernel
+def relink(slots, old, n, store):
+    """Undo :func:`unlink_factors`: its ``n`` changes put back, the last first."""
+    ahead = store.ahead
+    anext = store.anext
+    for q in range(n - 1, -1, -1):
+        s = slots[q]
+        if s < 0:
+            ahead[-1 - s] = old[q]
+        else:
+            anext[s] = old[q]
+
+
+@kernel
+def clear_nodes(vs, dead, tree, delta, stats):
+    """Take the nodes of the variables ``vs`` (flagged in ``dead``, which no factor and no
+    separator holds any more) out of the tree: out of the roots' list, their pool entries
+    counted as freed (``stats[4:6]``, as a re-elimination counts them), no node, δ = 0."""
+    nxt = tree.nxt
+    roots = tree.roots
+    prev = -1
+    r = roots[0]
+    while r >= 0:
+        following = nxt[r]
+        if dead[r]:
+            if prev < 0:
+                roots[0] = following
+            else:
+                nxt[prev] = following
+        else:
+            prev = r
+        r = following
+    cond = tree.cond
+    dim = tree.dim
+    first = tree.first
+    nchild = tree.nchild
+    parent = tree.parent
+    sep_dim = tree.sep_dim
+    sep_len = tree.sep_len
+    ustart = tree.ustart
+    voff = tree.voff
+    for q in range(vs.shape[0]):
+        v = vs[q]
+        d = dim[v]
+        if cond[v] >= 0:
+            stats[4] += d * (d + sep_dim[v] + 1)
+            stats[5] += sep_len[v]
+        if ustart[v] >= 0:
+            stats[4] += packed(sep_dim[v] + 1)
+        cond[v] = -1
+        ustart[v] = -1
+        sep_len[v] = 0
+        sep_dim[v] = 0
+        parent[v] = -1
+        first[v] = -1
+        nxt[v] = -1
+        nchild[v] = 0
+        for i in range(d):
+            delta[voff[v] + i] = 0.0
 
 
 @kernel

@@ -191,12 +191,13 @@ def _forward_node(q, path, start, where, Y, tree, pools):
 
 
 @kernel
-def marginal_covariance(v, tree, pools, out):
-    """Σ_v = YᵀY with Y = R⁻ᵀ E_v, nonzero only on the path from ``v`` to its root
-    (``out`` (d_v, d_v) receives the marginal covariance of ``v``).
+def path_rows(v, tree, pools):
+    """(path, start, Y): the nodes from ``v`` to its root, each one's first row in Y, and
+    Y = L⁻¹ E_v (Σ dims on the path, d_v), which is nonzero only on that path.
 
-    Forward substitution Rᵀ Y = E_v visiting only that path: a node's rows of Y
-    take the contributions of the path nodes below it through their blocks T."""
+    Forward substitution Rᵀ Y = E_v visiting only the path: a node's rows of Y take the
+    contributions of the path nodes below it through their blocks T.  Λ⁻¹'s block (a, b) of
+    two variables is Y_aᵀ Y_b summed over the nodes their paths share."""
     dim = tree.dim
     parent = tree.parent
     dv = dim[v]
@@ -215,6 +216,16 @@ def marginal_covariance(v, tree, pools, out):
         Y[i, i] = 1.0
     for q in range(plen):
         _forward_node(q, path, start, where, Y, tree, pools)
+    return path, start, Y
+
+
+@kernel
+def marginal_covariance(v, tree, pools, out):
+    """Σ_v = YᵀY with Y = R⁻ᵀ E_v (:func:`path_rows`): ``out`` (d_v, d_v) receives the marginal
+    covariance of ``v``, from the path from ``v`` to its root alone."""
+    _, _, Y = path_rows(v, tree, pools)
+    dv = Y.shape[1]
+    tot = Y.shape[0]
     for a in range(dv):
         for b in range(dv):
             acc = 0.0
@@ -236,3 +247,73 @@ def max_abs_blocks(delta, voff, dim):
                 m = a
         out[v] = m
     return out
+
+
+@kernel
+def conditional_squares(x, with_d, nv, tree, pools):
+    """Σ over the nodes of ‖R_j x_j + T_j x_S − d_j‖² (``with_d``) or of ‖R_j x_j + T_j x_S‖²,
+    at the scalars ``x`` (nscalar,): twice the error of the factor's conditionals, or ‖R x‖²."""
+    fpool = pools.fpool
+    ipool = pools.ipool
+    cond = tree.cond
+    dim = tree.dim
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
+    sep_dim = tree.sep_dim
+    voff = tree.voff
+    total = 0.0
+    for j in range(nv):
+        c0 = cond[j]
+        if c0 < 0:
+            continue
+        d = dim[j]
+        N = d + sep_dim[j] + 1
+        o = voff[j]
+        for p in range(d):
+            row = c0 + p * N
+            acc = -fpool[row + N - 1] if with_d else 0.0
+            for q in range(p, d):
+                acc += fpool[row + q] * x[o + q]
+            c = d
+            for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+                w = ipool[t]
+                ow = voff[w]
+                for i in range(dim[w]):
+                    acc += fpool[row + c + i] * x[ow + i]
+                c += dim[w]
+            total += acc * acc
+    return total
+
+
+@kernel
+def gradient_at_zero(nv, tree, pools, g):
+    """g = −Σ over the nodes of [R_j | T_j]ᵀ d_j, the gradient at zero of ½‖R x − d‖² (ISAM2's
+    ``gradientAtZero``), written into ``g`` (nscalar,)."""
+    fpool = pools.fpool
+    ipool = pools.ipool
+    cond = tree.cond
+    dim = tree.dim
+    sep_len = tree.sep_len
+    sep_start = tree.sep_start
+    sep_dim = tree.sep_dim
+    voff = tree.voff
+    g[:] = 0.0
+    for j in range(nv):
+        c0 = cond[j]
+        if c0 < 0:
+            continue
+        d = dim[j]
+        N = d + sep_dim[j] + 1
+        o = voff[j]
+        for p in range(d):
+            row = c0 + p * N
+            dp = fpool[row + N - 1]
+            for q in range(p, d):
+                g[o + q] -= fpool[row + q] * dp
+            c = d
+            for t in range(sep_start[j], sep_start[j] + sep_len[j]):
+                w = ipool[t]
+                ow = voff[w]
+                for i in range(dim[w]):
+                    g[ow + i] -= fpool[row + c + i] * dp
+                c += dim[w]

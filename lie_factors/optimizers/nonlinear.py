@@ -39,7 +39,7 @@ import sys
 import numpy as np
 from gtsam import gtsam  # the compiled extension: GTSAM's own classes, whatever is assigned into the package
 
-from .. import factors, lm
+from .. import dogleg, factors, lm
 from ..expressions.plan import KindPlan
 
 __all__ = ["LevenbergMarquardtOptimizer", "GaussNewtonOptimizer", "DoglegOptimizer"]
@@ -47,7 +47,6 @@ __all__ = ["LevenbergMarquardtOptimizer", "GaussNewtonOptimizer", "DoglegOptimiz
 #: How GTSAM's IndeterminantLinearSystemException reads once pybind11 made it a RuntimeError.
 _INDETERMINANT = "Indeterminate linear system"
 
-_EPS = float(np.finfo(float).eps)
 
 
 def _is_indeterminant(exc: BaseException) -> bool:
@@ -501,37 +500,6 @@ class DoglegOptimizer(_NonlinearOptimizer):
         """The current trust-region radius Δ."""
         return self._delta
 
-    @staticmethod
-    def _dogleg_point(delta: float, dx_u: gtsam.VectorValues, dx_n: gtsam.VectorValues,
-                      verbose: bool) -> gtsam.VectorValues:
-        """The point where the dogleg path dx_u → dx_n leaves the trust region of radius ``delta``."""
-        delta_sq = delta * delta
-        uu = dx_u.squaredNorm()
-        nn = dx_n.squaredNorm()
-        if verbose:
-            print(f"Steepest descent magnitude {math.sqrt(uu)}, Newton's method magnitude {math.sqrt(nn)}")
-        if delta_sq < uu:
-            if verbose:
-                print(f"In steepest descent region with fraction {math.sqrt(delta_sq / uu)} "
-                      "of steepest descent magnitude")
-            return dx_u.scale(math.sqrt(delta_sq / uu))
-        if delta_sq < nn:
-            # τ with ‖(1 − τ) dx_u + τ dx_n‖ = Δ, 0 ≤ τ ≤ 1: a quadratic in τ.
-            un = dx_u.dot(dx_n)
-            a = uu - 2.0 * un + nn
-            b = 2.0 * (un - uu)
-            c = uu - delta_sq
-            root = math.sqrt(b * b - 4.0 * a * c)
-            tau1 = (-b + root) / (2.0 * a)
-            tau2 = (-b - root) / (2.0 * a)
-            tau = tau1 if -_EPS <= tau1 <= 1.0 + _EPS else tau2
-            if verbose:
-                print(f"In blend region with fraction {tau} of Newton's method point")
-            return dx_u.scale(1.0 - tau).add(dx_n.scale(tau))
-        if verbose:
-            print("In pure Newton's method region")
-        return dx_n
-
     def iterate(self) -> gtsam.GaussianFactorGraph:
         linear = self._linearize(self._values)
         verbose = self._verbose_dl
@@ -539,42 +507,24 @@ class DoglegOptimizer(_NonlinearOptimizer):
         dx_u = rd.optimizeGradientSearch()
         dx_n = rd.optimize()
         m_error = rd.error(gtsam.VectorValues.Zero(dx_u))
-        f_error = self._error
-        delta = self._delta
-        while True:
-            dx_d = self._dogleg_point(delta, dx_u, dx_n, verbose)
-            if verbose:
-                print(f"delta = {delta}, dx_d_norm = {dx_d.norm()}")
+        tried = {}
+
+        def step(a: float, b: float) -> gtsam.VectorValues:
+            if b == 0.0:
+                return dx_u.scale(a)
+            return dx_n if a == 0.0 else dx_u.scale(a).add(dx_n.scale(b))
+
+        def evaluate(a: float, b: float) -> tuple[float, float, float]:
+            dx_d = step(a, b)
             x_d = self._values.retract(dx_d)
             new_f = self._graph_error(x_d)
-            new_m = rd.error(dx_d)
-            if verbose:
-                print(f"f error: {f_error} -> {new_f}")
-                print(f"M error: {m_error} -> {new_m}")
-            if abs(f_error - new_f) < 1e-15 or abs(m_error - new_m) < 1e-15:
-                rho = 0.5
-            else:
-                rho = (f_error - new_f) / (m_error - new_m)
-            if verbose:
-                print(f"rho = {rho}")
-            if rho >= 0.75:
-                delta = max(delta, 3.0 * dx_d.norm())
-                break
-            if rho >= 0.25:
-                break
-            if rho >= 0.0:
-                if delta > 1e-5:
-                    delta *= 0.5
-                break
-            # f increased (or NaN): shrink the region and retry, down to Δ = 1e-5.
-            if delta > 1e-5:
-                delta *= 0.5
-                continue
-            if verbose:
-                print("Warning:  Dog leg stopping because cannot decrease error with minimum delta")
-            x_d, new_f = self._values, f_error
-            dx_d = None
-            break
+            tried[(a, b)] = (dx_d, x_d)
+            return new_f, rd.error(dx_d), dx_d.norm()
+
+        norms = (dx_u.squaredNorm(), dx_n.squaredNorm(), dx_u.dot(dx_n))
+        a, b, new_f, delta = dogleg.iterate(self._delta, dogleg.ONE_STEP_PER_ITERATION, norms, evaluate,
+                                            self._error, m_error, verbose)
+        dx_d, x_d = tried[(a, b)] if (a, b) != (0.0, 0.0) else (None, self._values)
         if dx_d is not None and self._verbosity_level() >= lm.VERBOSITY["DELTA"]:
             lm.COUT.sync()
             dx_d.print("delta")

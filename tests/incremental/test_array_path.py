@@ -68,7 +68,7 @@ def test_an_update_on_the_array_path_is_one_compiled_call_that_adds_and_marks(mo
         room = (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
         s.update_prepared(fa, [i], start[i][None], updates[i], [])
         pools_changed = room != (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
-        relinearizing = (i + 1) % s.params.relinearizeSkip == 0
+        relinearizing = (i + 1) % s.smoother_params.relinearizeSkip == 0
         assert calls["general"] - before["general"] == int(relinearizing)
         assert calls["add"] - before["add"] == int(not relinearizing)
         # one re-elimination, but when the pools had no room for it: then it asked for the room

@@ -274,19 +274,35 @@ def test_params_from_isam2_params(capfd):
     gn = gtsam.ISAM2GaussNewtonParams()
     gn.setWildfireThreshold(0.002)
     p.setOptimizationParams(gn)
-    q = Smoother(p).params
+    q = Smoother(p).smoother_params
     assert (q.relinearizeThreshold, q.relinearizeSkip, q.wildfireThreshold) == (0.05, 3, 0.002)
     p.enableRelinearization = False
     assert SmootherParams.from_isam2(p).enableRelinearization is False
     assert SmootherParams.from_isam2(gtsam.ISAM2Params()) == SmootherParams()
     dogleg = gtsam.ISAM2Params()
-    dogleg.setOptimizationParams(gtsam.ISAM2DoglegParams())
-    with pytest.raises(InputError, match="Dogleg"):
-        Smoother(dogleg)
+    dl = gtsam.ISAM2DoglegParams()
+    dl.setInitialDelta(0.25)
+    dl.setAdaptationMode("ONE_STEP_PER_ITERATION")
+    dogleg.setOptimizationParams(dl)
+    q = SmootherParams.from_isam2(dogleg)
+    assert (q.optimizer, q.initialDelta, q.adaptationMode, q.wildfireThreshold) == \
+        ("Dogleg", 0.25, "ONE_STEP_PER_ITERATION", 1e-5)
+    search = gtsam.ISAM2Params()
+    ls = gtsam.ISAM2DoglegLineSearchParams()
+    ls.setMaxDelta(2.0)
+    search.setOptimizationParams(ls)
+    q = SmootherParams.from_isam2(search)
+    assert (q.optimizer, q.minDelta, q.maxDelta, q.stepSize) == ("DoglegLineSearch", 0.02, 2.0, 1.5)
     per_type = gtsam.ISAM2Params()
-    per_type.setRelinearizeThreshold(gtsam.ISAM2ThresholdMap())
-    with pytest.raises(InputError, match="per-type"):
-        Smoother(per_type)
+    thresholds = gtsam.ISAM2ThresholdMap()
+    thresholds.insert(("x", np.array([0.1, 0.2, 0.3])))
+    per_type.setRelinearizeThreshold(thresholds)
+    q = SmootherParams.from_isam2(per_type)
+    assert list(q.relinearizeThreshold) == ["x"] and np.array_equal(q.relinearizeThreshold["x"], [0.1, 0.2, 0.3])
+    partial = gtsam.ISAM2Params()
+    partial.enablePartialRelinearizationCheck = True
+    with pytest.raises(InputError, match="enablePartialRelinearizationCheck"):
+        Smoother(partial)
     # what GTSAM prints to be read reaches neither Python's stdout nor the process's
     assert capfd.readouterr().out == ""
     with pytest.raises(InputError, match="relinearizeSkip"):
