@@ -45,7 +45,7 @@ _EXPORTS = {
     "sweep": "sweeps", "sweep_summary": "sweeps", "plot_sweep": "sweeps",
     "Result": "result", "ReplayResult": "result",
     "PoseGraph": "posegraph.graph",
-    "Smoother": "incremental", "SmootherParams": "incremental",
+    "Smoother": "incremental", "SmootherParams": "incremental", "IncrementalFixedLagSmoother": "incremental",
     "Events": "events",
     "factor": "expressions", "KindFactor": "expressions",
     "LieFactorsError": "errors", "InputError": "errors", "InitializationError": "errors",

@@ -12,7 +12,8 @@ The block factor:
   :mod:`~lie_factors.incremental.elimination` (their re-elimination: the
   :mod:`~lie_factors.incremental.symbolic` pass, then the numeric one on dense
   :mod:`~lie_factors.incremental.fronts`), :mod:`~lie_factors.incremental.substitution`
-  (wildfire back-substitution, marginal covariances).
+  (wildfire back-substitution, marginal covariances); :mod:`~lie_factors.incremental.factor_reading`
+  (what the factor answers: δ, Λ⁻¹'s blocks, the conditionals' error).
 
 The smoother:
 
@@ -27,7 +28,15 @@ The smoother:
 * :mod:`~lie_factors.incremental.gtsam_objects`: GTSAM's factor graphs and
   Values read into those arrays, the factors GTSAM keeps linearized, GTSAM's
   objects made back;
-* :mod:`~lie_factors.incremental.undo`: what an update changed, put back if it fails.
+* :mod:`~lie_factors.incremental.undo`: what an update changed, put back if it fails;
+* :mod:`~lie_factors.incremental.update_args`, :mod:`~lie_factors.incremental.removal`:
+  ISAM2's other update arguments, factors and variables taken out;
+  :mod:`~lie_factors.incremental.marginalize`: ``marginalizeLeaves``;
+  :mod:`~lie_factors.incremental.queries`: what the smoother answers (estimates,
+  marginals, errors); :mod:`~lie_factors.incremental.reports`: ``UpdateResult``'s
+  fields; :mod:`~lie_factors.incremental.dogleg`: ISAM2's Dogleg steps;
+* :mod:`~lie_factors.incremental.fixed_lag`: :class:`IncrementalFixedLagSmoother`,
+  GTSAM's fixed-lag smoother on :class:`Smoother`.
 
 The replay: :mod:`~lie_factors.incremental.replay`, the online replay of a pose
 graph (``from lie_factors.incremental.replay import replay``: the function is
@@ -43,7 +52,7 @@ from ..util.lazy import exports
 _EXPORTS = {
     "BlockFactor": "cholesky", "UpdateStats": "cholesky",
     "FactorArrays": "factor_arrays", "Smoother": "smoother", "SmootherParams": "params",
-    "UpdateResult": "params",
+    "UpdateResult": "params", "IncrementalFixedLagSmoother": "fixed_lag", "JointMarginal": "queries",
 }
 
 __all__ = sorted(_EXPORTS)

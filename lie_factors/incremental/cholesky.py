@@ -258,6 +258,50 @@ class BlockFactor(FactorReading):
         if (self.store.ahead[dead] >= 0).any():
             raise ValueError("a variable to remove still has factors")
 
+    def marginalize(self, leaves: np.ndarray, removed: np.ndarray, new_factors=()) -> None:
+        """Take the variables ``leaves`` (a set of whole subtrees of the tree) out with every
+        factor on them (``removed``), and add ``new_factors`` (``(vars, jac, fids)`` as
+        :meth:`update` takes them: the marginal factors of the subtrees on their separators),
+        without re-eliminating anything: the conditionals above already hold what the subtrees
+        passed up, which is what the marginal factors carry.  A later re-elimination of a
+        separator assembles them instead."""
+        leaves = np.ascontiguousarray(leaves, dtype=np.int64)
+        removed = np.ascontiguousarray(removed, dtype=np.int64)
+        if len(leaves):
+            self._check_leaves(leaves)
+        counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
+        undo: list = []
+        unlinked = None
+        try:
+            self._add_factors(new_factors, undo)
+            if removed.size:
+                unlinked, _ = self._remove_factors(removed, counts[1], undo)
+            if leaves.size:
+                self._check_dead(leaves)
+        except BaseException:
+            if unlinked is not None:
+                relink(*unlinked, self.store)
+            for array, idx, old in reversed(undo):
+                array[idx] = old
+            self.nv, self.nf, self.nfv, self.njac, self.nscalar = counts
+            raise
+        self.vdead[leaves] = 1
+        clear_nodes(leaves, self.vdead, self.tree, self.delta, self.work.stats)
+        self.ndead += len(leaves)
+        self.wildfire.replaced[leaves] = 0
+
+    def _check_leaves(self, leaves: np.ndarray) -> None:
+        """``leaves`` must be whole subtrees: every child of one of them is one of them."""
+        inside = np.zeros(self.nv, dtype=bool)
+        inside[leaves] = True
+        tree = self.tree
+        for v in leaves.tolist():
+            c = int(tree.first[v])
+            while c >= 0:
+                if not inside[c]:
+                    raise ValueError(f"variable {v} is not a leaf: variable {c} below it is not marginalized")
+                c = int(tree.nxt[c])
+
     def update_arrays(self, g, X: np.ndarray, velem: np.ndarray, prep, plan: np.ndarray, sizes: tuple) -> None:
         """The array path's update (:mod:`~lie_factors.incremental.array_path`): P new variables
         of the group ``g`` (dimension n), E between factors and Q priors of ``prep``, linearized

@@ -125,14 +125,16 @@ class FactorReading:
         return H[:n, :n], H[:n, n]
 
     def dense_factor(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(perm, L, y): scalar permutation of the elimination order, the lower-triangular
-        L with L Lᵀ = Λ[perm][:, perm], and y = L⁻¹ η[perm], assembled from the nodes."""
+        """(perm, L, y): the scalars of the live variables in elimination order, the
+        lower-triangular L with L Lᵀ = Λ[perm][:, perm], and y = L⁻¹ η[perm], assembled from
+        the nodes."""
         tree, (ipool, fpool) = self.tree, self.pools
         order = self.ordering()
-        perm = np.concatenate([tree.voff[v] + np.arange(tree.dim[v]) for v in order]).astype(np.int64)
-        where = np.empty(self.nscalar, dtype=np.int64)
-        where[perm] = np.arange(self.nscalar)
-        n = self.nscalar
+        perm = np.concatenate([tree.voff[v] + np.arange(tree.dim[v]) for v in order] +
+                              [np.zeros(0, dtype=np.int64)]).astype(np.int64)
+        n = len(perm)
+        where = np.full(self.nscalar, -1, dtype=np.int64)
+        where[perm] = np.arange(n)
         L = np.zeros((n, n))
         y = np.zeros(n)
         for v in order:

@@ -53,6 +53,8 @@ from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
 from .gtsam_objects import VALUE_TYPES, insert_from, native_rows, read_update, typed_estimate
 from .params import SmootherParams, UpdateResult
 from .queries import Queries
+from .marginalize import marginalize_leaves, row_subtree_keys
+from .relinearization import relinearize_set
 from .removal import check_keys, forget, users
 from .reports import adaptive_reorder, error_before, update_result
 from .removal import plan as removal_plan
@@ -268,7 +270,7 @@ class Smoother(Queries):
         relin_vars = np.zeros(0, dtype=np.int64)
         if p.enableRelinearization and (args.force_relinearize or count % p.relinearizeSkip == 0) and self.bf.nv:
             self._solve()
-            relin_vars = self._relinearize_set(frozen)
+            relin_vars = relinearize_set(self, frozen)
         before = error_before(self, nf, removal) if p.evaluateNonlinearError else None
         batch = adaptive_reorder(self)
         undo = Undo(self)
@@ -471,32 +473,6 @@ class Smoother(Queries):
         self.flocal[fids] = local
         self.frelative[fids] = relative
 
-    def _relinearize_set(self, frozen=()) -> np.ndarray:
-        """The variables to relinearize: ISAM2's check of δ against the threshold (per variable,
-        or per type with a threshold map), less the variables held (``frozen``, ISAM2's
-        ``noRelinKeys``, and those of marginal factors) and those taken out."""
-        bf = self.bf
-        p = self.smoother_params
-        th = p.relinearizeThreshold
-        if isinstance(th, dict):
-            relin = []
-            tree = bf.tree
-            for w in np.flatnonzero(bf.vdead[:bf.nv] == 0).tolist():
-                t = p.threshold_of(self.keys[w], int(tree.dim[w]))
-                if np.any(np.abs(self._variable_step(w)) > t):
-                    relin.append(w)
-            out = np.array(relin, dtype=np.int64)
-        else:
-            moved = bf.largest_steps(self.step)
-            if p.relinearizePolicy == "global":
-                out = np.arange(bf.nv, dtype=np.int64) if moved.size and moved.max() >= th else moved[:0].astype(np.int64)
-            else:
-                out = np.flatnonzero(moved >= th).astype(np.int64)
-        held = self.vfixed[out] | (bf.vdead[out] != 0)
-        if len(frozen):
-            held[np.isin(out, np.asarray(frozen, dtype=np.int64))] = True
-        return out[~held] if held.any() else out
-
     def _relinearize(self, relin: np.ndarray, undo) -> list:
         """θ ← θ ⊕ δ on ``relin``, and new Jacobians for every factor on them."""
         bf = self.bf
@@ -563,6 +539,25 @@ class Smoother(Queries):
         o = int(self.bf.tree.voff[v])
         return self.step[o:o + int(self.bf.tree.dim[v])]
 
+    def marginalizeLeaves(self, leafKeys) -> None:
+        """ISAM2's ``marginalizeLeaves``: take the variables ``leafKeys`` out, keeping their
+        information as linear factors on what they were eliminated into
+        (:mod:`~lie_factors.incremental.marginalize`); the variables of those factors are then
+        held at their linearization point.  The keys must be leaves: every variable eliminated
+        below one of them is one of them (an ``InputError`` otherwise, nothing changed)."""
+        marginalize_leaves(self, leafKeys)
+
+    def row_subtree_keys(self, keys) -> list:
+        """The keys of the nodes whose separator holds one of ``keys``: what must be
+        re-eliminated with ``keys`` ordered first for them to become leaves
+        (:func:`~lie_factors.incremental.marginalize.row_subtree_keys`)."""
+        return row_subtree_keys(self, keys)
+
+    def marginalizeLeavesWithIndices(self, leafKeys) -> tuple[list, list]:
+        """:meth:`marginalizeLeaves`, returning (the marginal factors' indices, the removed
+        factors' indices), as GTSAM's Python wrapper does."""
+        return marginalize_leaves(self, leafKeys)
+
     def optimize(self, max_iterations: int = 100, tolerance: float = 1e-10) -> int:
         """Relinearize every variable and take Gauss–Newton steps until the largest step
         component is below ``tolerance``; returns the iterations taken."""
@@ -577,7 +572,7 @@ class Smoother(Queries):
             finally:
                 self.smoother_params.wildfireThreshold = saved
             step = float(np.max(np.abs(bf.delta[:bf.nscalar]))) if bf.nscalar else 0.0
-            relin = np.arange(bf.nv, dtype=np.int64)
+            relin = np.flatnonzero((bf.vdead[:bf.nv] == 0) & ~self.vfixed[:bf.nv]).astype(np.int64)
             undo = Undo(self)
             try:
                 refreshed = self._relinearize(relin, undo)
@@ -585,7 +580,7 @@ class Smoother(Queries):
             except BaseException:
                 undo.run()
                 raise
-            self.relinearizations += bf.nv
+            self.relinearizations += len(relin)
             self.reorderings += int(bf.last.batch)
             self._fresh = False
             if step < tolerance:

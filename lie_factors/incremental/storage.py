@@ -139,10 +139,30 @@ def relink(slots, old, n, store):
 @kernel
 def clear_nodes(vs, dead, tree, delta, stats):
     """Take the nodes of the variables ``vs`` (flagged in ``dead``, which no factor and no
-    separator holds any more) out of the tree: out of the roots' list, their pool entries
-    counted as freed (``stats[4:6]``, as a re-elimination counts them), no node, δ = 0."""
+    separator of a live node holds any more) out of the tree: out of the roots' list and out
+    of a live parent's children, their pool entries counted as freed (``stats[4:6]``, as a
+    re-elimination counts them), no node, δ = 0."""
     nxt = tree.nxt
     roots = tree.roots
+    first = tree.first
+    nchild = tree.nchild
+    parent = tree.parent
+    for q in range(vs.shape[0]):
+        v = vs[q]
+        p = parent[v]
+        if p < 0 or dead[p]:
+            continue
+        prev = -1
+        c = first[p]
+        while c >= 0 and c != v:
+            prev = c
+            c = nxt[c]
+        if c == v:
+            if prev < 0:
+                first[p] = nxt[v]
+            else:
+                nxt[prev] = nxt[v]
+            nchild[p] -= 1
     prev = -1
     r = roots[0]
     while r >= 0:
@@ -157,9 +177,6 @@ def clear_nodes(vs, dead, tree, delta, stats):
         r = following
     cond = tree.cond
     dim = tree.dim
-    first = tree.first
-    nchild = tree.nchild
-    parent = tree.parent
     sep_dim = tree.sep_dim
     sep_len = tree.sep_len
     ustart = tree.ustart

@@ -12,14 +12,17 @@ unit tests (``run_gtsam_tests.py``):
   assigned into ``gtsam``'s namespace before it runs (``gtsam.ISAM2 =
   lie_factors.optimizers.ISAM2``, ...), the way to swap a class into a code base
   whose modules each ``import gtsam``. It changes the ``gtsam`` module for the
-  rest of the process: the runners run in processes of their own.
+  rest of the process: the runners run in processes of their own;
+* ``smoother``: the code as shipped, with lie_factors' own smoother assigned in
+  ISAM2's place (``gtsam.ISAM2 = lf.Smoother``, ``gtsam.IncrementalFixedLagSmoother =
+  lf.IncrementalFixedLagSmoother``).
 """
 
 from __future__ import annotations
 
 import re
 
-MODES = ("original", "swapped", "assigned")
+MODES = ("original", "swapped", "assigned", "smoother")
 
 IMPORT = re.compile(r"(?m)^(\s*)import gtsam\s*$")
 FROM_IMPORT = re.compile(r"(?m)^(\s*)from gtsam import ")
@@ -43,12 +46,24 @@ def assign_ours() -> list[str]:
     return sorted(dropin.REPLACED)
 
 
+def assign_smoother() -> None:
+    """Assign lie_factors' incremental smoother and its fixed-lag smoother in place of GTSAM's."""
+    import gtsam
+
+    import lie_factors as lf
+
+    gtsam.ISAM2 = lf.Smoother
+    gtsam.IncrementalFixedLagSmoother = lf.IncrementalFixedLagSmoother
+
+
 def start(mode: str) -> None:
     """Check ``mode``; in ``assigned`` mode, :func:`assign_ours` (once per process, before any code runs)."""
     if mode not in MODES:
         raise SystemExit(f"mode must be one of {', '.join(MODES)}, not {mode!r}")
     if mode == "assigned":
         assign_ours()
+    elif mode == "smoother":
+        assign_smoother()
 
 
 def prepare(mode: str, source: str, what: str) -> str:

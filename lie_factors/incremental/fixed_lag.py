@@ -1,0 +1,196 @@
+"""A fixed-lag smoother on the incremental smoother: GTSAM's ``IncrementalFixedLagSmoother``.
+
+Each variable carries a timestamp; after every update, the variables older
+than the newest timestamp less the lag are marginalized out
+(:meth:`~lie_factors.incremental.smoother.Smoother.marginalizeLeaves`), so
+that the smoother holds a window of the latest ``smootherLag`` seconds and a
+linear summary of everything before.  As GTSAM's does, each update first
+orders the variables to marginalize before every other (``constrainedKeys``:
+group 0, the others group 1) and re-eliminates every node whose separator
+holds one of them (``extraReelimKeys``), so that they are leaves when they are
+marginalized; then the update runs, then the marginalization.
+
+::
+
+    smoother = IncrementalFixedLagSmoother(2.0)       # a lag of 2 s, ISAM2's default parameters
+    smoother.update(graph, values, {key: t, ...})     # new factors, values, each new key's time
+    smoother.calculateEstimatePose3(key)
+
+Differences from GTSAM's: factor indices are never reused (GTSAM's smoother turns
+on ``findUnusedFactorSlots`` by default), so ``factorsToRemove`` takes the indices
+:meth:`getISAM2Result` reported when the factors were added, as with GTSAM's.
+"""
+
+from __future__ import annotations
+
+import bisect
+
+import gtsam
+import numpy as np
+
+from ..batch.graph import key_name
+from ..errors import InputError
+from .gtsam_objects import VALUE_TYPES
+from .smoother import Smoother
+
+
+class FixedLagSmootherResult:
+    """What an update reports (``gtsam.FixedLagSmootherResult``'s getters): GTSAM's incremental
+    smoother reports one iteration and no error."""
+
+    def __init__(self):
+        self.iterations, self.intermediateSteps, self.nonlinearVariables, self.linearVariables = 1, 0, 0, 0
+        self.error = 0.0
+
+    def getIterations(self) -> int:
+        return self.iterations
+
+    def getIntermediateSteps(self) -> int:
+        return self.intermediateSteps
+
+    def getNonlinearVariables(self) -> int:
+        return self.nonlinearVariables
+
+    def getLinearVariables(self) -> int:
+        return self.linearVariables
+
+    def getError(self) -> float:
+        return self.error
+
+
+class IncrementalFixedLagSmoother:
+    """GTSAM's ``IncrementalFixedLagSmoother(smootherLag, parameters)`` on :class:`Smoother`
+    (module docstring); ``parameters``: a ``gtsam.ISAM2Params`` or a
+    :class:`~lie_factors.incremental.params.SmootherParams` (default ISAM2's)."""
+
+    def __init__(self, smootherLag: float = 0.0, parameters=None):
+        self._lag = _lag(smootherLag)
+        self.isam = Smoother(parameters)
+        self._time: dict[int, float] = {}  # key → timestamp
+        self._order: list[tuple[float, int]] = []  # (timestamp, key), sorted
+        self._result = None
+
+    # ---------------------------------------------------------------- the lag
+    def smootherLag(self) -> float:
+        return self._lag
+
+    def setSmootherLag(self, smootherLag: float) -> None:
+        self._lag = _lag(smootherLag)
+
+    def timestamps(self) -> dict:
+        """Every key's timestamp (``FixedLagSmoother::timestamps``)."""
+        return dict(self._time)
+
+    def _keys_before(self, t: float) -> list:
+        return [k for _, k in self._order[:bisect.bisect_left(self._order, (t, -1))]]
+
+    # ---------------------------------------------------------------- updates
+    def update(self, newFactors=None, newTheta=None, timestamps=None, factorsToRemove=()) -> FixedLagSmootherResult:
+        """Add factors, values and the new keys' timestamps (a dict or a
+        ``FixedLagSmootherKeyTimestampMap``), take ``factorsToRemove`` out, then marginalize
+        every variable older than the newest timestamp less the lag."""
+        stamps = _stamps(timestamps)
+        order = self._order
+        saved = dict(self._time), list(order)
+        for k, t in stamps.items():
+            old = self._time.get(k)
+            if old is not None:
+                order.remove((old, k))
+            self._time[k] = t
+            bisect.insort(order, (t, k))
+        try:
+            now = order[-1][0] if order else -np.finfo(float).max
+            old_keys = [k for k in self._keys_before(now - self._lag) if self.isam.valueExists(k)
+                        or (newTheta is not None and newTheta.exists(k))]
+            constrained = None
+            if old_keys:
+                constrained = dict.fromkeys(self._time, 1)
+                constrained.update(dict.fromkeys(old_keys, 0))
+                constrained = {k: g for k, g in constrained.items() if self.isam.valueExists(k)
+                               or (newTheta is not None and newTheta.exists(k))}
+            extra = self.isam.row_subtree_keys([k for k in old_keys if self.isam.valueExists(k)])
+            self._result = self.isam.update(newFactors, newTheta, list(factorsToRemove), constrained, None, extra)
+        except BaseException:
+            self._time, self._order = saved[0], saved[1]
+            raise
+        if old_keys:
+            self.isam.marginalizeLeaves(old_keys)
+        for k in old_keys:
+            t = self._time.pop(k)
+            order.remove((t, k))
+        return FixedLagSmootherResult()
+
+    # ---------------------------------------------------------------- reading
+    def calculateEstimate(self, key=None):
+        return self.isam.calculateEstimate(key)
+
+    def params(self):
+        return self.isam.params()
+
+    def getFactors(self) -> gtsam.NonlinearFactorGraph:
+        return self.isam.getFactorsUnsafe()
+
+    def getLinearizationPoint(self) -> gtsam.Values:
+        return self.isam.getLinearizationPoint()
+
+    def getDelta(self) -> gtsam.VectorValues:
+        return self.isam.getDelta()
+
+    def marginalCovariance(self, key) -> np.ndarray:
+        return self.isam.marginalCovariance(key)
+
+    def getISAM2Result(self):
+        """The report of the last update of the smoother inside."""
+        return self._result
+
+    def getISAM2(self) -> Smoother:
+        """The smoother inside."""
+        return self.isam
+
+    def print(self, s: str = "IncrementalFixedLagSmoother:\n") -> None:
+        print(f"{s}  smoother lag: {self._lag}")
+
+    def equals(self, other, tol: float = 1e-9) -> bool:
+        """Same lag and timestamps, and estimates equal to ``tol``."""
+        if not isinstance(other, IncrementalFixedLagSmoother) or abs(self._lag - other._lag) >= tol:
+            return False
+        return self._order == other._order and self.calculateEstimate().equals(other.calculateEstimate(), tol)
+
+
+def _lag(value) -> float:
+    try:
+        lag = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"smootherLag: expected a number of seconds, got {type(value).__name__}") from None
+    if not (np.isfinite(lag) and lag >= 0):
+        raise InputError(f"smootherLag must be finite and >= 0, got {value}")
+    return lag
+
+
+def _stamps(timestamps) -> dict:
+    if timestamps is None:
+        return {}
+    try:
+        items = list(timestamps.items())
+    except AttributeError:
+        raise InputError("timestamps: expected a dict (or FixedLagSmootherKeyTimestampMap) of key → time, "
+                         f"got {type(timestamps).__name__}") from None
+    out = {}
+    for k, t in items:
+        t = float(t)
+        if not np.isfinite(t):
+            raise InputError(f"timestamps: the time of key {key_name(int(k))} is not finite")
+        out[int(k)] = t
+    return out
+
+
+def _typed(type_name: str):
+    def typed(self, key):
+        return getattr(self.isam, f"calculateEstimate{type_name}")(key)
+    typed.__name__ = typed.__qualname__ = f"calculateEstimate{type_name}"
+    typed.__doc__ = f"The estimate of ``key``, a ``gtsam.{type_name}``."
+    return typed
+
+
+for _type in VALUE_TYPES:
+    setattr(IncrementalFixedLagSmoother, f"calculateEstimate{_type}", _typed(_type))
