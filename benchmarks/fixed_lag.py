@@ -1,0 +1,101 @@
+"""The fixed-lag smoother against GTSAM's: update time and agreement over a Pose3 run.
+
+    python benchmarks/fixed_lag.py [--poses 1000] [--lag 10] [--rate 10] [--repeat 5] [--seeds 0 1]
+
+A noisy Pose3 chain with loop closures 8 poses back every 7 poses (GTSAM's own Pose3 factors,
+whose Jacobians are exact, in both), a pose every 1/``rate`` s, each new pose started at the
+previous estimate composed with the odometry; ``gtsam.IncrementalFixedLagSmoother`` and
+``lf.IncrementalFixedLagSmoother`` with ISAM2's default parameters, and again with an exact
+back-substitution (wildfire threshold 0), alternated in one process, best of ``repeat``
+(each timed leg after an untimed one).  Prints the total and the median update time, their
+ratio, and the largest difference of the final estimates (max |Log(A⁻¹B)|).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import X
+
+import lie_factors as lf
+
+
+def chain(n: int, seed: int) -> list:
+    """(graph, values) of each update; the value of a new pose is filled in at run time."""
+    rng = np.random.default_rng(seed)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.02] * 3 + [0.05] * 3))
+    truth = [gtsam.Pose3()]
+    out = [([gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), noise)], None)]
+    for i in range(1, n):
+        step = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.01, 0.02 * np.cos(i / 20), 0.1 * np.sin(i / 10)),
+                           np.array([1.0, 0.0, 0.1]))
+        truth.append(truth[-1].compose(step))
+        z = step.compose(gtsam.Pose3.Expmap(rng.normal(0, [0.02] * 3 + [0.05] * 3)))
+        factors = [gtsam.BetweenFactorPose3(X(i - 1), X(i), z, noise)]
+        if i > 12 and i % 7 == 0:
+            zc = truth[i - 8].between(truth[i]).compose(gtsam.Pose3.Expmap(rng.normal(0, 0.03, 6)))
+            factors.append(gtsam.BetweenFactorPose3(X(i - 8), X(i), zc, noise))
+        out.append((factors, z))
+    return out
+
+
+def params(exact: bool) -> gtsam.ISAM2Params:
+    p = gtsam.ISAM2Params()
+    if exact:
+        gn = gtsam.ISAM2GaussNewtonParams()
+        gn.setWildfireThreshold(0.0)
+        p.setOptimizationParams(gn)
+    return p
+
+
+def run(cls, updates: list, lag: float, rate: float, exact: bool):
+    """(smoother, update seconds)."""
+    s = cls(lag, params(exact))
+    times = []
+    for i, (factors, z) in enumerate(updates):
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for f in factors:
+            g.add(f)
+        v.insert(X(i), gtsam.Pose3() if z is None else s.calculateEstimatePose3(X(i - 1)).compose(z))
+        t = time.perf_counter()
+        s.update(g, v, {X(i): i / rate})
+        times.append(time.perf_counter() - t)
+    return s, np.array(times)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--poses", type=int, default=1000)
+    ap.add_argument("--lag", type=float, default=10.0)
+    ap.add_argument("--rate", type=float, default=10.0)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    a = ap.parse_args()
+    print("| seed | back-substitution | GTSAM s | ours s | × | median update GTSAM / ours ms | final max diff |")
+    print("|---|---|---:|---:|---:|---|---:|")
+    for seed in a.seeds:
+        updates = chain(a.poses, seed)
+        for exact in (False, True):
+            best = {"gtsam": None, "ours": None}
+            finals = {}
+            for _ in range(a.repeat):
+                for name, cls in (("gtsam", gtsam.IncrementalFixedLagSmoother), ("ours", lf.IncrementalFixedLagSmoother)):
+                    run(cls, updates[:50], a.lag, a.rate, exact)  # untimed: caches and allocations
+                    s, t = run(cls, updates, a.lag, a.rate, exact)
+                    if best[name] is None or t.sum() < best[name].sum():
+                        best[name] = t
+                    finals[name] = s.calculateEstimate()
+            diff = max(float(np.max(np.abs(gtsam.Pose3.Logmap(finals["gtsam"].atPose3(k).between(
+                finals["ours"].atPose3(k)))))) for k in finals["gtsam"].keys())
+            g, o = best["gtsam"], best["ours"]
+            print(f"| {seed} | {'exact' if exact else 'wildfire'} | {g.sum():.3f} | {o.sum():.3f} | "
+                  f"{o.sum() / g.sum():.2f} | {1e3 * statistics.median(g):.3f} / {1e3 * statistics.median(o):.3f} | "
+                  f"{diff:.2e} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
