@@ -5,6 +5,12 @@ every failure the library reports on purpose (the command line maps them to exit
   the wrong shape or values, an unknown option, key or backend. Its message is one
   line naming what was expected.
 - :class:`InitializationError`: an initializer cannot run on this graph.
+- :class:`ArgumentTypeError` (also a ``TypeError``, what GTSAM's wrapper raises for these): an
+  argument of the wrong kind, such as a key that is not a non-negative integer.
+- :class:`EvaluationError` (also a ``RuntimeError``, what GTSAM raises for these): a factor
+  cannot be evaluated at the values it is given; :class:`ValuesKeyDoesNotExist`,
+  :class:`ValuesIncorrectType` (also a ``TypeError``) and :class:`CheiralityException` are
+  GTSAM's names for the cases it has.
 - :class:`NotPositiveDefinite` (also a ``numpy.linalg.LinAlgError``): a matrix that must be
   positive definite is not, numerically; :class:`IndeterminantLinearSystem`, GTSAM's name
   for it, when the graph does not determine every variable.
@@ -14,8 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["LieFactorsError", "InputError", "InitializationError", "NotPositiveDefinite", "IndeterminantLinearSystem",
-           "first_line", "gtsam_failure"]
+__all__ = ["LieFactorsError", "InputError", "InitializationError", "ArgumentTypeError", "EvaluationError",
+           "ValuesKeyDoesNotExist", "ValuesIncorrectType", "CheiralityException", "NotPositiveDefinite",
+           "IndeterminantLinearSystem", "first_line", "gtsam_failure"]
 
 
 class LieFactorsError(Exception):
@@ -28,6 +35,33 @@ class InputError(LieFactorsError, ValueError):
 
 class InitializationError(InputError):
     """An initializer cannot run on this graph; the message is the one-line reason."""
+
+
+class ArgumentTypeError(LieFactorsError, TypeError):
+    """An argument of the wrong kind or number, where GTSAM's wrapper raises a ``TypeError``: a key
+    that is not a non-negative integer, a noise model that is not one, a factor constructed with
+    arguments that fit none of GTSAM's signatures."""
+
+
+class EvaluationError(LieFactorsError, RuntimeError):
+    """A factor cannot be evaluated at the values it is given, where GTSAM raises a
+    ``RuntimeError``: a division by zero, a residual that is not finite, a derivative that is
+    undefined there; the subclasses are GTSAM's named cases."""
+
+
+class ValuesKeyDoesNotExist(EvaluationError):
+    """A factor's key is missing from the ``Values`` it is evaluated at (GTSAM's
+    ``ValuesKeyDoesNotExist``)."""
+
+
+class ValuesIncorrectType(EvaluationError, TypeError):
+    """A factor's key holds a value of another type than the factor reads (GTSAM's
+    ``ValuesIncorrectType``)."""
+
+
+class CheiralityException(EvaluationError):
+    """A point projected by a camera it is not in front of (depth ≤ 0): GTSAM's
+    ``CheiralityException``."""
 
 
 class NotPositiveDefinite(LieFactorsError, np.linalg.LinAlgError):

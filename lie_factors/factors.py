@@ -59,7 +59,7 @@ from gtsam import gtsam as _native  # the compiled extension: GTSAM's own classe
 from .kernels import registry as _registry, validate as _validate
 # The codes of check_element (validate.defect words them).
 from .kernels.checks import BAD_LAST_ROW, BAD_SCALE, NOT_FINITE, NOT_ORTHONORMAL, OK, REFLECTION  # noqa: F401
-from .errors import InputError
+from .errors import ArgumentTypeError, InputError, ValuesIncorrectType, ValuesKeyDoesNotExist
 from .interop import pose3_from_rows
 # The compiled work of every factor here, also run by the batch loops and the smoother.
 from .kernels.relative import (between, between_error, between_first_jacobian, between_jacobians,  # noqa: F401
@@ -147,7 +147,7 @@ def element_error(spec: GroupSpec, X: np.ndarray, code: int, what: str, factor: 
 
 def _check_type(spec: GroupSpec, value, what: str, factor: str) -> None:
     if not isinstance(value, spec.cls):
-        raise TypeError(f"{factor}: {what} must be a gtsam.{spec.name}, got {type(value).__name__}")
+        raise ArgumentTypeError(f"{factor}: {what} must be a gtsam.{spec.name}, got {type(value).__name__}")
 
 
 #: tangent dimension → the noise model last found to fit it. Graphs typically
@@ -158,7 +158,7 @@ _noise_checked: dict = {}
 
 def _checked_noise(spec: GroupSpec, noise_model, factor: str):
     if not isinstance(noise_model, gtsam.noiseModel.Base):
-        raise TypeError(f"{factor}: noise_model must be a gtsam.noiseModel, got {type(noise_model).__name__}")
+        raise ArgumentTypeError(f"{factor}: noise_model must be a gtsam.noiseModel, got {type(noise_model).__name__}")
     if noise_model.dim() != spec.dim:
         raise InputError(
             f"{factor}: noise model has dimension {noise_model.dim()}, "
@@ -169,22 +169,33 @@ def _checked_noise(spec: GroupSpec, noise_model, factor: str):
 
 
 def checked_key(key, factor: str) -> int:
-    """``key`` as an int, or a TypeError naming ``factor`` for anything but a non-negative integer."""
+    """``key`` as an int, or an :class:`~lie_factors.errors.ArgumentTypeError` (a ``TypeError``)
+    naming ``factor`` for anything but a non-negative integer."""
     if type(key) is int and key >= 0:  # the common case, without the tuple isinstance checks
         return key
     if isinstance(key, (bool, np.bool_)) or not isinstance(key, (int, np.integer)) or key < 0:
-        raise TypeError(f"{factor}: keys must be non-negative integers, got {key!r}")
+        raise ArgumentTypeError(f"{factor}: keys must be non-negative integers, got {key!r}")
     return int(key)
 
 
-def _fetch(values, key: int, spec: GroupSpec, factor: str) -> np.ndarray:
+def read_key(values, key: int, accessor: str, type_name: str, factor: str):
+    """``values.<accessor>(key)``, GTSAM's object; a key missing from ``values`` raises
+    :class:`~lie_factors.errors.ValuesKeyDoesNotExist`, a key holding another type
+    :class:`~lie_factors.errors.ValuesIncorrectType` (GTSAM's two cases, each naming the key
+    with GTSAM's key formatter and the type ``factor`` reads)."""
     try:
-        value = getattr(values, spec.at)(key)
-    except RuntimeError as exc:
-        raise TypeError(
-            f"{factor}: key {gtsam.DefaultKeyFormatter(key)} must hold a gtsam.{spec.name}: {exc}"
-        ) from None
-    return spec.matrix(value)
+        return getattr(values, accessor)(key)
+    except RuntimeError:
+        name = gtsam.DefaultKeyFormatter(key)
+        if not values.exists(key):
+            raise ValuesKeyDoesNotExist(f"{factor}: key {name} is not in the Values (the factor reads a "
+                                        f"{type_name} there)") from None
+        raise ValuesIncorrectType(f"{factor}: key {name} holds a value of another type than the "
+                                  f"{type_name} the factor reads") from None
+
+
+def _fetch(values, key: int, spec: GroupSpec, factor: str) -> np.ndarray:
+    return spec.matrix(read_key(values, key, spec.at, f"gtsam.{spec.name}", factor))
 
 
 class _Factor(gtsam.CustomFactor):

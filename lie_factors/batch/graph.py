@@ -249,7 +249,7 @@ class Problem:
                 self.native.append((i, f, keys))
                 continue
             if kind == "expression":
-                rows.add(i, f._keys_, f._constants, R)
+                rows.add(i, f, R)
             elif kind == "between":
                 rows.append((i, f._key1, f._key2, f._Minv, R))
             else:

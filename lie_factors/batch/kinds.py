@@ -16,12 +16,14 @@ import gtsam
 import numpy as np
 
 from ..errors import InputError
+from ..expressions.kind import check_statuses
+from ..expressions.types import CALIBRATIONS, accessor, as_array
 from ..util.arrays import sorted_unique
 
 
 class ValueBlock:
-    """The variables of one non-matrix-group type ``t`` (Rot2, Point2/3, VectorN, Cal3_S2,
-    Cal3Bundler): ``keys`` (sorted), ``X`` (N, …) their values, ``offsets`` (N,) in δ."""
+    """The variables of one non-matrix-group type ``t`` (Rot2, Point2/3, VectorN, the
+    calibrations): ``keys`` (sorted), ``X`` (N, …) their values, ``offsets`` (N,) in δ."""
 
     def __init__(self, t):
         self.t = t
@@ -47,8 +49,6 @@ class ValueBlock:
 
     def read(self, values: gtsam.Values) -> None:
         """The start: each key's value in ``values`` (InputError naming a missing or mistyped key)."""
-        from ..expressions.types import accessor, as_array
-
         t = self.t
         get = getattr(values, accessor(t))
         X = np.empty((len(self.keys),) + t.shape)
@@ -65,11 +65,16 @@ class ValueBlock:
         self.X0 = X
 
     def retract(self, X: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """X·Exp(δ) (Rot2) or X + δ (vectors), each variable's δ at its offset."""
+        """X·Exp(δ) (Rot2) or X + δ on the first d entries (vectors; a Cal3Bundler's principal
+        point stays), each variable's δ at its offset."""
         d = self.t.dim
         step = delta[self.offsets[:, None] + np.arange(d)] if len(self.offsets) else np.zeros((0, d))
         if self.t.name != "Rot2":
-            return X + step
+            if X.shape[1] == d:
+                return X + step
+            out = X.copy()
+            out[:, :d] += step
+            return out
         c, s = np.cos(step[:, 0]), np.sin(step[:, 0])
         out = np.empty_like(X)
         out[:, 0, 0] = X[:, 0, 0] * c - X[:, 1, 0] * s
@@ -83,10 +88,8 @@ class ValueBlock:
         name = self.t.name
         if name == "Rot2":
             return gtsam.Rot2.atan2(x[1, 0], x[0, 0])
-        if name == "Cal3_S2":
-            return gtsam.Cal3_S2(*x)
-        if name == "Cal3Bundler":
-            return gtsam.Cal3Bundler(x[0], x[1], x[2], 0.0, 0.0)
+        if name in CALIBRATIONS:  # GTSAM's constructors take the stored entries in order
+            return getattr(gtsam, name)(*(float(v) for v in x))
         return np.array(x)
 
 
@@ -96,11 +99,11 @@ class KindGroup:
 
     def __init__(self, kind):
         self.kind = kind
-        self.rows: list = []  # (graph index, keys, constants, R)
+        self.rows: list = []  # (graph index, factor, R)
         self.E = 0
 
-    def add(self, i: int, keys: list, constants: list, R: np.ndarray) -> None:
-        self.rows.append((i, keys, constants, R))
+    def add(self, i: int, f, R: np.ndarray) -> None:
+        self.rows.append((i, f, R))
 
     def blocks_of(self, problem) -> list:
         """The block holding each variable slot's values (a VarBlock or a ValueBlock)."""
@@ -111,14 +114,15 @@ class KindGroup:
         kind = self.kind
         F = len(self.rows)
         self.fidx = np.array([r[0] for r in self.rows], dtype=np.int64)
-        self.keys = np.array([r[1] for r in self.rows], dtype=np.uint64).reshape(F, len(kind.variables))
+        self.factors = [r[1] for r in self.rows]
+        self.keys = np.array([f._keys_ for f in self.factors], dtype=np.uint64).reshape(F, len(kind.variables))
         for j, block in enumerate(self.blocks_of(problem)):
             block.use_keys(self.keys[:, j])
-        self.C = [np.ascontiguousarray(np.array([r[2][c] for r in self.rows], dtype=np.float64)
+        self.C = [np.ascontiguousarray(np.array([f._constants[c] for f in self.factors], dtype=np.float64)
                                        .reshape((F,) + t.shape)) for c, t in enumerate(kind.constants)]
         entry: dict = {}
-        self.ridx = np.array([entry.setdefault(id(r[3]), len(entry)) for r in self.rows], dtype=np.int64)
-        table = list({id(r[3]): r[3] for r in self.rows}.values())
+        self.ridx = np.array([entry.setdefault(id(r[2]), len(entry)) for r in self.rows], dtype=np.int64)
+        table = list({id(r[2]): r[2] for r in self.rows}.values())
         m = kind.dim
         self.R = np.ascontiguousarray(np.array(table, dtype=np.float64).reshape(-1, m, m))
         self.rows = None
@@ -135,6 +139,7 @@ class KindGroup:
         self.e = np.zeros((self.E, m))
         self.A = np.zeros((self.E, m, self.kind.columns))
         self.b = np.zeros((self.E, m))
+        self.status = np.zeros(self.E, dtype=np.int64)
 
     def pairs(self) -> np.ndarray:
         """(P, 2) the variable pairs the factors join (for the sparsity pattern)."""
@@ -147,18 +152,21 @@ class KindGroup:
         for block, i in zip(self.blocks, self.index):
             args += [Xs[block_name(block)], i]
         args += self.C
-        args += [self.R, self.ridx, self.e, self.A, self.b, sq, 0, self.E, jacobians]
+        args += [self.R, self.ridx, self.e, self.A, self.b, sq, self.status, 0, self.E, jacobians]
         return args
 
     def linearize(self, Xs: dict) -> None:
-        """Every factor's residual, whitened Jacobians ``A`` (E, m, Σd), ``b`` and ``sq``."""
+        """Every factor's residual, whitened Jacobians ``A`` (E, m, Σd), ``b`` and ``sq``; a
+        factor undefined there raises its error (:meth:`KindFactor.evaluated`)."""
         if self.E:
             self.kind.evaluate(*self._arguments(Xs, self.sq, True))
+            check_statuses(self.factors, self.status)
 
     def evaluate(self, Xs: dict, sq: np.ndarray) -> None:
         """Every factor's squared whitened residual norm into ``sq`` (E,)."""
         if self.E:
             self.kind.evaluate(*self._arguments(Xs, self._sq, False))
+            check_statuses(self.factors, self.status)
             sq[:] = self._sq
 
 

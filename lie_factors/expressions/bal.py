@@ -3,7 +3,7 @@
 :func:`graph_of` builds, from a scene GTSAM has read (``gtsam.SfmData.FromBalFile``), the problem
 GTSAM's ``SFMExample_bal.py`` builds with ``GeneralSFMFactorCal3Bundler`` on
 ``PinholeCameraCal3Bundler`` variables, in our variables: each camera i as its pose (key
-``x_i``, a Pose3) and its calibration [f, k1, k2] (key ``k_i``, a Cal3Bundler, principal point 0),
+``x_i``, a Pose3) and its calibration [f, k1, k2] (key ``k_i``, a Cal3Bundler, its principal point held),
 each point j as ``p_j``; one :class:`~lie_factors.expressions.ready.BundlerProjectionFactor` per
 observation, and the same priors as the example (camera 0 with σ = 0.1 in each of its 9
 coordinates, point 0 with σ = 0.1).  A camera's 9 coordinates are its pose's 6 then its
@@ -14,7 +14,6 @@ same cost function and optimum.
 from __future__ import annotations
 
 import gtsam
-import numpy as np
 
 from . import factor
 from .ready import BundlerProjectionFactor
@@ -37,7 +36,7 @@ def point_key(j: int) -> int:
 
 @factor("Cal3Bundler", measured="Cal3Bundler")
 def CalibrationPrior(K, z):
-    """K − z: a prior on a calibration [f, k1, k2] (GTSAM's local coordinates of a Cal3Bundler)."""
+    """K − z: a prior on a calibration's [f, k1, k2] (GTSAM's local coordinates of a Cal3Bundler)."""
     return K - z
 
 
@@ -45,11 +44,6 @@ def CalibrationPrior(K, z):
 def PointPrior(p, z):
     """p − z: GTSAM's ``PriorFactorPoint3``."""
     return p - z
-
-
-def _calibration(camera) -> np.ndarray:
-    K = camera.calibration()
-    return np.array([K.fx(), K.k1(), K.k2()])
 
 
 def graph_of(scene: "gtsam.SfmData", sigma_pixel: float = 1.0, sigma_prior: float = 0.1):
@@ -65,7 +59,7 @@ def graph_of(scene: "gtsam.SfmData", sigma_pixel: float = 1.0, sigma_prior: floa
             graph.add(BundlerProjectionFactor(pose_key(i), calibration_key(i), point_key(j), uv, noise))
     camera0 = scene.camera(0)
     graph.add(PriorFactorPose3(pose_key(0), camera0.pose(), gtsam.noiseModel.Isotropic.Sigma(6, sigma_prior)))
-    graph.add(CalibrationPrior(calibration_key(0), _calibration(camera0), gtsam.noiseModel.Isotropic.Sigma(3, sigma_prior)))
+    graph.add(CalibrationPrior(calibration_key(0), camera0.calibration(), gtsam.noiseModel.Isotropic.Sigma(3, sigma_prior)))
     graph.add(PointPrior(point_key(0), scene.track(0).point3(), gtsam.noiseModel.Isotropic.Sigma(3, sigma_prior)))
     initial = gtsam.Values()
     for i in range(scene.numberCameras()):

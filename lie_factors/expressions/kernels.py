@@ -11,9 +11,12 @@ with the right Jacobian J_r(x) = D_exp(−x), ``docs/conventions.md``) are deriv
 docs/factors.md; every formula is tested against differences of the definition.  Rot2 (SO(2),
 tangent [θ], a 2×2 rotation matrix) has its own short forms: Ad = 1, J_r = 1.
 
-Geometry (rotation, translation, scale, points, projection) is written per group type: Pose2
+Geometry (rotation, translation, scale, points) is written per group type: Pose2
 [x, y, θ], Pose3 [ω, v], Similarity2 [x, y, θ, λ], Similarity3 [ω, u, λ] (element
-[[R, t], [0, 1/s]], s = e^λ, acting as p ↦ s(R p + t), GTSAM's), Rot2, Rot3.
+[[R, t], [0, 1/s]], s = e^λ, acting as p ↦ s(R p + t), GTSAM's), Rot2, Rot3.  Matrices (an
+element's ``matrix()`` and ``AdjointMap()``) are held row by row in 1-D arrays, their Jacobians'
+rows in that order.  The projections are in :mod:`lie_factors.expressions.camera`.  An operation
+undefined at some values (a division by zero) returns False there, which the kernel reports.
 """
 
 from __future__ import annotations
@@ -401,9 +404,14 @@ def transform_to(X, d, kind, p, out, DX, Dp, jac):
 # --------------------------------------------------------------------------- #
 
 
+#: GTSAM's norm2/norm3 give the Jacobian [1, …, 1] of a norm at or below this (its value 0).
+NORM_ZERO = 1e-10
+
+
 @helper_kernel
 def v_norm(a, out, Da, jac):
-    """out = [‖a‖];  Da = aᵀ/‖a‖ (0 at a = 0, as GTSAM's norm3 and norm2)."""
+    """out = [‖a‖];  Da = aᵀ/‖a‖, and [1, …, 1] where ‖a‖ ≤ :data:`NORM_ZERO` (GTSAM's norm2 and
+    norm3: the norm has no derivative at 0, and GTSAM's choice is this one)."""
     n = 0.0
     for i in range(a.shape[0]):
         n += a[i] * a[i]
@@ -411,7 +419,7 @@ def v_norm(a, out, Da, jac):
     out[0] = n
     if jac:
         for i in range(a.shape[0]):
-            Da[0, i] = a[i] / n if n > 0.0 else 0.0
+            Da[0, i] = a[i] / n if n > NORM_ZERO else 1.0
 
 
 @helper_kernel
@@ -427,20 +435,26 @@ def v_dot(a, b, out, Da, Db, jac):
             Db[0, i] = a[i]
 
 
+#: GTSAM's Rot2::relativeBearing gives the identity, with Jacobian 0, for a point at or within
+#: this of the origin.
+BEARING_ZERO = 1e-5
+
+
 @helper_kernel
 def bearing2(p, out, Dp, jac):
     """out = the Rot2 of direction p = (x, y) (GTSAM's Rot2::relativeBearing: c = x/r, s = y/r);
-    Dp = [−y, x]/r²."""
+    Dp = [−y, x]/r²; the identity and 0 where r ≤ :data:`BEARING_ZERO` (GTSAM's)."""
     x, y = p[0], p[1]
-    r = math.hypot(x, y)
-    if r > 0.0:
-        rot2(x / r, y / r, out)
-    else:
+    r2 = x * x + y * y
+    r = math.sqrt(r2)
+    near = r <= BEARING_ZERO
+    if near:
         rot2(1.0, 0.0, out)
+    else:
+        rot2(x / r, y / r, out)
     if jac:
-        r2 = x * x + y * y
-        Dp[0, 0] = -y / r2 if r2 > 0.0 else 0.0
-        Dp[0, 1] = x / r2 if r2 > 0.0 else 0.0
+        Dp[0, 0] = 0.0 if near else -y / r2
+        Dp[0, 1] = 0.0 if near else x / r2
 
 
 @helper_kernel
@@ -556,64 +570,188 @@ def unit3_local(p, q, out, Dp, Dq, jac):
 
 
 @helper_kernel
-def pinhole(q, out, Dq, jac):
-    """out = (x/z, y/z) of a point in the camera frame (z forward, GTSAM's PinholeCamera);
-    Dq = [[1/z, 0, −x/z²], [0, 1/z, −y/z²]]."""
-    z = q[2]
-    u = q[0] / z
-    v = q[1] / z
-    out[0] = u
-    out[1] = v
+def v_cross(a, b, out, Da, Db, jac):
+    """out = a × b;  Da = −[b]×, Db = [a]× (GTSAM's ``cross``)."""
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
     if jac:
-        Dq[0, 0] = 1.0 / z
-        Dq[0, 1] = 0.0
-        Dq[0, 2] = -u / z
-        Dq[1, 0] = 0.0
-        Dq[1, 1] = 1.0 / z
-        Dq[1, 2] = -v / z
+        skew_into(b, Da, -1.0)
+        skew_into(a, Db, 1.0)
 
 
 @helper_kernel
-def uncalibrate_s2(K, pn, out, DK, Dpn, jac):
-    """Cal3_S2 K = [fx, fy, s, u0, v0]: out = (fx·u + s·v + u0, fy·v + v0) of pn = (u, v);
-    DK = [[u, 0, v, 1, 0], [0, v, 0, 0, 1]], Dpn = [[fx, s], [0, fy]]."""
-    u, v = pn[0], pn[1]
-    out[0] = K[0] * u + K[2] * v + K[3]
-    out[1] = K[1] * v + K[4]
+def v_smul(s, a, out, Ds, jac):
+    """out = s·a (s one entry, a any length);  Ds = a (a column); Da = s·I (the chain rule
+    scales)."""
+    for i in range(out.shape[0]):
+        out[i] = s[0] * a[i]
     if jac:
-        for j in range(5):
-            DK[0, j] = 0.0
-            DK[1, j] = 0.0
-        DK[0, 0] = u
-        DK[0, 2] = v
-        DK[0, 3] = 1.0
-        DK[1, 1] = v
-        DK[1, 4] = 1.0
-        Dpn[0, 0] = K[0]
-        Dpn[0, 1] = K[2]
-        Dpn[1, 0] = 0.0
-        Dpn[1, 1] = K[1]
+        for i in range(out.shape[0]):
+            Ds[i, 0] = a[i]
 
 
 @helper_kernel
-def uncalibrate_bundler(K, pn, out, DK, Dpn, jac):
-    """Cal3Bundler K = [f, k1, k2] (principal point 0): out = f·g·pn, g = 1 + k1 r² + k2 r⁴,
-    r² = |pn|²;  DK = [g·pn, f·r²·pn, f·r⁴·pn], Dpn = f·(g·I + 2(k1 + 2 k2 r²)·pn·pnᵀ)."""
-    f, k1, k2 = K[0], K[1], K[2]
-    u, v = pn[0], pn[1]
-    r2 = u * u + v * v
-    g = 1.0 + (k1 + k2 * r2) * r2
-    out[0] = f * g * u
-    out[1] = f * g * v
+def v_div(a, s, out, Ds, jac):
+    """out = a/s (s one entry);  Ds = −a/s² = −out/s (a column); Da = I/s (the chain rule
+    scales).  False at s = 0."""
+    d = s[0]
+    for i in range(out.shape[0]):
+        out[i] = a[i] / d
     if jac:
-        DK[0, 0] = g * u
-        DK[1, 0] = g * v
-        DK[0, 1] = f * r2 * u
-        DK[1, 1] = f * r2 * v
-        DK[0, 2] = f * r2 * r2 * u
-        DK[1, 2] = f * r2 * r2 * v
-        h = 2.0 * (k1 + 2.0 * k2 * r2)
-        Dpn[0, 0] = f * (g + h * u * u)
-        Dpn[0, 1] = f * h * u * v
-        Dpn[1, 0] = f * h * u * v
-        Dpn[1, 1] = f * (g + h * v * v)
+        for i in range(out.shape[0]):
+            Ds[i, 0] = -out[i] / d
+    return d != 0.0
+
+
+#: GTSAM's Rot3::RQ refuses the derivative of rpy within this of pitch = +π/2 (gimbal lock).
+GIMBAL_BAND = 1e-2
+
+
+@helper_kernel
+def rot3_rpy(R, out, DR, jac):
+    """out = [x, y, z] = [roll, pitch, yaw], R = Rz(z)·Ry(y)·Rx(x): GTSAM's Rot3::RQ step for
+    step (x = −atan2(−R21, R22), B = R·Rx(−x), y = −atan2(B20, B22), C = B·Ry(−y),
+    z = −atan2(−C10, C11)).  DR (right perturbation R·Exp(ω)) = E⁻¹, the inverse of the map
+    from Euler rates to ω: [[1, sin x tan y, cos x tan y], [0, cos x, −sin x],
+    [0, sin x/cos y, cos x/cos y]].  False, with the Jacobian asked, within :data:`GIMBAL_BAND`
+    of y = π/2 (GTSAM's refusal; toward y = −π/2 both grow as 1/cos y)."""
+    x = -math.atan2(-R[2, 1], R[2, 2])
+    cx, sx = math.cos(-x), math.sin(-x)  # Rx(−x) = [[1, 0, 0], [0, cx, −sx], [0, sx, cx]]
+    b20 = R[2, 0]
+    b22 = R[2, 1] * -sx + R[2, 2] * cx
+    y = -math.atan2(b20, b22)
+    cy, sy = math.cos(-y), math.sin(-y)  # Ry(−y) = [[cy, 0, sy], [0, 1, 0], [−sy, 0, cy]]
+    b10 = R[1, 0]
+    b11 = R[1, 1] * cx + R[1, 2] * sx
+    b12 = R[1, 1] * -sx + R[1, 2] * cx
+    c10 = b10 * cy + b12 * -sy
+    c11 = b11
+    z = -math.atan2(-c10, c11)
+    out[0] = x
+    out[1] = y
+    out[2] = z
+    if not jac:
+        return True
+    cr, sr = math.cos(x), math.sin(x)
+    cp, tp = math.cos(y), math.tan(y)
+    DR[0, 0], DR[0, 1], DR[0, 2] = 1.0, sr * tp, cr * tp
+    DR[1, 0], DR[1, 1], DR[1, 2] = 0.0, cr, -sr
+    DR[2, 0], DR[2, 1], DR[2, 2] = 0.0, sr / cp, cr / cp
+    return abs(y - math.pi / 2.0) >= GIMBAL_BAND
+
+
+# --------------------------------------------------------------------------- #
+# Matrices (held row by row): an element's matrix and adjoint, products
+# --------------------------------------------------------------------------- #
+
+
+@helper_kernel
+def product_column(A, B, D, c):
+    """D[:, c] = A·B row by row (A, B square): one column of a matrix's Jacobian."""
+    m = A.shape[0]
+    for i in range(m):
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += A[i, k] * B[k, j]
+            D[i * m + j, c] = acc
+
+
+@helper_kernel
+def unit_vector(e, c):
+    """e = the c-th unit vector."""
+    for q in range(e.shape[0]):
+        e[q] = 0.0
+    e[c] = 1.0
+
+
+@helper_kernel
+def g_matrix(g, X, out, DX, jac):
+    """out = X, row by row (m²);  DX column c = X·hat(e_c), row by row: X·Exp(δ) = X + X·hat(δ)
+    + O(δ²)."""
+    m = X.shape[0]
+    n = DX.shape[1]
+    for i in range(m):
+        for j in range(m):
+            out[i * m + j] = X[i, j]
+    if jac:
+        e = np.empty(n)
+        H = np.empty((m, m))
+        for c in range(n):
+            unit_vector(e, c)
+            _dispatch.hat(g, e, H)
+            product_column(X, H, DX, c)
+
+
+@helper_kernel
+def r2_matrix(X, out, DX, jac):
+    """Rot2: out = X, row by row;  DX = X·[[0, −1], [1, 0]], row by row (tangent [θ])."""
+    for i in range(2):
+        for j in range(2):
+            out[i * 2 + j] = X[i, j]
+    if jac:
+        for i in range(2):
+            DX[i * 2, 0] = X[i, 1]
+            DX[i * 2 + 1, 0] = -X[i, 0]
+
+
+@helper_kernel
+def g_adjoint_map(g, X, out, DX, jac):
+    """out = Ad(X), row by row (n²);  DX column c = Ad(X)·ad(e_c), row by row: Ad(X·Exp(δ)) =
+    Ad(X)·Ad(Exp(δ)) = Ad(X)·e^{ad δ} (Eade, Eq. 9) = Ad(X) + Ad(X)·ad(δ) + O(δ²)."""
+    n = DX.shape[1]
+    A = np.empty((n, n))
+    _dispatch.Ad(g, X, A)
+    for i in range(n):
+        for j in range(n):
+            out[i * n + j] = A[i, j]
+    if jac:
+        e = np.empty(n)
+        a = np.empty((n, n))
+        for c in range(n):
+            unit_vector(e, c)
+            _dispatch.ad(g, e, a)
+            product_column(A, a, DX, c)
+
+
+@helper_kernel
+def mat_product(A, B, r, k, c, out):
+    """out (r·c) = A (r·k) · B (k·c), all row by row."""
+    for i in range(r):
+        for j in range(c):
+            acc = 0.0
+            for q in range(k):
+                acc += A[i * k + q] * B[q * c + j]
+            out[i * c + j] = acc
+
+
+@helper_kernel
+def mat_chain_left(JA, B, r, k, c, out, first):
+    """out (r·c, d) (=, or += if not ``first``) dA·B column by column: the term of A's Jacobian
+    JA (r·k, d) in the Jacobian of A·B."""
+    for col in range(out.shape[1]):
+        for i in range(r):
+            for j in range(c):
+                acc = 0.0
+                for q in range(k):
+                    acc += JA[i * k + q, col] * B[q * c + j]
+                if first:
+                    out[i * c + j, col] = acc
+                else:
+                    out[i * c + j, col] += acc
+
+
+@helper_kernel
+def mat_chain_right(A, JB, r, k, c, out, first):
+    """out (r·c, d) (=, or +=) A·dB column by column: the term of B's Jacobian JB (k·c, d)."""
+    for col in range(out.shape[1]):
+        for i in range(r):
+            for j in range(c):
+                acc = 0.0
+                for q in range(k):
+                    acc += A[i * k + q] * JB[q * c + j, col]
+                if first:
+                    out[i * c + j, col] = acc
+                else:
+                    out[i * c + j, col] += acc

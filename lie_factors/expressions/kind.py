@@ -27,11 +27,12 @@ from functools import cached_property
 import gtsam
 import numpy as np
 
-from ..errors import InputError
-from ..factors import checked_key
+from ..errors import ArgumentTypeError, EvaluationError, InputError, ValuesIncorrectType
+from ..factors import checked_key, read_key
 from . import codegen
-from .expr import Expr, Node, Trace, constant, variable
-from .types import ValueType, as_array, value_type
+from .expr import Expr, Node, Trace, constant, variable, where
+from .rules import FAULTS
+from .types import CALIBRATIONS, ValueType, as_array, calibration_array, value_type
 
 __all__ = ["factor", "KindFactor", "Kind"]
 
@@ -49,6 +50,18 @@ class Kind:
     residual: Node
     source: str
     module: object
+    nodes: list  # the kernel's nodes, in its order (a status names one)
+    function: str  # the residual function's name, for messages
+
+    def fault(self, code: int, keys: list, factor: str) -> Exception:
+        """The exception of a factor (class ``factor``, its ``keys``) whose evaluation ended with
+        the status ``code`` > 0 (:mod:`~lie_factors.expressions.codegen`)."""
+        on = f"{factor} on {', '.join(gtsam.DefaultKeyFormatter(k) for k in keys)}"
+        if code > len(self.nodes):
+            return EvaluationError(f"{on}: {self.function}: the residual is not finite at these values")
+        node = self.nodes[code - 1]
+        cls, what = FAULTS[node.op]
+        return cls(f"{on}: {where(self.function, node.line)}: {what}")
 
     @property
     def dim(self) -> int:
@@ -113,6 +126,12 @@ def _trace(fn, variables: list, names: list, constants: list) -> Node:
     if out.node.type.is_group:
         raise InputError(f"{trace.where(out.node.line)}: the residual is a {out.node.type}, a group "
                          "element: return a vector, e.g. measured.localCoordinates(predicted)")
+    if out.node.type.is_matrix:
+        raise InputError(f"{trace.where(out.node.line)}: the residual is a {out.node.type}: return a vector, "
+                         "e.g. the matrix's flatten()")
+    if out.node.type.kind == "unit":
+        raise InputError(f"{trace.where(out.node.line)}: the residual is a Unit3, a direction: return a "
+                         "vector, e.g. measured.localCoordinates(predicted)")
     return out.node
 
 
@@ -131,15 +150,15 @@ def factor(*variables, measured=None, **constants):
     const_types = ([value_type(measured)] if measured is not None else []) + [value_type(t) for t in constants.values()]
     if not var_types:
         raise InputError("a factor needs at least one variable")
-    if any(t.kind == "unit" for t in var_types):
-        raise InputError("a Unit3 is a measurement or a bearing, not a variable type of a factor")
+    if any(t.kind == "unit" or t.name == "StereoPoint2" for t in var_types):
+        raise InputError("a Unit3 or a StereoPoint2 is a measurement, not a variable type of a factor")
 
     def define(fn):
         residual = _trace(fn, var_types, names, const_types)
         gen = codegen.Generator(fn.__name__, var_types, const_types, residual)
         source = gen.source() + f"\nTAGS = {tuple(gen.tags)!r}\n"
         kind = Kind(fn.__name__, var_types, names, const_types, residual, source,
-                    codegen.load(fn.__name__, source))
+                    codegen.load(fn.__name__, source), gen.nodes, getattr(fn, "__qualname__", fn.__name__))
         cls = type(fn.__name__, (KindFactor,), {
             "kind": kind, "__module__": getattr(fn, "__module__", __name__), "__qualname__": fn.__qualname__,
             "__doc__": fn.__doc__ or f"The factor kind {fn.__name__}: {', '.join(map(str, var_types))}.",
@@ -159,7 +178,9 @@ active_plan = None
 class KindFactor(gtsam.CustomFactor):
     """A factor of a kind (made by :func:`factor`): ``kind(key_1, …, key_k, measured,
     noise_model, **constants)``.  ``keys()``, ``measured()``, ``constants()`` (name → array),
-    ``noiseModel()``; its error is ½‖R·e‖² of the residual e, its Jacobians the chain rule's."""
+    ``noiseModel()``; its error is ½‖R·e‖² of the residual e, its Jacobians the chain rule's.
+    Where the residual is undefined (a point behind a camera, a division by zero, a key missing
+    from the Values), evaluating it raises a :class:`~lie_factors.errors.EvaluationError`."""
 
     kind: Kind
 
@@ -173,22 +194,23 @@ class KindFactor(gtsam.CustomFactor):
             sig = ", ".join([f"key{j + 1}" for j in range(k)]
                             + (["measured"] if "measured" in kind.constant_names else []) + ["noise_model"]
                             + [f"{c}=…" for c in extra])
-            raise TypeError(f"{name}({sig}): got {len(args)} positional arguments")
+            raise ArgumentTypeError(f"{name}({sig}): got {len(args)} positional arguments")
         keys = [checked_key(key, name) for key in args[:k]]
         if len(set(keys)) != k:
-            raise InputError(f"{name}: a factor's keys must differ, got {keys}")
+            raise InputError(f"{name}: a factor's keys must differ, got "
+                             f"{', '.join(gtsam.DefaultKeyFormatter(key) for key in keys)}")
         noise = args[-1]
         if not isinstance(noise, gtsam.noiseModel.Base):
-            raise TypeError(f"{name}: noise_model must be a gtsam.noiseModel, got {type(noise).__name__}")
+            raise ArgumentTypeError(f"{name}: noise_model must be a gtsam.noiseModel, got {type(noise).__name__}")
         if noise.dim() != kind.dim:
             raise InputError(f"{name}: the noise model has dimension {noise.dim()}, the residual {kind.dim}")
         given = dict(zip(["measured"], args[k:-1])) if "measured" in kind.constant_names else {}
         unknown = set(named) - set(extra)
         if unknown:
-            raise TypeError(f"{name}: unknown constant(s) {sorted(unknown)}; the kind takes {extra or 'none'}")
+            raise ArgumentTypeError(f"{name}: unknown constant(s) {sorted(unknown)}; the kind takes {extra or 'none'}")
         missing = [c for c in extra if c not in named]
         if missing:
-            raise TypeError(f"{name}: the constant(s) {missing} must be given")
+            raise ArgumentTypeError(f"{name}: the constant(s) {missing} must be given")
         given.update(named)
         self._given = {c: given[c] for c in kind.constant_names}
         self._constants = [as_array(t, given[c], f"{name}: {c}")
@@ -207,6 +229,18 @@ class KindFactor(gtsam.CustomFactor):
         """Every constant (the measurement first), as the kernel holds them: name → array."""
         return dict(zip(self.kind.constant_names, self._constants))
 
+    def evaluated(self, code: int) -> None:
+        """What the status ``code`` ≠ 0 of an evaluation of this factor does: raise its
+        :meth:`Kind.fault` (> 0), or, for a fault ``ops.catch_cheirality`` caught (< 0), what
+        :meth:`on_cheirality` does (nothing here: the residual is the fallback)."""
+        if code > 0:
+            raise self.kind.fault(code, self._keys_, type(self).__name__)
+        self.on_cheirality()
+
+    def on_cheirality(self) -> None:
+        """Called when ``ops.catch_cheirality`` gave this factor its fallback (a ready projection
+        factor prints or raises here, as GTSAM's ``verboseCheirality``/``throwCheirality``)."""
+
     def _evaluate(self, this, values, H):
         plan = active_plan
         if plan is not None and plan.values is values:
@@ -224,15 +258,26 @@ class KindFactor(gtsam.CustomFactor):
             buf = _Buffers(kind)
             setattr(_buffers, kind.buffer_name, buf)
         for j, (key, t) in enumerate(zip(self._keys_, kind.variables)):
-            buf.X[j][0] = _fetch(values, key, t, type(self).__name__)
+            buf.X[j][0] = fetch(values, key, t, type(self).__name__)
         for c, value in enumerate(self._constants):
             buf.C[c][0] = value
         kind._entry(*buf.args, H is not None)
+        code = buf.status[0]
+        if code:
+            self.evaluated(int(code))
         if H is not None:
             A = buf.A[0]
             for j, (o, end) in enumerate(kind.blocks):
                 H[j] = A[:, o:end]
         return buf.e[0]
+
+
+def check_statuses(factors: list, status: np.ndarray) -> None:
+    """Each factor's :meth:`KindFactor.evaluated` for its status in ``status`` (one per factor,
+    from one kernel call), in order; nothing when all are 0."""
+    if status.any():
+        for f in np.flatnonzero(status):
+            factors[f].evaluated(int(status[f]))
 
 
 class _Buffers:
@@ -244,30 +289,31 @@ class _Buffers:
         self.C = [np.zeros((1,) + t.shape) for t in kind.constants]
         self.e = np.zeros((1, m))
         self.A = np.zeros((1, m, kind.columns))
+        self.status = np.zeros(1, dtype=np.int64)
         index = np.zeros(1, dtype=np.int64)
         args = list(kind.tags)
         for X in self.X:
             args += [X, index]
         args += self.C
-        args += [np.eye(m)[None], index, self.e, self.A, np.zeros((1, m)), np.zeros(1), 0, 1]
+        args += [np.eye(m)[None], index, self.e, self.A, np.zeros((1, m)), np.zeros(1), self.status, 0, 1]
         self.args = args
 
 
-def _fetch(values, key: int, t: ValueType, name: str) -> np.ndarray:
-    try:
-        value = getattr(values, t.accessor)(key)
-    except RuntimeError as exc:
-        raise TypeError(f"{name}: key {gtsam.DefaultKeyFormatter(key)} must hold a {t}: {exc}") from None
+def fetch(values, key: int, t: ValueType, factor: str) -> np.ndarray:
+    """The value of a variable of type ``t`` at ``key`` in ``values`` as the kernel holds it;
+    a missing key or one of another type raises GTSAM's named error
+    (:func:`lie_factors.factors.read_key`)."""
+    value = read_key(values, key, t.accessor, f"gtsam.{t}" if t.is_group or t.name in CALIBRATIONS else t.name,
+                     factor)
     if t.is_group:
         if t.name == "Rot2":
             c, s = value.c(), value.s()
             return np.array([[c, -s], [s, c]])
         return value.matrix()
-    if t.name == "Cal3Bundler":
-        return np.array([value.fx(), value.k1(), value.k2()])
-    if hasattr(value, "vector"):
-        value = value.vector()
+    if t.name in CALIBRATIONS:
+        return calibration_array(t.name, value)
     a = np.asarray(value, dtype=np.float64)
     if a.shape != t.shape:
-        raise TypeError(f"{name}: key {gtsam.DefaultKeyFormatter(key)} must hold a {t}, holds shape {a.shape}")
+        raise ValuesIncorrectType(f"{factor}: key {gtsam.DefaultKeyFormatter(key)} holds a vector of shape "
+                                  f"{a.shape}, not the {t} the factor reads")
     return a

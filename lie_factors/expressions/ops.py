@@ -7,13 +7,16 @@ Functions for a residual, beside the methods of :class:`~lie_factors.expressions
     from lie_factors.expressions import ops
     ops.expmap("Pose3", v)          # Exp(v), a group element of the type named
     ops.project(pose, point, K)     # a pinhole: K's pixels of the point seen by the camera at pose
+                                    # (a Cal3_S2Stereo K: GTSAM's StereoCamera, [uL, uR, v])
+    ops.catch_cheirality(r, c)      # r, or the constant c (zero Jacobians) where a projection in r
+                                    # finds its point behind the camera: GTSAM's projection factors
     ops.stack(a, b, ...)            # the vectors one after the other
-    ops.norm(v), ops.dot(a, b), ops.compose(a, b), ... (the methods, as functions)
+    ops.norm(v), ops.dot(a, b), ops.cross(a, b), ops.compose(a, b), ... (the methods, as functions)
 """
 
 from __future__ import annotations
 
-from .expr import Expr, _record
+from .expr import Expr, _record, constant_only, fail
 
 # --------------------------------------------------------------------------- #
 # The residual's functions (macros expand into the primitive operations)
@@ -81,6 +84,10 @@ def dot(a: Expr, b: Expr) -> Expr:
     return a.dot(b)
 
 
+def cross(a: Expr, b: Expr) -> Expr:
+    return a.cross(b)
+
+
 def norm(a: Expr) -> Expr:
     return a.norm()
 
@@ -100,7 +107,23 @@ def stack(*parts: Expr) -> Expr:
 
 def project(pose: Expr, point: Expr, calibration: Expr) -> Expr:
     """The pixel at which a camera at ``pose`` (camera to world, z forward: GTSAM's
-    PinholeCamera) sees ``point``: ``calibration`` (a Cal3_S2 [fx, fy, s, u0, v0] or a
-    Cal3Bundler [f, k1, k2], constant or variable) applied to the camera-frame point divided by
-    its depth."""
-    return _record("uncalibrate", calibration, _record("pinhole", pose.transformTo(point)))
+    PinholeCamera) sees ``point``: ``calibration`` (constant or variable: a Cal3_S2, Cal3Bundler,
+    Cal3DS2 or Cal3Fisheye) applied to the camera-frame point divided by its depth; with a
+    Cal3_S2Stereo, GTSAM's StereoCamera's [uL, uR, v].  A point not in front of the camera
+    (depth ≤ 0) raises :class:`~lie_factors.errors.CheiralityException` when the factor is
+    evaluated there, as GTSAM's ``project`` does (:func:`catch_cheirality` gives GTSAM's
+    projection factors' constant instead)."""
+    seen = pose.transformTo(point)
+    if isinstance(calibration, Expr) and calibration.type.name == "Cal3_S2Stereo":
+        return _record("stereo", calibration, seen)
+    return _record("uncalibrate", calibration, _record("pinhole", seen))
+
+
+def catch_cheirality(residual: Expr, fallback) -> Expr:
+    """``residual``, or, where a projection in it finds its point not in front of the camera,
+    ``fallback`` (an expression of constants, or a constant array) with zero Jacobians: what
+    GTSAM's GenericProjectionFactor, GenericStereoFactor and GeneralSFMFactor return when they
+    catch a ``CheiralityException``."""
+    if isinstance(fallback, Expr) and not constant_only(fallback.node):
+        raise fail("catch_cheirality's fallback must depend on constants only (its Jacobians are zero)")
+    return _record("catch_cheirality", residual, fallback)

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..factors import PlanBase
 from . import kind as _kind
-from .kind import KindFactor, _fetch
+from .kind import KindFactor, check_statuses, fetch
 
 
 class _KindEvaluation:
@@ -47,6 +47,7 @@ class _KindEvaluation:
         self._ridx = np.zeros(F, dtype=np.int64)
         self.b = np.zeros((F, m))
         self._sq = np.zeros(F)
+        self.status = np.zeros(F, dtype=np.int64)
 
     def whiten(self, R: list) -> None:
         """Whiten the results by each factor's R (RᵀR = its information): A = R·J, b = −R·e."""
@@ -62,11 +63,12 @@ class _KindEvaluation:
         for j, t in enumerate(kind.variables):
             X = np.empty((len(self.slot_keys[j]),) + t.shape)
             for i, key in enumerate(self.slot_keys[j]):
-                X[i] = _fetch(values, key, t, name)
+                X[i] = fetch(values, key, t, name)
             args += [X, self.index[j]]
         args += self.C
-        args += [self._R, self._ridx, self.e, self.A, self.b, self._sq, 0, len(self.members), True]
+        args += [self._R, self._ridx, self.e, self.A, self.b, self._sq, self.status, 0, len(self.members), True]
         kind.evaluate(*args)
+        check_statuses(self.members, self.status)
 
     def rows(self, f: int) -> tuple:
         kind = self.kind

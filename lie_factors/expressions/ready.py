@@ -3,20 +3,24 @@
 Each is a factor kind (:func:`~lie_factors.expressions.kind.factor`) whose residual is GTSAM's
 error of the factor of the same name; the class takes GTSAM's constructor arguments:
 
-=================================  ==============================================  =========================
-class (GTSAM's constructor)        residual                                        GTSAM's factor
-=================================  ==============================================  =========================
-``GPSFactor(key, gpsIn, model)``   translation(x) − z                              ``gtsam.GPSFactor``
-``PoseTranslationPrior2D/3D``      translation(x) − z                              ``PoseTranslationPrior2D/3D``
-``PoseToPointFactor2D/3D``         transformTo(x, l) − z                           C++ ``PoseToPointFactor``
-``RangeFactor2D/3D``               ‖transformTo(x, l)‖ − r                         ``RangeFactor2D/3D``
-``RangeFactorPose2/Pose3``         ‖transformTo(x1, t(x2))‖ − r                    ``RangeFactorPose2/3``
-``BearingRangeFactor2D``           [Log(b⁻¹·bearing(x, l)), range(x, l) − r]       ``BearingRangeFactor2D``
-``BearingRangeFactor3D``           [−bearing(x, l).localCoordinates(b), range − r] ``BearingRangeFactor3D``
-``GenericProjectionFactorCal3_S2`` project(x, l, K) − z                            the same
-``BundlerProjectionFactor``        project(x, l, K) − z, K = [f, k1, k2] a         ``GeneralSFMFactorCal3Bundler``
-                                   variable                                        (camera = pose and K)
-=================================  ==============================================  =========================
+- ``GPSFactor(key, gpsIn, model)``: translation(x) − z (GTSAM's ``GPSFactor``);
+- ``PoseTranslationPrior2D/3D``: translation(x) − z;
+- ``PoseToPointFactor2D/3D``: transformTo(x, l) − z (C++ ``PoseToPointFactor``);
+- ``RangeFactor2D/3D``, ``RangeFactorPose2/Pose3``: range(x, l) − r, GTSAM's ‖l − t‖ (of another
+  pose: its translation);
+- ``BearingRangeFactor2D``: [Log(b⁻¹·bearing(x, l)), range(x, l) − r];
+- ``BearingRangeFactor3D``: [−bearing(x, l).localCoordinates(b), range(x, l) − r];
+- ``GenericProjectionFactorCal3_S2``, ``…Cal3DS2``, ``…Cal3Fisheye``: project(x·B, l, K) − z,
+  B the ``body_P_sensor`` (or I);
+- ``GenericStereoFactor3D``: the same with GTSAM's StereoCamera, [uL, uR, v];
+- ``BundlerProjectionFactor``: project(x, l, K) − z with K = [f, k1, k2] a variable (u0, v0
+  held with it), GTSAM's ``GeneralSFMFactorCal3Bundler`` with the camera as a pose and its
+  calibration.
+
+A point not in front of a camera (depth ≤ 0) gives GTSAM's projection factors' error: the
+constant 2·fx with zero Jacobians (0 for BundlerProjectionFactor, as GeneralSFMFactor), and
+with ``verboseCheirality`` GTSAM's line on standard output, with ``throwCheirality``
+:class:`~lie_factors.errors.CheiralityException` (a ``RuntimeError``, as GTSAM's).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from .kind import factor
 __all__ = ["GPSFactor", "PoseTranslationPrior2D", "PoseTranslationPrior3D", "PoseToPointFactor2D",
            "PoseToPointFactor3D", "RangeFactor2D", "RangeFactor3D", "RangeFactorPose2", "RangeFactorPose3",
            "BearingRangeFactor2D", "BearingRangeFactor3D", "GenericProjectionFactorCal3_S2",
+           "GenericProjectionFactorCal3DS2", "GenericProjectionFactorCal3Fisheye", "GenericStereoFactor3D",
            "BundlerProjectionFactor", "from_gtsam"]
 
 
@@ -103,7 +108,7 @@ def _range_class(kind, name: str, gtsam_name: str):
         return float(self.constants()["measured"][0])
 
     return type(name, (kind,), {"__init__": __init__, "measured": measured, "__module__": __name__, "__doc__":
-                                f"‖transformTo(x, l)‖ − r: GTSAM's ``{gtsam_name}(key1, key2, measured, noiseModel)``."})
+                                f"range(x, l) − r: GTSAM's ``{gtsam_name}(key1, key2, measured, noiseModel)``."})
 
 
 RangeFactor2D = _range_class(_range2, "RangeFactor2D", "RangeFactor2D")
@@ -154,24 +159,140 @@ class BearingRangeFactor3D(_bearing_range3):
         return gtsam.BearingRange3D(gtsam.Unit3(c["bearing"]), float(c["range"][0]))
 
 
-@factor("Pose3", "Point3", measured="Point2", K="Cal3_S2")
-def _projection(x, l, z, K):
-    return ops.project(x, l, K) - z
+def _camera_kind(name: str, calibration: str, measured: str, rows: int):
+    """The kind of GTSAM's projection factors for ``calibration``: project(x·body_P_sensor, l, K)
+    − z, and where the point is not in front of the camera the constant 2·fx in every entry with
+    zero Jacobians (their ``catch (CheiralityException&)``)."""
+    def residual(x, l, z, K, body_P_sensor):
+        return ops.catch_cheirality(ops.project(x.compose(body_P_sensor), l, K) - z, 2.0 * K[0] * np.ones(rows))
+
+    residual.__name__ = residual.__qualname__ = name
+    return factor("Pose3", "Point3", measured=measured, K=calibration, body_P_sensor="Pose3")(residual)
 
 
-class GenericProjectionFactorCal3_S2(_projection):
-    """project(x, l, K) − z (a pinhole camera at x, z forward): GTSAM's
-    ``GenericProjectionFactorCal3_S2(measured, noiseModel, poseKey, pointKey, k)``."""
+_projection_s2 = _camera_kind("GenericProjectionFactorCal3_S2", "Cal3_S2", "Point2", 2)
+_projection_ds2 = _camera_kind("GenericProjectionFactorCal3DS2", "Cal3DS2", "Point2", 2)
+_projection_fisheye = _camera_kind("GenericProjectionFactorCal3Fisheye", "Cal3Fisheye", "Point2", 2)
+_stereo = _camera_kind("GenericStereoFactor3D", "Cal3_S2Stereo", "StereoPoint2", 3)
 
-    def __init__(self, measured, noiseModel, poseKey, pointKey, k):
-        super().__init__(poseKey, pointKey, measured, noiseModel, K=k)
+
+#: GTSAM's constructor signatures after (measured, noiseModel, poseKey, pointKey, k).
+_SIGNATURES = ((), ("body_P_sensor",), ("throwCheirality", "verboseCheirality"),
+               ("throwCheirality", "verboseCheirality", "body_P_sensor"))
+
+
+def _fits(name: str, value) -> bool:
+    """Whether pybind11 would take ``value`` for GTSAM's argument ``name``: a gtsam.Pose3 for the
+    body pose; for a bool, what its converting bool caster takes (None, a number)."""
+    if name == "body_P_sensor":
+        import gtsam
+
+        return isinstance(value, gtsam.Pose3)
+    return value is None or isinstance(value, (bool, int, float, np.bool_, np.number))
+
+
+def _camera_arguments(factor_name: str, head: str, args: tuple, named: dict) -> dict:
+    """The optional arguments of a GTSAM projection factor, bound to the one of GTSAM's four
+    signatures they fit (as pybind11 chooses among overloads), or an ArgumentTypeError listing them."""
+    for signature in _SIGNATURES:
+        if len(args) > len(signature) or set(named) != set(signature[len(args):]):
+            continue
+        bound = dict(zip(signature, args), **named)
+        if all(_fits(k, v) for k, v in bound.items()):
+            return bound
+    from ..errors import ArgumentTypeError
+
+    listed = "; ".join(f"({head}{''.join(', ' + a for a in sig)})" for sig in _SIGNATURES)
+    raise ArgumentTypeError(f"{factor_name}: incompatible constructor arguments; GTSAM's are {listed}, with "
+                            "throwCheirality and verboseCheirality bools and body_P_sensor a gtsam.Pose3")
+
+
+class _CameraFactor:
+    """What GTSAM's GenericProjectionFactor and GenericStereoFactor share: the constructor
+    ``(measured, noiseModel, poseKey, pointKey, k[, throwCheirality, verboseCheirality]
+    [, body_P_sensor])``, its accessors, and what a point behind the camera does: the error
+    2·fx in every entry with zero Jacobians, a line printed with ``verboseCheirality`` and
+    :class:`~lie_factors.errors.CheiralityException` raised with ``throwCheirality``."""
+
+    _what = "CheiralityException"  # GTSAM's exception's what()
+    _calibration = "Cal3_S2"
+
+    def __init__(self, measured, noiseModel, poseKey, pointKey, k, *args, **named):
+        bound = _camera_arguments(type(self).__name__, "measured, noiseModel, poseKey, pointKey, k", args, named)
+        self._throw = bool(bound.get("throwCheirality", False))
+        self._verbose = bool(bound.get("verboseCheirality", False))
+        self._body = bound.get("body_P_sensor")
+        body = _IDENTITY if self._body is None else self._body
+        super().__init__(poseKey, pointKey, measured, noiseModel, K=k, body_P_sensor=body)
+
+    def calibration(self):
+        """The calibration, as GTSAM's object (GTSAM's ``calibration()``)."""
+        import gtsam
+
+        return getattr(gtsam, self._calibration)(*(float(v) for v in self.constants()["K"]))
+
+    def body_P_sensor(self):
+        """The sensor's pose in the body frame, or None (GTSAM's ``body_P_sensor()``)."""
+        return self._body
+
+    def throwCheirality(self) -> bool:
+        return self._throw
+
+    def verboseCheirality(self) -> bool:
+        return self._verbose
+
+    def on_cheirality(self) -> None:
+        import gtsam
+
+        from ..errors import CheiralityException
+
+        camera, landmark = (gtsam.DefaultKeyFormatter(k) for k in self._keys_)
+        if self._verbose:
+            print(f"{self._what}: Landmark {landmark} moved behind camera {camera}")
+        if self._throw:
+            raise CheiralityException(f"{type(self).__name__}: {self._what}: landmark {landmark} is behind "
+                                      f"camera {camera} (throwCheirality)")
+
+
+_IDENTITY = np.eye(4)
+
+
+class GenericProjectionFactorCal3_S2(_CameraFactor, _projection_s2):
+    """project(x·body_P_sensor, l, K) − z (a pinhole camera, z forward), GTSAM's error 2·fx where
+    the point is not in front of it: GTSAM's ``GenericProjectionFactorCal3_S2(measured,
+    noiseModel, poseKey, pointKey, k[, throwCheirality, verboseCheirality][, body_P_sensor])``."""
+
+
+class GenericProjectionFactorCal3DS2(_CameraFactor, _projection_ds2):
+    """GenericProjectionFactorCal3_S2's error with a Cal3DS2 (radial and tangential distortion):
+    GTSAM's ``GenericProjectionFactorCal3DS2``, the same constructor."""
+
+    _calibration = "Cal3DS2"
+
+
+class GenericProjectionFactorCal3Fisheye(_CameraFactor, _projection_fisheye):
+    """GenericProjectionFactorCal3_S2's error with a Cal3Fisheye (the equidistant model):
+    GTSAM's ``GenericProjectionFactorCal3Fisheye``, the same constructor."""
+
+    _calibration = "Cal3Fisheye"
+
+
+class GenericStereoFactor3D(_CameraFactor, _stereo):
+    """project(x·body_P_sensor, l, K) − z of GTSAM's StereoCamera ([uL, uR, v], a StereoPoint2),
+    its error 2·fx where the point is not in front: GTSAM's ``GenericStereoFactor3D(measured,
+    noiseModel, poseKey, landmarkKey, K[, throwCheirality, verboseCheirality][, body_P_sensor])``."""
+
+    _what = "Stereo Cheirality Exception"
+    _calibration = "Cal3_S2Stereo"
 
 
 @factor("Pose3", "Cal3Bundler", "Point3", measured="Point2")
 def BundlerProjectionFactor(x, K, l, z):
-    """project(x, l, K) − z with K = [f, k1, k2] a variable: BAL's camera as a Pose3 and its
-    Cal3Bundler, GTSAM's ``GeneralSFMFactorCal3Bundler`` on a ``PinholeCameraCal3Bundler``."""
-    return ops.project(x, l, K) - z
+    """project(x, l, K) − z with K = [f, k1, k2] a variable (its principal point u0, v0 held
+    with it): BAL's camera as a Pose3 and its Cal3Bundler, GTSAM's
+    ``GeneralSFMFactorCal3Bundler`` on a ``PinholeCameraCal3Bundler``, whose error where the
+    point is not in front of the camera is 0, with zero Jacobians."""
+    return ops.catch_cheirality(ops.project(x, l, K) - z, np.zeros(2))
 
 
 def from_gtsam(f):

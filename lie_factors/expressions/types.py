@@ -6,8 +6,13 @@ in GTSAM's conventions (``docs/conventions.md``):
 - a **group** (Rot2, Rot3, Pose2, Pose3, Similarity2, Similarity3) is its (m, m) matrix, and a
   variable of it moves as X·Exp(δ), δ in GTSAM's tangent order (Pose3 [ω, v], Pose2 [x, y, θ],
   Similarity3 [ω, u, λ], …); Rot2 is the 2×2 rotation matrix, tangent [θ];
-- a **vector** (Point2, Point3, VectorN, and the calibrations Cal3_S2 [fx, fy, s, u0, v0] and
-  Cal3Bundler [f, k1, k2]) is a 1-D array, and moves as p + δ.
+- a **vector** (Point2, Point3, StereoPoint2 [uL, uR, v], VectorN, and the calibrations
+  :data:`CALIBRATIONS`: Cal3_S2 [fx, fy, s, u0, v0], Cal3Bundler [f, k1, k2, u0, v0],
+  Cal3DS2 [fx, fy, s, u0, v0, k1, k2, p1, p2], Cal3Fisheye [fx, fy, s, u0, v0, k1, k2, k3, k4],
+  Cal3_S2Stereo [fx, fy, s, u0, v0, b]) is a 1-D array, and moves as p + δ on its first ``dim``
+  entries (all but a Cal3Bundler's principal point, which GTSAM does not optimize either);
+- a **matrix** (what ``matrix()`` and ``AdjointMap()`` give; ``MatrixRxC``) is held row by
+  row in a 1-D array, and is an intermediate value only: never a variable or a constant.
 
 :func:`value_type` reads a type by name (``"Pose3"``, ``"Point2"``, ``"Vector4"``) or by GTSAM class.
 """
@@ -28,18 +33,35 @@ from ..kernels import registry
 class ValueType:
     """A type of the vocabulary.  ``dim``: tangent dimension; ``shape``: the stored array's shape;
     ``group``: the registry's :class:`~lie_factors.kernels.registry.GroupInfo` of a matrix group
-    (None for Rot2 and for vectors); ``rot``: the rotation's dimension of a group (2 or 3)."""
+    (None for Rot2 and for vectors); ``rot``: the rotation's dimension of a group (2 or 3);
+    ``cols``: a matrix's number of columns (its rows: ``dim // cols``)."""
 
     name: str
-    kind: str  # "group" or "vector"
+    kind: str  # "group", "vector", "unit" (a Unit3) or "matrix"
     dim: int
     shape: tuple
     group: registry.GroupInfo | None = None
     rot: int = 0
+    cols: int = 0
 
     @property
     def is_group(self) -> bool:
         return self.kind == "group"
+
+    @property
+    def is_matrix(self) -> bool:
+        return self.kind == "matrix"
+
+    @property
+    def rows(self) -> int:
+        """A matrix's rows (a vector's entries: a column)."""
+        return self.dim // self.cols if self.cols else self.dim
+
+    @property
+    def plain(self) -> bool:
+        """Whether the stored array is the value's coordinates, one entry each (not a group, a
+        Unit3, or a Cal3Bundler with its principal point beside them)."""
+        return self.kind in ("vector", "matrix") and self.shape == (self.dim,)
 
     @cached_property
     def accessor(self) -> str:
@@ -58,9 +80,22 @@ ROT2 = ValueType("Rot2", "group", 1, (2, 2), None, 2)
 GROUPS = {"Rot2": ROT2, **{info.gtsam: _group_type(info) for info in registry.GROUPS.values()}}
 POINT2 = ValueType("Point2", "vector", 2, (2,))
 POINT3 = ValueType("Point3", "vector", 3, (3,))
-CAL3_S2 = ValueType("Cal3_S2", "vector", 5, (5,))
-CAL3_BUNDLER = ValueType("Cal3Bundler", "vector", 3, (3,))
-NAMED_VECTORS = {t.name: t for t in (POINT2, POINT3, CAL3_S2, CAL3_BUNDLER)}
+STEREO_POINT2 = ValueType("StereoPoint2", "vector", 3, (3,))
+#: GTSAM's calibrations: their stored entries, each read by the GTSAM accessor named (and the
+#: order of GTSAM's constructor).  A Cal3Bundler's tangent is [f, k1, k2] (GTSAM's dim 3): its
+#: principal point is held, used, and never moved.
+CALIBRATIONS = {
+    "Cal3_S2": ("fx", "fy", "skew", "px", "py"),
+    "Cal3Bundler": ("fx", "k1", "k2", "px", "py"),
+    "Cal3DS2": ("fx", "fy", "skew", "px", "py", "k1", "k2", "p1", "p2"),
+    "Cal3Fisheye": ("fx", "fy", "skew", "px", "py", "k1", "k2", "k3", "k4"),
+    "Cal3_S2Stereo": ("fx", "fy", "skew", "px", "py", "baseline"),
+}
+_CALIBRATION_TYPES = {name: ValueType(name, "vector", 3 if name == "Cal3Bundler" else len(fields), (len(fields),))
+                      for name, fields in CALIBRATIONS.items()}
+CAL3_S2 = _CALIBRATION_TYPES["Cal3_S2"]
+CAL3_BUNDLER = _CALIBRATION_TYPES["Cal3Bundler"]
+NAMED_VECTORS = {t.name: t for t in (POINT2, POINT3, STEREO_POINT2, *_CALIBRATION_TYPES.values())}
 #: A direction in 3-D (GTSAM's Unit3), held as its unit vector; its Jacobians in the chain rule
 #: are those of the unit vector (3 rows).  A measurement, or a bearing computed from a point: not
 #: a variable.
@@ -73,6 +108,16 @@ def vector(n: int) -> ValueType:
     if int(n) < 1:
         raise InputError(f"a vector needs a dimension of at least 1, got {n}")
     return ValueType(f"Vector{int(n)}", "vector", int(n), (int(n),))
+
+
+def matrix(rows: int, cols: int) -> ValueType:
+    """The matrix type of ``rows`` × ``cols`` entries (held row by row)."""
+    return ValueType(f"Matrix{rows}x{cols}", "matrix", rows * cols, (rows * cols,), cols=cols)
+
+
+def calibration_array(name: str, value) -> np.ndarray:
+    """The stored entries of a GTSAM calibration object of class ``name`` (:data:`CALIBRATIONS`)."""
+    return np.array([getattr(value, field)() for field in CALIBRATIONS[name]], dtype=np.float64)
 
 
 def value_type(spec) -> ValueType:
@@ -107,17 +152,17 @@ def as_array(t: ValueType, value, what: str) -> np.ndarray:
             value = np.array([[c, -s], [s, c]])
     elif t.name == "Unit3" and hasattr(value, "point3"):
         value = value.point3()
-    elif t.name == "Cal3Bundler" and hasattr(value, "k1"):
-        if value.px() != 0.0 or value.py() != 0.0:
-            raise InputError(f"{what}: a Cal3Bundler here has its principal point at the origin (u0 = v0 = 0)")
-        value = [value.fx(), value.k1(), value.k2()]
-    elif hasattr(value, "vector"):  # Cal3_S2: [fx, fy, s, u0, v0]
+    elif t.name in CALIBRATIONS and type(value).__name__ == t.name:
+        value = calibration_array(t.name, value)
+    elif hasattr(value, "vector"):  # a StereoPoint2
         value = value.vector()
     try:
         a = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{what}: expected a {t} ({' × '.join(map(str, t.shape))} array), "
                          f"got {type(value).__name__}") from None
+    if t.name == "Cal3Bundler" and a.shape == (3,):  # [f, k1, k2]: the principal point at the origin
+        a = np.concatenate([a, np.zeros(2)])
     if a.shape != t.shape:
         raise InputError(f"{what}: expected a {t} of shape {t.shape}, got shape {a.shape}")
     if not np.isfinite(a).all():
@@ -131,7 +176,7 @@ def as_array(t: ValueType, value, what: str) -> np.ndarray:
 
 def accessor(t: ValueType) -> str:
     """The ``gtsam.Values`` method that reads a variable of type ``t``."""
-    if t.is_group or t.name in NAMED_VECTORS:
+    if t.is_group or (t.name in NAMED_VECTORS and t is not STEREO_POINT2):
         return f"at{t.name}"
     return "atVector"
 

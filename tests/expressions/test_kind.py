@@ -32,12 +32,12 @@ def _line_of(fn_source_marker: str, fn) -> int:
 def test_an_operation_outside_the_vocabulary_names_itself_the_type_and_the_line():
     def residual(x, l):
         q = x.transformTo(l)
-        return q.cross(l)  # not in the vocabulary
+        return q.normalized(l)  # not in the vocabulary
 
     with pytest.raises(InputError) as err:
         lf.factor("Pose3", "Point3")(residual)
     text = str(err.value)
-    assert "cross" in text and "Point3" in text and f"line {_line_of('q.cross', residual)}" in text
+    assert "normalized" in text and "Point3" in text and f"line {_line_of('q.normalized', residual)}" in text
 
 
 def test_types_that_do_not_fit_are_refused_at_definition():
@@ -106,13 +106,50 @@ def test_a_group_constant_is_checked_at_the_orthonormality_bound(group, m, d, n)
             kind(1, bad_corner, noise)
 
 
-def test_a_key_holding_another_type_is_named_when_evaluated():
-    f = landmark(1, 2, np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 0.1))
+def test_a_key_holding_another_type_or_missing_raises_gtsams_named_error():
+    """A key holding another type, or missing, when GTSAM evaluates the factor: GTSAM's
+    ValuesIncorrectType (also a TypeError) and ValuesKeyDoesNotExist, both RuntimeErrors as GTSAM
+    raises, both LieFactorsErrors, naming the key with GTSAM's key formatter."""
+    from lie_factors.errors import EvaluationError, LieFactorsError, ValuesIncorrectType, ValuesKeyDoesNotExist
+
+    f = landmark(X(1), L(2), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, 0.1))
     values = gtsam.Values()
-    values.insert(1, gtsam.Pose3())
-    values.insert(2, np.zeros(2))
-    with pytest.raises(Exception, match="must hold a Pose2"):
+    values.insert(X(1), gtsam.Pose3())
+    values.insert(L(2), np.zeros(2))
+    with pytest.raises(ValuesIncorrectType, match="landmark: key x1 holds a value of another type than the "
+                                                  "gtsam.Pose2 the factor reads") as err:
         f.error(values)
+    assert isinstance(err.value, (TypeError)) and isinstance(err.value, RuntimeError)
+    assert isinstance(err.value, EvaluationError) and isinstance(err.value, LieFactorsError)
+    values = gtsam.Values()
+    values.insert(X(1), gtsam.Pose2())
+    for call in (f.error, f.linearize):
+        with pytest.raises(ValuesKeyDoesNotExist, match="landmark: key l2 is not in the Values") as err:
+            call(values)
+        assert isinstance(err.value, RuntimeError) and isinstance(err.value, LieFactorsError)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(f)
+    with pytest.raises(ValuesKeyDoesNotExist, match="key l2"):  # through GTSAM's optimizer
+        gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    values.insert(L(2), np.zeros(3))
+    with pytest.raises(ValuesIncorrectType, match="key l2 holds a value of another type than the Point2"):
+        f.error(values)
+    vector4 = lf.factor("Vector4")(lambda v: v)(L(2), gtsam.noiseModel.Unit.Create(4))
+    with pytest.raises(ValuesIncorrectType, match="key l2 holds a vector of shape \\(3,\\), not the Vector4"):
+        vector4.error(values)
+
+
+def test_construction_errors_are_lie_factors_errors_and_name_keys_as_gtsam():
+    from lie_factors.errors import ArgumentTypeError, LieFactorsError
+
+    noise = gtsam.noiseModel.Isotropic.Sigma(2, 0.1)
+    with pytest.raises(InputError, match="keys must differ, got x1, x1"):
+        landmark(X(1), X(1), np.zeros(2), noise)
+    for bad in (lambda: landmark("x1", 2, np.zeros(2), noise), lambda: landmark(1, 2, np.zeros(2), "noise"),
+                lambda: landmark(1, 2, noise), lambda: landmark(1, 2, np.zeros(2), noise, K=1)):
+        with pytest.raises(ArgumentTypeError) as err:
+            bad()
+        assert isinstance(err.value, TypeError) and isinstance(err.value, LieFactorsError)
 
 
 # ----------------------------------------------------------------------- in GTSAM

@@ -152,7 +152,7 @@ def test_projection():
     for angle in INPUT_ANGLES[:8]:
         x = element("Pose3", rng, angle)
         p = x[:3, :3] @ np.array([rng.normal(), rng.normal(), rng.uniform(2, 5)]) + x[:3, 3]  # in front
-        check(kind, [x, p, np.array([500.0, 0.1, -0.02])], [np.array([500.0, 480.0, 0.1, 320.0, 240.0])])
+        check(kind, [x, p, np.array([500.0, 0.1, -0.02, 3.0, -2.0])], [np.array([500.0, 480.0, 0.1, 320.0, 240.0])])
 
 
 @pytest.mark.parametrize("G", ["Pose3", "Pose2", "Similarity3"])

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from lie_factors import factors as F
+from lie_factors.errors import ValuesIncorrectType
 from lie_factors.optimizers import ISAM2, IncrementalFixedLagSmoother
 
 NOISE2 = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.05, 0.05, 0.02]))
@@ -286,7 +287,7 @@ def test_exception_in_callback_propagates_like_gtsams():
         with pytest.raises(Exception) as info:
             isam.update(g, v)
         outcomes.append((type(info.value), str(info.value)))
-        # our factor on a key of the wrong type: the factor's TypeError, through ISAM2
+        # our factor on a key of the wrong type: the factor's ValuesIncorrectType, through ISAM2
         isam = cls()
         g = gtsam.NonlinearFactorGraph()
         g.add(F.PriorFactorPose3(0, gtsam.Pose3(), NOISE3))
@@ -296,7 +297,7 @@ def test_exception_in_callback_propagates_like_gtsams():
             isam.update(g, v)
         outcomes.append((type(info.value), str(info.value)))
     assert outcomes[0] == outcomes[2] and outcomes[0][0] is Boom
-    assert outcomes[1] == outcomes[3] and outcomes[1][0] is TypeError
+    assert outcomes[1] == outcomes[3] and outcomes[1][0] is ValuesIncorrectType
 
 
 #: Built once: lie_factors' factors are never freed (the C++ CustomFactor holds their bound

@@ -19,14 +19,18 @@ def group_exp(t: ValueType, x: np.ndarray) -> np.ndarray:
 
 
 def perturbed(t: ValueType, value: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """X·Exp(δ) of a group element, p + δ of a vector: GTSAM's retract."""
+    """X·Exp(δ) of a group element, p + δ of a vector (on its first dim entries: a Cal3Bundler's
+    principal point stays): GTSAM's retract."""
     if t.is_group:
         return value @ group_exp(t, delta)
-    return value + delta
+    out = np.array(value, dtype=np.float64)
+    out[:t.dim] += delta
+    return out
 
 
-def evaluate(kind, values: list, constants: list, jacobians: bool = True):
-    """(e (m,), [H_j (m, d_j)]) of one factor of ``kind`` at ``values`` (one array per variable)."""
+def evaluate(kind, values: list, constants: list, jacobians: bool = True, status: bool = False):
+    """(e (m,), [H_j (m, d_j)]) of one factor of ``kind`` at ``values`` (one array per variable);
+    with ``status``, (e, H, the kernel's status of the factor)."""
     m = kind.dim
     args = list(kind.tags)
     index = np.zeros(1, dtype=np.int64)
@@ -34,10 +38,13 @@ def evaluate(kind, values: list, constants: list, jacobians: bool = True):
         args += [np.ascontiguousarray(np.asarray(v, dtype=np.float64).reshape((1,) + t.shape)), index]
     for t, c in zip(kind.constants, constants):
         args.append(np.ascontiguousarray(np.asarray(c, dtype=np.float64).reshape((1,) + t.shape)))
-    e, A = np.zeros((1, m)), np.zeros((1, m, kind.columns))
-    args += [np.eye(m)[None], index, e, A, np.zeros((1, m)), np.zeros(1), 0, 1]
+    e, A, code = np.zeros((1, m)), np.zeros((1, m, kind.columns)), np.zeros(1, dtype=np.int64)
+    args += [np.eye(m)[None], index, e, A, np.zeros((1, m)), np.zeros(1), code, 0, 1]
     kind.module.evaluate(*args, jacobians)
     H = [A[0, :, o:o + t.dim].copy() for o, t in zip(kind.offsets, kind.variables)]
+    if status:
+        return e[0].copy(), H, int(code[0])
+    assert code[0] == 0, (kind.name, int(code[0]))
     return e[0].copy(), H
 
 
