@@ -38,6 +38,12 @@ from gtsam import *  # noqa: F401,F403  (gtsam's whole namespace, replaced names
 from . import factors as _factors
 from . import optimizers as _optimizers
 
+# Submodules are looked up on gtsam at each use (module __getattr__ below), not copied: importing
+# the Python module ``gtsam.symbol_shorthand`` rebinds gtsam's attribute from the compiled
+# submodule of that name, and a copy would go stale.
+for _name in [_n for _n, _v in globals().items() if isinstance(_v, type(_gtsam)) and not _n.startswith("_")]:
+    del globals()[_name]
+
 #: replaced name → the module its object comes from
 REPLACED: dict[str, str] = {}
 

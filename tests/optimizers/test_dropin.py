@@ -58,6 +58,23 @@ def test_submodules_reachable_as_attributes():
     assert dropin.utilities is gtsam.utilities
     assert dropin.utils is importlib.import_module("gtsam.utils")
     assert dropin.symbol_shorthand.X(3) == gtsam.symbol("x", 3)
+
+
+def test_submodule_gtsam_rebinds_later_is_gtsams_current_one():
+    # ``import gtsam.symbol_shorthand`` replaces gtsam's attribute (the compiled submodule) by the
+    # Python module of that name; the drop-in must follow, whichever import came first.
+    import subprocess
+    import sys
+
+    code = ("import lie_factors.dropin as d, gtsam\n"
+            "before = d.symbol_shorthand\n"
+            "import gtsam.symbol_shorthand\n"
+            "assert before is not gtsam.symbol_shorthand\n"
+            "assert d.symbol_shorthand is gtsam.symbol_shorthand\n"
+            "from lie_factors.dropin import symbol_shorthand\n"
+            "assert symbol_shorthand is gtsam.symbol_shorthand\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
     with pytest.raises(AttributeError, match="has no attribute 'no_such_name'"):
         dropin.no_such_name  # noqa: B018
     # A module, not a package: no second copy of gtsam's submodules under another name.
