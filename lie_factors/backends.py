@@ -13,8 +13,9 @@ import math
 from typing import Callable
 
 import gtsam
+import numpy as np
 
-from .errors import InputError, gtsam_failure
+from .errors import InputError, gtsam_failure, nonfinite_error
 from .lm import IterationInfo, OptimizeResult, default_optimize
 from .posegraph.graph import PoseGraph
 from .util.stack import large_stack
@@ -54,13 +55,16 @@ def build_graph(pg: PoseGraph, backend: str, robust=None, robust_all: bool = Fal
                                               robust_all)
 
 
-def gtsam_optimizer(backend: str, gauss_newton: bool = False) -> type:
-    """The optimizer class ``native`` and ``dropin`` step: GTSAM's own, or its drop-in."""
+def gtsam_optimizer(backend: str, params=None) -> type:
+    """The optimizer class ``native`` and ``dropin`` step for ``params`` (Levenberg–Marquardt's,
+    Gauss–Newton's or dogleg's): GTSAM's own, or its drop-in."""
+    name = ("GaussNewtonOptimizer" if isinstance(params, gtsam.GaussNewtonParams) else
+            "DoglegOptimizer" if isinstance(params, gtsam.DoglegParams) else "LevenbergMarquardtOptimizer")
     if backend == "native":
-        return gtsam.GaussNewtonOptimizer if gauss_newton else gtsam.LevenbergMarquardtOptimizer
-    from .optimizers import GaussNewtonOptimizer, LevenbergMarquardtOptimizer
+        return getattr(gtsam, name)
+    from . import optimizers
 
-    return GaussNewtonOptimizer if gauss_newton else LevenbergMarquardtOptimizer
+    return getattr(optimizers, name)
 
 
 @large_stack  # GTSAM's elimination recurses once per level: a long chain needs more than 8 MiB
@@ -69,21 +73,35 @@ def step_optimizer(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, par
     """``optimizer(graph, initial, params)`` stepped from Python exactly as its ``optimize()``
     (GTSAM's ``defaultOptimize``, :func:`lie_factors.lm.default_optimize`), each iteration reported
     to ``progress``. ``seconds``: building the optimizer (it evaluates the initial error) and the
-    iterations, never numba compilation."""
+    iterations, never numba compilation.  An error that is not a finite number, at the start or
+    after an iteration, raises :class:`InputError` naming the factor."""
     warm_up_factors()  # compile before the clock starts
     clock = Stopwatch()
     try:
         opt = optimizer(graph, initial, params)
-        initial_error = float(opt.error())
-        if not math.isfinite(initial_error):
-            raise InputError(f"the initial error is {initial_error}: some residual overflows "
-                             "(coordinates or information values too large?)")
-        result = default_optimize(opt, params, progress)
+        if not math.isfinite(float(opt.error())):
+            raise _nonfinite(graph, initial, "at the initial values")
+
+        def checked(info: IterationInfo) -> None:
+            if not math.isfinite(info.error):  # GTSAM's Gauss-Newton steps to it and goes on
+                raise _nonfinite(graph, opt.values(), f"after iteration {info.iteration}")
+            if progress is not None:
+                progress(info)
+
+        result = default_optimize(opt, params, checked)
         result.values = opt.values()
     except RuntimeError as exc:
         raise gtsam_failure(exc) from None
     result.seconds = clock.seconds()
     return result
+
+
+def _nonfinite(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, when: str) -> InputError:
+    """The refusal of a graph error that is not a finite number, naming the factor (GTSAM's errors)."""
+    from .batch.graph import describe_factor
+
+    errors = np.array([0.0 if graph.at(k) is None else float(graph.at(k).error(values)) for k in range(graph.size())])
+    return nonfinite_error(when, errors, lambda k: describe_factor(graph, k))
 
 
 def optimize_with(backend: str, graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, params,
@@ -94,9 +112,8 @@ def optimize_with(backend: str, graph: gtsam.NonlinearFactorGraph, initial: gtsa
     reweighted in its loops: :class:`lie_factors.robust.weighted.WeightedLevenbergMarquardt`);
     ``seconds``: its construction and iterations, numba compilation excluded.
     """
-    gauss_newton = isinstance(params, gtsam.GaussNewtonParams)
     if backend != "batch":
-        return step_optimizer(graph, initial, params, gtsam_optimizer(backend, gauss_newton), progress)
+        return step_optimizer(graph, initial, params, gtsam_optimizer(backend, params), progress)
     if robust:
         from .robust.weighted import WeightedLevenbergMarquardt as Optimizer
     else:

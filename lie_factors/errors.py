@@ -22,7 +22,7 @@ import numpy as np
 
 __all__ = ["LieFactorsError", "InputError", "InitializationError", "ArgumentTypeError", "EvaluationError",
            "ValuesKeyDoesNotExist", "ValuesIncorrectType", "CheiralityException", "NotPositiveDefinite",
-           "IndeterminantLinearSystem", "first_line", "gtsam_failure"]
+           "IndeterminantLinearSystem", "first_line", "gtsam_failure", "nonfinite_error"]
 
 
 class LieFactorsError(Exception):
@@ -103,3 +103,16 @@ def gtsam_failure(exc: BaseException, what: str = "optimization failed") -> LieF
     if "ndetermin" in str(exc):
         return IndeterminantLinearSystem(text)
     return InputError(text)
+
+
+def nonfinite_error(when: str, errors: np.ndarray, describe) -> InputError:
+    """The refusal of a graph error that is not a finite number ``when`` (``at the initial
+    values``, ``after Gauss-Newton step 3``), naming the first factor whose error is not:
+    ``errors`` (F,) every factor's error, ``describe(k)`` factor k's name (`` (Type on x1, l2)``)."""
+    bad = np.flatnonzero(~np.isfinite(np.asarray(errors, dtype=np.float64)))
+    if not bad.size:
+        return InputError(f"the graph's error {when} is not a finite number")
+    k = int(bad[0])
+    more = f", and {bad.size - 1} more factors" if bad.size > 1 else ""
+    return InputError(f"the graph's error {when} is not a finite number: factor {k}{describe(k)} has error "
+                      f"{float(errors[k])}{more}")

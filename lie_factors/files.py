@@ -113,8 +113,11 @@ def write_covariances(result: Result, path: str, keys=None) -> None:
 
     if not isinstance(result, Result):
         raise InputError(f"write_covariances: expected a Result, got {type(result).__name__}")
+    if result.group is None:
+        raise InputError("write_covariances: the estimate holds no pose variable; the file holds poses' "
+                         "covariances (result.covariances() gives every variable's)")
     keys = result.keys if keys is None else np.asarray(keys, dtype=np.int64).reshape(-1)
-    covariances = result.covariances(keys)
+    covariances = result.marginals.covariances(keys)
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as fh:  # a file object: np.savez would add ".npz" to a name

@@ -352,7 +352,7 @@ class LevenbergMarquardt:
       accepted if ``fidelity = Δcost / Δlinear > minModelFidelity``, tested
       only when ``Δlinear > ε·(linearized error)``;
     * accepted: ``λ ← max(lambdaLowerBound, λ·max(1/3, 1 − (2·fidelity − 1)³))``
-      and the factor doubles, or ``λ ← λ/factor`` with ``useFixedLambdaFactor``;
+      and the factor becomes 2, or ``λ ← λ/factor`` with ``useFixedLambdaFactor``;
     * rejected: ``λ ← λ·factor``, the factor doubles unless fixed; LM gives up
       once ``λ ≥ lambdaUpperBound``; it stops trying (no step) when
       ``|Δcost| < relativeErrorTol·error``.
@@ -428,7 +428,7 @@ class LevenbergMarquardt:
             self._lambda /= self._factor
         else:
             self._lambda *= max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3)
-            self._factor *= 2.0
+            self._factor = 2.0  # GTSAM 4.3's decreaseLambda starts the next rejections' factor at 2
         self._lambda = max(self._lambda_lower, self._lambda)
         self._inner += 1
 

@@ -3,7 +3,9 @@
 A result holds the estimate twice over, built on first use from whichever the
 run produced: as arrays (``keys`` (n,), ``poses`` (n, m, m), the pose
 variables in key order) and as ``gtsam.Values`` (``values``: every variable,
-landmarks included).
+landmarks included, each of the type it was given).  An estimate without a pose
+variable (cameras and points, say) has no ``poses``: its ``keys`` are every
+variable's and ``covariances()`` is every variable's, by key.
 """
 
 from __future__ import annotations
@@ -90,40 +92,47 @@ class Result:
 
     @property
     def keys(self) -> np.ndarray:
-        """(n,) int64: the keys of the pose variables, increasing."""
+        """(n,) int64: the keys of the pose variables, increasing; every variable's where the
+        estimate holds no pose variable (:attr:`group` None)."""
         self._ensure_arrays()
         assert self._keys is not None
         return self._keys
 
     @property
     def poses(self) -> np.ndarray:
-        """(n, m, m): the pose variables' matrices, in :attr:`keys` order (m = 3 for Pose2, 4 otherwise)."""
+        """(n, m, m): the pose variables' matrices, in :attr:`keys` order (m = 3 for Pose2, 4 otherwise).
+        :class:`~lie_factors.errors.InputError` where the estimate holds no pose variable."""
         self._ensure_arrays()
-        assert self._poses is not None
+        if self._poses is None:
+            raise InputError(_NO_POSES)
         return self._poses
 
     @property
-    def group(self) -> str:
-        """GTSAM's name of the poses' group: ``Pose2``, ``Pose3``, ``Rot3``, ``Similarity2``, ``Similarity3``."""
+    def group(self) -> str | None:
+        """GTSAM's name of the poses' group: ``Pose2``, ``Pose3``, ``Rot3``, ``Similarity2``,
+        ``Similarity3``; None where the estimate holds no pose variable."""
         self._ensure_arrays()
-        assert self._group is not None
         return self._group
 
     def _ensure_arrays(self) -> None:
-        if self._poses is not None:
+        if self._keys is not None and (self._poses is not None or self._group is None):
             return
         from .interop import matrices_from_values
 
         values = self.values
         self._group, self._keys = _pose_variables(values)
-        self._poses = matrices_from_values(values, self._group, self._keys)
+        if self._group is not None:
+            self._poses = matrices_from_values(values, self._group, self._keys)
 
     @property
     def start_poses(self) -> np.ndarray:
-        """(n, m, m): the start of the pose variables, in :attr:`keys` order."""
+        """(n, m, m): the start of the pose variables, in :attr:`keys` order (InputError, as
+        :attr:`poses`, where there is none)."""
         if self._start_poses is None:
             from .interop import matrices_from_values
 
+            if self.group is None:
+                raise InputError(_NO_POSES)
             self._start_poses = matrices_from_values(self.start, self.group, self.keys)
         return self._start_poses
 
@@ -154,9 +163,13 @@ class Result:
         ``gtsam.Marginals(graph, values).marginalCovariance(key)``."""
         return self.marginals.marginalCovariance(key)
 
-    def covariances(self, keys=None) -> np.ndarray:
+    def covariances(self, keys=None) -> "np.ndarray | dict[int, np.ndarray]":
         """(n, d, d): :meth:`covariance` of each of ``keys`` (default: every pose, :attr:`keys`),
-        all of one dimension d."""
+        all of one dimension d.  Where the estimate holds no pose variable, the default is
+        every variable's, as ``{key: (d, d)}`` in key order (a camera's d is not a point's)."""
+        if keys is None and self.group is None:
+            marginals = self.marginals
+            return {int(k): marginals.marginalCovariance(k) for k in self.keys.tolist()}
         return self.marginals.covariances(self.keys if keys is None else keys)
 
     # ------------------------------------------------------------ reporting
@@ -180,7 +193,7 @@ class Result:
 
     def __repr__(self) -> str:
         poses = "" if self._poses is None and self._values is None and self._build_values is None else \
-            f"{len(self.keys)} {self.group}, "
+            f"{len(self.keys)} {self.group or 'variables, no pose'}, "
         rejected = "" if self.outliers is None else f", {len(self.outliers)} rejected"
         state = "converged" if self.converged else "not converged"
         return (f"<{type(self).__name__}: {poses}error {self.initial_error:.6g} -> {self.error:.6g}, "
@@ -218,9 +231,14 @@ class ReplayResult(Result):
                 f"(p99 {self.update_p99 * 1e3:.3f} ms), final error {self.error:.6g}>")
 
 
-def _pose_variables(values: "gtsam.Values") -> tuple[str, np.ndarray]:
+_NO_POSES = ("the estimate holds no Pose2, Pose3, Rot3, Similarity2 or Similarity3 variable, so it has no "
+             "poses: read its variables from result.values (result.keys lists them)")
+
+
+def _pose_variables(values: "gtsam.Values") -> tuple[str | None, np.ndarray]:
     """(group, keys): the group most of ``values``' group-element variables belong to (Pose3 and
-    Pose2 found by GTSAM's ``allPose3s``/``allPose2s``, the others key by key), and their keys."""
+    Pose2 found by GTSAM's ``allPose3s``/``allPose2s``, the others key by key), and their keys;
+    (None, every key) where none belongs to a group."""
     import gtsam
 
     found: dict[str, list[int]] = {
@@ -235,7 +253,7 @@ def _pose_variables(values: "gtsam.Values") -> tuple[str, np.ndarray]:
         found[info.gtsam] = [k for k in rest if _reads(read, k)]
     found = {g: keys for g, keys in found.items() if keys}
     if not found:
-        raise ValueError("the estimate holds no Pose2, Pose3, Rot3, Similarity2 or Similarity3 variable")
+        return None, np.array(sorted(int(k) for k in values.keys()), dtype=np.int64)
     group = max(found, key=lambda g: len(found[g]))
     return group, np.array(sorted(found[group]), dtype=np.int64)
 

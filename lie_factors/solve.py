@@ -122,7 +122,7 @@ def _robust_loss(robust, spell) -> "RobustLoss":
 # --------------------------------------------------------------------------- #
 
 def optimize(graph: "PoseGraph | gtsam.NonlinearFactorGraph", initial: "gtsam.Values | None" = None,
-             params: "gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None" = None, *,
+             params: "gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | gtsam.DoglegParams | None" = None, *,
              backend: str = DEFAULT_BACKEND, init: str = "auto", max_iterations: int | None = None,
              robust: "str | RobustLoss | None" = None, robust_all: bool = False, gnc: str | None = None,
              consistency: bool = True, linear_solver: str = "auto", events: Events | None = None) -> Result:
@@ -136,14 +136,16 @@ def optimize(graph: "PoseGraph | gtsam.NonlinearFactorGraph", initial: "gtsam.Va
 
     ``optimize(graph, initial, params=None, **options)``: a ``gtsam.NonlinearFactorGraph``
     (our factors and GTSAM's, mixed) from ``initial`` (``gtsam.Values``), with GTSAM's
-    ``LevenbergMarquardtParams`` or ``GaussNewtonParams``; ``robust`` and ``gnc`` need a
-    graph of Between/Prior factors on one group (it is read as a pose graph).
+    ``LevenbergMarquardtParams``, ``GaussNewtonParams`` or ``DoglegParams``: the algorithm of
+    GTSAM's optimizer for those params runs, with their settings; ``robust`` and ``gnc``
+    need a graph of Between/Prior factors on one group (it is read as a pose graph), and
+    ``gnc`` Levenberg–Marquardt's or Gauss–Newton's params.
 
     Options (every one a ``lie-factors posegraph`` option of the same name):
 
     - ``backend``: ``batch`` (default: the vectorized solver), ``dropin`` (GTSAM's LM on
       our factors, from Python), ``native`` (GTSAM's own factors and optimizer);
-    - ``max_iterations``: Levenberg–Marquardt's limit (default: ``params``' own, 100);
+    - ``max_iterations``: the optimizer's limit of iterations (default: ``params``' own, 100);
       the caller's ``params`` are left as they were;
     - ``robust``: a loss on the loop closures (``huber``, ``cauchy``, ``tukey``, ``gm``,
       ``dcs``, optionally ``:k``), on every edge with ``robust_all``;
@@ -210,13 +212,20 @@ def _max_iterations(params, max_iterations: int | None):
         params.setMaxIterations(before)
 
 
-def _lm_params(params):
+#: The params whose optimizer's algorithm :func:`optimize` runs (``gnc``: the first two).
+PARAMS = ("LevenbergMarquardtParams", "GaussNewtonParams", "DoglegParams")
+
+
+def _optimizer_params(params, gnc: bool = False):
+    """``params``, checked (default: GTSAM's default ``LevenbergMarquardtParams``)."""
     import gtsam
 
     if params is None:
         return gtsam.LevenbergMarquardtParams()
-    if not isinstance(params, (gtsam.LevenbergMarquardtParams, gtsam.GaussNewtonParams)):
-        raise InputError("params: expected gtsam.LevenbergMarquardtParams or gtsam.GaussNewtonParams, "
+    names = PARAMS[:2] if gnc else PARAMS
+    if not isinstance(params, tuple(getattr(gtsam, name) for name in names)):
+        what = "gnc runs Levenberg-Marquardt or Gauss-Newton inside: " if gnc else ""
+        raise InputError(f"params: {what}expected gtsam.{', gtsam.'.join(names[:-1])} or gtsam.{names[-1]}, "
                          f"got {type(params).__name__}")
     return params
 
@@ -226,17 +235,20 @@ def _lm_params(params):
 # --------------------------------------------------------------------------- #
 
 def _optimize_factor_graph(graph, initial, params, opts: Options, events: Events) -> Result:
-    import gtsam
-
-    params = _lm_params(params)
-    gauss_newton = isinstance(params, gtsam.GaussNewtonParams)
+    params = _optimizer_params(params)
     with _max_iterations(params, opts.max_iterations):
         if opts.backend == "batch":
             from .batch.optimizer import BatchLevenbergMarquardt
             from .util.timing import Stopwatch
 
             clock = Stopwatch()
-            opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=opts.linear_solver)
+            try:
+                opt = BatchLevenbergMarquardt(graph, initial, params, linear_solver=opts.linear_solver)
+            except InputError:
+                done = _converged_start(graph, initial, params, opts)
+                if done is None:
+                    raise
+                return done
             setup = clock.seconds()
             events.set_up(setup)
             res = opt.optimize(events.iteration)
@@ -245,14 +257,31 @@ def _optimize_factor_graph(graph, initial, params, opts: Options, events: Events
         else:
             from .backends import gtsam_optimizer, step_optimizer
 
-            res = step_optimizer(graph, initial, params, gtsam_optimizer(opts.backend, gauss_newton),
-                                 events.iteration)
+            res = step_optimizer(graph, initial, params, gtsam_optimizer(opts.backend, params), events.iteration)
             seconds = res.seconds
             timings = {"setup": 0.0, "iterations": seconds}
     values = res.values
     return Result(res.final_error, res.initial_error, res.iterations, res.converged, seconds,
                   errors=list(res.errors), timings=timings, backend=opts.backend, factors=int(graph.size()),
                   _values=values, _start=initial, _marginals_of=lambda: _marginals(graph, values))
+
+
+def _converged_start(graph, initial, params, opts: Options) -> Result | None:
+    """GTSAM's optimizers stop before their first iteration where the error at the start is at
+    most ``errorTol``: the result of that (the start), for a graph the batch solver cannot read
+    (factors of GTSAM's on keys the values lack, say), or None where GTSAM's would iterate."""
+    import gtsam
+
+    try:
+        error = float(graph.error(initial))
+    except (RuntimeError, ValueError, TypeError):
+        return None
+    if not error <= params.getErrorTol():
+        return None
+    values = gtsam.Values(initial)
+    return Result(error, error, 0, True, 0.0, errors=[error], timings={"setup": 0.0, "iterations": 0.0},
+                  backend=opts.backend, factors=int(graph.size()), _values=values, _start=initial,
+                  _marginals_of=lambda: _marginals(graph, values))
 
 
 # --------------------------------------------------------------------------- #
@@ -270,7 +299,7 @@ def optimize_pose_graph(pg: PoseGraph, opts: Options, params=None, events: Event
     """:func:`optimize` on a pose graph with checked :class:`Options`."""
     events = events if events is not None else Events()
     check_graph(pg, opts)
-    params = _lm_params(params)
+    params = _optimizer_params(params, gnc=opts.gnc is not None)
     posed = pg.with_first_prior()
     start = _start(posed, opts)
     events.started(start)

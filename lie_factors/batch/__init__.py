@@ -1,4 +1,4 @@
-"""Batch Levenberg–Marquardt / Gauss–Newton: the whole graph as arrays, normal equations, sparse Cholesky.
+"""Batch Levenberg–Marquardt / Gauss–Newton / dogleg: the whole graph as arrays, normal equations, sparse Cholesky.
 
 Why: GTSAM's Python ``CustomFactor`` converts the whole ``Values`` on every
 callback from inside a C++ optimizer (many times slower than native GTSAM), and
@@ -12,14 +12,14 @@ GTSAM's elimination redoes its symbolic work every iteration.  Here
   into a block-sparse matrix whose pattern and scatter map are computed once;
 * :mod:`~lie_factors.batch.solvers` factors ``H + damping`` with CHOLMOD
   (symbolic analysis once per graph; cvxopt) or GTSAM's elimination;
-* :mod:`~lie_factors.batch.optimizer` runs GTSAM's LM / Gauss–Newton loop;
+* :mod:`~lie_factors.batch.optimizer` runs GTSAM's LM / Gauss–Newton / dogleg loop;
 * :mod:`~lie_factors.batch.marginals` gives the marginal covariances at a point from the
   same factorization (``gtsam.Marginals``' ``marginalCovariance``).
 
 Usage::
 
     from lie_factors import batch
-    result = batch.optimize(graph, initial)          # params=LevenbergMarquardtParams | GaussNewtonParams
+    result = batch.optimize(graph, initial)   # params=LevenbergMarquardtParams | GaussNewtonParams | DoglegParams
     result.values, result.iterations, result.errors, result.seconds, result.timings
 """
 

@@ -13,6 +13,14 @@
   noise) is *native*: GTSAM linearizes it (one ``NonlinearFactorGraph.linearize``
   call), and its augmented information matrix is copied into one flat array for
   the assembly kernel;
+* a native factor with a constrained noise model (``noiseModel.Constrained``, a
+  ``NonlinearEquality``) is a hard constraint: its rows of σ = 0 enter that matrix
+  with GTSAM's weight μ (its ``squaredMahalanobisDistance``, as its error does), and
+  one that fixes a whole variable (one key, every row constrained, as many rows as
+  the variable's dimension) *pins* it: each linearization solves A·δ = b for its step
+  (:attr:`Problem.pin_steps`), which the linear system then imposes
+  (:meth:`lie_factors.batch.system.LinearSystem.holding`); any other constrained factor
+  needs GTSAM's elimination (:attr:`Problem.general_constraints`);
 * the elements of each group are an ``(N, m, m)`` array; other variables stay
   in a ``gtsam.Values`` and are retracted by GTSAM.
 
@@ -29,7 +37,7 @@ import gtsam
 import numpy as np
 
 from .. import factors as _factors
-from ..errors import InputError, first_line
+from ..errors import InputError, first_line, nonfinite_error
 from ..expressions.kind import KindFactor
 from .. import interop
 from ..posegraph import gauge
@@ -41,6 +49,12 @@ from .kinds import KindGroup, ValueBlock, block_name
 
 def key_name(key: int) -> str:
     return gtsam.DefaultKeyFormatter(int(key))
+
+
+def describe_factor(graph, k: int) -> str:
+    """`` (Type on x1, l2)`` of factor ``k`` of ``graph`` ('' without a graph or factor)."""
+    f = graph.at(k) if graph is not None else None
+    return "" if f is None else f" ({type(f).__name__} on {', '.join(key_name(key) for key in f.keys())})"
 
 
 def _robust_loss(noise_model):
@@ -57,6 +71,16 @@ def _read_matrices(values: gtsam.Values, spec, keys: list) -> np.ndarray:
     except TypeError as exc:
         raise InputError(f"key {key_name(exc.args[0])} must hold a gtsam.{spec.name} "
                          f"(it is used by a {spec.name} factor)") from None
+
+
+def _constrained_rows(nm) -> tuple[np.ndarray, np.ndarray]:
+    """(row scale (r,), hard (r,) bool) of a ``noiseModel.Constrained``: GTSAM's whitening leaves its
+    rows of σ = 0 as they are, and its Mahalanobis distance weighs them by μ, so ``scale`` is √μ
+    there and 1 elsewhere; ``hard`` marks those rows."""
+    sigmas = np.asarray(nm.sigmas(), dtype=np.float64)
+    hard = sigmas == 0.0
+    weights = np.array([nm.squaredMahalanobisDistance(row) for row in np.eye(len(sigmas))])
+    return np.where(hard, np.sqrt(weights), 1.0), hard
 
 
 def matrices_of(values: gtsam.Values, group: str, keys) -> np.ndarray:
@@ -350,10 +374,17 @@ class Problem:
         self.native_graph = gtsam.NonlinearFactorGraph()
         for _, f, _ in self.native:
             self.native_graph.push_back(f)
+        #: native position → row scale of GTSAM's whitened rows giving Mahalanobis weights (√μ where σ = 0)
+        self.constrained: dict[int, np.ndarray] = {}
+        self.pins: list[tuple[int, int]] = []  # (native position, variable index) of each pin
+        self.general_constraints: list[int] = []  # graph indices of the other constrained factors
+        self.pin_steps: list[np.ndarray] = []  # each pin's step at the last linearization
+        self.constrained_diagonal = None  # GTSAM's hessianDiagonal minus ours (μ) on constrained rows
         if not self.native:
             self.native_arrays = None
             self.native_pairs = np.zeros((0, 2), dtype=np.int64)
             return
+        self._classify_constraints()
         sizes, kv, kl, kd, ks, ps, istart = [], [], [], [], [0], [0], [0]
         pairs, rows, relative = [], [], []
         for _, f, keys in self.native:
@@ -383,6 +414,32 @@ class Problem:
             sq=np.zeros(len(self.native)), rows=np.array(rows, dtype=np.int64),
             relative=np.array(relative, dtype=bool),
         )
+
+    def _classify_constraints(self) -> None:
+        """The native factors with a constrained noise model: pins and general constraints
+        (module docstring).  Read once, from the noise models (shared ones read once)."""
+        rows_of: dict = {}
+        pinned: set = set()
+        for j, (i, f, keys) in enumerate(self.native):
+            if not isinstance(f, gtsam.NoiseModelFactor):
+                continue
+            nm = f.noiseModel()
+            if not isinstance(nm, gtsam.noiseModel.Constrained):
+                continue
+            entry = rows_of.get(id(nm))
+            if entry is None:
+                entry = rows_of[id(nm)] = (nm, *_constrained_rows(nm))
+            _, scale, hard = entry
+            self.constrained[j] = scale
+            v = self.var_index[keys[0]] if len(keys) == 1 else -1
+            if v >= 0 and hard.all() and len(hard) == int(self.var_dims[v]) and v not in pinned:
+                self.pins.append((j, v))
+                pinned.add(v)
+            else:
+                self.general_constraints.append(i)
+        self._pinning = {j for j, _ in self.pins}
+        if self.constrained:
+            self.constrained_diagonal = np.zeros(self.total_dim)
 
     def undetermined(self) -> gauge.Undetermined | None:
         """The first variable of the linear system its structure leaves undetermined
@@ -467,9 +524,20 @@ class Problem:
             for k, x in zip(b.keys, xi):
                 insert(k, x)
         out = self._managed_initial.retract(vv)
+        fixed = gtsam.VectorValues()
         for vb in self.value_blocks.values():  # the values themselves: X0 + (X − X0) would round
-            for k, x in zip(vb.keys, vb.X):
-                out.update(k, vb.gtsam_value(x))
+            for n, (k, x) in enumerate(zip(vb.keys, vb.X)):
+                try:
+                    out.update(k, vb.gtsam_value(x))
+                except RuntimeError:
+                    # a fixed-size vector (GTSAM's readers, Values.insertPoint3), which update()
+                    # cannot write from Python: from here on the block's values are retracted, which
+                    # keeps each one's type
+                    for k2, x2, x0 in zip(vb.keys[n:], vb.X[n:], vb.X0[n:]):
+                        fixed.insert(k2, np.asarray(x2 - x0, dtype=np.float64).reshape(-1))
+                    break
+        if fixed.size():
+            out = out.retract(fixed)
         out.insert(self.other)
         return out
 
@@ -553,21 +621,66 @@ class Problem:
                 raise self._native_failure(nv, "linearized", exc) from None
             nat = self.native_arrays
             info, start, size = nat.info, nat.info_start, nat.size
+            constrained = self.constrained
+            if constrained:
+                self.constrained_diagonal[:] = 0.0
+                self.pin_steps = []
             for j in range(len(self.native)):
                 lf = lin.at(j)
                 if lf is None:
                     raise InputError(f"factor {self.native[j][0]} ({type(self.native[j][1]).__name__}) "
                                      "did not linearize")
-                if isinstance(lf, gtsam.JacobianFactor) and lf.isConstrained():
-                    raise InputError(f"factor {self.native[j][0]} has a constrained noise model: "
-                                     "use linear_solver='gtsam'")
+                if j in constrained:
+                    M = self._constrained_information(j, lf)
+                else:
+                    if isinstance(lf, gtsam.JacobianFactor) and lf.isConstrained():
+                        raise InputError(f"factor {self.native[j][0]} ({type(self.native[j][1]).__name__}) "
+                                         "linearizes to a constrained factor, but its noise model is not "
+                                         "a noiseModel.Constrained: its hard constraint is not known here")
+                    M = np.asarray(lf.augmentedInformation())
                 D1 = size[j] + 1
-                M = np.asarray(lf.augmentedInformation())
                 info[start[j]:start[j] + D1 * D1] = M.ravel()
                 nat.sq[j] = M[-1, -1]
             total += 0.5 * float(nat.sq.sum())
             self.native_linear = lin
         return total
+
+    def _constrained_information(self, j: int, lf) -> np.ndarray:
+        """[A b]ᵀ·W·[A b] of constrained native factor ``j``'s linearization ``lf``, W the weights of
+        its noise model's Mahalanobis distance (μ on the rows of σ = 0); its pin's step A⁻¹·b
+        where it pins a variable; GTSAM's ``hessianDiagonal`` (weight 1 on those rows) kept
+        beside it."""
+        A, b = lf.jacobian()  # GTSAM whitens the rows of σ > 0 and leaves the constrained ones
+        A, b = np.asarray(A), np.asarray(b)
+        scale = self.constrained[j]
+        Ab = np.column_stack([A, b]) * scale[:, None]
+        i, f, keys = self.native[j]
+        nat = self.native_arrays
+        for slot in range(int(nat.key_start[j]), int(nat.key_start[j + 1])):
+            v, local, d = int(nat.key_var[slot]), int(nat.key_local[slot]), int(nat.key_dim[slot])
+            o = int(self.var_offsets[v])
+            self.constrained_diagonal[o:o + d] += (np.sum(A[:, local:local + d] ** 2, axis=0)
+                                                   - np.sum(Ab[:, local:local + d] ** 2, axis=0))
+        if j in self._pinning:
+            try:
+                step = np.linalg.solve(A, b)
+            except np.linalg.LinAlgError:
+                step = np.full(len(b), np.nan)
+            if not np.all(np.isfinite(step)):
+                raise InputError(f"factor {i} ({type(f).__name__} on {key_name(keys[0])}): its hard constraint "
+                                 "does not determine the variable (its Jacobian is singular)")
+            self.pin_steps.append(step)
+        return Ab.T @ Ab
+
+    def nonfinite(self, when: str, Xs=None, other=None) -> InputError:
+        """The refusal of an error that is not a finite number at (Xs, other) (default: the current
+        estimate), naming the first factor whose error is not (:func:`errors.nonfinite_error`)."""
+        sq = np.zeros(self.graph_size)
+        try:
+            self.error(Xs, other, sq_out=sq)
+        except InputError as exc:
+            return exc
+        return nonfinite_error(when, 0.5 * sq, lambda k: describe_factor(self.graph, k))
 
     def linearized_sqnorms(self, out: np.ndarray | None = None) -> np.ndarray:
         """Squared whitened residual norm of every factor at the last linearization, (graph size,).

@@ -8,7 +8,11 @@ coordinates (GTSAM's order: Pose2 [x, y, θ], Pose3 [ω, v], …) — what
 once by CHOLMOD (:class:`lie_factors.sparse.cholmod.Cholesky`, supernodal) and inverted
 on the factor's pattern only (:mod:`lie_factors.sparse.selinv`), which holds every
 variable's diagonal block: all of them for the cost of one more factorization.
-Where CHOLMOD is not installed, GTSAM's ``Marginals`` answers instead.
+A variable a hard constraint pins (``NonlinearEquality``, a constrained prior) is known
+exactly: its covariance is 0 and the others' are conditioned on it, as GTSAM's are.
+Where CHOLMOD is not installed, where a hard constraint holds part of a variable or
+several, and where the batch solver cannot read the graph, GTSAM's ``Marginals`` answers
+instead.
 """
 
 from __future__ import annotations
@@ -57,12 +61,19 @@ class Marginals:
 
     def __init__(self, graph, values):
         self._gtsam = None
-        problem = Problem(graph, values)
+        try:
+            problem = Problem(graph, values)
+        except InputError:
+            # what the batch solver cannot read (a factor on a key the values lack, as GTSAM's
+            # LinearContainerFactor of a linear graph): GTSAM's Marginals, where it can
+            if not self._gtsam_can(graph, values):
+                raise
+            return
         _refuse_keys_in_no_factor(values, problem)
         _refuse(problem.undetermined(), lambda v: problem.var_keys[v])
-        if cholmod.available():
+        if cholmod.available() and not problem.general_constraints:
             self._compute(problem)
-        else:
+        else:  # GTSAM's elimination imposes hard constraints on part of a variable
             self._use_gtsam(graph, values)
 
     @classmethod
@@ -85,7 +96,14 @@ class Marginals:
         import gtsam
 
         self._gtsam = gtsam.Marginals(graph, values)
-        self._keys = {int(k) for k in values.keys()}
+        self._keys = {int(k) for k in values.keys()} | {int(k) for k in graph.keyVector()}
+
+    def _gtsam_can(self, graph, values) -> bool:
+        try:
+            self._use_gtsam(graph, values)
+        except (RuntimeError, ValueError, TypeError):
+            return False
+        return True
 
     def _compute(self, problem: Problem) -> None:
         system = LinearSystem(problem)
@@ -93,7 +111,8 @@ class Marginals:
         p = system.pattern
         factor = cholmod.Cholesky(p.colptr, p.rowind, natural=True, supernodal=True)
         try:
-            factor.factorize(system.data)
+            with system.holding(system.data, np.zeros(p.n)):  # a pinned variable: H's row the identity's
+                factor.factorize(system.data)
         except NotPositiveDefinite as exc:
             variable = system.variable_at(exc.column)
             where = "" if variable is None else f" near variable {key_name(problem.var_keys[variable])}"
@@ -112,6 +131,8 @@ class Marginals:
             rows = row_of[problem.var_offsets[idx][:, None] + np.arange(d)]
             self._blocks[d] = diagonal_blocks(inverse, rows)
             self._place[idx] = np.arange(len(idx))
+        for _, v in problem.pins:  # held by a hard constraint: known exactly (GTSAM's covariance is 0)
+            self._blocks[int(dims[v])][self._place[v]] = 0.0
         self._index = problem.var_index
         self._dims = dims
         factor.free()

@@ -1,29 +1,32 @@
-"""Levenberg–Marquardt and Gauss–Newton over the batch linear system, with GTSAM's semantics.
+"""Levenberg–Marquardt, Gauss–Newton and Powell's dogleg over the batch linear system, with GTSAM's semantics.
 
 GTSAM's ``LevenbergMarquardtOptimizer`` (its λ schedule, ``tryLambda``,
 ``iterate``, ``defaultOptimize``, ``checkConvergence`` and prints: the one
-policy of :mod:`lie_factors.lm`) and ``GaussNewtonOptimizer``; what this module
-supplies is how a linear step is computed (:mod:`lie_factors.batch.system`
-assembles ``H + damping``, :mod:`lie_factors.batch.solvers` factors it) and how
-a trial point is evaluated.  See :class:`BatchLevenbergMarquardt`.
+policy of :mod:`lie_factors.lm`), ``GaussNewtonOptimizer`` and ``DoglegOptimizer``
+(the one policy of :mod:`lie_factors.dogleg`); what this module supplies is how a
+linear step is computed (:mod:`lie_factors.batch.system` assembles ``H + damping``,
+:mod:`lie_factors.batch.solvers` factors it) and how a trial point is evaluated.
+See :class:`BatchLevenbergMarquardt`.
 
 Usage::
 
     from lie_factors import batch
     result = batch.optimize(graph, initial)                 # LM, GTSAM's default params
     result = batch.optimize(graph, initial, gtsam.GaussNewtonParams())
+    result = batch.optimize(graph, initial, gtsam.DoglegParams())
     result.values, result.iterations, result.errors, result.seconds, result.timings
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable
 
 import gtsam
 import numpy as np
 
-from .. import lm
+from .. import dogleg, lm
 from ..lm import IterationInfo, OptimizeResult
 from ..util.timing import Stopwatch
 from . import solvers
@@ -33,18 +36,23 @@ from .system import LinearSystem
 
 #: Keys of ``OptimizeResult.timings`` (seconds, summed over the run).
 TIMING_KEYS = ("setup", "linearize", "assemble", "factorize", "solve", "retract", "error", "values", "other")
+#: The params whose algorithm the batch solver runs.
+PARAMS = (gtsam.LevenbergMarquardtParams, gtsam.GaussNewtonParams, gtsam.DoglegParams)
 
 
-class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
-    """Levenberg–Marquardt (or Gauss–Newton) over ``graph`` from ``initial``, mirroring GTSAM.
+class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
+    """Levenberg–Marquardt (or Gauss–Newton, or dogleg) over ``graph`` from ``initial``, mirroring GTSAM.
 
-    ``params``: ``gtsam.LevenbergMarquardtParams`` (default) or
+    ``params``: ``gtsam.LevenbergMarquardtParams`` (default),
     ``gtsam.GaussNewtonParams`` (same loop, no damping; a graph that does not
     determine every variable raises :class:`IndeterminantLinearSystem`, decided on
     its structure first (:meth:`Problem.undetermined`), then by the pivot rule of
-    :mod:`lie_factors.sparse.pivots`).  ``linear_solver``:
+    :mod:`lie_factors.sparse.pivots`) or ``gtsam.DoglegParams`` (:mod:`lie_factors.dogleg`:
+    its Gauss–Newton point refuses such a graph as Gauss–Newton does; its steepest-descent
+    point is (gᵀg / gᵀHg)·g, the pinned variables' entries of g 0).  ``linear_solver``:
     ``"auto"`` (CHOLMOD if cvxopt is installed, else GTSAM with a warning),
-    ``"cholmod"`` or ``"gtsam"``.
+    ``"cholmod"`` or ``"gtsam"``.  An error at the start that is not a finite number, or
+    after a Gauss–Newton step, raises :class:`InputError` naming the factor.
 
     LM is :class:`lie_factors.lm.LevenbergMarquardt` (GTSAM's λ schedule,
     ``diagonalDamping``, model fidelity, prints) and :meth:`optimize` is
@@ -77,25 +85,38 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
         t0 = time.perf_counter()
         self.reweight, self.cost = reweight, cost
         self.params = params if params is not None else gtsam.LevenbergMarquardtParams()
-        if not isinstance(self.params, (gtsam.LevenbergMarquardtParams, gtsam.GaussNewtonParams)):
-            raise TypeError("params must be gtsam.LevenbergMarquardtParams or gtsam.GaussNewtonParams, "
-                            f"got {type(self.params).__name__}")
+        if not isinstance(self.params, PARAMS):
+            raise TypeError("params must be gtsam.LevenbergMarquardtParams, gtsam.GaussNewtonParams or "
+                            f"gtsam.DoglegParams, got {type(self.params).__name__}")
         self.gauss_newton = isinstance(self.params, gtsam.GaussNewtonParams)
+        self.dogleg = isinstance(self.params, gtsam.DoglegParams)
         self._lm_init(self.params, min_model_fidelity)
+        if self.dogleg:
+            self._dl_init(self.params)
         # A Problem (e.g. Problem.from_pose_graph) is used as it is; ``initial`` is then ignored.
         self.problem = (graph if isinstance(graph, Problem)
                         else Problem(graph, initial, group_robust=self.group_robust))
         self.system = LinearSystem(self.problem)
-        # Gauss–Newton's system must determine every variable (the pivot rule of
-        # lie_factors.sparse.pivots); LM's damped one is GTSAM's: a pivot that is not > 0 raises λ.
-        self.solver = solvers.make(linear_solver, self.system,
-                                   solvers.PIVOT_TOLERANCE if self.gauss_newton else 0.0)
-        self._structure_checked = not self.gauss_newton
+        if self.dogleg and self.problem.constrained and linear_solver != "gtsam":
+            # GTSAM's dogleg takes both points from its elimination, whose QR imposes the constraints
+            if linear_solver != "auto":
+                i = self.problem.native[next(iter(self.problem.constrained))][0]
+                raise InputError(f"linear_solver={linear_solver!r}: dogleg on a graph with a hard constraint "
+                                 f"(factor {i}) takes its points from GTSAM's elimination: use "
+                                 "linear_solver='gtsam' (or 'auto')")
+            linear_solver = "gtsam"
+        # Gauss–Newton's (and dogleg's) undamped system must determine every variable (the pivot
+        # rule of lie_factors.sparse.pivots); LM's damped one is GTSAM's: a pivot that is not > 0 raises λ.
+        undamped = self.gauss_newton or self.dogleg
+        self.solver = solvers.make(linear_solver, self.system, solvers.PIVOT_TOLERANCE if undamped else 0.0)
+        self._structure_checked = not undamped
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
         self._iterations = 0
         self._setup()
         t1 = time.perf_counter()
         self._error = self.objective()
+        if not math.isfinite(self._error):
+            raise self.problem.nonfinite("at the initial values")
         self.timings["error"] += time.perf_counter() - t1
         self.timings["setup"] += t1 - t0
 
@@ -227,37 +248,112 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
             vv.insert(k, delta[o:o + d])
         vv.print("delta")
 
+    # ---------------------------------------------------------------- dogleg.Dogleg's hooks
+    def _dl_linearize(self) -> float:
+        return self._linearize()
+
+    def _dl_points(self, linear_error0: float) -> tuple[np.ndarray, np.ndarray]:
+        """(δ_u, δ_n): the steepest-descent point (gᵀg / gᵀHg)·g and the Gauss–Newton point H⁻¹g
+        (with GTSAM's elimination as the linear solver: its Bayes tree's, as GTSAM's dogleg)."""
+        points = getattr(self.solver, "dogleg_points", None)
+        if points is not None:
+            try:
+                dx_u, dx_n, self._tree = points()
+            except NotPositiveDefinite as exc:
+                raise self._singular(exc) from None
+            return dx_u, dx_n
+        self._tree = None
+        dx_n = self._gauss_newton_step()
+        g = self.system.free(self.system.rhs)
+        with np.errstate(divide="ignore", invalid="ignore"):  # g = 0: 0/0, NaN, as in GTSAM's C++
+            step = np.float64(g @ g) / np.float64(self.system.curvature(g))
+        return step * g, dx_n
+
+    @staticmethod
+    def _dl_dots(dx_u: np.ndarray, dx_n: np.ndarray) -> tuple[float, float, float]:
+        return float(dx_u @ dx_u), float(dx_n @ dx_n), float(dx_u @ dx_n)
+
+    @staticmethod
+    def _dl_combine(s_u: float, dx_u: np.ndarray, s_n: float, dx_n: np.ndarray) -> np.ndarray:
+        if s_n == 0.0:
+            return s_u * dx_u
+        if s_u == 0.0 and s_n == 1.0:
+            return dx_n
+        return s_u * dx_u + s_n * dx_n
+
+    _dl_norm = _lm_delta_norm
+
+    def _dl_model(self, linear_error0: float, delta: np.ndarray) -> tuple[float, float, float]:
+        if self._tree is not None:
+            m_error = self.solver.model_error(self._tree, np.zeros_like(delta))
+            new_m = self.solver.model_error(self._tree, delta)
+            return m_error, new_m, m_error - new_m
+        return self._lm_linear_change(linear_error0, delta)
+
+    def _dl_evaluate(self, delta: np.ndarray):
+        return self._lm_evaluate(delta)
+
+    def _dl_accept(self, trial, error: float) -> None:
+        self.problem.accept(*trial)
+
+    def _dl_keep(self) -> None:
+        """No step: the estimate stays."""
+
+    def _dl_print_delta(self, delta: np.ndarray) -> None:
+        lm.COUT.sync()
+        self._lm_print_delta(delta)
+
     # ---------------------------------------------------------------- loop
+    @property
+    def _method(self) -> str:
+        return "Dogleg" if self.dogleg else "Gauss-Newton" if self.gauss_newton else "Levenberg-Marquardt"
+
     def iterate(self) -> None:
         """One iteration: linearize and assemble once, then (LM) try λ until a step is accepted
-        or LM gives up (:meth:`lie_factors.lm.LevenbergMarquardt.iterate`)."""
+        or LM gives up (:meth:`lie_factors.lm.LevenbergMarquardt.iterate`), or (dogleg) try
+        dogleg points until one is taken or Δ is at its minimum (:meth:`lie_factors.dogleg.Dogleg.iterate`)."""
+        if self.dogleg:
+            self._require_determined()
+            dogleg.Dogleg.iterate(self)
+            return
         if not self.gauss_newton:
-            super().iterate()
+            lm.LevenbergMarquardt.iterate(self)
             return
         self._require_determined()
         self._linearize()
-        try:
-            delta = self._solve(None)
-        except NotPositiveDefinite as exc:
-            P = self.problem
-            variable = self.system.variable_at(exc.column)
-            where = "" if variable is None else f" near variable {key_name(P.var_keys[variable])}"
-            raise IndeterminantLinearSystem(
-                f"Gauss-Newton: the linear system is singular{where}: {exc}; the graph does not determine "
-                "every variable - add a prior or use Levenberg-Marquardt", variable) from None
-        Xs, other, self._error = self._try_step(delta)
+        delta = self._gauss_newton_step()
+        Xs, other, error = self._try_step(delta)
+        if not math.isfinite(error):
+            raise self.problem.nonfinite(f"after Gauss-Newton step {self._iterations + 1}", Xs, other)
+        self._error = error
         self.problem.accept(Xs, other)
         self._iterations += 1
         self._inner += 1
 
+    def _gauss_newton_step(self) -> np.ndarray:
+        """δ = H⁻¹g of the last linearization, or :class:`IndeterminantLinearSystem` naming the
+        variable where the factorization stopped."""
+        try:
+            return self._solve(None)
+        except NotPositiveDefinite as exc:
+            raise self._singular(exc) from None
+
+    def _singular(self, exc: NotPositiveDefinite) -> IndeterminantLinearSystem:
+        P = self.problem
+        variable = self.system.variable_at(exc.column)
+        where = "" if variable is None else f" near variable {key_name(P.var_keys[variable])}"
+        return IndeterminantLinearSystem(
+            f"{self._method}: the linear system is singular{where}: {exc}; the graph does not determine "
+            "every variable - add a prior or use Levenberg-Marquardt", variable)
+
     def _require_determined(self) -> None:
-        """Gauss–Newton: refuse, before the first factorization, a graph whose structure leaves a
-        variable undetermined (:meth:`Problem.undetermined`: exact, whatever the rounding)."""
+        """Gauss–Newton and dogleg: refuse, before the first factorization, a graph whose structure
+        leaves a variable undetermined (:meth:`Problem.undetermined`: exact, whatever the rounding)."""
         if self._structure_checked:
             return
         finding = self.problem.undetermined()
         if finding is not None:
-            raise finding.error("Gauss-Newton: the linear system is singular",
+            raise finding.error(f"{self._method}: the linear system is singular",
                                 key_name(self.problem.var_keys[finding.variable]))
         self._structure_checked = True
 
@@ -283,10 +379,10 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt):
 
 
 def optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
-             params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
+             params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | gtsam.DoglegParams | None = None,
              progress: Callable[[IterationInfo], None] | None = None,
              linear_solver: str = "auto", **hooks) -> OptimizeResult:
-    """Batch Levenberg–Marquardt or Gauss–Newton (see :class:`BatchLevenbergMarquardt`;
+    """Batch Levenberg–Marquardt, Gauss–Newton or dogleg (see :class:`BatchLevenbergMarquardt`;
     ``hooks``: ``reweight``, ``cost``); ``seconds``: the solver's construction and iterations,
     numba compilation excluded (as :func:`lie_factors.optimize`'s)."""
     clock = Stopwatch()

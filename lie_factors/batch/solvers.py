@@ -12,6 +12,12 @@
 
 Each raises :class:`NotPositiveDefinite` when the system cannot be factored (CHOLMOD's: where a
 pivot is refused by :mod:`lie_factors.sparse.pivots`' rule, at the tolerance it is given).
+
+Hard constraints: CHOLMOD and PARDISO factor the system with its pinned variables held
+(:meth:`lie_factors.batch.system.LinearSystem.holding`); a constrained factor that pins no
+variable (a few of its rows constrained, or rows on several variables) is eliminated by
+GTSAM's QR, as GTSAM's optimizers do, so ``"auto"`` chooses ``"gtsam"`` for such a graph
+and ``"cholmod"`` or ``"pardiso"`` refuse it.
 """
 
 from __future__ import annotations
@@ -69,6 +75,15 @@ def make(name: str, system, pivot_tolerance: float = PIVOT_TOLERANCE):
     """The linear solver ``name`` (:data:`LINEAR_SOLVERS`) of ``system``; ``pivot_tolerance``: the
     pivot rule of CHOLMOD's factorizations (:mod:`lie_factors.sparse.pivots`; GTSAM's elimination
     and PARDISO keep their own)."""
+    general = system.problem.general_constraints
+    if general and name != "gtsam":
+        if name != "auto":
+            i = general[0]
+            f = system.problem.graph.at(i)
+            raise InputError(f"linear_solver={name!r}: factor {i} ({type(f).__name__}) is a hard constraint "
+                             "(noiseModel.Constrained) on part of a variable or on several, which only "
+                             "GTSAM's elimination imposes: use linear_solver='gtsam' (or 'auto')")
+        name = "gtsam"
     kind = resolve(name)
     if kind == "cholmod":
         return CholmodSolver(system, pivot_tolerance)
@@ -96,9 +111,11 @@ class CholmodSolver:
     def solve(self, scale: np.ndarray | None) -> np.ndarray:
         """δ solving (H + diag(scale)) δ = g."""
         sys_ = self.system
-        self.factor.factorize(sys_.damp(scale), self.pivot_tolerance)  # NotPositiveDefinite: the column
+        data, rhs = sys_.damp(scale), sys_.in_matrix_order(sys_.rhs)
+        with sys_.holding(data, rhs):
+            self.factor.factorize(data, self.pivot_tolerance)  # NotPositiveDefinite: the column
         t = time.perf_counter()
-        delta = sys_.from_matrix_order(self.factor.solve(sys_.in_matrix_order(sys_.rhs)))
+        delta = sys_.from_matrix_order(self.factor.solve(rhs))
         self.solve_seconds += time.perf_counter() - t
         if not np.all(np.isfinite(delta)):
             raise NotPositiveDefinite("the linear system is singular (non-finite step)")
@@ -138,8 +155,9 @@ class PardisoSolver:
     def solve(self, scale: np.ndarray | None) -> np.ndarray:
         pypardiso = _pypardiso()
         sys_ = self.system
-        self._U.data[:] = sys_.damp(scale)[self._take]
-        rhs = sys_.in_matrix_order(sys_.rhs)
+        data, rhs = sys_.damp(scale), sys_.in_matrix_order(sys_.rhs)
+        with sys_.holding(data, rhs):
+            self._U.data[:] = data[self._take]
         try:
             self._ps.set_phase(22)
             self._ps._call_pardiso(self._U, rhs)
@@ -212,14 +230,49 @@ class GtsamSolver:
             self._ordering = gtsam.Ordering.Colamd(gtsam.VariableIndex(gfg))
         return self._ordering
 
-    def solve(self, scale: np.ndarray | None) -> np.ndarray:
-        P = self.problem
-        token = getattr(P, "linearization", None)
+    def _linearization(self) -> gtsam.GaussianFactorGraph:
+        """:meth:`_base` of the problem's current linearization (built once for it)."""
+        token = getattr(self.problem, "linearization", None)
         if self._base_for is not token or token is None:
             self._graph = self._base()
             self._base_for = token
+        return self._graph
+
+    def dogleg_points(self):
+        """GTSAM's ``DoglegOptimizer::iterate`` on the current linearization: its Bayes tree
+        (multifrontal elimination of the undamped system), the steepest-descent point
+        (``optimizeGradientSearch``) and the Gauss–Newton point (``optimize``) as δ vectors, and the
+        Bayes tree, whose ``error`` is the dogleg's model (:meth:`model_error`)."""
+        base = self._linearization()
+        try:
+            tree = stack.call(base.eliminateMultifrontal, self._ordering_for(base))
+            dx_u, dx_n = tree.optimizeGradientSearch(), tree.optimize()
+        except RuntimeError as exc:
+            raise NotPositiveDefinite(f"the linear system is not positive definite "
+                                      f"(GTSAM: {first_line(exc, 120)})") from None
+        return self._vector(dx_u), self._vector(dx_n), tree
+
+    def model_error(self, tree, delta: np.ndarray) -> float:
+        """The error of ``tree`` (:meth:`dogleg_points`) at the step ``delta``."""
+        P = self.problem
+        vv = gtsam.VectorValues()
+        for v, k in enumerate(P.var_keys):
+            o, d = int(P.var_offsets[v]), int(P.var_dims[v])
+            vv.insert(k, delta[o:o + d])
+        return float(tree.error(vv))
+
+    def _vector(self, vv) -> np.ndarray:
+        P = self.problem
+        delta = np.empty(P.total_dim)
+        for v, k in enumerate(P.var_keys):
+            o, d = int(P.var_offsets[v]), int(P.var_dims[v])
+            delta[o:o + d] = vv.at(k)
+        return delta
+
+    def solve(self, scale: np.ndarray | None) -> np.ndarray:
+        P = self.problem
         gfg = gtsam.GaussianFactorGraph()
-        gfg.push_back(self._graph)
+        gfg.push_back(self._linearization())
         if scale is not None:
             # GTSAM's damping: a prior √scale·I on every variable (rows, not normal equations).
             for v, k in enumerate(P.var_keys):
@@ -230,10 +283,7 @@ class GtsamSolver:
         except RuntimeError as exc:
             raise NotPositiveDefinite(f"the linear system is not positive definite "
                                       f"(GTSAM: {first_line(exc, 120)})") from None
-        delta = np.empty(P.total_dim)
-        for v, k in enumerate(P.var_keys):
-            o, d = int(P.var_offsets[v]), int(P.var_dims[v])
-            delta[o:o + d] = vv.at(k)
+        delta = self._vector(vv)
         if not np.all(np.isfinite(delta)):
             raise NotPositiveDefinite("the linear system is singular (non-finite step)")
         return delta

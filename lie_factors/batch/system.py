@@ -10,16 +10,24 @@ by √w_f — GTSAM's robust reweighting.
 
 Storage: :class:`lie_factors.sparse.pattern.Pattern`, computed once per graph
 (the pattern and each factor's scatter map), assembled by its kernels.
+
+Hard constraints that pin a variable (:mod:`lie_factors.batch.graph`) are imposed on the
+system a solver factors (:meth:`LinearSystem.holding`): the pinned variables' rows and
+columns of H become those of the identity and their right-hand side their steps, the
+other rows' right-hand side less H's columns times those steps; the damped system
+H + D of the free variables is then solved exactly as it is without them, and the
+pinned variables take their steps, as GTSAM's elimination of a constrained factor gives.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
 
 from ..sparse.pattern import (NativeBlocks, Pattern, add_blocks, add_factors, add_information, quadratic_change,
-                              set_diagonal)
+                              quadratic_form, set_diagonal)
 
 #: Factors per batch of :meth:`LinearSystem.linearize_assemble`: its buffer (8192 SE(3) factors:
 #: 5 MB) stays in cache between the linearization and the assembly that reads it.
@@ -73,6 +81,7 @@ class LinearSystem:
             self._native = NativeBlocks(nat.info, nat.info_start, nat.size, nat.key_start, nat.key_local,
                                         nat.key_dim, pat.offsets[kv], nat.pair_start,
                                         np.where(a_is_row.astype(bool), base, -1), stride)
+        self._pins = _Pins(pat, P) if P.pins else None
 
     def _kind_scatter(self, kg) -> tuple:
         """Where a kind's factors' blocks go: (col (k,), dim (k,), o (F, k), base, stride, row
@@ -158,10 +167,23 @@ class LinearSystem:
         self._damped = False
 
     def hessian_diagonal(self) -> np.ndarray:
-        """diag(H), shape (n,), in δ's order (of the last assembly; not to be modified)."""
-        if self._diagonal is None:
-            return self.data[self.pattern.diagpos]
-        return self._diagonal
+        """GTSAM's ``hessianDiagonal`` of the last linearization, shape (n,), in δ's order (not to be
+        modified): diag(H), where the rows of a hard constraint count with weight 1 (GTSAM's
+        whitening leaves them as they are) rather than μ."""
+        diagonal = self.data[self.pattern.diagpos] if self._diagonal is None else self._diagonal
+        correction = self.problem.constrained_diagonal
+        return diagonal if correction is None else diagonal + correction
+
+    @contextlib.contextmanager
+    def holding(self, data: np.ndarray, rhs: np.ndarray):
+        """Within the block, ``data`` (H or H + D, as :meth:`damp` left it) and ``rhs`` (g in the
+        matrix's order, a copy) impose the pins' steps (module docstring); ``data`` is as it
+        was after.  Nothing changes where no variable is pinned."""
+        if self._pins is None:
+            yield
+            return
+        with self._pins.imposed(data, rhs, self.problem.pin_steps):
+            yield
 
     def damp(self, scale: np.ndarray | None) -> np.ndarray:
         """``data`` = H + diag(``scale``) (δ's order; None: H itself), in place; returns ``data``."""
@@ -200,6 +222,20 @@ class LinearSystem:
         return float(quadratic_change(p.colptr, p.rowind, self.data, self.in_matrix_order(self.rhs),
                                       self.in_matrix_order(delta)))
 
+    def curvature(self, v: np.ndarray) -> float:
+        """vᵀHv (H undamped; ``v`` in δ's order)."""
+        p = self.pattern
+        self.damp(None)
+        return float(quadratic_form(p.colptr, p.rowind, self.data, self.in_matrix_order(v)))
+
+    def free(self, v: np.ndarray) -> np.ndarray:
+        """``v`` (δ's order) with the pinned variables' entries 0 (``v`` itself where none is pinned)."""
+        if self._pins is None:
+            return v
+        out = v.copy()
+        out[self._pins.scalars] = 0.0
+        return out
+
     def to_dense(self, values: np.ndarray | None = None) -> np.ndarray:
         """The full symmetric H (or H with ``values``) as a dense (n, n) array in δ's order, for
         checks on small graphs."""
@@ -212,3 +248,42 @@ class LinearSystem:
         L = np.zeros((p.n, p.n))
         np.add.at(L, (rows, cols), values)
         return L + L.T - np.diag(np.diag(L))
+
+
+class _Pins:
+    """Where the pinned variables sit in H's storage (computed once per graph): their scalar
+    indices (δ's order) and matrix rows, H's entries in their rows or columns, and for each
+    entry joining a pinned row to a free one, both."""
+
+    def __init__(self, pattern: Pattern, problem):
+        P = problem
+        self.scalars = np.concatenate([P.var_offsets[v] + np.arange(P.var_dims[v]) for _, v in P.pins])
+        row_of = np.empty(pattern.n, dtype=np.int64)  # δ index → matrix row
+        row_of[pattern.scalar_order] = np.arange(pattern.n)
+        self.rows = row_of[self.scalars]
+        pinned = np.zeros(pattern.n, dtype=bool)
+        pinned[self.rows] = True
+        r, c = pattern.rowind.astype(np.int64), pattern.colind().astype(np.int64)
+        touched = np.flatnonzero(pinned[r] | pinned[c])
+        self.touched = touched
+        self.diagonal = touched[r[touched] == c[touched]]
+        cross = touched[pinned[r[touched]] != pinned[c[touched]]]
+        self.cross = cross
+        row_pinned = pinned[r[cross]]
+        self.cross_free = np.where(row_pinned, c[cross], r[cross])
+        self.cross_pinned = np.where(row_pinned, r[cross], c[cross])
+        self._n = pattern.n
+
+    @contextlib.contextmanager
+    def imposed(self, data: np.ndarray, rhs: np.ndarray, steps: list):
+        step = np.zeros(self._n)
+        step[self.rows] = np.concatenate(steps)
+        saved = data[self.touched]
+        np.subtract.at(rhs, self.cross_free, data[self.cross] * step[self.cross_pinned])
+        rhs[self.rows] = step[self.rows]
+        data[self.touched] = 0.0
+        data[self.diagonal] = 1.0
+        try:
+            yield
+        finally:
+            data[self.touched] = saved

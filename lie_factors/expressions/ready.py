@@ -66,6 +66,12 @@ class GPSFactor(PoseTranslationPrior3D):
         """The measured position (GTSAM's ``measurementIn()``)."""
         return self.constants()["measured"].copy()
 
+    def as_gtsam(self):
+        """GTSAM's own ``GPSFactor``: the same key, measurement and noise model object."""
+        import gtsam
+
+        return gtsam.GPSFactor(self.keys()[0], self.measurementIn(), self.noiseModel())
+
 
 @factor("Pose3", "Point3", measured="Point3")
 def PoseToPointFactor3D(x, l, z):
@@ -107,7 +113,15 @@ def _range_class(kind, name: str, gtsam_name: str):
         """The measured range (GTSAM's ``measured()``)."""
         return float(self.constants()["measured"][0])
 
-    return type(name, (kind,), {"__init__": __init__, "measured": measured, "__module__": __name__, "__doc__":
+    def as_gtsam(self):
+        """GTSAM's own factor of this name: the same keys, measured range and noise model object."""
+        import gtsam
+
+        key1, key2 = self.keys()
+        return getattr(gtsam, gtsam_name)(key1, key2, self.measured(), self.noiseModel())
+
+    return type(name, (kind,), {"__init__": __init__, "measured": measured, "as_gtsam": as_gtsam,
+                                "__module__": __name__, "__doc__":
                                 f"range(x, l) − r: GTSAM's ``{gtsam_name}(key1, key2, measured, noiseModel)``."})
 
 
@@ -136,6 +150,14 @@ class BearingRangeFactor2D(_bearing_range2):
         c = self.constants()
         return gtsam.BearingRange2D(gtsam.Rot2.atan2(c["bearing"][1, 0], c["bearing"][0, 0]), float(c["range"][0]))
 
+    def as_gtsam(self):
+        """GTSAM's own ``BearingRangeFactor2D``: the same keys, measurement and noise model object."""
+        import gtsam
+
+        br = self.measured()
+        pose, point = self.keys()
+        return gtsam.BearingRangeFactor2D(pose, point, br.bearing(), br.range(), self.noiseModel())
+
 
 @factor("Pose3", "Point3", bearing="Unit3", range="Vector1")
 def _bearing_range3(x, l, bearing, range):
@@ -157,6 +179,15 @@ class BearingRangeFactor3D(_bearing_range3):
 
         c = self.constants()
         return gtsam.BearingRange3D(gtsam.Unit3(c["bearing"]), float(c["range"][0]))
+
+    def as_gtsam(self):
+        """GTSAM's own ``BearingRangeFactor3D``: the same keys, measurement and noise model object
+        (what GTSAM's writeG2o writes as EDGE_SE3_TRACKXYZ)."""
+        import gtsam
+
+        br = self.measured()
+        pose, point = self.keys()
+        return gtsam.BearingRangeFactor3D(pose, point, br.bearing(), br.range(), self.noiseModel())
 
 
 def _camera_kind(name: str, calibration: str, measured: str, rows: int):
@@ -298,7 +329,8 @@ def BundlerProjectionFactor(x, K, l, z):
 def from_gtsam(f):
     """The ready factor equal to GTSAM's factor ``f`` (same keys, measurement and noise model
     object): ``BearingRangeFactor2D``/``3D``, ``RangeFactor2D``/``3D``/``Pose2``/``Pose3``,
-    ``GPSFactor``; ``f`` itself for any other."""
+    ``GPSFactor``; ``f`` itself for any other.  Each of those ready factors' ``as_gtsam()`` is
+    the inverse."""
     import gtsam
 
     name = type(f).__name__

@@ -140,11 +140,14 @@ def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     (``EDGE_SE3_TRACKXYZ`` with an identity ``PARAMS_SE3OFFSET``); we add
     the landmark vertices and the 2-D landmark measurements as ``LANDMARK2``
     (pose-frame x y + information, exact inverse of how we read them).
-    ``graph`` must hold GTSAM's own factors: writeG2o recognises only
-    BetweenFactorPose2/3 and BearingRangeFactor3D, so custom factors would
-    silently lose the edges.  A graph of ``BetweenFactorSimilarity3`` is
-    written by :func:`write_sim3_g2o`.
+    writeG2o recognises only GTSAM's own BetweenFactorPose2/3 and BearingRangeFactor3D,
+    so lie_factors' factors equal to GTSAM's (:mod:`lie_factors.factors`' Between/Prior
+    factors, the ready bearing-range and range factors of :mod:`lie_factors.expressions.ready`)
+    are written as GTSAM's own (their ``as_gtsam()``); any other custom factor would
+    silently lose its edge.  A graph of ``BetweenFactorSimilarity3`` is written by
+    :func:`write_sim3_g2o`.
     """
+    graph = _as_gtsam(graph)
     if _is_sim3_graph(graph):
         write_sim3_g2o(path, graph, values)
         return
@@ -161,6 +164,19 @@ def write_g2o(path: str, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
             fh.write("\n".join(lines) + "\n" if lines else "")
 
     replace_atomically(path, write, suffix=".g2o")
+
+
+def _as_gtsam(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with each factor that has GTSAM's own equal (``as_gtsam()``) replaced by it;
+    ``graph`` itself where none has."""
+    factors = [graph.at(k) for k in range(graph.size())]
+    if not any(hasattr(f, "as_gtsam") for f in factors):
+        return graph
+    out = gtsam.NonlinearFactorGraph()
+    for f in factors:
+        if f is not None:
+            out.add(f.as_gtsam() if hasattr(f, "as_gtsam") else f)
+    return out
 
 
 def _is_sim3_graph(graph: gtsam.NonlinearFactorGraph) -> bool:

@@ -42,7 +42,8 @@ def dogleg_step(s, delta: float) -> tuple[np.ndarray, float]:
 
     def evaluate(a: float, b: float) -> tuple[float, float, float]:
         out[:n] = point(a, b)
-        return float(graph.error(s._estimate(out))), bf.conditional_error(out[:n]), float(np.linalg.norm(out[:n]))
+        return (float(graph.error(s._estimate(out))), m_error - bf.conditional_error(out[:n]),
+                float(np.linalg.norm(out[:n])))
 
     out[:n] = 0.0
     f_error = float(graph.error(s._estimate(out)))

@@ -46,7 +46,9 @@ from ..errors import InputError
 from ..kernels.registry import BY_GTSAM
 
 _OURS = "lie_factors.factors"
+_READY = "lie_factors.expressions.ready"
 _tables: dict = {}
+_ready_table: list = []
 
 
 def _table(direction: str) -> dict:
@@ -70,14 +72,33 @@ def _ours_exist() -> bool:
 
 
 def to_gtsam(factor):
-    """GTSAM's own factor for one of lie_factors.factors' (any other factor is returned as is).
+    """GTSAM's own factor for one of lie_factors.factors' or one of the ready factors equal to
+    GTSAM's (:mod:`lie_factors.expressions.ready`: bearing-range, range, GPS); any other factor
+    is returned as is.
 
     Same keys, same measured (or prior) value, and the same noise model object
     (a robust model stays robust), so GTSAM's factor has the same error.
     """
-    if not _ours_exist() or type(factor) not in _table("to"):
-        return factor
-    return factor.as_gtsam()
+    if _ours_exist() and type(factor) in _table("to"):
+        return factor.as_gtsam()
+    if _ready_exist() and type(factor) in _ready_types():
+        return factor.as_gtsam()
+    return factor
+
+
+def _ready_exist() -> bool:
+    # No ready factor can exist before lie_factors.expressions.ready is imported.
+    return _READY in sys.modules
+
+
+def _ready_types() -> frozenset:
+    """The ready factors with GTSAM's own class of the same name, which ``as_gtsam()`` builds."""
+    if not _ready_table:
+        from ..expressions import ready
+
+        _ready_table.append(frozenset(cls for cls in vars(ready).values()
+                                      if isinstance(cls, type) and "as_gtsam" in vars(cls)))
+    return _ready_table[0]
 
 
 def from_gtsam(factor):
@@ -121,9 +142,10 @@ def to_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGr
 
     Returns ``graph`` itself when it holds none of ours.
     """
-    if not _ours_exist() or not isinstance(graph, gtsam.NonlinearFactorGraph):
+    if not (_ours_exist() or _ready_exist()) or not isinstance(graph, gtsam.NonlinearFactorGraph):
         return graph
-    return _mapped(graph, to_gtsam, _table("to"))
+    table = set(_table("to")) if _ours_exist() else set()
+    return _mapped(graph, to_gtsam, table | (_ready_types() if _ready_exist() else set()))
 
 
 def from_gtsam_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:

@@ -48,10 +48,8 @@ __all__ = ["LevenbergMarquardtOptimizer", "GaussNewtonOptimizer", "DoglegOptimiz
 _INDETERMINANT = "Indeterminate linear system"
 
 
-
 def _is_indeterminant(exc: BaseException) -> bool:
     return isinstance(exc, RuntimeError) and _INDETERMINANT in str(exc)
-
 
 
 class _Plans:
@@ -476,63 +474,71 @@ class LevenbergMarquardtOptimizer(lm.LevenbergMarquardt, _NonlinearOptimizer):
         delta.print("delta")
 
 
-class DoglegOptimizer(_NonlinearOptimizer):
+class DoglegOptimizer(dogleg.Dogleg, _NonlinearOptimizer):
     """Drop-in for ``gtsam.DoglegOptimizer(graph, initialValues[, params])``.
 
-    GTSAM's ``DoglegOptimizerImpl::Iterate`` in ONE_STEP_PER_ITERATION mode:
-    eliminate the linearization once; steepest-descent point ``dx_u``
-    (``optimizeGradientSearch``) and Gauss–Newton point ``dx_n``
-    (``optimize``); the dogleg point inside the trust region Δ; gain ratio
-    ``ρ = Δf / ΔM`` (0.5 if either change is below 1e-15); ρ ≥ 0.75: Δ ←
-    max(Δ, 3‖dx_d‖); 0.25 ≤ ρ < 0.75: Δ kept; 0 ≤ ρ < 0.25: Δ halved (not
-    below 1e-5); ρ < 0: Δ halved and the step retried, or, at Δ ≤ 1e-5, no
-    step.  ``ordering=`` may be given as a keyword (GTSAM's C++ constructor takes one).
+    GTSAM's ``DoglegOptimizerImpl::Iterate`` in ONE_STEP_PER_ITERATION mode, as
+    :class:`lie_factors.dogleg.Dogleg` runs it: the linearization eliminated once (a
+    Bayes tree, or a Bayes net with a sequential solver), its steepest-descent point
+    (``optimizeGradientSearch``) and Gauss–Newton point (``optimize``), the model's error
+    the eliminated system's (``error``), the trial points ``Values`` this optimizer holds.
+    ``ordering=`` may be given as a keyword (GTSAM's C++ constructor takes one).
     """
 
     _params_type = gtsam.DoglegParams
 
     def __init__(self, graph, initialValues, params=None, ordering=None):
         super().__init__(graph, initialValues, params, ordering)
-        self._delta = float(self._params.getDeltaInitial())
-        self._verbose_dl = self._params.getVerbosityDL() != "SILENT"
+        self._dl_init(self._params)
 
-    def getDelta(self) -> float:
-        """The current trust-region radius Δ."""
-        return self._delta
+    # ------------------------------------------------------------ dogleg.Dogleg's hooks
+    def _dl_linearize(self):
+        linear = self._linearize(self._values)
+        return linear, self._eliminate(linear)  # Bayes tree or Bayes net: R and d
+
+    def _dl_points(self, lin):
+        rd = lin[1]
+        return rd.optimizeGradientSearch(), rd.optimize()
+
+    @staticmethod
+    def _dl_dots(dx_u, dx_n):
+        return dx_u.squaredNorm(), dx_n.squaredNorm(), dx_u.dot(dx_n)
+
+    @staticmethod
+    def _dl_combine(s_u, dx_u, s_n, dx_n):
+        if s_n == 0.0:
+            return dx_u.scale(s_u)
+        if s_u == 0.0 and s_n == 1.0:
+            return dx_n
+        return dx_u.scale(s_u).add(dx_n.scale(s_n))
+
+    @staticmethod
+    def _dl_norm(delta) -> float:
+        return delta.norm()
+
+    @staticmethod
+    def _dl_model(lin, delta):
+        rd = lin[1]
+        m_error = rd.error(gtsam.VectorValues.Zero(delta))
+        new_m = rd.error(delta)
+        return m_error, new_m, m_error - new_m
+
+    def _dl_evaluate(self, delta):
+        values = self._values.retract(delta)
+        return values, self._graph_error(values)
+
+    def _dl_accept(self, values, error: float) -> None:
+        self._values = values
+
+    def _dl_keep(self) -> None:
+        # GTSAM retracts a zero step: a new Values equal to the current one.
+        self._values = gtsam.Values(self._values)
+
+    @staticmethod
+    def _dl_print_delta(delta) -> None:
+        lm.COUT.sync()
+        delta.print("delta")
 
     def iterate(self) -> gtsam.GaussianFactorGraph:
-        linear = self._linearize(self._values)
-        verbose = self._verbose_dl
-        rd = self._eliminate(linear)  # Bayes tree or Bayes net: R and d
-        dx_u = rd.optimizeGradientSearch()
-        dx_n = rd.optimize()
-        m_error = rd.error(gtsam.VectorValues.Zero(dx_u))
-        tried = {}
-
-        def step(a: float, b: float) -> gtsam.VectorValues:
-            if b == 0.0:
-                return dx_u.scale(a)
-            return dx_n if a == 0.0 else dx_u.scale(a).add(dx_n.scale(b))
-
-        def evaluate(a: float, b: float) -> tuple[float, float, float]:
-            dx_d = step(a, b)
-            x_d = self._values.retract(dx_d)
-            new_f = self._graph_error(x_d)
-            tried[(a, b)] = (dx_d, x_d)
-            return new_f, rd.error(dx_d), dx_d.norm()
-
-        norms = (dx_u.squaredNorm(), dx_n.squaredNorm(), dx_u.dot(dx_n))
-        a, b, new_f, delta = dogleg.iterate(self._delta, dogleg.ONE_STEP_PER_ITERATION, norms, evaluate,
-                                            self._error, m_error, verbose)
-        dx_d, x_d = tried[(a, b)] if (a, b) != (0.0, 0.0) else (None, self._values)
-        if dx_d is not None and self._verbosity_level() >= lm.VERBOSITY["DELTA"]:
-            lm.COUT.sync()
-            dx_d.print("delta")
-        if dx_d is None:
-            # GTSAM retracts a zero step: a new Values equal to the current one.
-            x_d = gtsam.Values(self._values)
-        self._values = x_d
-        self._error = new_f
-        self._delta = delta
-        self._iterations += 1
-        return linear
+        """One dogleg iteration; returns the linearization, as GTSAM's ``iterate``."""
+        return super().iterate()[0]

@@ -294,22 +294,28 @@ def add_information(nat, w, data, rhs):
 
 
 @kernel
-def quadratic_change(colptr, rowind, data, rhs, delta):
-    """δᵀg − ½·δᵀHδ: the decrease of ½‖Aδ − b‖² from δ = 0 (H's lower triangle; δ and g in
-    the matrix's order)."""
+def quadratic_form(colptr, rowind, data, x):
+    """xᵀHx from H's lower triangle (x in the matrix's order)."""
     quad = 0.0
-    lin = 0.0
-    n = rhs.shape[0]
-    for c in range(n):
-        dc = delta[c]
-        lin += dc * rhs[c]
+    for c in range(x.shape[0]):
+        xc = x[c]
         for p in range(colptr[c], colptr[c + 1]):
             r = rowind[p]
             if r == c:
-                quad += data[p] * dc * dc
+                quad += data[p] * xc * xc
             else:
-                quad += 2.0 * data[p] * delta[r] * dc
-    return lin - 0.5 * quad
+                quad += 2.0 * data[p] * x[r] * xc
+    return quad
+
+
+@kernel
+def quadratic_change(colptr, rowind, data, rhs, delta):
+    """δᵀg − ½·δᵀHδ: the decrease of ½‖Aδ − b‖² from δ = 0 (H's lower triangle; δ and g in
+    the matrix's order)."""
+    lin = 0.0
+    for c in range(rhs.shape[0]):
+        lin += delta[c] * rhs[c]
+    return lin - 0.5 * quadratic_form(colptr, rowind, data, delta)
 
 
 def set_diagonal(data, diagpos, diagonal, scale) -> None:

@@ -123,7 +123,7 @@ def clean_optimum(data: GraphData) -> CleanOptimum:
     with tempfile.TemporaryDirectory(prefix="lie-factors-sweep-") as tmp:
         pg = _read_graph(data, tmp)
     result = optimize(pg)
-    return CleanOptimum(np.asarray(result.keys), np.asarray(result.poses), result.group)
+    return CleanOptimum(np.asarray(result.keys), np.asarray(result.poses), pg.group)
 
 
 def measure(case: Case, data: GraphData, clean: CleanOptimum) -> dict[str, Any]:

@@ -84,3 +84,23 @@ def test_more_digits_than_gtsams_writer(tmp_path):
     path = str(tmp_path / "g.g2o")
     write_g2o(path, graph, values)
     assert _numbers(path, "VERTEX_SE2")[0][1] == 1234.56789012
+
+
+def test_lie_factors_factors_are_written_as_gtsams_own(tmp_path):
+    """Our BetweenFactorPose3 and the ready BearingRangeFactor3D, written as GTSAM's own classes
+    would be: GTSAM's known_landmark_localization_20.g2o through our writer gives the same file
+    with GTSAM's factors and with ours."""
+    from lie_factors import factors
+    from lie_factors.expressions.ready import from_gtsam
+
+    native, values = gtsam.readG2o(gtsam.findExampleDataFile("known_landmark_localization_20.g2o"), True)
+    ours = gtsam.NonlinearFactorGraph()
+    for k in range(native.size()):
+        f = native.at(k)
+        ours.add(factors.BetweenFactorPose3(*f.keys(), f.measured(), f.noiseModel())
+                 if isinstance(f, gtsam.BetweenFactorPose3) else from_gtsam(f))
+    write_g2o(str(tmp_path / "native.g2o"), native, values)
+    write_g2o(str(tmp_path / "ours.g2o"), ours, values)
+    text = (tmp_path / "ours.g2o").read_bytes()
+    assert text == (tmp_path / "native.g2o").read_bytes()
+    assert text.count(b"EDGE_SE3_TRACKXYZ") == 80 and text.count(b"EDGE_SE3:QUAT") == 19

@@ -192,6 +192,63 @@ def test_writeG2o_mixed_graph_and_landmarks_as_gtsam(tmp_path):
         "EDGE_SE3:QUAT", "EDGE_SE3:QUAT", "EDGE_SE3_TRACKXYZ"]
 
 
+def _landmark_graph(ready: bool):
+    """GTSAM's known_landmark_localization_20.g2o as GTSAM reads it (BetweenFactorPose3 odometry,
+    BearingRangeFactor3D landmark measurements, fixed-size Point3 landmarks), its landmark
+    measurements as the ready factors equal to them (``ready``) or as GTSAM's."""
+    from lie_factors.expressions.ready import from_gtsam as ready_factor
+
+    native, values = gtsam.readG2o(gtsam.findExampleDataFile("known_landmark_localization_20.g2o"), True)
+    graph = gtsam.NonlinearFactorGraph()
+    for k in range(native.size()):
+        graph.add(ready_factor(native.at(k)) if ready else native.at(k))
+    return graph, values
+
+
+def test_writeG2o_writes_ready_bearing_range_factors_as_gtsam_writes_its_own(tmp_path):
+    """The ready BearingRangeFactor3D is GTSAM's EDGE_SE3_TRACKXYZ: the file is the one GTSAM's
+    writer writes for GTSAM's factors, byte for byte."""
+    ours, values = _landmark_graph(ready=True)
+    native, _ = _landmark_graph(ready=False)
+    assert type(ours.at(0)).__module__ == "lie_factors.expressions.ready"
+    writeG2o(ours, values, str(tmp_path / "ours.g2o"))
+    gtsam.writeG2o(native, values, str(tmp_path / "native.g2o"))
+    text = (tmp_path / "ours.g2o").read_bytes()
+    assert text == (tmp_path / "native.g2o").read_bytes()
+    assert text.count(b"EDGE_SE3_TRACKXYZ") == 80 and text.count(b"EDGE_SE3:QUAT") == 19
+
+
+def test_ready_factors_become_gtsams_own_and_back():
+    """``as_gtsam()`` of each ready factor equal to GTSAM's is GTSAM's class with the same keys,
+    measurement and noise model object: the same error at any values."""
+    from lie_factors.expressions import ready
+
+    noise1, noise2, noise3 = (gtsam.noiseModel.Isotropic.Sigma(d, 0.1) for d in (1, 2, 3))
+    L0 = gtsam.symbol("l", 0)
+    natives = [gtsam.BearingRangeFactor3D(0, L0, gtsam.Unit3(np.array([1.0, 2, 3])), 2.5, noise3),
+               gtsam.BearingRangeFactor2D(0, L0, gtsam.Rot2(0.4), 1.5, noise2),
+               gtsam.RangeFactor3D(0, L0, 2.0, noise1), gtsam.RangeFactor2D(0, L0, 2.0, noise1),
+               gtsam.RangeFactorPose3(0, 1, 2.0, noise1), gtsam.RangeFactorPose2(0, 1, 2.0, noise1),
+               gtsam.GPSFactor(0, np.array([1.0, 2, 3]), noise3)]
+    for native in natives:
+        ours = ready.from_gtsam(native)
+        assert type(ours) is getattr(ready, type(native).__name__)
+        back = to_gtsam(ours)
+        assert type(back) is type(native) and list(back.keys()) == list(native.keys())
+        assert back.noiseModel() is native.noiseModel() or back.noiseModel().equals(native.noiseModel(), 0.0)
+        is3d = "3D" in type(native).__name__ or "Pose3" in type(native).__name__ or isinstance(native, gtsam.GPSFactor)
+        values = gtsam.Values()
+        if is3d:
+            values.insert(0, gtsam.Pose3(gtsam.Rot3.Rodrigues(0.1, 0.2, 0.3), np.array([0.5, -0.2, 0.1])))
+            values.insert(1, gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 1.5, 2.0])))
+            values.insertPoint3(L0, np.array([1.0, 1.5, 2.0]))
+        else:
+            values.insert(0, gtsam.Pose2(0.5, -0.2, 0.3))
+            values.insert(1, gtsam.Pose2(1.0, 1.5, 0.0))
+            values.insert(L0, np.array([1.0, 1.5]))
+        assert back.error(values) == pytest.approx(native.error(values), rel=1e-12)
+
+
 def _unwritable():
     n3 = gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
     n6 = gtsam.noiseModel.Isotropic.Sigma(6, 0.1)

@@ -18,6 +18,7 @@ import pytest
 
 from lie_factors import factors
 from lie_factors import optimizers
+from support.example_graphs import rosenbrock
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL_3D = str(ROOT / "data" / "smallGrid3D.g2o")
@@ -128,6 +129,29 @@ def test_lm_rejected_steps_and_upper_bound():
     compare_stepwise(lambda: gtsam.LevenbergMarquardtOptimizer(graph, bad, params()),
                      lambda: optimizers.LevenbergMarquardtOptimizer(graph, bad, params()),
                      steps=15, extra=lambda o: o.lambda_())
+
+
+@pytest.mark.parametrize("batch", [False, True], ids=["dropin", "batch"])
+def test_lm_factor_after_an_accepted_step_is_gtsams(batch):
+    """Without a fixed λ factor, GTSAM 4.3 starts the rejections after an accepted step at a factor
+    of 2 (λ: 8 accepted, 2.67 accepted, 0.889 rejected, 1.78 = 2·0.889 accepted, leaving 1.674):
+    λ after every iteration."""
+    from lie_factors.batch.optimizer import BatchLevenbergMarquardt
+
+    graph, initial = rosenbrock()
+
+    def params():
+        p = lm_params(fixed=False)
+        p.setlambdaInitial(1e-3)
+        return p
+
+    ours = BatchLevenbergMarquardt if batch else optimizers.LevenbergMarquardtOptimizer
+    compare_stepwise(lambda: gtsam.LevenbergMarquardtOptimizer(graph, initial, params()),
+                     lambda: ours(graph, initial, params()), steps=12, extra=lambda o: o.lambda_())
+    opt = ours(graph, initial, params())
+    for _ in range(3):
+        opt.iterate()
+    assert opt.lambda_() == pytest.approx(1.67443, rel=1e-5)
 
 
 def test_lm_optimize_and_ordering_argument():
