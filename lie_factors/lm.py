@@ -38,8 +38,9 @@ from .util.timing import Stopwatch
 
 __all__ = [
     "MIN_MODEL_FIDELITY", "MIN_DIAGONAL", "MAX_DIAGONAL", "VERBOSITY", "VERBOSITY_LM", "COUT",
-    "IterationInfo", "OptimizeResult", "format_iteration", "check_convergence", "default_optimize",
-    "damping_diagonal", "LevenbergMarquardt", "SUMMARY_HEADER",
+    "IterationInfo", "OptimizeResult", "format_iteration", "ieee_divide", "converged", "check_convergence", "default_optimize",
+    "lambda_after_success", "lambda_after_failure", "judge_step", "damping_diagonal", "LevenbergMarquardt",
+    "SUMMARY_HEADER",
 ]
 
 #: ``LevenbergMarquardtParams`` fields without a Python setter (GTSAM's defaults).
@@ -123,7 +124,7 @@ class _Cout:
 COUT = _Cout()
 
 
-def _divide(a: float, b: float) -> float:
+def ieee_divide(a: float, b: float) -> float:
     """``a / b`` in IEEE arithmetic (C++'s): ±inf or nan where Python would raise."""
     if b != 0.0:
         return a / b
@@ -191,14 +192,24 @@ class OptimizeResult:
 
 
 def format_iteration(info: IterationInfo) -> str:
-    """One progress line of the CLI (stderr): iteration, error, λ, seconds."""
-    return (f"iter {info.iteration:4d}  error {info.error:.6e}  lambda {info.lambda_:.2e}  "
-            f"time {info.seconds:.3f} s")
+    """One progress line of the CLI (stderr): iteration, error, λ, seconds (where the iteration
+    was timed on its own: the small path times its solve as a whole)."""
+    line = f"iter {info.iteration:4d}  error {info.error:.6e}  lambda {info.lambda_:.2e}"
+    return line if math.isnan(info.seconds) else line + f"  time {info.seconds:.3f} s"
 
 
 # --------------------------------------------------------------------------- #
 # defaultOptimize
 # --------------------------------------------------------------------------- #
+
+def converged(relative_tol: float, absolute_tol: float, error_tol: float, current: float, new: float) -> bool:
+    """GTSAM's ``checkConvergence``, silent (:func:`check_convergence` prints it too).  Plain
+    arithmetic: compiled code runs this very function (:mod:`lie_factors.batch.small_kernels`)."""
+    if new <= error_tol:
+        return True
+    absolute = current - new
+    return (relative_tol != 0.0 and ieee_divide(absolute, current) <= relative_tol) or absolute <= absolute_tol
+
 
 def check_convergence(relative_tol: float, absolute_tol: float, error_tol: float,
                       current: float, new: float, verbosity: int = _SILENT) -> bool:
@@ -215,18 +226,18 @@ def check_convergence(relative_tol: float, absolute_tol: float, error_tol: float
     if verbosity >= _ERROR:
         say(f"absoluteDecrease: {num(absolute, precision=12)} {'<' if absolute <= absolute_tol else '>='} "
             f"{num(absolute_tol)}")
-    relative = _divide(absolute, current)
+    relative = ieee_divide(absolute, current)
     if verbosity >= _ERROR:
         say(f"relativeDecrease: {num(relative, precision=12)} {'<' if relative <= relative_tol else '>='} "
             f"{num(relative_tol)}")
-    converged = (relative_tol != 0.0 and relative <= relative_tol) or absolute <= absolute_tol
-    if verbosity >= _TERMINATION and converged:
+    done = converged(relative_tol, absolute_tol, error_tol, current, new)
+    if verbosity >= _TERMINATION and done:
         say("converged" if absolute >= 0.0 else
             "Warning:  stopping nonlinear iterations because error increased")
         say(f"errorThreshold: {num(new)} <? {num(error_tol)}")
         say(f"absoluteDecrease: {num(absolute, precision=12)} <? {num(absolute_tol)}")
         say(f"relativeDecrease: {num(relative, precision=12)} <? {num(relative_tol)}")
-    return converged
+    return done
 
 
 def _print_values(opt, title: str) -> None:
@@ -334,6 +345,39 @@ def default_optimize(opt, params, progress: Callable[[IterationInfo], None] | No
 # iterate / tryLambda
 # --------------------------------------------------------------------------- #
 
+def lambda_after_success(lam: float, factor: float, fidelity: float, fixed_factor: bool,
+                         lower: float) -> tuple[float, float]:
+    """(λ, factor) after an accepted step (GTSAM 4.3's ``decreaseLambda``): λ/factor with a fixed
+    factor, else λ·max(1/3, 1 − (2·fidelity − 1)³) and the factor back to 2; λ not below
+    ``lower``.  Plain arithmetic, which compiled code runs too."""
+    if fixed_factor:
+        lam = lam / factor
+    else:
+        lam = lam * max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3)
+        factor = 2.0  # GTSAM 4.3's decreaseLambda starts the next rejections' factor at 2
+    return max(lower, lam), factor
+
+
+def lambda_after_failure(lam: float, factor: float, fixed_factor: bool) -> tuple[float, float]:
+    """(λ, factor) after a rejected step (GTSAM's ``increaseLambda``): λ·factor, and the factor
+    doubles unless fixed."""
+    return lam * factor, factor if fixed_factor else 2.0 * factor
+
+
+def judge_step(linear_change: float, old_linear: float, error: float, new_error: float,
+               min_model_fidelity: float, relative_tol: float) -> tuple[bool, bool, float]:
+    """(accepted, stop trying, model fidelity) of a step GTSAM's ``tryLambda`` evaluated: the
+    fidelity Δcost/Δlinear is tested only when Δlinear > ε·(linearized error), and a cost change
+    below relativeErrorTol·error stops the iteration."""
+    cost_change = error - new_error
+    fidelity = 0.0
+    success = False
+    if linear_change > _EPS * old_linear:
+        fidelity = cost_change / linear_change
+        success = fidelity > min_model_fidelity
+    return success, abs(cost_change) < relative_tol * error, fidelity
+
+
 def damping_diagonal(hessian_diagonal: np.ndarray) -> np.ndarray:
     """``diagonalDamping``'s D: diag(JᵀJ) clamped to [minDiagonal, maxDiagonal] (GTSAM's
     ``iterate``; the damped system adds λ·D to JᵀJ)."""
@@ -424,19 +468,13 @@ class LevenbergMarquardt:
 
     # ------------------------------------------------------------ the schedule
     def _decrease_lambda(self, fidelity: float) -> None:
-        if self._fixed_factor:
-            self._lambda /= self._factor
-        else:
-            self._lambda *= max(1.0 / 3.0, 1.0 - (2.0 * fidelity - 1.0) ** 3)
-            self._factor = 2.0  # GTSAM 4.3's decreaseLambda starts the next rejections' factor at 2
-        self._lambda = max(self._lambda_lower, self._lambda)
+        self._lambda, self._factor = lambda_after_success(self._lambda, self._factor, fidelity, self._fixed_factor,
+                                                          self._lambda_lower)
         self._inner += 1
 
     def _increase_lambda(self) -> None:
-        self._lambda *= self._factor
+        self._lambda, self._factor = lambda_after_failure(self._lambda, self._factor, self._fixed_factor)
         self._inner += 1
-        if not self._fixed_factor:
-            self._factor *= 2.0
 
     def _write_log(self, error: float) -> None:
         """GTSAM's ``writeLogFile``: inner iterations, seconds, error, λ, iterations (a fresh stream)."""
@@ -498,17 +536,14 @@ class LevenbergMarquardt:
                 if verbose:
                     say(f"old error ({num(self._error)}) new (tentative) error ({num(new_error)})")
                 cost_change = self._error - new_error
-                if linear_change > _EPS * old_linear:
-                    fidelity = cost_change / linear_change
-                    success = fidelity > self._min_model_fidelity
-                    if verbose:
-                        say(f"modelFidelity: {num(fidelity)}")
-                min_absolute = self._relative_tol * self._error
-                if abs(cost_change) < min_absolute:
-                    if verbose:
-                        say(f"abs(costChange)={num(abs(cost_change))}  minAbsoluteTolerance={num(min_absolute)} "
-                            f"(relativeErrorTol={num(self._relative_tol)})")
-                    stop = True
+                success, stop, fidelity = judge_step(linear_change, old_linear, self._error, new_error,
+                                                     self._min_model_fidelity, self._relative_tol)
+                if verbose and linear_change > _EPS * old_linear:
+                    say(f"modelFidelity: {num(fidelity)}")
+                if verbose and stop:
+                    say(f"abs(costChange)={num(abs(cost_change))}  "
+                        f"minAbsoluteTolerance={num(self._relative_tol * self._error)} "
+                        f"(relativeErrorTol={num(self._relative_tol)})")
         if level == _SUMMARY:
             self._summary_row(new_error, cost_change, delta is not None, start)
         if success:
