@@ -33,6 +33,7 @@ from numba import prange
 
 from ..kernels import dispatch as _dispatch
 from ..kernels import relative as _relative
+from ..kernels.retraction import retract_range
 from ..kernels.jit import inline_kernel, kernel, parallel_kernel
 
 #: Factors per parallel chunk: large enough that thread start-up and scratch allocation vanish.
@@ -95,7 +96,7 @@ def whiten_jacobian(Rf, H, out):
 
 
 @kernel
-def _factor_range(g, X, fs, A1, A2, b, sq, f0, f1, jacobians):
+def factor_range(g, X, fs, A1, A2, b, sq, f0, f1, jacobians):
     """:func:`_factor_chunks` on the factors f0 … f1 − 1 of ``fs``."""
     n = fs.R.shape[1]
     m = X.shape[1]
@@ -137,37 +138,16 @@ def _factor_chunks(g, X, fs, A1, A2, b, sq, jacobians):
     Jacobians: a group's factors compile once."""
     F = fs.i1.shape[0]
     for c in prange((F + CHUNK - 1) // CHUNK):
-        _factor_range(g, X, fs, A1, A2, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK), jacobians)
-
-
-@kernel
-def _retract_range(g, X, delta, offsets, out, i0, i1):
-    """:func:`_retract` on the elements i0 … i1 − 1."""
-    n = _dispatch.dim(g)
-    m = X.shape[1]
-    D = np.empty((m, m))
-    x = np.empty(n)
-    for i in range(i0, i1):
-        o = offsets[i]
-        if o < 0:
-            # element by element: an array assignment would compile numba's shape-mismatch
-            # message, seconds of string formatting on a first run
-            for r in range(m):
-                for c in range(m):
-                    out[i, r, c] = X[i, r, c]
-            continue
-        for k in range(n):
-            x[k] = delta[o + k]
-        _dispatch.exp(g, x, D)
-        _dispatch.compose(g, X[i], D, out[i])
+        factor_range(g, X, fs, A1, A2, b, sq, c * CHUNK, min(F, (c + 1) * CHUNK), jacobians)
 
 
 @parallel_kernel
 def _retract(g, X, delta, offsets, out):
-    """out[i] = X[i]·Exp(delta[offsets[i] : offsets[i] + n]) (GTSAM's retract); offset −1: unchanged."""
+    """out[i] = X[i]·Exp(delta[offsets[i] : offsets[i] + n]) (GTSAM's retract; :func:`retract_range`
+    on numba's threads); offset −1: unchanged."""
     N = X.shape[0]
     for c in prange((N + CHUNK - 1) // CHUNK):
-        _retract_range(g, X, delta, offsets, out, c * CHUNK, min(N, (c + 1) * CHUNK))
+        retract_range(g, X, delta, offsets, out, c * CHUNK, min(N, (c + 1) * CHUNK))
 
 
 @kernel
@@ -201,7 +181,7 @@ class GroupLoops:
     :func:`_retract`, ``relative_log`` :func:`_relative_log`.
 
     ``*_lin`` linearize (Jacobians, right-hand side and squared norms), ``*_err`` evaluate the
-    squared norms only; all four run the one kernel :func:`_factor_range` (or its chunks).
+    squared norms only; all four run the one kernel :func:`factor_range` (or its chunks).
 
     A call runs on numba's threads when its factors (or elements) × n² reach
     :data:`PARALLEL_MIN_WORK` and numba has more than one thread, else its range kernel on
@@ -222,7 +202,7 @@ class GroupLoops:
         if self._parallel(X.shape[0]):
             _retract(self.g, X, delta, offsets, out)
         else:
-            _retract_range(self.g, X, delta, offsets, out, 0, X.shape[0])
+            retract_range(self.g, X, delta, offsets, out, 0, X.shape[0])
 
     def relative_log(self, X0, X, out):
         _relative_log(self.g, X0, X, out)
@@ -245,7 +225,7 @@ class GroupLoops:
         if self._parallel(fs.i1.shape[0]):
             _factor_chunks(self.g, X, fs, A1, A2, b, sq, jacobians)
         else:
-            _factor_range(self.g, X, fs, A1, A2, b, sq, 0, fs.i1.shape[0], jacobians)
+            factor_range(self.g, X, fs, A1, A2, b, sq, 0, fs.i1.shape[0], jacobians)
 
     def setup(self, M):
         """(M⁻¹ (N, m, m), check codes (N,)) of elements ``M`` (N, m, m)."""

@@ -448,6 +448,24 @@ def cache_directory() -> Path:
     return Path(base) / "lie-factors" / "kinds"
 
 
+def generated_module(module_name: str):
+    """The generated module ``module_name``, written under :func:`cache_directory` by an earlier
+    :func:`load` (in this process or another): what a generated module that calls another's
+    kernel imports it by."""
+    module = sys.modules.get(module_name)
+    if module is None:
+        module = _import(module_name, cache_directory() / f"{module_name}.py")
+    return module
+
+
+def _import(module_name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
 def load(name: str, source: str):
     """The module of ``source`` (a kind's kernel), written under :func:`cache_directory` in a file
     named by the digest of the source, the package's and numba's versions, then imported."""
@@ -466,11 +484,7 @@ def load(name: str, source: str):
         tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(source, encoding="utf-8")
         os.replace(tmp, path)  # atomic: another process writing the same kind writes the same text
-    spec = importlib.util.spec_from_file_location(module_name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[module_name] = module
-    spec.loader.exec_module(module)
-    return module
+    return _import(module_name, path)
 
 
 def _identifier(name: str) -> str:
