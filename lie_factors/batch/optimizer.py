@@ -29,7 +29,7 @@ import numpy as np
 from .. import dogleg, lm
 from ..lm import IterationInfo, OptimizeResult
 from ..util.timing import Stopwatch
-from . import solvers
+from . import small, solvers
 from .graph import Problem, key_name
 from ..errors import IndeterminantLinearSystem, InputError, NotPositiveDefinite
 from .system import LinearSystem
@@ -76,6 +76,9 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
 
     #: Group lie_factors factors with robust noise (only subclasses that apply the loss do).
     group_robust = False
+    #: Whether the small path (:mod:`lie_factors.batch.small`) computes this class's objective: a
+    #: subclass that changes :meth:`objective` says so, and gives its losses by :meth:`_small_losses`.
+    small_path = True
 
     def __init__(self, graph: "gtsam.NonlinearFactorGraph | Problem", initial: gtsam.Values | None,
                  params: gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams | None = None,
@@ -96,22 +99,26 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
         # A Problem (e.g. Problem.from_pose_graph) is used as it is; ``initial`` is then ignored.
         self.problem = (graph if isinstance(graph, Problem)
                         else Problem(graph, initial, group_robust=self.group_robust))
-        self.system = LinearSystem(self.problem)
-        if self.dogleg and self.problem.constrained and linear_solver != "gtsam":
+        if self.dogleg and self.problem.constrained and linear_solver not in ("gtsam", "auto"):
             # GTSAM's dogleg takes both points from its elimination, whose QR imposes the constraints
-            if linear_solver != "auto":
-                i = self.problem.native[next(iter(self.problem.constrained))][0]
-                raise InputError(f"linear_solver={linear_solver!r}: dogleg on a graph with a hard constraint "
-                                 f"(factor {i}) takes its points from GTSAM's elimination: use "
-                                 "linear_solver='gtsam' (or 'auto')")
-            linear_solver = "gtsam"
-        # Gauss–Newton's (and dogleg's) undamped system must determine every variable (the pivot
-        # rule of lie_factors.sparse.pivots); LM's damped one is GTSAM's: a pivot that is not > 0 raises λ.
+            i = self.problem.native[next(iter(self.problem.constrained))][0]
+            raise InputError(f"linear_solver={linear_solver!r}: dogleg on a graph with a hard constraint "
+                             f"(factor {i}) takes its points from GTSAM's elimination: use "
+                             "linear_solver='gtsam' (or 'auto')")
+        self._linear_solver = linear_solver
+        self._system = self._solver = None
         undamped = self.gauss_newton or self.dogleg
-        self.solver = solvers.make(linear_solver, self.system, solvers.PIVOT_TOLERANCE if undamped else 0.0)
         self._structure_checked = not undamped
         self.timings = dict.fromkeys(TIMING_KEYS, 0.0)
         self._iterations = 0
+        # The whole solve in one compiled call where the problem allows it (lie_factors.batch.small);
+        # the linear system and its solver are then never built.
+        self.small_refusal = "linear_solver=" + repr(linear_solver) if linear_solver != "auto" else small.refusal(
+            self.problem, self.params, reweight is not None or cost is not None or not self.small_path,
+            type(self)._small_losses is not BatchLevenbergMarquardt._small_losses)
+        self._small = small.SmallSolve(self.problem, self.params) if self.small_refusal is None else None
+        if self._small is None:
+            self._linear()
         self._setup()
         t1 = time.perf_counter()
         self._error = self.objective()
@@ -120,14 +127,40 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
         self.timings["error"] += time.perf_counter() - t1
         self.timings["setup"] += t1 - t0
 
+    def _linear(self) -> None:
+        """The linear system and its solver (built once, where the small path does not run)."""
+        if self._system is not None:
+            return
+        linear_solver = self._linear_solver
+        if self.dogleg and self.problem.constrained:
+            linear_solver = "gtsam"
+        self._system = LinearSystem(self.problem)
+        # Gauss–Newton's (and dogleg's) undamped system must determine every variable (the pivot
+        # rule of lie_factors.sparse.pivots); LM's damped one is GTSAM's: a pivot that is not > 0 raises λ.
+        undamped = self.gauss_newton or self.dogleg
+        self._solver = solvers.make(linear_solver, self._system, solvers.PIVOT_TOLERANCE if undamped else 0.0)
+
     # ---------------------------------------------------------------- state
+    @property
+    def system(self) -> LinearSystem:
+        """The normal equations (:mod:`lie_factors.batch.system`), built on first use."""
+        self._linear()
+        return self._system
+
+    @property
+    def solver(self):
+        """The linear solver (:mod:`lie_factors.batch.solvers`), built on first use."""
+        self._linear()
+        return self._solver
+
     @property
     def blocks(self):
         return self.problem.blocks
 
     @property
     def linear_solver(self) -> str:
-        return self.solver.name
+        """The linear solver's name: ``"small"`` where the whole solve is one compiled call."""
+        return "small" if self._small is not None else self.solver.name
 
     @property
     def inner_iterations(self) -> int:
@@ -338,9 +371,12 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
         except NotPositiveDefinite as exc:
             raise self._singular(exc) from None
 
-    def _singular(self, exc: NotPositiveDefinite) -> IndeterminantLinearSystem:
+    def _singular(self, exc: NotPositiveDefinite, variable: int | None = None) -> IndeterminantLinearSystem:
+        """The refusal of a singular system, naming the variable where the factorization stopped
+        (``variable``, an index into the problem's variables, or found from ``exc.column``)."""
         P = self.problem
-        variable = self.system.variable_at(exc.column)
+        if variable is None:
+            variable = self.system.variable_at(exc.column)
         where = "" if variable is None else f" near variable {key_name(P.var_keys[variable])}"
         return IndeterminantLinearSystem(
             f"{self._method}: the linear system is singular{where}: {exc}; the graph does not determine "
@@ -366,7 +402,10 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
         arrays; :meth:`values` builds the GTSAM Values when asked).  ``seconds``:
         this call's wall time and the set-up's."""
         t0 = time.perf_counter()
-        result = lm.default_optimize(self, self.params, progress)
+        if self._small is not None and self._iterations == 0:
+            result = self._run_small(progress)
+        else:
+            result = lm.default_optimize(self, self.params, progress)
         t1 = time.perf_counter()
         result.values = self.values() if values else None
         self.timings["values"] += time.perf_counter() - t1
@@ -374,7 +413,31 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
         timings = dict(self.timings)
         timings["other"] = result.seconds - sum(v for k, v in timings.items() if k != "other")
         result.timings = timings
-        result.linear_solver = self.solver.name
+        result.linear_solver = self.linear_solver
+        return result
+
+    def _small_losses(self):
+        """Each factor's (loss id, parameter, scale) by graph index for the small path, or None
+        (Gaussian, scale 1: this class's objective)."""
+        return None
+
+    def _run_small(self, progress) -> OptimizeResult:
+        """The small path's solve (:class:`lie_factors.batch.small.SmallSolve`), its iterations
+        reported to ``progress`` after it; the optimizer then holds its estimate."""
+        if self.gauss_newton:
+            self._require_determined()
+        try:
+            result = self._small.run(self._small_losses())
+        except small.Singular as exc:
+            raise self._singular(exc, exc.variable) from None
+        self._error = result.final_error
+        self._iterations = result.iterations
+        self._inner = result.inner_iterations
+        if result.lambdas:
+            self._lambda = result.lambdas[-1]
+        if progress is not None:
+            for info in result.history:
+                progress(info)
         return result
 
 

@@ -241,6 +241,11 @@ class KindFactor(gtsam.CustomFactor):
         """Called when ``ops.catch_cheirality`` gave this factor its fallback (a ready projection
         factor prints or raises here, as GTSAM's ``verboseCheirality``/``throwCheirality``)."""
 
+    def silent_fallback(self) -> bool:
+        """Whether :meth:`on_cheirality` does nothing (the fallback residual is all there is to
+        it): a solver that never returns to Python mid-solve runs only such factors."""
+        return True
+
     def _evaluate(self, this, values, H):
         plan = active_plan
         if plan is not None and plan.values is values:

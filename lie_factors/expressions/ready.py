@@ -272,6 +272,9 @@ class _CameraFactor:
     def verboseCheirality(self) -> bool:
         return self._verbose
 
+    def silent_fallback(self) -> bool:
+        return not (self._throw or self._verbose)
+
     def on_cheirality(self) -> None:
         import gtsam
 

@@ -53,6 +53,9 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
 
     group_robust = True
 
+    def _small_losses(self):
+        return self.kinds, self.ks, self.scale
+
     def __init__(self, graph, initial, params=None, scale=None, **kwargs):
         self._scale0 = scale  # read by _setup, which the base __init__ calls before the initial objective
         super().__init__(graph, initial, params, **kwargs)

@@ -587,16 +587,20 @@ def test_pardiso_solver_matches_cholmod():
 
 
 def test_falls_back_to_gtsam_without_cvxopt_and_says_so_once(monkeypatch):
-    from lie_factors.batch import solvers
+    from lie_factors.batch import small, solvers
 
     monkeypatch.setattr(solvers, "cholmod_available", lambda: False)
     monkeypatch.setattr(solvers, "_fallback_warned", False)
     lie, _, initial = make_problem("Pose2", n=6, seed=2)
+    import warnings
+
+    with warnings.catch_warnings():  # the small path factors in compiled code: it needs no CHOLMOD
+        warnings.simplefilter("error")
+        assert batch.optimize(lie, initial).linear_solver == "small"
+    monkeypatch.setattr(small, "MAX_UNKNOWNS", 0)  # the general path from here on
     with pytest.warns(RuntimeWarning, match="cvxopt.*GTSAM"):
         res = batch.optimize(lie, initial)
     assert res.linear_solver == "gtsam" and res.converged
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert batch.optimize(lie, initial).linear_solver == "gtsam"
