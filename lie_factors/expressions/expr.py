@@ -221,6 +221,16 @@ class Expr:
         return _record("between", self, other)
 
     def localCoordinates(self, other):
+        """Of two group elements: Log(self⁻¹·other).  Of two Unit3: GTSAM's coordinates of other
+        in self's basis (2).  Of two cameras: GTSAM's ``PinholeCamera::localCoordinates``,
+        [the poses' Log(P⁻¹·P'), the calibrations' K' − K]."""
+        if self.node.type.kind == "camera" and isinstance(other, Expr) and other.node.type.kind == "camera":
+            from .ops import stack
+
+            if self.node.type.name != other.node.type.name:
+                raise fail(f"localCoordinates of a {self.node.type} and a {other.node.type}: both must be "
+                           "of one camera type")
+            return stack(self.pose().localCoordinates(other.pose()), other.calibration() - self.calibration())
         return _record("localCoordinates", self, other)
 
     def logmap(self):
@@ -315,6 +325,23 @@ class Expr:
 
     def yaw(self):
         return self.rpy()[2]
+
+    def pose(self):
+        """A camera's pose (camera to world, z forward: GTSAM's ``PinholeCamera::pose()``), a
+        Pose3; its Jacobian selects the camera tangent's first six entries."""
+        return _record("camera_pose", self)
+
+    def calibration(self):
+        """A camera's calibration (GTSAM's ``PinholeCamera::calibration()``); its Jacobian
+        selects the camera tangent's entries after the pose's."""
+        return _record("camera_calibration", self)
+
+    def project(self, point):
+        """The pixel at which a camera sees ``point`` (GTSAM's ``PinholeCamera::project``):
+        ``ops.project(camera.pose(), point, camera.calibration())``."""
+        from .ops import project
+
+        return project(self.pose(), point, self.calibration())
 
     def matrix(self):
         """The element's matrix (GTSAM's ``matrix()``), a matrix expression."""
@@ -413,8 +440,8 @@ class Expr:
 VOCABULARY = ("compose", "inverse", "between", "localCoordinates", "logmap", "retract", "expmap",
               "transformPoseFrom", "transformPoseTo", "rotation", "translation", "scale", "transformFrom",
               "transformTo", "rotate", "unrotate", "range", "bearing", "theta", "rpy", "ypr", "roll", "pitch",
-              "yaw", "matrix", "AdjointMap", "dot", "cross", "norm", "+", "-", "*", "/", "@", "[]", "T",
-              "flatten", "ops.expmap", "ops.project", "ops.stack", "ops.catch_cheirality")
+              "yaw", "pose", "calibration", "project", "matrix", "AdjointMap", "dot", "cross", "norm", "+", "-",
+              "*", "/", "@", "[]", "T", "flatten", "ops.expmap", "ops.project", "ops.stack", "ops.catch_cheirality")
 
 
 def _line() -> int | None:
