@@ -298,16 +298,24 @@ class _CameraFactor:
         return self._verbose
 
     def on_cheirality(self) -> None:
-        import gtsam
+        camera_cheirality(type(self).__name__, self._what, *self._keys_, self._throw, self._verbose)
 
-        from ..errors import CheiralityException
 
-        camera, landmark = (gtsam.DefaultKeyFormatter(k) for k in self._keys_)
-        if self._verbose:
-            print(f"{self._what}: Landmark {landmark} moved behind camera {camera}")
-        if self._throw:
-            raise CheiralityException(f"{type(self).__name__}: {self._what}: landmark {landmark} is behind "
-                                      f"camera {camera} (throwCheirality)")
+def camera_cheirality(factor: str, what: str, camera: int, landmark: int, throw: bool, verbose: bool) -> None:
+    """What GTSAM's GenericProjectionFactor and GenericStereoFactor (class ``factor``, exception
+    text ``what``) do where their projection finds the landmark not in front of the camera:
+    with ``verbose`` print GTSAM's line, with ``throw`` raise
+    :class:`~lie_factors.errors.CheiralityException`."""
+    import gtsam
+
+    from ..errors import CheiralityException
+
+    camera, landmark = gtsam.DefaultKeyFormatter(camera), gtsam.DefaultKeyFormatter(landmark)
+    if verbose:
+        print(f"{what}: Landmark {landmark} moved behind camera {camera}")
+    if throw:
+        raise CheiralityException(f"{factor}: {what}: landmark {landmark} is behind camera {camera} "
+                                  "(throwCheirality)")
 
 
 _IDENTITY = np.eye(4)
