@@ -225,12 +225,11 @@ class Expr:
         in self's basis (2).  Of two cameras: GTSAM's ``PinholeCamera::localCoordinates``,
         [the poses' Log(P⁻¹·P'), the calibrations' K' − K]."""
         if self.node.type.kind == "camera" and isinstance(other, Expr) and other.node.type.kind == "camera":
-            from .ops import stack
-
             if self.node.type.name != other.node.type.name:
                 raise fail(f"localCoordinates of a {self.node.type} and a {other.node.type}: both must be "
                            "of one camera type")
-            return stack(self.pose().localCoordinates(other.pose()), other.calibration() - self.calibration())
+            return _record("stack", self.pose().localCoordinates(other.pose()),
+                           other.calibration() - self.calibration())
         return _record("localCoordinates", self, other)
 
     def logmap(self):
@@ -339,8 +338,6 @@ class Expr:
     def project(self, point):
         """The pixel at which a camera sees ``point`` (GTSAM's ``PinholeCamera::project``):
         ``ops.project(camera.pose(), point, camera.calibration())``."""
-        from .ops import project
-
         return project(self.pose(), point, self.calibration())
 
     def matrix(self):
@@ -524,6 +521,15 @@ def _product(a, b) -> Expr:
     if tb.dim == 1 and ta.dim != 1:
         return _record("smul", b, a)
     return _record("emul", a, b)
+
+
+def project(pose: Expr, point: Expr, calibration) -> Expr:
+    """:func:`lie_factors.expressions.ops.project`: the calibration of the point seen from the
+    pose, divided by its depth (GTSAM's PinholeCamera), or GTSAM's StereoCamera's [uL, uR, v]."""
+    seen = pose.transformTo(point)
+    if isinstance(calibration, Expr) and calibration.type.name == "Cal3_S2Stereo":
+        return _record("stereo", calibration, seen)
+    return _record("uncalibrate", calibration, _record("pinhole", seen))
 
 
 def constant_only(node: Node) -> bool:
