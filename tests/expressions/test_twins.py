@@ -411,3 +411,26 @@ def test_a_graph_of_twins_and_native_factors_reaches_gtsams_optimum():
         assert a.equals(b, 1e-5), (a, b)
     for j in range(12):
         np.testing.assert_allclose(ours.atPoint3(L(j)), theirs.atPoint3(L(j)), atol=1e-5)
+
+
+def test_robust_twins_reach_gtsams_optimum_where_the_solver_groups_robust_losses():
+    """With ``group_robust`` (WeightedLevenbergMarquardt) a twin with a robust noise model is a
+    row of its kind, its loss the solver's; its kind's factors count in the objective."""
+    from lie_factors.expressions import ready
+    from lie_factors.robust.weighted import WeightedLevenbergMarquardt
+
+    n = gtsam.noiseModel
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorPose2(X(1), gtsam.Pose2(), n.Isotropic.Sigma(3, 0.1)))
+    graph.add(ready.RangeFactor2D(X(1), L(2), 5.0, n.Isotropic.Sigma(1, 0.1)))
+    for k, estimator in enumerate((n.mEstimator.Huber.Create(1.0), n.mEstimator.Fair.Create(1.3998))):
+        graph.add(gtsam.PriorFactorPoint2(L(2), np.array([3.0, 3.0 + k]),
+                                          n.Robust.Create(estimator, n.Isotropic.Sigma(2, 0.1))))
+    values = values_of(x=(X(1), gtsam.Pose2(0.3, -0.2, 0.1)), l=(L(2), np.array([1.0, 0.0])))
+    optimizer = WeightedLevenbergMarquardt(graph, values)
+    assert not optimizer.problem.native
+    assert optimizer.objective() == pytest.approx(graph.error(values), rel=1e-12)
+    ours = optimizer.optimize().values
+    theirs = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    assert graph.error(ours) == pytest.approx(graph.error(theirs), rel=1e-8)
+    np.testing.assert_allclose(ours.atPoint2(L(2)), theirs.atPoint2(L(2)), atol=1e-6)
