@@ -476,8 +476,8 @@ class Problem:
         (:func:`lie_factors.posegraph.gauge.undetermined`: too few rows of factors, or a
         component of relative factors only), by its index in :attr:`var_keys`; None if the
         structure decides nothing.  Between factors are relative, lie_factors' or GTSAM's
-        (those GTSAM linearizes: robust ones, say); priors anchor; a factor of another kind
-        leaves its component to the factorization."""
+        (those GTSAM linearizes: robust ones, say, and their twin kinds); priors anchor; a factor
+        of another kind leaves its component to the factorization."""
         V = len(self.var_keys)
         rows = np.zeros(V, dtype=np.int64)
         u, v, anchored = [self.native_pairs[:, 0]], [self.native_pairs[:, 1]], []
@@ -490,13 +490,14 @@ class Problem:
                 v.append(g.v2)
             else:
                 anchored.append(g.v1)
-        for kg in self.kinds:  # a kind's invariance is not known: it anchors its component
+        for kg in self.kinds:  # a kind anchors its component unless it is known to be relative
             for var in kg.var:
                 rows += kg.kind.dim * np.bincount(var, minlength=V)
             pairs = kg.pairs()
             u.append(pairs[:, 0])
             v.append(pairs[:, 1])
-            anchored.append(kg.var[0])
+            if not kg.kind.relative:
+                anchored.append(kg.var[0])
         nat = self.native_arrays
         if nat is not None:
             count = np.diff(nat.key_start)  # each native factor's variables

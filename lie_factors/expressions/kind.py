@@ -52,6 +52,9 @@ class Kind:
     module: object
     nodes: list  # the kernel's nodes, in its order (a status names one)
     function: str  # the residual function's name, for messages
+    #: whether its error is unchanged by one change of frame of all its variables (a Between's):
+    #: the batch solver's structural check of the gauge counts such factors as anchoring nothing
+    relative: bool = False
 
     def fault(self, code: int, keys: list, factor: str) -> Exception:
         """The exception of a factor (class ``factor``, its ``keys``) whose evaluation ended with

@@ -383,7 +383,9 @@ def between_kind(t: str):
             return (x2 - x1) - z
         return z.localCoordinates(x1.between(x2))
 
-    return factor(t, t, measured=t)(_named(residual, f"BetweenFactor{t}"))
+    cls = factor(t, t, measured=t)(_named(residual, f"BetweenFactor{t}"))
+    cls.kind.relative = True
+    return cls
 
 
 @cache

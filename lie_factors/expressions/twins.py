@@ -117,25 +117,16 @@ def twin_row(f, cache: dict) -> tuple[TwinRow, object] | None:
 # ----------------------------------------------------------------------------- readers
 
 
-def _rot2(r) -> np.ndarray:
-    c, s = r.c(), r.s()
-    return np.array([[c, -s], [s, c]])
+def _read_measured_group(f, cache):
+    return f.keys(), [f.measured().matrix()], f.noiseModel()
 
 
-def _group_value(value) -> np.ndarray:
-    return _rot2(value) if type(value) is gtsam.Rot2 else value.matrix()
-
-
-def _read_between_group(f, cache):
-    return f.keys(), [_group_value(f.measured())], f.noiseModel()
-
-
-def _read_between_point(f, cache):
+def _read_measured_vector(f, cache):
     return f.keys(), [np.asarray(f.measured(), dtype=np.float64)], f.noiseModel()
 
 
 def _read_prior_group(f, cache):
-    return f.keys(), [_group_value(f.prior())], f.noiseModel()
+    return f.keys(), [f.prior().matrix()], f.noiseModel()
 
 
 def _read_prior_point(f, cache):
@@ -147,16 +138,8 @@ def _read_prior_camera(f, cache):
     return f.keys(), [camera_array(type(camera).__name__, camera)], f.noiseModel()
 
 
-def _read_measured_vector(f, cache):
-    return f.keys(), [np.asarray(f.measured(), dtype=np.float64)], f.noiseModel()
-
-
 def _read_gps(f, cache):
     return f.keys(), [np.asarray(f.measurementIn(), dtype=np.float64)], f.noiseModel()
-
-
-def _read_rotation_prior(f, cache):
-    return f.keys(), [_group_value(f.measured())], f.noiseModel()
 
 
 def _read_range(f, cache):
@@ -164,7 +147,8 @@ def _read_range(f, cache):
 
 
 def _bearing_value(b) -> np.ndarray:
-    return _rot2(b) if type(b) is gtsam.Rot2 else np.asarray(b.point3(), dtype=np.float64)
+    """A Rot2's matrix, or a Unit3's unit vector."""
+    return b.matrix() if type(b) is gtsam.Rot2 else np.asarray(b.point3(), dtype=np.float64)
 
 
 def _read_bearing(f, cache):
@@ -262,10 +246,10 @@ def _kind(factory: str, *args):
 def _table() -> dict:
     table = {}
     for t in ("Rot2", "Rot3", "Pose2", "Pose3", "Similarity2", "Similarity3"):
-        table[getattr(gtsam, f"BetweenFactor{t}")] = Twin(_kind("between_kind", t), _read_between_group)
+        table[getattr(gtsam, f"BetweenFactor{t}")] = Twin(_kind("between_kind", t), _read_measured_group)
         table[getattr(gtsam, f"PriorFactor{t}")] = Twin(_kind("prior_kind", t), _read_prior_group)
     for t in ("Point2", "Point3"):
-        table[getattr(gtsam, f"BetweenFactor{t}")] = Twin(_kind("between_kind", t), _read_between_point)
+        table[getattr(gtsam, f"BetweenFactor{t}")] = Twin(_kind("between_kind", t), _read_measured_vector)
         table[getattr(gtsam, f"PriorFactor{t}")] = Twin(_kind("prior_kind", t), _read_prior_point)
     for camera in ("PinholeCameraCal3Bundler", "PinholeCameraCal3_S2"):
         table[getattr(gtsam, f"PriorFactor{camera}")] = Twin(_kind("prior_kind", camera), _read_prior_camera)
@@ -276,7 +260,7 @@ def _table() -> dict:
         table[getattr(gtsam, f"PoseTranslationPrior{d}")] = Twin(lambda d=d: _ready(f"PoseTranslationPrior{d}"),
                                                                  _read_measured_vector)
         table[getattr(gtsam, f"PoseRotationPrior{d}")] = Twin(_kind("pose_rotation_prior_kind", pose),
-                                                              _read_rotation_prior)
+                                                              _read_measured_group)
         table[getattr(gtsam, f"BearingFactor{d}")] = Twin(_kind("bearing_kind", pose), _read_bearing)
         table[getattr(gtsam, f"BearingRangeFactor{d}")] = Twin(lambda d=d: _ready(f"BearingRangeFactor{d}"),
                                                                _read_bearing_range)
