@@ -440,3 +440,31 @@ def test_robust_twins_reach_gtsams_optimum_where_the_solver_groups_robust_losses
     theirs = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     assert graph.error(ours) == pytest.approx(graph.error(theirs), rel=1e-8)
     np.testing.assert_allclose(ours.atPoint2(L(2)), theirs.atPoint2(L(2)), atol=1e-6)
+
+
+def test_camera_operations_against_differences():
+    """A kind on two cameras and a point: camera.pose(), calibration(), project and two cameras'
+    localCoordinates, its Jacobians against Richardson differences of its own error under GTSAM's
+    retraction of the cameras (PinholeCamera::retract: the tangent order is GTSAM's), in front of
+    the camera and near its optical axis; the projection's values are GTSAM's."""
+    from lie_factors.expressions import ops
+
+    @lf.factor("PinholeCameraCal3_S2", "PinholeCameraCal3Bundler", "Point3")
+    def cameras(c, d, l):
+        return ops.stack(c.project(l), d.localCoordinates(d), d.pose().localCoordinates(c.pose()),
+                         d.calibration() * c.calibration()[0:3], c.project(l) - d.project(l))
+
+    rng = np.random.default_rng(9)
+    for lateral in (0.7, 1e-9, 0.0):
+        x = pose3(rng)
+        c = gtsam.PinholeCameraCal3_S2(x, gtsam.Cal3_S2(500.0, 480.0, 0.1, 320.0, 240.0))
+        d = gtsam.PinholeCameraCal3Bundler(x.retract(rng.normal(0, 0.1, 6)),
+                                           gtsam.Cal3Bundler(450.0, 0.1, -0.02, 3.0, 4.0))
+        p = x.transformFrom(np.array([lateral, -lateral, 4.0]))
+        values = values_of(c=(X(1), c), d=(X(2), d), l=(L(3), p))
+        f = cameras(X(1), X(2), L(3), gtsam.noiseModel.Unit.Create(cameras.kind.dim))
+        e = f.unwhitenedError(values)
+        np.testing.assert_allclose(e[:2], c.project(p), rtol=1e-12)
+        A = f.linearize(values).jacobian()[0]
+        N = _richardson(f, values, h=1e-4)
+        np.testing.assert_allclose(A, N, rtol=0, atol=1e-6 * max(1.0, float(np.abs(N).max())))
