@@ -5,9 +5,10 @@ A kind's variables live where their type does: group elements of a registered gr
 :class:`~lie_factors.batch.groups.VarBlock` that Between/Prior factors of the group use, and
 every other type (Rot2, points, vectors, calibrations, cameras) in a :class:`ValueBlock` of its
 own (values (N, …) and each variable's offset in δ; retract X·Exp(δ) for Rot2, p + δ for the
-rest, a camera's pose P·Exp(δ[:6]) and calibration K + δ[6:]: GTSAM's).  A :class:`KindGroup` holds the kind's factors: per variable slot the index of
-each factor's variable in its block, the constants stacked (F, …), the whitening matrices (one
-per distinct noise model) and the outputs of the last linearization.
+rest, a camera's pose P·Exp(δ[:6]) and calibration K + δ[6:]: GTSAM's).  A :class:`KindGroup`
+holds the kind's factors: per variable slot the index of each factor's variable in its block,
+the constants stacked (F, …), the whitening matrices (one per distinct noise model) and the
+outputs of the last linearization.
 """
 
 from __future__ import annotations

@@ -218,7 +218,8 @@ def test_ranges_and_bearings_across_their_thresholds(distance):
     values = values_of(x2=(X(1), x2), l2=(L(1), l2), x3=(X(2), x3), l3=(L(2), l3), y2=(X(3), y2), y3=(X(4), y3))
     r = 0.5
     for f in (gtsam.RangeFactor2D(X(1), L(1), r, noise(1, rng)), gtsam.RangeFactor3D(X(2), L(2), r, noise(1, rng)),
-              gtsam.RangeFactorPose2(X(1), X(3), r, noise(1, rng)), gtsam.RangeFactorPose3(X(2), X(4), r, noise(1, rng)),
+              gtsam.RangeFactorPose2(X(1), X(3), r, noise(1, rng)),
+              gtsam.RangeFactorPose3(X(2), X(4), r, noise(1, rng)),
               gtsam.BearingFactor2D(X(1), L(1), rot2(rng), noise(1, rng)),
               gtsam.BearingRangeFactor2D(X(1), L(1), rot2(rng), r, noise(2, rng))):
         compare(f, values)
