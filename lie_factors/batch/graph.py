@@ -8,8 +8,11 @@
   Gaussian noise are grouped by kind (:mod:`lie_factors.batch.kinds`): their keys, constants
   and whitening become arrays, and the kind's kernel linearizes and evaluates them in one call;
   their variables of other types (Rot2, points, vectors, calibrations) are arrays too;
+* GTSAM's own factors with a twin kind (:mod:`lie_factors.expressions.twins`: GTSAM's
+  Between, Prior, projection, range, bearing, … factors) with Gaussian noise join their twin
+  kind's group, as that kind's own factors do;
 * every other factor (native GTSAM factors on any variable type — Pose2/3,
-  Point2/3 landmarks, ... — and lie_factors factors with robust or constrained
+  Point2/3 landmarks, ... — and factors with robust or constrained
   noise) is *native*: GTSAM linearizes it (one ``NonlinearFactorGraph.linearize``
   call), and its augmented information matrix is copied into one flat array for
   the assembly kernel;
@@ -39,6 +42,7 @@ import numpy as np
 from .. import factors as _factors
 from ..errors import InputError, first_line, nonfinite_error
 from ..expressions.kind import KindFactor
+from ..expressions.twins import TABLE, twin_row
 from .. import interop
 from ..posegraph import gauge
 from ..robust.losses import from_gtsam
@@ -222,6 +226,7 @@ class Problem:
         # noise model objects among many factors (posegraph.build_graph shares equal
         # ones); holding the object keeps its id from being reused while we read.
         whitening: dict = {}
+        conversions: dict = {}  # a twin's reader's: id(calibration) → (object, array)
         at = graph.at
         for i in range(graph.size()):
             f = at(i)
@@ -230,35 +235,17 @@ class Problem:
             cls = type(f)
             entry = kinds.get(cls)
             if entry is None:
-                kind = ("between" if issubclass(cls, _factors.BetweenFactor)
-                        else "prior" if issubclass(cls, _factors.PriorFactor)
-                        else "expression" if issubclass(cls, KindFactor) else None)
-                if kind == "expression":
-                    kg = next((k for k in self.kinds if k.kind is cls.kind), None)
-                    if kg is None:
-                        kg = KindGroup(cls.kind)
-                        self.kinds.append(kg)
-                    entry = kinds[cls] = (kind, kg)
-                elif kind is None:
-                    entry = kinds[cls] = (None, None)
-                else:
-                    spec = cls.spec
-                    self.blocks.setdefault(spec.name, VarBlock(spec))
-                    g = groups.get((kind, spec.name))
-                    if g is None:
-                        g = groups[(kind, spec.name)] = FactorGroup(kind, spec)
-                        self.groups.append(g)
-                    entry = kinds[cls] = (kind, g.rows)
+                entry = kinds[cls] = self._class_entry(cls, groups)
             kind, rows = entry
             R = None
-            if kind is not None:
-                nm = f._noise
-                w = whitening.get(id(nm))
-                if w is None:
-                    w = whitening[id(nm)] = (nm, *self._whitening_of(nm))
-                R = w[1]
-                if w[2] is not None:
-                    self.robust[i] = w[2]
+            row = f
+            if kind == "twin":
+                read = twin_row(f, conversions)
+                if read is not None:
+                    row, nm = read
+                    R = self._row_whitening(i, nm, whitening, rows.kind.dim, row._keys_)
+            elif kind is not None:
+                R = self._row_whitening(i, f._noise, whitening, None, None)
                 if kind == "between" and f._key1 == f._key2:
                     R = None  # a factor on one variable twice: GTSAM's linearization handles it
                     self.robust.pop(i, None)
@@ -272,8 +259,8 @@ class Problem:
                                          "is missing from the initial Values")
                 self.native.append((i, f, keys))
                 continue
-            if kind == "expression":
-                rows.add(i, f, R)
+            if kind in ("expression", "twin"):
+                rows.add(i, row, R)
             elif kind == "between":
                 rows.append((i, f._key1, f._key2, f._Minv, R))
             else:
@@ -284,6 +271,49 @@ class Problem:
             kg.close_rows(self)
         for block in (*self.blocks.values(), *self.value_blocks.values()):
             block.number_keys()
+
+    def _class_entry(self, cls, groups: dict) -> tuple:
+        """(how factors of class ``cls`` are read, where their rows go): ``"between"`` or
+        ``"prior"`` (ours: a FactorGroup's rows), ``"expression"`` (a kind's factor: its
+        KindGroup), ``"twin"`` (GTSAM's factor with a twin kind, :mod:`lie_factors.expressions.twins`:
+        that kind's KindGroup), or (None, None): native."""
+        kind = ("between" if issubclass(cls, _factors.BetweenFactor)
+                else "prior" if issubclass(cls, _factors.PriorFactor)
+                else "expression" if issubclass(cls, KindFactor) else None)
+        if kind == "expression":
+            return kind, self._kind_group(cls.kind)
+        if kind is None:
+            twin = TABLE.get(cls)
+            return ("twin", self._kind_group(twin.kind)) if twin is not None else (None, None)
+        spec = cls.spec
+        self.blocks.setdefault(spec.name, VarBlock(spec))
+        g = groups.get((kind, spec.name))
+        if g is None:
+            g = groups[(kind, spec.name)] = FactorGroup(kind, spec)
+            self.groups.append(g)
+        return kind, g.rows
+
+    def _kind_group(self, kind) -> KindGroup:
+        kg = next((k for k in self.kinds if k.kind is kind), None)
+        if kg is None:
+            kg = KindGroup(kind)
+            self.kinds.append(kg)
+        return kg
+
+    def _row_whitening(self, i: int, nm, whitening: dict, dim, keys):
+        """R of factor ``i``'s noise model ``nm`` (read once per noise model object), its robust
+        loss recorded in :attr:`robust`; None where GTSAM must linearize the factor.  A twin
+        (``dim`` its kind's residual dimension, ``keys`` its variables) also needs a noise model
+        of that dimension and distinct keys (else GTSAM's own evaluation says what is wrong)."""
+        w = whitening.get(id(nm))
+        if w is None:
+            w = whitening[id(nm)] = (nm, *self._whitening_of(nm))
+        R = w[1]
+        if R is None or (dim is not None and (R.shape != (dim, dim) or len(set(keys)) != len(keys))):
+            return None
+        if w[2] is not None:
+            self.robust[i] = w[2]
+        return R
 
     def block_of_type(self, t):
         """The block holding variables of the expression type ``t``: the group's VarBlock for a
@@ -446,8 +476,8 @@ class Problem:
         (:func:`lie_factors.posegraph.gauge.undetermined`: too few rows of factors, or a
         component of relative factors only), by its index in :attr:`var_keys`; None if the
         structure decides nothing.  Between factors are relative, lie_factors' or GTSAM's
-        (those GTSAM linearizes: robust ones, say); priors anchor; a factor of another kind
-        leaves its component to the factorization."""
+        (those GTSAM linearizes: robust ones, say, and their twin kinds); priors anchor; a factor
+        of another kind leaves its component to the factorization."""
         V = len(self.var_keys)
         rows = np.zeros(V, dtype=np.int64)
         u, v, anchored = [self.native_pairs[:, 0]], [self.native_pairs[:, 1]], []
@@ -460,13 +490,14 @@ class Problem:
                 v.append(g.v2)
             else:
                 anchored.append(g.v1)
-        for kg in self.kinds:  # a kind's invariance is not known: it anchors its component
+        for kg in self.kinds:  # a kind anchors its component unless it is known to be relative
             for var in kg.var:
                 rows += kg.kind.dim * np.bincount(var, minlength=V)
             pairs = kg.pairs()
             u.append(pairs[:, 0])
             v.append(pairs[:, 1])
-            anchored.append(kg.var[0])
+            if not kg.kind.relative:
+                anchored.append(kg.var[0])
         nat = self.native_arrays
         if nat is not None:
             count = np.diff(nat.key_start)  # each native factor's variables

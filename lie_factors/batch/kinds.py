@@ -3,11 +3,12 @@ arrays, evaluated and linearized by one call of the kind's kernel.
 
 A kind's variables live where their type does: group elements of a registered group in the
 :class:`~lie_factors.batch.groups.VarBlock` that Between/Prior factors of the group use, and
-every other type (Rot2, points, vectors, calibrations) in a :class:`ValueBlock` of its own
-(values (N, …) and each variable's offset in δ; retract X·Exp(δ) for Rot2, p + δ for the
-rest, GTSAM's).  A :class:`KindGroup` holds the kind's factors: per variable slot the index of
-each factor's variable in its block, the constants stacked (F, …), the whitening matrices (one
-per distinct noise model) and the outputs of the last linearization.
+every other type (Rot2, points, vectors, calibrations, cameras) in a :class:`ValueBlock` of its
+own (values (N, …) and each variable's offset in δ; retract X·Exp(δ) for Rot2, p + δ for the
+rest, a camera's pose P·Exp(δ[:6]) and calibration K + δ[6:]: GTSAM's).  A :class:`KindGroup`
+holds the kind's factors: per variable slot the index of each factor's variable in its block,
+the constants stacked (F, …), the whitening matrices (one per distinct noise model) and the
+outputs of the last linearization.
 """
 
 from __future__ import annotations
@@ -15,15 +16,18 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from .. import factors as _factors
 from ..errors import InputError
 from ..expressions.kind import check_statuses
-from ..expressions.types import CALIBRATIONS, accessor, as_array
+from ..expressions.types import CALIBRATIONS, CAMERAS, accessor, as_array
 from ..util.arrays import sorted_unique
+from .loops import GroupLoops
 
 
 class ValueBlock:
     """The variables of one non-matrix-group type ``t`` (Rot2, Point2/3, VectorN, the
-    calibrations): ``keys`` (sorted), ``X`` (N, …) their values, ``offsets`` (N,) in δ."""
+    calibrations, the cameras): ``keys`` (sorted), ``X`` (N, …) their values, ``offsets`` (N,)
+    in δ."""
 
     def __init__(self, t):
         self.t = t
@@ -66,9 +70,12 @@ class ValueBlock:
 
     def retract(self, X: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """X·Exp(δ) (Rot2) or X + δ on the first d entries (vectors; a Cal3Bundler's principal
-        point stays), each variable's δ at its offset."""
+        point stays), each variable's δ at its offset; a camera (P, K): (P·Exp(δ[:6]), K + δ[6:])
+        (GTSAM's ``PinholeCamera::retract``)."""
         d = self.t.dim
         step = delta[self.offsets[:, None] + np.arange(d)] if len(self.offsets) else np.zeros((0, d))
+        if self.t.kind == "camera":
+            return self._retract_cameras(X, delta, step)
         if self.t.name != "Rot2":
             if X.shape[1] == d:
                 return X + step
@@ -83,9 +90,22 @@ class ValueBlock:
         out[:, 1, 1] = out[:, 0, 0]
         return out
 
+    def _retract_cameras(self, X: np.ndarray, delta: np.ndarray, step: np.ndarray) -> np.ndarray:
+        out = X.copy()
+        poses = np.ascontiguousarray(X[:, :16]).reshape(-1, 4, 4)
+        moved = np.empty_like(poses)
+        GroupLoops(_factors.GROUPS["Pose3"]).retract(poses, delta, self.offsets, moved)
+        out[:, :16] = moved.reshape(-1, 16)
+        out[:, 16:16 + self.t.dim - 6] += step[:, 6:]  # a Cal3Bundler's principal point stays
+        return out
+
     def gtsam_value(self, x: np.ndarray):
         """The GTSAM object (or array) a ``gtsam.Values`` holds for the value ``x``."""
         name = self.t.name
+        if name in CAMERAS:
+            calibration = CAMERAS[name]
+            return getattr(gtsam, name)(gtsam.Pose3(x[:16].reshape(4, 4)),
+                                        getattr(gtsam, calibration)(*(float(v) for v in x[16:])))
         if name == "Rot2":
             return gtsam.Rot2.atan2(x[1, 0], x[0, 0])
         if name in CALIBRATIONS:  # GTSAM's constructors take the stored entries in order

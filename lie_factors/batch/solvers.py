@@ -206,6 +206,8 @@ class GtsamSolver:
                 for f in range(g.E):
                     if sw[f] > 0:
                         add(k1[f], sw[f] * g.A1[f], sw[f] * g.b[f], unit)
+        for kg in P.kinds:
+            self._add_kind(gfg, kg, np.sqrt(w[kg.fidx]))
         if P.native_linear is not None:
             wn = w[P.native_arrays.fidx]
             for j in range(P.native_linear.size()):
@@ -224,6 +226,22 @@ class GtsamSolver:
                     gfg.push_back(gtsam.JacobianFactor(blocks[0][0], blocks[0][1], *[x for kb in blocks[1:] for x in kb],
                                                        s * b, gtsam.noiseModel.Unit.Create(len(b))))
         return gfg
+
+    def _add_kind(self, gfg, kg, sw: np.ndarray) -> None:
+        """The rows of a kind's factors (:class:`~lie_factors.batch.kinds.KindGroup`), each
+        weighted by ``sw``: one JacobianFactor on its variables' keys."""
+        keys = self.problem.var_keys
+        m = kg.kind.dim
+        if len(kg.kind.variables) > 3:  # GTSAM's Python JacobianFactor takes at most three blocks
+            raise InputError(f"the GTSAM linear solver takes factors of at most 3 variables; the kind "
+                             f"{kg.kind.name} has {len(kg.kind.variables)}: use linear_solver='cholmod'")
+        unit = gtsam.noiseModel.Unit.Create(m)
+        var_keys = [[keys[v] for v in var] for var in kg.var]
+        for f in range(kg.E):
+            if sw[f] > 0:
+                A = sw[f] * kg.A[f]
+                blocks = [x for j, (o, end) in enumerate(kg.kind.blocks) for x in (var_keys[j][f], A[:, o:end])]
+                gfg.push_back(gtsam.JacobianFactor(*blocks, sw[f] * kg.b[f], unit))
 
     def _ordering_for(self, gfg):
         if self._ordering is None:

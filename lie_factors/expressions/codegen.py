@@ -320,6 +320,16 @@ class Generator:
         S = self._global(f"S{self.k[id(n)]} = np.array({list(indices)!r}, dtype=np.int64)")
         return [(SELECT, f"{S}[i]")], self._loop(n, f"{a}[{S}[i]]"), False
 
+    def _op_camera_pose(self, n, a, b, out):
+        # the pose is the stored array's first 16 entries; its tangent the camera's first 6
+        lines = ["for i in range(4):", "    for c in range(4):", f"        {out}[i, c] = {a}[4 * i + c]"]
+        return [(SELECT, "i")], lines, False
+
+    def _op_camera_calibration(self, n, a, b, out):
+        # the calibration's entries follow the pose's 16; its tangent follows the pose's 6
+        lines = [f"for i in range({n.type.shape[0]}):", f"    {out}[i] = {a}[16 + i]"]
+        return [(SELECT, "6 + i")], lines, False
+
     def _op_stack(self, n, a, b, out):
         lines, forms, off = [], [], 0
         for x in n.inputs:

@@ -221,6 +221,15 @@ class Expr:
         return _record("between", self, other)
 
     def localCoordinates(self, other):
+        """Of two group elements: Log(self⁻¹·other).  Of two Unit3: GTSAM's coordinates of other
+        in self's basis (2).  Of two cameras: GTSAM's ``PinholeCamera::localCoordinates``,
+        [the poses' Log(P⁻¹·P'), the calibrations' K' − K]."""
+        if self.node.type.kind == "camera" and isinstance(other, Expr) and other.node.type.kind == "camera":
+            if self.node.type.name != other.node.type.name:
+                raise fail(f"localCoordinates of a {self.node.type} and a {other.node.type}: both must be "
+                           "of one camera type")
+            return _record("stack", self.pose().localCoordinates(other.pose()),
+                           other.calibration() - self.calibration())
         return _record("localCoordinates", self, other)
 
     def logmap(self):
@@ -315,6 +324,21 @@ class Expr:
 
     def yaw(self):
         return self.rpy()[2]
+
+    def pose(self):
+        """A camera's pose (camera to world, z forward: GTSAM's ``PinholeCamera::pose()``), a
+        Pose3; its Jacobian selects the camera tangent's first six entries."""
+        return _record("camera_pose", self)
+
+    def calibration(self):
+        """A camera's calibration (GTSAM's ``PinholeCamera::calibration()``); its Jacobian
+        selects the camera tangent's entries after the pose's."""
+        return _record("camera_calibration", self)
+
+    def project(self, point):
+        """The pixel at which a camera sees ``point`` (GTSAM's ``PinholeCamera::project``):
+        ``ops.project(camera.pose(), point, camera.calibration())``."""
+        return project(self.pose(), point, self.calibration())
 
     def matrix(self):
         """The element's matrix (GTSAM's ``matrix()``), a matrix expression."""
@@ -413,8 +437,8 @@ class Expr:
 VOCABULARY = ("compose", "inverse", "between", "localCoordinates", "logmap", "retract", "expmap",
               "transformPoseFrom", "transformPoseTo", "rotation", "translation", "scale", "transformFrom",
               "transformTo", "rotate", "unrotate", "range", "bearing", "theta", "rpy", "ypr", "roll", "pitch",
-              "yaw", "matrix", "AdjointMap", "dot", "cross", "norm", "+", "-", "*", "/", "@", "[]", "T",
-              "flatten", "ops.expmap", "ops.project", "ops.stack", "ops.catch_cheirality")
+              "yaw", "pose", "calibration", "project", "matrix", "AdjointMap", "dot", "cross", "norm", "+", "-",
+              "*", "/", "@", "[]", "T", "flatten", "ops.expmap", "ops.project", "ops.stack", "ops.catch_cheirality")
 
 
 def _line() -> int | None:
@@ -497,6 +521,15 @@ def _product(a, b) -> Expr:
     if tb.dim == 1 and ta.dim != 1:
         return _record("smul", b, a)
     return _record("emul", a, b)
+
+
+def project(pose: Expr, point: Expr, calibration) -> Expr:
+    """:func:`lie_factors.expressions.ops.project`: the calibration of the point seen from the
+    pose, divided by its depth (GTSAM's PinholeCamera), or GTSAM's StereoCamera's [uL, uR, v]."""
+    seen = pose.transformTo(point)
+    if isinstance(calibration, Expr) and calibration.type.name == "Cal3_S2Stereo":
+        return _record("stereo", calibration, seen)
+    return _record("uncalibrate", calibration, _record("pinhole", seen))
 
 
 def constant_only(node: Node) -> bool:

@@ -32,7 +32,7 @@ from ..factors import checked_key, read_key
 from . import codegen
 from .expr import Expr, Node, Trace, constant, variable, where
 from .rules import FAULTS
-from .types import CALIBRATIONS, ValueType, as_array, calibration_array, value_type
+from .types import CALIBRATIONS, ValueType, as_array, calibration_array, camera_array, value_type
 
 __all__ = ["factor", "KindFactor", "Kind"]
 
@@ -52,6 +52,9 @@ class Kind:
     module: object
     nodes: list  # the kernel's nodes, in its order (a status names one)
     function: str  # the residual function's name, for messages
+    #: whether its error is unchanged by one change of frame of all its variables (a Between's):
+    #: the batch solver's structural check of the gauge counts such factors as anchoring nothing
+    relative: bool = False
 
     def fault(self, code: int, keys: list, factor: str) -> Exception:
         """The exception of a factor (class ``factor``, its ``keys``) whose evaluation ended with
@@ -308,8 +311,8 @@ def fetch(values, key: int, t: ValueType, factor: str) -> np.ndarray:
     """The value of a variable of type ``t`` at ``key`` in ``values`` as the kernel holds it;
     a missing key or one of another type raises GTSAM's named error
     (:func:`lie_factors.factors.read_key`)."""
-    value = read_key(values, key, t.accessor, f"gtsam.{t}" if t.is_group or t.name in CALIBRATIONS else t.name,
-                     factor)
+    named = t.is_group or t.name in CALIBRATIONS or t.kind == "camera"
+    value = read_key(values, key, t.accessor, f"gtsam.{t}" if named else t.name, factor)
     if t.is_group:
         if t.name == "Rot2":
             c, s = value.c(), value.s()
@@ -317,6 +320,8 @@ def fetch(values, key: int, t: ValueType, factor: str) -> np.ndarray:
         return value.matrix()
     if t.name in CALIBRATIONS:
         return calibration_array(t.name, value)
+    if t.kind == "camera":
+        return camera_array(t.name, value)
     a = np.asarray(value, dtype=np.float64)
     if a.shape != t.shape:
         raise ValuesIncorrectType(f"{factor}: key {gtsam.DefaultKeyFormatter(key)} holds a vector of shape "

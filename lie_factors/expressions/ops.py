@@ -17,6 +17,7 @@ Functions for a residual, beside the methods of :class:`~lie_factors.expressions
 from __future__ import annotations
 
 from .expr import Expr, _record, constant_only, fail
+from .expr import project as _project
 
 # --------------------------------------------------------------------------- #
 # The residual's functions (macros expand into the primitive operations)
@@ -113,10 +114,7 @@ def project(pose: Expr, point: Expr, calibration: Expr) -> Expr:
     (depth ≤ 0) raises :class:`~lie_factors.errors.CheiralityException` when the factor is
     evaluated there, as GTSAM's ``project`` does (:func:`catch_cheirality` gives GTSAM's
     projection factors' constant instead)."""
-    seen = pose.transformTo(point)
-    if isinstance(calibration, Expr) and calibration.type.name == "Cal3_S2Stereo":
-        return _record("stereo", calibration, seen)
-    return _record("uncalibrate", calibration, _record("pinhole", seen))
+    return _project(pose, point, calibration)
 
 
 def catch_cheirality(residual: Expr, fallback) -> Expr:

@@ -17,6 +17,19 @@ error of the factor of the same name; the class takes GTSAM's constructor argume
   held with it), GTSAM's ``GeneralSFMFactorCal3Bundler`` with the camera as a pose and its
   calibration.
 
+And the kinds of GTSAM's generic factors, one per type, made on first use (each the kind's
+factor class, constructed ``kind(key_1, …, measured, noise_model)`` as GTSAM's):
+
+- :func:`between_kind`: ``BetweenFactor<T>``, Log(z⁻¹·x1⁻¹·x2) of a group (Rot2, Rot3, Pose2,
+  Pose3, Similarity2, Similarity3), (x2 − x1) − z of a point;
+- :func:`prior_kind`: ``PriorFactor<T>``, Log(z⁻¹·x) of a group, x − z of a point, a camera's
+  GTSAM ``localCoordinates`` from z to x;
+- :func:`pose_rotation_prior_kind`: ``PoseRotationPrior2D/3D``, Log(z⁻¹·rotation(x));
+- :func:`bearing_kind`: ``BearingFactor2D/3D``, the bearing part of ``BearingRangeFactor2D/3D``;
+- :func:`camera_projection_kind`: ``GeneralSFMFactor`` on a camera variable (PinholeCameraCal3Bundler,
+  PinholeCameraCal3_S2): camera.project(l) − z, 0 with zero Jacobians where the point is not
+  in front of the camera.
+
 A point not in front of a camera (depth ≤ 0) gives GTSAM's projection factors' error: the
 constant 2·fx with zero Jacobians (0 for BundlerProjectionFactor, as GeneralSFMFactor), and
 with ``verboseCheirality`` GTSAM's line on standard output, with ``throwCheirality``
@@ -24,6 +37,8 @@ with ``verboseCheirality`` GTSAM's line on standard output, with ``throwCheirali
 """
 
 from __future__ import annotations
+
+from functools import cache
 
 import numpy as np
 
@@ -34,7 +49,8 @@ __all__ = ["GPSFactor", "PoseTranslationPrior2D", "PoseTranslationPrior3D", "Pos
            "PoseToPointFactor3D", "RangeFactor2D", "RangeFactor3D", "RangeFactorPose2", "RangeFactorPose3",
            "BearingRangeFactor2D", "BearingRangeFactor3D", "GenericProjectionFactorCal3_S2",
            "GenericProjectionFactorCal3DS2", "GenericProjectionFactorCal3Fisheye", "GenericStereoFactor3D",
-           "BundlerProjectionFactor", "from_gtsam"]
+           "BundlerProjectionFactor", "from_gtsam", "between_kind", "prior_kind", "pose_rotation_prior_kind",
+           "bearing_kind", "camera_projection_kind"]
 
 
 def _scalar(value) -> np.ndarray:
@@ -131,9 +147,19 @@ RangeFactorPose2 = _range_class(_range_pose2, "RangeFactorPose2", "RangeFactorPo
 RangeFactorPose3 = _range_class(_range_pose3, "RangeFactorPose3", "RangeFactorPose3")
 
 
+def _bearing_error(x, l, measured):
+    """GTSAM's error of a measured bearing of l from x (an ExpressionFactor's −Local(predicted,
+    measured)): Log(b⁻¹·bearing(x, l)) of a Rot2; of a Unit3, −bearing(x, l).localCoordinates(b),
+    in the predicted direction's basis."""
+    predicted = x.bearing(l)
+    if measured.type.kind == "unit":
+        return -predicted.localCoordinates(measured)
+    return measured.localCoordinates(predicted)
+
+
 @factor("Pose2", "Point2", bearing="Rot2", range="Vector1")
 def _bearing_range2(x, l, bearing, range):
-    return ops.stack(bearing.localCoordinates(x.bearing(l)), x.range(l) - range)
+    return ops.stack(_bearing_error(x, l, bearing), x.range(l) - range)
 
 
 class BearingRangeFactor2D(_bearing_range2):
@@ -161,8 +187,7 @@ class BearingRangeFactor2D(_bearing_range2):
 
 @factor("Pose3", "Point3", bearing="Unit3", range="Vector1")
 def _bearing_range3(x, l, bearing, range):
-    # GTSAM's error of a bearing: −Local(predicted, measured), in the predicted direction's basis
-    return ops.stack(-x.bearing(l).localCoordinates(bearing), x.range(l) - range)
+    return ops.stack(_bearing_error(x, l, bearing), x.range(l) - range)
 
 
 class BearingRangeFactor3D(_bearing_range3):
@@ -276,16 +301,24 @@ class _CameraFactor:
         return not (self._throw or self._verbose)
 
     def on_cheirality(self) -> None:
-        import gtsam
+        camera_cheirality(type(self).__name__, self._what, *self._keys_, self._throw, self._verbose)
 
-        from ..errors import CheiralityException
 
-        camera, landmark = (gtsam.DefaultKeyFormatter(k) for k in self._keys_)
-        if self._verbose:
-            print(f"{self._what}: Landmark {landmark} moved behind camera {camera}")
-        if self._throw:
-            raise CheiralityException(f"{type(self).__name__}: {self._what}: landmark {landmark} is behind "
-                                      f"camera {camera} (throwCheirality)")
+def camera_cheirality(factor: str, what: str, camera: int, landmark: int, throw: bool, verbose: bool) -> None:
+    """What GTSAM's GenericProjectionFactor and GenericStereoFactor (class ``factor``, exception
+    text ``what``) do where their projection finds the landmark not in front of the camera:
+    with ``verbose`` print GTSAM's line, with ``throw`` raise
+    :class:`~lie_factors.errors.CheiralityException`."""
+    import gtsam
+
+    from ..errors import CheiralityException
+
+    camera, landmark = gtsam.DefaultKeyFormatter(camera), gtsam.DefaultKeyFormatter(landmark)
+    if verbose:
+        print(f"{what}: Landmark {landmark} moved behind camera {camera}")
+    if throw:
+        raise CheiralityException(f"{factor}: {what}: landmark {landmark} is behind camera {camera} "
+                                  "(throwCheirality)")
 
 
 _IDENTITY = np.eye(4)
@@ -320,13 +353,89 @@ class GenericStereoFactor3D(_CameraFactor, _stereo):
     _calibration = "Cal3_S2Stereo"
 
 
+def _sfm_error(pose, l, K, z):
+    """GTSAM's GeneralSFMFactor error: project(pose, l, K) − z, or 0 with zero Jacobians where
+    the point is not in front of the camera (its ``catch (CheiralityException&)``)."""
+    return ops.catch_cheirality(ops.project(pose, l, K) - z, np.zeros(2))
+
+
 @factor("Pose3", "Cal3Bundler", "Point3", measured="Point2")
 def BundlerProjectionFactor(x, K, l, z):
     """project(x, l, K) − z with K = [f, k1, k2] a variable (its principal point u0, v0 held
     with it): BAL's camera as a Pose3 and its Cal3Bundler, GTSAM's
     ``GeneralSFMFactorCal3Bundler`` on a ``PinholeCameraCal3Bundler``, whose error where the
     point is not in front of the camera is 0, with zero Jacobians."""
-    return ops.catch_cheirality(ops.project(x, l, K) - z, np.zeros(2))
+    return _sfm_error(x, l, K, z)
+
+
+def _named(residual, name: str):
+    residual.__name__ = residual.__qualname__ = name
+    return residual
+
+
+def _points(t: str) -> bool:
+    return t in ("Point2", "Point3")
+
+
+@cache
+def between_kind(t: str):
+    """The kind of GTSAM's ``BetweenFactor<t>`` (``t`` a group or a point's name): Log(z⁻¹·x1⁻¹·x2)
+    (GTSAM's Local(z, between(x1, x2))), of points (x2 − x1) − z."""
+    def residual(x1, x2, z):
+        if _points(t):
+            return (x2 - x1) - z
+        return z.localCoordinates(x1.between(x2))
+
+    cls = factor(t, t, measured=t)(_named(residual, f"BetweenFactor{t}"))
+    cls.kind.relative = True
+    return cls
+
+
+@cache
+def prior_kind(t: str):
+    """The kind of GTSAM's ``PriorFactor<t>`` (``t`` a group, a point or a camera's name): Log(z⁻¹·x)
+    (GTSAM's −Local(x, z)), of a point x − z, of a camera z.localCoordinates(x)."""
+    def residual(x, z):
+        if _points(t):
+            return x - z
+        return z.localCoordinates(x)
+
+    return factor(t, measured=t)(_named(residual, f"PriorFactor{t}"))
+
+
+@cache
+def pose_rotation_prior_kind(pose: str):
+    """The kind of GTSAM's ``PoseRotationPrior2D/3D`` (``pose`` "Pose2" or "Pose3"): Log(z⁻¹·R(x))."""
+    rotation = "Rot2" if pose == "Pose2" else "Rot3"
+
+    def residual(x, z):
+        return z.localCoordinates(x.rotation())
+
+    return factor(pose, measured=rotation)(_named(residual, f"PoseRotationPrior{pose[-1]}D"))
+
+
+@cache
+def bearing_kind(pose: str):
+    """The kind of GTSAM's ``BearingFactor2D/3D`` (``pose`` "Pose2" or "Pose3"): the bearing part
+    of the bearing-range factors' error."""
+    point, bearing = ("Point2", "Rot2") if pose == "Pose2" else ("Point3", "Unit3")
+
+    def residual(x, l, z):
+        return _bearing_error(x, l, z)
+
+    return factor(pose, point, measured=bearing)(_named(residual, f"BearingFactor{pose[-1]}D"))
+
+
+@cache
+def camera_projection_kind(camera: str):
+    """The kind of GTSAM's ``GeneralSFMFactor`` on a camera variable (``camera``
+    "PinholeCameraCal3Bundler" or "PinholeCameraCal3_S2"): camera.project(l) − z, 0 where the
+    point is not in front of the camera."""
+    def residual(c, l, z):
+        return _sfm_error(c.pose(), l, c.calibration(), z)
+
+    return factor(camera, "Point3", measured="Point2")(
+        _named(residual, "GeneralSFMFactor" + camera[len("PinholeCamera"):]))
 
 
 def from_gtsam(f):

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import CheiralityException, EvaluationError, InputError
-from .types import GROUPS, POINT2, POINT3, STEREO_POINT2, UNIT3, ValueType, matrix, value_type, vector
+from .types import CAMERAS, GROUPS, POINT2, POINT3, STEREO_POINT2, UNIT3, ValueType, matrix, value_type, vector
 
 #: GTSAM's ``Rot3::RQ`` refuses its derivative within this of pitch = +π/2 (gimbal lock).
 GIMBAL_BAND = 1e-2
@@ -63,6 +63,9 @@ def _vector(t: ValueType, op: str, dim: int | None = None, matrices: bool = Fals
     if t.kind == "unit":
         raise InputError(f"{op} takes a vector, got a Unit3 (a direction: compare two with "
                          "measured.localCoordinates(predicted))")
+    if t.kind == "camera":
+        raise InputError(f"{op} takes a vector, got a {t} (a camera: its pose(), calibration(), "
+                         "project(point), localCoordinates)")
     if t.is_matrix and not matrices:
         raise InputError(f"{op} takes a vector, got a {t} (a matrix: index it, M[i, j], M[:, j], or "
                          "flatten() it)")
@@ -172,6 +175,15 @@ def _t_transform(op, allowed):
             raise InputError(f"{op} of a {a}: takes a {' or '.join(allowed)}")
         _vector(p, f"{op}'s point", a.rot)
         return (POINT2 if a.rot == 2 else POINT3), attrs
+    return rule
+
+
+def _t_camera_part(part):
+    def rule(ins, attrs):
+        a = ins[0]
+        if a.kind != "camera":
+            raise InputError(f"{part} of a {a}: takes a camera ({', '.join(CAMERAS)})")
+        return value_type("Pose3" if part == "pose" else CAMERAS[a.name]), attrs
     return rule
 
 
@@ -364,7 +376,8 @@ _TYPES = {
     "compose": _t_binary_group("compose"), "between": _t_binary_group("between"),
     "localCoordinates": _t_binary_group("localCoordinates"), "inverse": _t_inverse, "logmap": _t_logmap,
     "retract": _t_retract, "expmap": _t_expmap, "rotation": _t_rotation, "translation": _t_translation,
-    "scale": _t_scale, "rpy": _t_rpy, "matrix": _t_matrix, "adjoint_map": _t_adjoint_map,
+    "scale": _t_scale, "rpy": _t_rpy, "camera_pose": _t_camera_part("pose"),
+    "camera_calibration": _t_camera_part("calibration"), "matrix": _t_matrix, "adjoint_map": _t_adjoint_map,
     "transformFrom": _t_transform("transformFrom", _POSES), "transformTo": _t_transform("transformTo", _POSES),
     "rotate": _t_transform("rotate", _ROTATIONS), "unrotate": _t_transform("unrotate", _ROTATIONS),
     "dot": _t_dot, "cross": _t_cross, "norm": _t_norm, "add": _t_elementwise("+"),

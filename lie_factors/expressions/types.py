@@ -11,6 +11,10 @@ in GTSAM's conventions (``docs/conventions.md``):
   Cal3DS2 [fx, fy, s, u0, v0, k1, k2, p1, p2], Cal3Fisheye [fx, fy, s, u0, v0, k1, k2, k3, k4],
   Cal3_S2Stereo [fx, fy, s, u0, v0, b]) is a 1-D array, and moves as p + δ on its first ``dim``
   entries (all but a Cal3Bundler's principal point, which GTSAM does not optimize either);
+- a **camera** (PinholeCameraCal3Bundler, PinholeCameraCal3_S2: GTSAM's PinholeCamera, a pose
+  and its calibration as one value) is one 1-D array: the pose's 4×4 matrix row by row, then the
+  calibration's stored entries; its tangent is GTSAM's [pose ω, v, then the calibration's]
+  (9 and 11), and it moves as (P·Exp(δ[:6]), K + δ[6:]) (:data:`CAMERAS`);
 - a **matrix** (what ``matrix()`` and ``AdjointMap()`` give; ``MatrixRxC``) is held row by
   row in a 1-D array, and is an intermediate value only: never a variable or a constant.
 
@@ -37,7 +41,7 @@ class ValueType:
     ``cols``: a matrix's number of columns (its rows: ``dim // cols``)."""
 
     name: str
-    kind: str  # "group", "vector", "unit" (a Unit3) or "matrix"
+    kind: str  # "group", "vector", "unit" (a Unit3), "camera" or "matrix"
     dim: int
     shape: tuple
     group: registry.GroupInfo | None = None
@@ -96,6 +100,11 @@ _CALIBRATION_TYPES = {name: ValueType(name, "vector", 3 if name == "Cal3Bundler"
 CAL3_S2 = _CALIBRATION_TYPES["Cal3_S2"]
 CAL3_BUNDLER = _CALIBRATION_TYPES["Cal3Bundler"]
 NAMED_VECTORS = {t.name: t for t in (POINT2, POINT3, STEREO_POINT2, *_CALIBRATION_TYPES.values())}
+#: GTSAM's cameras: each one's calibration.  Stored as :func:`camera_array`: the pose's matrix
+#: row by row (16 entries), then the calibration's stored entries (:data:`CALIBRATIONS`).
+CAMERAS = {"PinholeCameraCal3Bundler": "Cal3Bundler", "PinholeCameraCal3_S2": "Cal3_S2"}
+CAMERA_TYPES = {name: ValueType(name, "camera", 6 + _CALIBRATION_TYPES[cal].dim, (16 + len(CALIBRATIONS[cal]),))
+                for name, cal in CAMERAS.items()}
 #: A direction in 3-D (GTSAM's Unit3), held as its unit vector; its Jacobians in the chain rule
 #: are those of the unit vector (3 rows).  A measurement, or a bearing computed from a point: not
 #: a variable.
@@ -120,6 +129,22 @@ def calibration_array(name: str, value) -> np.ndarray:
     return np.array([getattr(value, field)() for field in CALIBRATIONS[name]], dtype=np.float64)
 
 
+def camera_array(name: str, value) -> np.ndarray:
+    """The stored array of a GTSAM camera object of class ``name`` (:data:`CAMERAS`): its pose's
+    matrix row by row, then its calibration's stored entries."""
+    return np.concatenate([value.pose().matrix().reshape(16), calibration_array(CAMERAS[name], value.calibration())])
+
+
+def camera_pose(a: np.ndarray) -> np.ndarray:
+    """The pose's 4×4 matrix of a camera's stored array ``a`` (a view)."""
+    return a[:16].reshape(4, 4)
+
+
+def camera_calibration(a: np.ndarray) -> np.ndarray:
+    """The calibration's stored entries of a camera's stored array ``a`` (a view)."""
+    return a[16:]
+
+
 def value_type(spec) -> ValueType:
     """The :class:`ValueType` named by ``spec``: a ValueType, a name (``"Pose3"``, ``"Point2"``,
     ``"Vector4"``, ``"Cal3_S2"``), or a GTSAM class (``gtsam.Pose3``, ``gtsam.Cal3_S2``)."""
@@ -132,12 +157,14 @@ def value_type(spec) -> ValueType:
         return GROUPS[name]
     if name in NAMED_VECTORS:
         return NAMED_VECTORS[name]
+    if name in CAMERA_TYPES:
+        return CAMERA_TYPES[name]
     if name == "Unit3":
         return UNIT3
     match = re.fullmatch(r"Vector(\d+)", name)
     if match:
         return vector(int(match.group(1)))
-    known = ", ".join([*GROUPS, *NAMED_VECTORS, "VectorN", "Unit3"])
+    known = ", ".join([*GROUPS, *NAMED_VECTORS, *CAMERA_TYPES, "VectorN", "Unit3"])
     raise InputError(f"unknown type {name!r}: expected one of {known}")
 
 
@@ -154,6 +181,8 @@ def as_array(t: ValueType, value, what: str) -> np.ndarray:
         value = value.point3()
     elif t.name in CALIBRATIONS and type(value).__name__ == t.name:
         value = calibration_array(t.name, value)
+    elif t.kind == "camera" and type(value).__name__ == t.name:
+        value = camera_array(t.name, value)
     elif hasattr(value, "vector"):  # a StereoPoint2
         value = value.vector()
     try:
@@ -169,6 +198,8 @@ def as_array(t: ValueType, value, what: str) -> np.ndarray:
         raise InputError(f"{what}: not finite")
     if t.is_group:
         _check_element(t, a, what)
+    if t.kind == "camera":
+        _check_element(GROUPS["Pose3"], camera_pose(a), f"{what}: its pose")
     if t.name == "Unit3" and abs(float(np.linalg.norm(a)) - 1.0) > 1e-9:
         raise InputError(f"{what}: a Unit3 is a unit vector, got one of norm {np.linalg.norm(a):.6g}")
     return np.ascontiguousarray(a)
@@ -176,7 +207,7 @@ def as_array(t: ValueType, value, what: str) -> np.ndarray:
 
 def accessor(t: ValueType) -> str:
     """The ``gtsam.Values`` method that reads a variable of type ``t``."""
-    if t.is_group or (t.name in NAMED_VECTORS and t is not STEREO_POINT2):
+    if t.is_group or t.kind == "camera" or (t.name in NAMED_VECTORS and t is not STEREO_POINT2):
         return f"at{t.name}"
     return "atVector"
 

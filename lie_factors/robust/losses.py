@@ -30,6 +30,7 @@ tukey (c)      (1 − d²/c²)² if d ≤ c else 0           c²(1 − (1 − d�
 gm (c)         c⁴/(c² + d²)²                          ½c²d²/(c² + d²)
 dcs (c)        1 if d² ≤ c else (2c/(c + d²))²        d²/2 if d² ≤ c else c(3/2 − 2/(1 + d²/c))
 welsch (c)     exp(−d²/c²)                            −½c²·expm1(−d²/c²)
+fair (c)       1/(1 + |d|/c)                          c²(|d|/c − log1p(|d|/c))
 =============  =====================================  ============================================
 
 (``gm`` is Geman–McClure; DCS's ``c`` is in squared-distance units, as in GTSAM.)
@@ -47,7 +48,7 @@ import numpy as np
 from ..kernels.jit import kernel
 
 __all__ = [
-    "Loss", "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH",
+    "Loss", "GAUSSIAN", "HUBER", "CAUCHY", "TUKEY", "GEMAN_MCCLURE", "DCS", "WELSCH", "FAIR",
     "LOSSES", "RobustLoss", "parse_loss", "from_gtsam", "weight", "loss",
     "weights_and_losses",
 ]
@@ -62,15 +63,16 @@ class Loss(IntEnum):
     GEMAN_MCCLURE = 4
     DCS = 5
     WELSCH = 6
+    FAIR = 7
 
 
 # The kernels compare plain integers (numba freezes them as constants).
-GAUSSIAN, HUBER, CAUCHY, TUKEY, GEMAN_MCCLURE, DCS, WELSCH = (int(m) for m in Loss)
+GAUSSIAN, HUBER, CAUCHY, TUKEY, GEMAN_MCCLURE, DCS, WELSCH, FAIR = (int(m) for m in Loss)
 
 #: name → (id, gtsam mEstimator class name, default parameter).  Defaults: the
 #: 95 %-efficiency tuning constants for unit-variance residuals (Huber 1.345,
-#: Cauchy 2.3849, Tukey 4.6851, Welsch 2.9846); Geman–McClure c = 1 and DCS
-#: Φ = 1 (Agarwal et al. 2013).  The CLI accepts ``name:k`` to override.
+#: Cauchy 2.3849, Tukey 4.6851, Welsch 2.9846, Fair 1.3998); Geman–McClure c = 1
+#: and DCS Φ = 1 (Agarwal et al. 2013).  The CLI accepts ``name:k`` to override.
 LOSSES: dict[str, tuple[int, str, float]] = {
     "huber": (HUBER, "Huber", 1.345),
     "cauchy": (CAUCHY, "Cauchy", 2.3849),
@@ -78,6 +80,7 @@ LOSSES: dict[str, tuple[int, str, float]] = {
     "gm": (GEMAN_MCCLURE, "GemanMcClure", 1.0),
     "dcs": (DCS, "DCS", 1.0),
     "welsch": (WELSCH, "Welsch", 2.9846),
+    "fair": (FAIR, "Fair", 1.3998),
 }
 _BY_CLASS = {cls: (name, lid) for name, (lid, cls, _) in LOSSES.items()}
 
@@ -113,6 +116,8 @@ def weight(kind, k, d):
         return 1.0
     if kind == WELSCH:
         return math.exp(-(d * d) / (k * k))
+    if kind == FAIR:
+        return 1.0 / (1.0 + abs(d) / k)
     return 1.0
 
 
@@ -147,6 +152,9 @@ def loss(kind, k, d):
     if kind == WELSCH:
         c2 = k * k
         return c2 * 0.5 * -math.expm1(-(d * d) / c2)
+    if kind == FAIR:
+        u = abs(d) / k
+        return k * k * (u - math.log1p(u))
     return 0.5 * d * d
 
 

@@ -47,7 +47,8 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
     convergence) is :mod:`lie_factors.lm`'s, through
     :class:`~lie_factors.batch.optimizer.BatchLevenbergMarquardt`.
 
-    Factors GTSAM linearizes itself (native factors, other estimators) keep
+    The solver's own factors are its groups and its kinds' factors (a kind's, and GTSAM's own
+    with a twin kind).  Factors GTSAM linearizes itself (native factors, other estimators) keep
     GTSAM's own robust handling and are only scaled by ``s_f``.
     """
 
@@ -66,7 +67,9 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
         self.kinds, self.ks = graph_losses(P)
         scale = self._scale0
         self.scale = np.ones(F) if scale is None else np.asarray(scale, dtype=np.float64).copy()
-        self._group_slots = (np.concatenate([g.fidx for g in P.groups]) if P.groups
+        # the factors whose rows the solver whitens itself: groups and kinds (their losses here)
+        self._grouped = (*P.groups, *P.kinds)
+        self._group_slots = (np.concatenate([g.fidx for g in self._grouped]) if self._grouped
                              else np.zeros(0, dtype=np.int64))
         self._native_slots = (P.native_arrays.fidx if P.native_arrays is not None
                               else np.zeros(0, dtype=np.int64))
@@ -112,7 +115,7 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
         P.linearize()
         sys_w = self.system.weights
         total = 0.0
-        for g in P.groups:
+        for g in self._grouped:
             sq = g.sq
             w = np.empty(g.E)
             rho = np.empty(g.E)
@@ -134,7 +137,7 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
     def restart(self, scale: np.ndarray) -> None:
         """Back to the initial values and LM state, with factor scales ``scale`` (GNC's weights)."""
         P = self.problem
-        for b in P.blocks.values():
+        for b in (*P.blocks.values(), *P.value_blocks.values()):
             b.X = b.X0.copy()
         P.other = gtsam.Values(self._other0)
         self.scale = np.asarray(scale, dtype=np.float64).copy()

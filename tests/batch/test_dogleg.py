@@ -112,7 +112,10 @@ def test_iterations_are_gtsams(is3d, ours, delta0, far, linear_solver, taken):
     ref = steps(gtsam.DoglegOptimizer(graph, initial, params(delta0)), p=params(delta0))
     mine = steps(BatchLevenbergMarquardt(graph, initial, params(delta0), linear_solver=linear_solver),
                  len(ref) - 1)
-    assert_same(ref, mine, atol=1e-9 * ref[0][1] if linear_solver == "cholmod" else 0.0)
+    # GTSAM's own Pose2 factors are evaluated by their twin kinds, whose Jacobians are exact where
+    # GTSAM's lose digits (residual angles below about 1e-3): to 1e-9 of the initial error there too
+    near = linear_solver == "cholmod" or (not ours and not is3d)
+    assert_same(ref, mine, atol=1e-9 * ref[0][1] if near else 0.0)
     if delta0 == 100.0:
         assert taken["regions"] == {"Gauss-Newton"}
 

@@ -112,7 +112,9 @@ def assert_same_steps(ref, ours, initial_error):
     errors_ref, errors_ours = np.array([r[0] for r in ref]), np.array([r[0] for r in ours])
     # 1e-8 relative, errors below 1e-12 of the initial error being rounding (zero-residual graphs)
     np.testing.assert_allclose(errors_ours, errors_ref, rtol=1e-8, atol=1e-12 * initial_error)
-    np.testing.assert_allclose([r[1] for r in ours], [r[1] for r in ref], rtol=1e-8)
+    # λ's unfixed update (1 − (2ρ − 1)³) amplifies the rounding of a small decrease: GTSAM's own
+    # stereo and Between factors are evaluated by their twin kinds, GTSAM's to rounding
+    np.testing.assert_allclose([r[1] for r in ours], [r[1] for r in ref], rtol=1e-6)
 
 
 def lm(diagonal=False, fixed=True):

