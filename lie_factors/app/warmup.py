@@ -110,7 +110,7 @@ def workloads(tmp: str) -> list[tuple[str, Callable[[], None]]]:
 
 
 def main() -> int:
-    from ..kernels.jit import compile_seconds
+    from ..util.timing import compile_seconds
 
     start = time.perf_counter()
     failed = []

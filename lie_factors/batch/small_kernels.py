@@ -312,9 +312,10 @@ def _assemble(G, pools, L, system):
                     system.g[go + c] += acc
                 for b in range(a, ns):
                     sb = gtab[k, _SLOT0] + b
-                    W = scratch[:G.dim[sa] * G.dim[sb]].reshape((G.dim[sa], G.dim[sb]))
-                    _gram(pools.a, aa, G.rstride[sa], G.astart[sb] + f * G.fstride[sb], G.rstride[sb], m, W)
-                    _add_block(system.h, L, L.targets[at], base + a, base + b, a == b, W)
+                    _gram(pools.a, aa, G.rstride[sa], G.dim[sa], G.astart[sb] + f * G.fstride[sb], G.rstride[sb],
+                          G.dim[sb], m, scratch)
+                    _add_block(system.h, L, L.targets[at], base + a, base + b, a == b, scratch, G.dim[sa],
+                               G.dim[sb])
                     at += 1
     for p in range(L.dims.shape[0]):
         d, o, so = L.dims[p], L.doff[p], L.soff[p]
@@ -323,44 +324,42 @@ def _assemble(G, pools, L, system):
 
 
 @inline_kernel
-def _gram(a, aa, ra, ab, rb, m, W):
-    """W = A_aᵀA_b of one factor (m rows of A_a at ``a[aa]``, row stride ``ra``; A_b likewise),
-    row by row of A."""
-    for i in range(W.shape[0]):
-        _fill(W[i], 0.0)
+def _gram(a, aa, ra, da, ab, rb, db, m, W):
+    """W (da × db, row-major, flat) = A_aᵀA_b of one factor (m rows of A_a at ``a[aa]``, row
+    stride ``ra``; A_b likewise), row by row of A."""
+    for q in range(da * db):
+        W[q] = 0.0
     for r in range(m):
-        for i in range(W.shape[0]):
+        for i in range(da):
             x = a[aa + r * ra + i]
-            wi = W[i]
-            for j in range(W.shape[1]):
-                wi[j] += x * a[ab + r * rb + j]
+            for j in range(db):
+                W[i * db + j] += x * a[ab + r * rb + j]
 
 
 @inline_kernel
-def _add_block(h, L, t, slot_a, slot_b, same, W):
-    """Add W = A_aᵀA_b: its (i, j) is Λ's (oa + i, ob + j) within the two supernodes, stored at
-    that place of block (pa, pb) if pa > pb, as its transpose in block (pb, pa), or in the lower
-    triangle of a diagonal block (``same``: one slot, W symmetric)."""
+def _add_block(h, L, t, slot_a, slot_b, same, W, da, db):
+    """Add W = A_aᵀA_b (:func:`_gram`): its (i, j) is Λ's (oa + i, ob + j) within the two
+    supernodes, stored at that place of block (pa, pb) if pa > pb, as its transpose in block
+    (pb, pa), or in the lower triangle of a diagonal block (``same``: one slot, W symmetric)."""
     pa, pb, oa, ob = L.fblk[slot_a], L.fblk[slot_b], L.foff[slot_a], L.foff[slot_b]
-    da, db = W.shape[0], W.shape[1]
     if pa > pb:
         for i in range(da):
             row = t + (oa + i) * L.dims[pb] + ob
             for j in range(db):
-                h[row + j] += W[i, j]
+                h[row + j] += W[i * db + j]
     elif pa < pb:
         for j in range(db):
             row = t + (ob + j) * L.dims[pa] + oa
             for i in range(da):
-                h[row + i] += W[i, j]
+                h[row + i] += W[i * db + j]
     else:
         w = L.dims[pa]
         for i in range(da):
             for j in range(i + 1 if same else db):
                 if oa + i >= ob + j:
-                    h[t + (oa + i) * w + ob + j] += W[i, j]
+                    h[t + (oa + i) * w + ob + j] += W[i * db + j]
                 else:
-                    h[t + (ob + j) * w + oa + i] += W[i, j]
+                    h[t + (ob + j) * w + oa + i] += W[i * db + j]
 
 
 @helper_kernel

@@ -150,6 +150,29 @@ def retraction_source(t: ValueType) -> str:
                  "                    out[i, r, c] = X[i, r, c]",
                  "        else:",
                  "            r2_retract(X[i], delta[offsets[i]:offsets[i] + 1], out[i])"]
+    elif t.kind == "camera":  # (P·Exp(δ[:6]), K + δ[6:]): a pose's 16 entries, then the calibration's
+        lines += ["from lie_factors.kernels import dispatch, registry", "",
+                  "G = registry.BY_GTSAM['Pose3']", "", ""]
+        body += ["    D = np.empty((4, 4))",
+                 "    P = np.empty((4, 4))",
+                 "    Q = np.empty((4, 4))",
+                 "    x = np.empty(6)",
+                 "    for i in range(N):",
+                 f"        for k in range({t.shape[0]}):",
+                 "            out[i, k] = X[i, k]",
+                 "        o = offsets[i]",
+                 "        if o < 0:",
+                 "            continue",
+                 "        for k in range(6):",
+                 "            x[k] = delta[o + k]",
+                 "        for k in range(16):",
+                 "            P[k // 4, k % 4] = X[i, k]",
+                 "        dispatch.exp(G, x, D)",
+                 "        dispatch.compose(G, P, D, Q)",
+                 "        for k in range(16):",
+                 "            out[i, k] = Q[k // 4, k % 4]",
+                 f"        for k in range({t.dim - 6}):",
+                 "            out[i, 16 + k] += delta[o + 6 + k]"]
     elif t.kind == "vector" and len(t.shape) == 1:
         lines += ["", ""]
         body += ["    for i in range(N):",

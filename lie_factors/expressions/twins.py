@@ -83,6 +83,12 @@ class TwinRow:
         self.twin = twin
         self.flags = flags
 
+    def silent_fallback(self) -> bool:
+        """Whether a caught cheirality changes nothing but the residual (GTSAM's factor neither
+        prints nor raises): :meth:`lie_factors.expressions.kind.KindFactor.silent_fallback`."""
+        how = self.twin.cheirality
+        return how == "" or (how == "flags" and not any(self.flags))
+
     def evaluated(self, code: int) -> None:
         """What GTSAM's factor does where the kernel's status is ``code`` ≠ 0: a fault (> 0)
         raises the kind's error (:meth:`~lie_factors.expressions.kind.Kind.fault`) naming GTSAM's

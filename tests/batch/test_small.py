@@ -212,7 +212,8 @@ def test_what_the_small_path_refuses_runs_the_general_loop():
         opt = BatchLevenbergMarquardt(graph, initial, params)
         assert why in opt.small_refusal
     native = gtsam.NonlinearFactorGraph(graph)
-    native.add(gtsam.PriorFactorPoint2(gtsam.symbol_shorthand.L(1), np.zeros(2), gtsam.noiseModel.Unit.Create(2)))
+    native.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), [gtsam.symbol_shorthand.L(1)],
+                                  lambda this, values, H: values.atVector(this.keys()[0])))
     assert "GTSAM linearizes" in BatchLevenbergMarquardt(native, initial).small_refusal
     assert "linear_solver" in BatchLevenbergMarquardt(graph, initial, linear_solver="cholmod").small_refusal
     big, start = ring("Pose3", small.MAX_UNKNOWNS // 6 + 1, 1)
