@@ -1,0 +1,225 @@
+"""Small problems as GTSAM's own clients build them: ``lf.optimize`` against GTSAM's optimizer.
+
+    python benchmarks/small_problems.py [--repeat 5] [--only warm|process]
+
+GTSAM's shipped examples and unit tests are run as they are, with GTSAM's optimizers, ``ISAM2``
+and ``readG2o`` recording the graphs they are given (``tests/support/capture_gtsam_graphs.py``):
+SFMExample_bal (dubrovnik-3-7 and dubrovnik-3-7-18), VisualISAM2Example (the union of its
+updates), test_ISAM2 (planar SLAM), test_SFMExample, known_landmark_localization_20.g2o (readG2o),
+Pose3SLAMExample_g2o on pose3example.txt and on smallGrid3D.g2o (its Gauss–Newton params).
+
+* ``warm``: each capture optimized by GTSAM's own optimizer for its params (Levenberg–Marquardt
+  for an ISAM2 union or a readG2o capture) and by ``lf.optimize(graph, initial, params)``, in one
+  process, after one untimed call of each, alternated, best of ``--repeat``; the two final errors
+  (relative difference), the iterations, the path ``lf.optimize`` took (``small``: one compiled
+  call), the ratio ours / GTSAM's.  ``lf.optimize`` is timed with ``result.values`` read (what
+  GTSAM's ``optimize()`` returns).
+* ``process``: a whole script that reads dubrovnik-3-7 as SFMExample_bal does and optimizes it,
+  with ``lf.optimize`` against the same with GTSAM's LM, in fresh processes with the cache warm,
+  alternated, best of ``--repeat``; and numba's floor apart (``import numba`` and the first call
+  of a cached trivial kernel).
+
+The machine's load is printed before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SUPPORT = ROOT / "tests" / "support"
+
+#: client → the captures of it that are timed (their position among the client's captures,
+#: -1 the last: an ISAM2's union of every update)
+CLIENTS = {
+    "examples/SFMExample_bal": "dubrovnik-3-7",
+    "examples/SFMExample_bal:-i {dubrovnik-3-7-18-pre.txt}": "dubrovnik-3-7-18",
+    "examples/VisualISAM2Example": "VisualISAM2Example",
+    "tests/test_ISAM2.py": "test_ISAM2 (planar SLAM)",
+    "tests/test_SFMExample.py": "test_SFMExample",
+    "readG2o/known_landmark_localization_20.g2o": "known_landmark_localization_20",
+    "examples/Pose3SLAMExample_g2o": "pose3example (Pose3SLAMExample_g2o)",
+    "examples/Pose3SLAMExample_g2o:-i " + str(ROOT / "data" / "smallGrid3D.g2o"): "smallGrid3D (Pose3SLAMExample_g2o)",
+}
+
+
+def load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def capture():
+    """(label, capture) of the last capture of each client (an ISAM2's: the union of its updates)."""
+    import gtsam
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sys.path.insert(0, str(SUPPORT))
+    import capture_gtsam_graphs as cap
+
+    argv = list(sys.argv)
+    cap.SCRATCH[0] = str(Path("/tmp") if Path("/tmp").exists() else Path.cwd())
+    cap.start_recording()
+    plt.show = lambda *a, **k: None
+    sys.path.insert(0, os.path.join(cap.PACKAGE, "examples"))
+    out = []
+    try:
+        for client, label in CLIENTS.items():
+            if "{" in client:
+                head, name = client.split("{")
+                client = head + gtsam.findExampleDataFile(name.rstrip("}"))
+            cap.CAPTURES.items = []
+            failure = cap.run_client(client)
+            items = [i for i in cap.CAPTURES.items if i["source"] in (*cap.OPTIMIZERS, "ISAM2", "readG2o")]
+            if failure or not items:
+                print(f"{label}: no graph captured ({failure.strip().splitlines()[-1] if failure else 'none'})")
+                continue
+            out.append((label, items[-1]))
+    finally:
+        cap.stop_recording()
+        sys.argv = argv
+    return out
+
+
+def _gtsam_run(item):
+    """GTSAM's optimizer for the capture's params (LM for an ISAM2 union or a readG2o capture)."""
+    import gtsam
+
+    params = item["params"]
+    if isinstance(params, gtsam.GaussNewtonParams):
+        opt = gtsam.GaussNewtonOptimizer(item["graph"], item["values"], params)
+    else:
+        params = params if params is not None else gtsam.LevenbergMarquardtParams()
+        opt = gtsam.LevenbergMarquardtOptimizer(item["graph"], item["values"], params)
+    values = opt.optimize()
+    return values, opt.iterations()
+
+
+def _ours(item):
+    import gtsam
+
+    import lie_factors as lf
+
+    params = item["params"] if item["params"] is not None else gtsam.LevenbergMarquardtParams()
+    result = lf.optimize(item["graph"], item["values"], params)
+    result.values  # noqa: B018 - what GTSAM's optimize() returns
+    return result
+
+
+def warm(repeat: int) -> None:
+    import numpy as np
+
+    captures = capture()
+    print(f"load before: {load()}")
+    print("| client graph | factors | GTSAM s | ours s | ours / GTSAM | iterations GTSAM / ours | path | final error rel. diff |")
+    print("|---|---:|---:|---:|---:|---|---|---:|")
+    for label, item in captures:
+        graph = item["graph"]
+        ref_values, ref_its = _gtsam_run(item)
+        res = _ours(item)
+        best = {"gtsam": np.inf, "ours": np.inf}
+        for _ in range(repeat):
+            t = time.perf_counter()
+            _gtsam_run(item)
+            best["gtsam"] = min(best["gtsam"], time.perf_counter() - t)
+            t = time.perf_counter()
+            _ours(item)
+            best["ours"] = min(best["ours"], time.perf_counter() - t)
+        ref_error = float(graph.error(ref_values))
+        diff = abs(res.error - ref_error) / max(abs(ref_error), 1e-300)
+        path = getattr(res, "linear_solver", "") or "-"
+        print(f"| {label} | {graph.size()} | {best['gtsam']:.6f} | {best['ours']:.6f} | "
+              f"{best['ours'] / best['gtsam']:.2f} | {ref_its} / {res.iterations} | {path} | {diff:.1e} |")
+    print(f"load after: {load()}")
+
+
+_PROCESS = r"""
+import sys, time
+t0 = time.perf_counter()
+import gtsam
+which = sys.argv[1]
+scene = gtsam.SfmData.FromBalFile(gtsam.findExampleDataFile("dubrovnik-3-7-pre"))
+graph = gtsam.NonlinearFactorGraph()
+noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+for j in range(scene.numberTracks()):
+    track = scene.track(j)
+    for m in range(track.numberMeasurements()):
+        i, uv = track.measurement(m)
+        graph.add(gtsam.GeneralSFMFactorCal3Bundler(uv, noise, gtsam.symbol("c", i), gtsam.symbol("p", j)))
+graph.push_back(gtsam.PriorFactorPinholeCameraCal3Bundler(gtsam.symbol("c", 0), scene.camera(0),
+                                                          gtsam.noiseModel.Isotropic.Sigma(9, 0.1)))
+graph.push_back(gtsam.PriorFactorPoint3(gtsam.symbol("p", 0), scene.track(0).point3(),
+                                        gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+initial = gtsam.Values()
+for i in range(scene.numberCameras()):
+    initial.insert(gtsam.symbol("c", i), scene.camera(i))
+for j in range(scene.numberTracks()):
+    initial.insert(gtsam.symbol("p", j), scene.track(j).point3())
+params = gtsam.LevenbergMarquardtParams()
+if which == "ours":
+    import lie_factors as lf
+    values = lf.optimize(graph, initial, params).values
+else:
+    values = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+print(time.perf_counter() - t0, graph.error(values))
+"""
+
+_FLOOR = r"""
+import time
+t0 = time.perf_counter()
+import numpy
+t1 = time.perf_counter()
+import numba
+t2 = time.perf_counter()
+from lie_factors import se3
+import numpy as np
+se3.log(np.eye(4))
+t3 = time.perf_counter()
+print(t1 - t0, t2 - t1, t3 - t2)
+"""
+
+
+def process(repeat: int) -> None:
+    print(f"load before: {load()}")
+    for which in ("gtsam", "ours"):  # once untimed each: the cache and the OS's file cache warm
+        subprocess.run([sys.executable, "-c", _PROCESS, which], check=True, capture_output=True)
+    best = {"gtsam": float("inf"), "ours": float("inf"), "wall gtsam": float("inf"), "wall ours": float("inf")}
+    for _ in range(repeat):
+        for which in ("gtsam", "ours"):
+            t = time.perf_counter()
+            out = subprocess.run([sys.executable, "-c", _PROCESS, which], check=True, capture_output=True, text=True)
+            wall = time.perf_counter() - t
+            best[which] = min(best[which], float(out.stdout.split()[0]))
+            best["wall " + which] = min(best["wall " + which], wall)
+    print(f"dubrovnik-3-7 script, whole process: GTSAM {best['wall gtsam']:.3f} s, lf.optimize {best['wall ours']:.3f} s "
+          f"({best['wall ours'] / best['wall gtsam']:.2f}x); inside the script (imports on): GTSAM {best['gtsam']:.3f} s, "
+          f"ours {best['ours']:.3f} s")
+    floors = []
+    for _ in range(repeat):
+        out = subprocess.run([sys.executable, "-c", _FLOOR], check=True, capture_output=True, text=True)
+        floors.append([float(x) for x in out.stdout.split()])
+    numpy_s, numba_s, first = (min(f[k] for f in floors) for k in range(3))
+    print(f"numba's floor: import numpy {numpy_s:.3f} s, import numba {numba_s:.3f} s, "
+          f"import lie_factors.se3 and its first cached call {first:.3f} s")
+    print(f"load after: {load()}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--only", choices=("warm", "process"))
+    args = parser.parse_args()
+    if args.only in (None, "warm"):
+        warm(args.repeat)
+    if args.only in (None, "process"):
+        process(args.repeat)
+
+
+if __name__ == "__main__":
+    main()
