@@ -32,8 +32,10 @@ from . import small_kernels as sk
 
 __all__ = ["MAX_UNKNOWNS", "refusal", "SmallSolve", "Singular", "group_entry", "GROUP_LAYOUT"]
 
-#: The small path runs problems of at most this many scalar unknowns (docs/batch.md: measured).
-MAX_UNKNOWNS = 3000
+#: The small path runs problems of at most this many scalar unknowns: above it, on 3-D grids, its
+#: factorization costs more than CHOLMOD's and the Python it saves (docs/benchmarks.md, "Small
+#: problems": measured by benchmarks/small_threshold.py).
+MAX_UNKNOWNS = 300
 
 _solve = direct(sk.solve)
 

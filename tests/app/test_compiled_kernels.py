@@ -80,10 +80,6 @@ def modules(kernels: dict) -> set[str]:
 #: (checks, coefficients, SO(3) and SE(3) cores, the factors' construction), the batch loops and
 #: the sparse assembly.
 BATCH_SE3 = {"kernels.coeffs", "kernels.checks", "kernels.relative", "so3", "se3", "batch.loops", "sparse.pattern"}
-#: What the small path of the same graph runs instead of the sparse assembly (the demo's 60 poses
-#: are one): the solve in one call, its factorization, the retraction of the poses, the losses.
-SMALL_SE3 = (BATCH_SE3 - {"sparse.pattern"}) | {"batch.small_kernels", "sparse.blockchol", "kernels.retraction",
-                                                "robust.losses"}
 
 
 def test_the_demo_compiles_the_batch_path_only(tmp_path):
@@ -95,7 +91,7 @@ def test_the_demo_compiles_the_batch_path_only(tmp_path):
     # numba's message for an array assignment of mismatched shapes: seconds of string formatting,
     # compiled by any kernel that assigns an array to a slice (write such copies entry by entry)
     assert not [name for name in run["COMPILED"] if "raise_with_shape_context" in name]
-    assert modules(kernels) <= SMALL_SE3, modules(kernels) - SMALL_SE3
+    assert modules(kernels) <= BATCH_SE3, modules(kernels) - BATCH_SE3
     assert not [k for k, v in kernels.items() if v["parallel"]]  # 60 poses: every loop on the calling thread
     # one signature per kernel, but where the arguments' types differ by design: the Horner sum
     # over series of different lengths, and the Gram block of a diagonal or an off-diagonal block
