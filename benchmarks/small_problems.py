@@ -1,6 +1,6 @@
 """Small problems as GTSAM's own clients build them: ``lf.optimize`` against GTSAM's optimizer.
 
-    python benchmarks/small_problems.py [--repeat 5] [--only warm|process]
+    python benchmarks/small_problems.py [--repeat 5] [--only warm|stages|process]
 
 GTSAM's shipped examples and unit tests are run as they are, with GTSAM's optimizers, ``ISAM2``
 and ``readG2o`` recording the graphs they are given (``tests/support/capture_gtsam_graphs.py``):
@@ -14,6 +14,10 @@ Pose3SLAMExample_g2o on pose3example.txt and on smallGrid3D.g2o (its Gauss–New
   (relative difference; absolute where GTSAM's is 0), the iterations, the path ``lf.optimize`` took
   (``small``: one compiled call; else why not), the ratio ours / GTSAM's.  ``lf.optimize`` is timed with ``result.values`` read (what
   GTSAM's ``optimize()`` returns).
+* ``stages``: where ``lf.optimize``'s time goes on each capture (best of ``--repeat`` each):
+  reading the graph into arrays (``Problem``), the small path's set-up (``SmallSolve``), the
+  whole optimizer construction (both, the initial error, the LM state), the solve (one compiled
+  call from the start), ``result.values``; and ``lf.optimize`` whole.
 * ``process``: a whole script that reads dubrovnik-3-7 as SFMExample_bal does and optimizes it,
   with ``lf.optimize`` against the same with GTSAM's LM, in fresh processes with the cache warm,
   alternated, best of ``--repeat``; and numba's floor apart (``import numba`` and the first call
@@ -150,6 +154,47 @@ def warm(repeat: int) -> None:
     print(f"load after: {load()}")
 
 
+def stages(repeat: int) -> None:
+    import gtsam
+
+    import lie_factors as lf
+    from lie_factors.batch import small
+    from lie_factors.batch.graph import Problem
+    from lie_factors.batch.optimizer import BatchLevenbergMarquardt
+
+    def best(fn) -> float:
+        out = float("inf")
+        for _ in range(repeat):
+            t = time.perf_counter()
+            fn()
+            out = min(out, time.perf_counter() - t)
+        return out * 1e6
+
+    captures = capture()
+    print(f"load before: {load()}")
+    print("| client graph | factors | read (Problem) µs | small path set-up µs | optimizer set-up µs | solve µs "
+          "| values µs | lf.optimize µs |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for label, item in captures:
+        graph, values = item["graph"], item["values"]
+        params = item["params"] if item["params"] is not None else gtsam.LevenbergMarquardtParams()
+        if BatchLevenbergMarquardt(graph, values, params).small_refusal is not None:
+            continue
+        lf.optimize(graph, values, params)
+        problem = Problem(graph, values)
+        read = best(lambda: Problem(graph, values))
+        setup = best(lambda: small.SmallSolve(problem, params))
+        optimizer = best(lambda: BatchLevenbergMarquardt(graph, values, params))
+        solve = best(lambda: BatchLevenbergMarquardt(graph, values, params).optimize(values=False)) - optimizer
+        opt = BatchLevenbergMarquardt(graph, values, params)
+        opt.optimize(values=False)
+        out = best(opt.values)
+        whole = best(lambda: lf.optimize(graph, values, params).values)
+        print(f"| {label} | {graph.size()} | {read:.0f} | {setup:.0f} | {optimizer:.0f} | {solve:.0f} | {out:.0f} "
+              f"| {whole:.0f} |")
+    print(f"load after: {load()}")
+
+
 _PROCESS = r"""
 import sys, time
 t0 = time.perf_counter()
@@ -224,10 +269,12 @@ def process(repeat: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--only", choices=("warm", "process"))
+    parser.add_argument("--only", choices=("warm", "stages", "process"))
     args = parser.parse_args()
     if args.only in (None, "warm"):
         warm(args.repeat)
+    if args.only in (None, "stages"):
+        stages(args.repeat)
     if args.only in (None, "process"):
         process(args.repeat)
 

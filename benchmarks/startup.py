@@ -8,7 +8,9 @@ Every whole-command figure is a fresh process (``python -m lie_factors.app.cli .
 ``--repeat``, backends alternated. The first-run figures run each command a user reaches
 (:data:`COMMANDS`) from a fresh clone of HEAD (and of ``--reference REV``, alternated) with an
 empty NUMBA_CACHE_DIR, then again with the cache it wrote: the compile seconds the command
-prints, and first-run wall − second-run wall.
+prints, and first-run wall − second-run wall.  The after-install figures make a fresh virtual
+environment, run the README's main-job install in a fresh clone (which compiles the kernels:
+docs/installing.md), then each command and :data:`PYTHON_RUNS` twice.
 Prints markdown tables (docs/benchmarks.md, section "Start-up").
 """
 
@@ -115,6 +117,87 @@ def first_run_table(repeat: int, reference: str | None, only: list | None = None
     for (name, side), (first, later, note) in best.items():
         shown = f"{note:.1f}" if note is not None else "–"
         print(f"| `{name}` | {side} | {first:.2f} | {later:.2f} | {shown} | {first - later:.2f} |")
+
+
+#: Python a user runs (the issue's other first runs): a smoother loop of projection factors as
+#: GTSAM's VisualISAM2Example builds it, ``lf.optimize`` on a BAL scene with GTSAM's
+#: GeneralSFMFactor, and a new ``lf.factor`` kind (its own residual, never seen by the install).
+PYTHON_RUNS = {
+    "VisualISAM2-sized lf.Smoother loop": "from lie_factors.app import warmup; warmup._visual_smoother()",
+    "lf.optimize on a BAL file (GeneralSFMFactor)": r"""
+import gtsam, lie_factors as lf
+scene = gtsam.SfmData.FromBalFile(gtsam.findExampleDataFile("dubrovnik-3-7-pre"))
+graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+noise = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+for j in range(scene.numberTracks()):
+    for m in range(scene.track(j).numberMeasurements()):
+        i, uv = scene.track(j).measurement(m)
+        graph.add(gtsam.GeneralSFMFactorCal3Bundler(uv, noise, gtsam.symbol("c", i), gtsam.symbol("p", j)))
+graph.add(gtsam.PriorFactorPinholeCameraCal3Bundler(gtsam.symbol("c", 0), scene.camera(0), gtsam.noiseModel.Isotropic.Sigma(9, 0.1)))
+graph.add(gtsam.PriorFactorPoint3(gtsam.symbol("p", 0), scene.track(0).point3(), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+for i in range(scene.numberCameras()):
+    values.insert(gtsam.symbol("c", i), scene.camera(i))
+for j in range(scene.numberTracks()):
+    values.insert(gtsam.symbol("p", j), scene.track(j).point3())
+print(lf.optimize(graph, values).error)
+""",
+    "a new lf.factor kind": r"""
+import time, gtsam, numpy as np, lie_factors as lf
+salt = time.time_ns() % 1000 + 1.0   # a residual no earlier run has compiled
+kind = lf.factor("Pose2", "Point2", measured="Point2")(lambda x, l, z: x.transformTo(l) - salt * z)
+graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+graph.add(kind(1, 2, np.ones(2), gtsam.noiseModel.Unit.Create(2)))
+graph.add(gtsam.PriorFactorPose2(1, gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))
+values.insert(1, gtsam.Pose2()); values.insert(2, np.ones(2))
+print(lf.optimize(graph, values).error)
+""",
+}
+
+_COMPILED = r"""
+import sys
+from lie_factors.util.timing import compile_seconds
+exec(sys.argv[1])
+print("COMPILED", compile_seconds(), file=sys.stderr)
+"""
+
+
+def after_install_table() -> None:
+    """The README's main-job install (``pip install -e .``) in a fresh virtual environment on a
+    fresh clone of HEAD, its wall time; then each command of :data:`COMMANDS` and each of
+    :data:`PYTHON_RUNS`, first run and second run, fresh processes: the compile seconds each
+    prints (numba's compilation in the process) and first − later."""
+    import re
+
+    with tempfile.TemporaryDirectory() as work:
+        checkout = clone("HEAD", os.path.join(work, "head"))
+        venv = os.path.join(work, "venv")
+        subprocess.run([sys.executable, "-m", "venv", venv], check=True)
+        python = os.path.join(venv, "bin", "python")
+        t = time.perf_counter()
+        subprocess.run([python, "-m", "pip", "install", "-q", "-e", "."], cwd=checkout, check=True,
+                       capture_output=True)
+        install = time.perf_counter() - t
+        print(f"`pip install -e .` in a fresh venv, fresh clone: {install:.0f} s\n")
+        print("| first run after the install | first run s | later run s | compiled s |\n|---|---|---|---|")
+        out = os.path.join(work, "out")
+        os.makedirs(out)
+        env = dict(os.environ)
+        env.pop("PYTHONPATH", None)
+        runs = {name: [python, "-m", "lie_factors.app.cli", *[a.format(data=os.path.join(checkout, "data"), out=out)
+                                                                for a in argv]] for name, argv in COMMANDS.items()}
+        runs.update({name: [python, "-c", _COMPILED, code] for name, code in PYTHON_RUNS.items()})
+        for name, cmd in runs.items():
+            walls, compiled = [], 0.0
+            for _ in range(2):
+                t = time.perf_counter()
+                p = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=out)
+                walls.append(time.perf_counter() - t)
+                if p.returncode != 0:
+                    raise SystemExit(f"{name} failed: {p.stderr.strip()[-500:]}")
+                if len(walls) == 1:
+                    found = re.search(r"compiled numba kernels in ([0-9.]+) s|COMPILED ([0-9.e-]+)", p.stderr)
+                    compiled = float(found.group(1) or found.group(2)) if found else 0.0
+            print(f"| `{name}` | {walls[0]:.2f} | {walls[1]:.2f} | {compiled:.1f} |")
 
 
 FLOOR = r"""
@@ -310,10 +393,12 @@ def main(argv=None) -> int:
                     help="first-run: also time a fresh clone of this revision (e.g. the previous main), alternated")
     ap.add_argument("--commands", nargs="+", choices=list(COMMANDS), default=None, metavar="NAME",
                     help=f"first-run: only these commands (default: all: {', '.join(COMMANDS)})")
-    ap.add_argument("--only", choices=("help", "first-run", "compile-split", "construction", "city", "floor"), default=None)
+    ap.add_argument("--only", choices=("help", "first-run", "after-install", "compile-split", "construction", "city",
+                                       "floor"), default=None)
     args = ap.parse_args(argv)
     sections = [("help", lambda: help_table(args.repeat)),
                 ("first-run", lambda: first_run_table(args.repeat, args.reference, args.commands)),
+                ("after-install", after_install_table),
                 ("compile-split", lambda: compile_split_table(args.repeat)),
                 ("construction", construction_table), ("city", lambda: city_table(args.dataset, args.repeat)),
                 ("floor", lambda: floor_table(args.repeat))]

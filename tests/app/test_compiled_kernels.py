@@ -79,7 +79,8 @@ def modules(kernels: dict) -> set[str]:
 #: What the batch path of an SE(3) pose graph runs: the group's kernels and the factors'
 #: (checks, coefficients, SO(3) and SE(3) cores, the factors' construction), the batch loops and
 #: the sparse assembly.
-BATCH_SE3 = {"kernels.coeffs", "kernels.checks", "kernels.relative", "so3", "se3", "batch.loops", "sparse.pattern"}
+BATCH_SE3 = {"kernels.coeffs", "kernels.checks", "kernels.relative", "kernels.retraction", "so3", "se3", "batch.loops",
+             "sparse.pattern"}
 
 
 def test_the_demo_compiles_the_batch_path_only(tmp_path):
