@@ -106,7 +106,7 @@ _SE3_ONLY = textwrap.dedent(
     values.insert(0, gtsam.Pose3())
     values.insert(1, a.compose(gtsam.Pose3.Expmap(np.full(6, 0.05))))
     graph.linearize(values)
-    lf.optimize(graph, values, max_iterations=3)
+    lf.optimize(graph, values, max_iterations=3, linear_solver="cholmod")  # the general loop: its kernels
     def own_compiled(m):  # kernels defined in m (not imported into it) that were compiled
         return sorted(name for name, f in vars(m).items()
                       if getattr(f, "signatures", None) and f.py_func.__module__ == m.__name__)
