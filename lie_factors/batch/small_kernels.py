@@ -134,26 +134,18 @@ class State(NamedTuple):
 
 
 class _Layout(NamedTuple):
-    """Λ's block pattern over the supernodes (:mod:`lie_factors.sparse.blockchol`) and where each
-    factor slot's variable is in it: its supernode ``fblk``, offset within it ``foff``, scalar
-    offset ``fscal``; ``targets`` the block each slot pair adds to."""
+    """Λ's block pattern over the supernodes (``pattern``, a :class:`lie_factors.sparse.blockchol.
+    Pattern`) and where each factor slot's variable is in it: its supernode ``fblk``, offset
+    within it ``foff``, scalar offset ``fscal``; ``targets`` the block each slot pair adds to;
+    each variable's supernode ``vnode`` and offset within it ``vwithin``."""
 
-    dims: np.ndarray
-    soff: np.ndarray
-    colptr: np.ndarray
-    rows: np.ndarray
-    boff: np.ndarray
-    doff: np.ndarray
-    rowptr: np.ndarray
-    rowblk: np.ndarray
-    bcol: np.ndarray
+    pattern: blockchol.Pattern
     fblk: np.ndarray
     foff: np.ndarray
     fscal: np.ndarray
     targets: np.ndarray
     vnode: np.ndarray
     vwithin: np.ndarray
-    size: int
 
 
 class _System(NamedTuple):
@@ -257,8 +249,8 @@ def _layout(G, V, R):
         v = R.var[t]
         R.offsets[t] = soff[vnode[v]] + vwithin[v] if v >= 0 else -1
     targets = _targets(G.gtab, fblk, colptr, rows, boff, doff)
-    return _Layout(dims, soff, colptr, rows, boff, doff, rowptr, rowblk, bcol, fblk, foff, fscal, targets, vnode,
-                   vwithin, size)
+    pattern = blockchol.Pattern(dims, soff, colptr, rows, boff, doff, rowptr, rowblk, bcol, size)
+    return _Layout(pattern, fblk, foff, fscal, targets, vnode, vwithin)
 
 
 @helper_kernel
@@ -317,8 +309,8 @@ def _assemble(G, pools, L, system):
                     _add_block(system.h, L, L.targets[at], base + a, base + b, a == b, scratch, G.dim[sa],
                                G.dim[sb])
                     at += 1
-    for p in range(L.dims.shape[0]):
-        d, o, so = L.dims[p], L.doff[p], L.soff[p]
+    for p in range(L.pattern.dims.shape[0]):
+        d, o, so = L.pattern.dims[p], L.pattern.doff[p], L.pattern.soff[p]
         for i in range(d):
             system.hdiag[so + i] = system.h[o + i * d + i]
 
@@ -344,16 +336,16 @@ def _add_block(h, L, t, slot_a, slot_b, same, W, da, db):
     pa, pb, oa, ob = L.fblk[slot_a], L.fblk[slot_b], L.foff[slot_a], L.foff[slot_b]
     if pa > pb:
         for i in range(da):
-            row = t + (oa + i) * L.dims[pb] + ob
+            row = t + (oa + i) * L.pattern.dims[pb] + ob
             for j in range(db):
                 h[row + j] += W[i * db + j]
     elif pa < pb:
         for j in range(db):
-            row = t + (ob + j) * L.dims[pa] + oa
+            row = t + (ob + j) * L.pattern.dims[pa] + oa
             for i in range(da):
                 h[row + i] += W[i * db + j]
     else:
-        w = L.dims[pa]
+        w = L.pattern.dims[pa]
         for i in range(da):
             for j in range(i + 1 if same else db):
                 if oa + i >= ob + j:
@@ -431,7 +423,7 @@ def _supernodes(var_dims, position, pairs):
 def _variable_at(column, var_dims, L):
     """The variable whose scalars include ``column`` of the permuted system."""
     for v in range(var_dims.shape[0]):
-        o = L.soff[L.vnode[v]] + L.vwithin[v]
+        o = L.pattern.soff[L.vnode[v]] + L.vwithin[v]
         if o <= column < o + var_dims[v]:
             return v
     return -1
@@ -451,15 +443,16 @@ def _step(L, system, lam, tolerance, delta):
     −1, or the column whose pivot the factorization refused (δ then unset)."""
     _copy(system.h, system.l)
     if lam != 0.0:
-        for p in range(L.dims.shape[0]):
-            d, o, so = L.dims[p], L.doff[p], L.soff[p]
+        for p in range(L.pattern.dims.shape[0]):
+            d, o, so = L.pattern.dims[p], L.pattern.doff[p], L.pattern.soff[p]
             for i in range(d):
                 system.l[o + i * d + i] += lam * system.damping[so + i]
-    bad = blockchol.factor(L.dims, L.soff, L.colptr, L.rows, L.boff, L.doff, L.rowptr, L.rowblk, L.bcol, system.l,
+    P = L.pattern
+    bad = blockchol.factor(P.dims, P.soff, P.colptr, P.rows, P.boff, P.doff, P.rowptr, P.rowblk, P.bcol, system.l,
                            system.hdiag, tolerance)
     if bad < 0:
         _copy(system.g, delta)
-        blockchol.solve(L.dims, L.soff, L.colptr, L.rows, L.boff, L.doff, system.l, delta)
+        blockchol.solve(P.dims, P.soff, P.colptr, P.rows, P.boff, P.doff, system.l, delta)
     return bad
 
 
@@ -556,8 +549,8 @@ def solve(G, V, pools, losses, R, X, params, errors, lambdas, stats):
     max_iterations = int(params[8])
     gauss_newton = params[11] != 0.0
     L = _layout(G, V, R)
-    n = L.soff[L.dims.shape[0]]
-    system = _System(np.empty(L.size), np.empty(L.size), np.empty(n), np.empty(n), np.ones(n))
+    n = L.pattern.soff[L.pattern.dims.shape[0]]
+    system = _System(np.empty(L.pattern.size), np.empty(L.pattern.size), np.empty(n), np.empty(n), np.ones(n))
     schedule = np.array([params[0], params[1]])
     _fill(stats, 0)
     _copy(X.best, X.work)

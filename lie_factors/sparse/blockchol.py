@@ -172,6 +172,25 @@ def _view(values, at, rows, cols):
     return values[at:at + rows * cols].reshape((rows, cols))
 
 
+@inline_kernel
+def _subtract_products(out, li, Lpk, LpkT, dots, n):
+    """out[j] −= li · L_pk[j] for j < n: dot products over L_pk's rows (``dots``), or rank-one
+    updates along out from L_pkᵀ's rows (``LpkT``), whichever runs the longer inner loop."""
+    if dots:
+        for j in range(n):
+            lj = Lpk[j]
+            acc = 0.0
+            for c in range(li.shape[0]):
+                acc += li[c] * lj[c]
+            out[j] -= acc
+    else:
+        for c in range(li.shape[0]):
+            a = li[c]
+            col = LpkT[c]
+            for j in range(n):
+                out[j] -= a * col[j]
+
+
 @dense_kernel
 def factor(dims, soff, colptr, rows, boff, doff, rowptr, rowblk, bcol, values, reference, tolerance):
     """Λ = LLᵀ in place in ``values`` (Λ's lower blocks in, L's out; module docstring).
@@ -196,48 +215,19 @@ def factor(dims, soff, colptr, rows, boff, doff, rowptr, rowblk, bcol, values, r
             dk = dims[k]
             Lpk = _view(values, boff[s], dp, dk)
             dots = dk >= dp
+            LpkT = scratch[:dk * dp].reshape((dk, dp))
             if not dots:
-                LpkT = scratch[:dk * dp].reshape((dk, dp))
                 for i in range(dp):
                     for c in range(dk):
                         LpkT[c, i] = Lpk[i, c]
             for i in range(dp):
-                li = Lpk[i]
-                di = D[i]
-                if dots:
-                    for j in range(i + 1):
-                        lj = Lpk[j]
-                        acc = 0.0
-                        for c in range(dk):
-                            acc += li[c] * lj[c]
-                        di[j] -= acc
-                else:
-                    for c in range(dk):
-                        a = li[c]
-                        col = LpkT[c]
-                        for j in range(i + 1):
-                            di[j] -= a * col[j]
+                _subtract_products(D[i], Lpk[i], Lpk, LpkT, dots, i + 1)
             for u in range(s + 1, colptr[k + 1]):
                 r = rows[u]
-                dr = dims[r]
-                Lrk = _view(values, boff[u], dr, dk)
-                Lrp = _view(values, where[r], dr, dp)
-                for i in range(dr):
-                    li = Lrk[i]
-                    oi = Lrp[i]
-                    if dots:
-                        for j in range(dp):
-                            lj = Lpk[j]
-                            acc = 0.0
-                            for c in range(dk):
-                                acc += li[c] * lj[c]
-                            oi[j] -= acc
-                    else:
-                        for c in range(dk):
-                            a = li[c]
-                            col = LpkT[c]
-                            for j in range(dp):
-                                oi[j] -= a * col[j]
+                Lrk = _view(values, boff[u], dims[r], dk)
+                Lrp = _view(values, where[r], dims[r], dp)
+                for i in range(dims[r]):
+                    _subtract_products(Lrp[i], Lrk[i], Lpk, LpkT, dots, dp)
         # the diagonal block, densely, column by column
         base = soff[p]
         for j in range(dp):
