@@ -49,10 +49,12 @@ def test_every_pose_equals_gtsams_marginals_on_gtsams_own_factors(optimized):
     pg, result = optimized
     graph = pg.with_first_prior().factor_graph()
     assert _relative(result.covariances(), _gtsam(graph, result.values, result.keys)) < 1e-7
-    # and at the estimate of GTSAM's own optimizer: GTSAM's factors are evaluated by their twin
-    # kinds, whose Jacobians are exact where GTSAM's Pose2 ones lose digits at small angles
+    # and at the estimate of GTSAM's own optimizer, against gtsam.Marginals on exact Jacobians: how
+    # far GTSAM's own dropped term moves its marginals depends on the residuals where its LM stopped
+    # (1.0e-7 relative on intel), so GTSAM's factors are no reference to 1e-7 there
     native = lf.optimize(pg, backend="native")
-    assert _relative(native.covariances(), _gtsam(graph, native.values, native.keys)) < 1e-7
+    exact = pg.with_first_prior().factor_graph(ours)
+    assert _relative(native.covariances(), _gtsam(exact, native.values, native.keys)) < 1e-7
 
 
 def _landmark_graph():
