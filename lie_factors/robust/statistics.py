@@ -2,7 +2,9 @@
 
 :func:`chi2_inlier_threshold`: GTSAM's GNC inlier threshold (½ of the χ²
 quantile, cephes' ``igami`` as GTSAM computes it); :func:`f_quantile`: the F
-distribution's quantile, by its regularized incomplete beta function.
+distribution's quantile, by its regularized incomplete beta function;
+:func:`fit_scaled_f`: the scale and degrees of freedom of statistics modelled as
+s·n·F(n, ν), by maximum likelihood.
 """
 
 from __future__ import annotations
@@ -128,3 +130,74 @@ def f_quantile(d1: float, d2: float, probability: float) -> float:
                 y = nxt
             _F_CACHE[key] = float(mpmath.mpf(d2) * y / (mpmath.mpf(d1) * (1 - y)))
     return _F_CACHE[key]
+
+
+#: The degrees of freedom :func:`fit_scaled_f` searches: above 2, where F(n, ν) has a mean (a group's
+#: threshold adds the means of its other members), up to where s·n·F(n, ν) is χ²_n to 10⁻⁵.
+DOF_RANGE = (2.04, 1e6)
+
+
+def _scaled_f_nll(params, T, n, log_T_sum, cut):
+    """−log-likelihood of the statistics ``T`` (all ≤ ``cut``) under s·n·F(n, ν) truncated at
+    ``cut``; params = (log s, 1/ν)."""
+    from scipy.special import fdtr, gammaln
+
+    log_s, u = params
+    nu = 1.0 / u
+    a, b = 0.5 * n, 0.5 * nu
+    log_ns = log_s + np.log(n)
+    x = T * np.exp(-log_ns)  # the F variates
+    # log f_F(x) = a·log(n/ν) + (a − 1)·log x − (a + b)·log(1 + n·x/ν) − log B(a, b), and T = n·s·x
+    log_beta = gammaln(a) + gammaln(b) - gammaln(a + b)
+    log_density = (T.size * (a * np.log(n / nu) - log_beta - log_ns) + (a - 1.0) * (log_T_sum - T.size * log_ns)
+                   - (a + b) * np.sum(np.log1p(n * x / nu)))
+    kept = float(fdtr(n, nu, cut * np.exp(-log_ns))) if np.isfinite(cut) else 1.0
+    return -(log_density - T.size * np.log(max(kept, 1e-300)))
+
+
+def _fit_below(T, n: float, cut: float) -> tuple[float, float]:
+    """The maximum-likelihood (s, ν) of the statistics ``T`` ≤ ``cut``, truncated there."""
+    from scipy.optimize import minimize
+
+    T = T[T <= cut]
+    log_T_sum = float(np.sum(np.log(T)))
+    lo, hi = 1.0 / DOF_RANGE[1], 1.0 / DOF_RANGE[0]
+    s0 = float(np.log(np.median(T) / n))
+    best = None
+    for u0 in (lo, 0.5 * hi):
+        r = minimize(_scaled_f_nll, np.array([s0, u0]), args=(T, float(n), log_T_sum, float(cut)),
+                     method="L-BFGS-B", bounds=[(None, None), (lo, hi)])
+        if best is None or r.fun < best.fun:
+            best = r
+    return float(np.exp(best.x[0])), float(1.0 / best.x[1])
+
+
+def fit_scaled_f(T, n: int, probability: float) -> tuple[float, float]:
+    """(s, ν): the scale and degrees of freedom of statistics ``T`` (K,) modelled as s·n·F(n, ν),
+    the squared norm of an n-dimensional Student-t residual (ν → ∞: s·χ²_n, a noise model off by
+    the factor s), by maximum likelihood over the statistics the model itself passes.
+
+    Statistics above the fitted model's ``probability`` quantile are what a test at that
+    quantile calls outliers, so they do not shape the model: the likelihood is truncated there,
+    starting from χ²_n scaled to the median, and refitted until the statistics below the cut
+    stay the same (a forward search: a few outliers cannot fatten the tail that would let
+    them in).  ν is searched in :data:`DOF_RANGE`; only finite, positive statistics count.
+    ``ValueError`` with fewer than two of them.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    T = np.sort(T[np.isfinite(T) & (T > 0)])
+    if T.size < 2:
+        raise ValueError(f"fitting s·n·F(n, ν) needs two or more positive statistics, got {T.size}")
+    s, nu = float(np.median(T)) / (n * f_quantile(n, DOF_RANGE[1], 0.5)), DOF_RANGE[1]
+    cut = s * n * f_quantile(n, nu, probability)
+    kept = int(np.searchsorted(T, cut, side="right"))
+    for _ in range(T.size):
+        if kept < 2:
+            break
+        s, nu = _fit_below(T, n, cut)
+        cut = s * n * f_quantile(n, nu, probability)
+        now = int(np.searchsorted(T, cut, side="right"))
+        if now == kept:
+            break
+        kept = now
+    return s, nu

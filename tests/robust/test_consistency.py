@@ -30,7 +30,7 @@ from lie_factors.robust import gnc as gncm
 from lie_factors.robust import inner
 from lie_factors.robust.leave_out import leave_out_chi2
 from lie_factors.robust.statistics import chi2_inlier_threshold, f_quantile
-from lie_factors.robust.rejection import TailModel, closure_groups, reject_false_closures
+from lie_factors.robust.rejection import closure_groups, reject_false_closures
 from lie_factors.robust.screening import CLIQUE, GATE, KEPT, screen_closures
 from lie_factors.kernels import registry
 from lie_factors.testing import outliers
@@ -460,24 +460,6 @@ def test_f_quantile_tends_to_the_chi2_quantile_and_refuses_bad_input():
     for bad in ((0, 5, 0.5), (3, 0, 0.5), (3, 5, 1.0), (3, 5, 0.0)):
         with pytest.raises(ValueError):
             f_quantile(*bad)
-
-
-@pytest.mark.parametrize("n", [3, 6])
-def test_tail_model_thresholds_are_quantiles_of_sums_of_independent_closures(n):
-    """Monte Carlo of g independent s·n·F(n, ν) statistics (s from the median of a sample)."""
-    rng = np.random.default_rng(20 + n)
-    nu, p, N, s = 5.0, 0.9999, 1_000_000, 0.03
-    draw = lambda: s * n * (rng.chisquare(n, N) / n) / (rng.chisquare(nu, N) / nu)  # noqa: E731
-    model = TailModel(n, draw(), p)
-    assert model.scale == pytest.approx(s, rel=0.01)
-    total = np.zeros(N)
-    for g in range(1, 11):
-        total += draw()
-        if g in (1, 2, 5, 10):
-            assert model.threshold(g) == pytest.approx(np.quantile(total, p), rel=0.08)
-    assert TailModel(n, np.array([np.nan]), p).scale == 1.0  # no statistic: the noise models' own scale
-    with pytest.raises(ValueError, match="finite mean"):
-        TailModel(n, np.ones(3), p, dof=2.0)
 
 
 def test_gnc_without_its_known_outliers_in_the_solver_is_the_same_gnc():
