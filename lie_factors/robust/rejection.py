@@ -28,8 +28,8 @@
    Student-t residual in the n dimensions of a pose — with s and ν the maximum-
    likelihood fit to the accepted closures' statistics below the fitted model's
    own quantile, and ν no smaller than :data:`TAIL_DOF` (a tail no heavier than
-   the real data sets'); a group's as the sum of independent ones or of ones
-   that share their scale (:class:`TailModel`).  Each fails above the model's
+   the real data sets'); a group's as the sum of independent ones
+   (:class:`TailModel`).  Each fails above the model's
    quantile at ``final_probability``.
 
    Each round makes one kind of change, in this order: drop the accepted
@@ -60,7 +60,7 @@ import numpy as np
 from ..posegraph.graph import PoseGraph
 from ..util.timing import Stopwatch
 from .gnc import GncSettings, GncResult
-from .statistics import f_quantile, fit_scaled_f
+from .statistics import DOF_RANGE, f_quantile, fit_scaled_f
 from .screening import STAGES, Screening, screen_closures
 
 __all__ = ["Rejection", "Solver", "TailModel", "reject_false_closures", "closure_groups", "MAX_ROUNDS", "TAIL_DOF"]
@@ -129,14 +129,14 @@ class TailModel:
     where that fit's tail is no heavier than ν = ``dof`` (default :data:`TAIL_DOF`); otherwise ν
     is ``dof`` and s = median/(n·median F(n, ν)).  With fewer than two finite statistics: the
     noise models' own, s = 1 and ν = ``dof``.  :meth:`threshold` of a group of g closures, at
-    ``probability`` p, is the larger of two models' quantiles:
+    ``probability`` p, is that of g independent closures:
 
-    * independent closures: g = 1, the quantile s·n·F⁻¹_{n,ν}(p); g > 1, one large term plus
-      the others' mean ("one big jump": P(T₁ + … + T_g > x) ≈ g·P(T₁ > x) far in a heavy tail),
-      s·(n·F⁻¹_{n,ν}(1 − (1 − p)/g) + (g − 1)·n·ν/(ν − 2));
-    * closures that share their scale factor (one place, one mismatch of the noise model):
-      the sum is s·gn·F(gn, ν), whose quantile is also the independent sum's as ν → ∞ (χ²_gn),
-      where one big jump underestimates a light tail.
+    * g = 1: the quantile s·n·F⁻¹_{n,ν}(p);
+    * g > 1: the larger of one large term plus the others' mean ("one big jump":
+      P(T₁ + … + T_g > x) ≈ g·P(T₁ > x) far in a heavy tail),
+      s·(n·F⁻¹_{n,ν}(1 − (1 − p)/g) + (g − 1)·n·ν/(ν − 2)), and the sum's light-tail limit, s times
+      χ²_gn's quantile, where one big jump is too low (a scale mixture of χ²_n is more spread than
+      χ²_n, so the sum's upper quantiles are not below it).
     """
 
     def __init__(self, n: int, singles: np.ndarray, probability: float, dof: float | None = None):
@@ -161,9 +161,9 @@ class TailModel:
         n, nu, p = self.n, self.dof, self.probability
         if g == 1:
             return self.scale * n * f_quantile(n, nu, p)
-        independent = n * f_quantile(n, nu, 1.0 - (1.0 - p) / g) + (g - 1) * n * nu / (nu - 2.0)
-        shared = g * n * f_quantile(g * n, nu, p)
-        return self.scale * max(independent, shared)
+        one_big_jump = n * f_quantile(n, nu, 1.0 - (1.0 - p) / g) + (g - 1) * n * nu / (nu - 2.0)
+        light = g * n * f_quantile(g * n, DOF_RANGE[1], p)  # χ²_gn to 10⁻⁵
+        return self.scale * max(one_big_jump, light)
 
 
 @dataclass

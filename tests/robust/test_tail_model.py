@@ -73,25 +73,21 @@ def test_the_tail_is_never_heavier_than_the_data_allow_nor_than_tail_dof(n):
 
 
 @pytest.mark.parametrize("n", [3, 6])
-@pytest.mark.parametrize("nu", [TAIL_DOF, np.inf])
-def test_group_thresholds_cover_independent_and_shared_scale_closures(n, nu):
-    """Monte Carlo of sums of g statistics: independent closures, and closures sharing one scale
-    factor (one χ²_ν/ν per group). The threshold is the larger model's quantile: equal to it
-    within the Monte Carlo's error, never below the other's."""
-    rng = np.random.default_rng(40 + n + (0 if np.isinf(nu) else 1))
-    p, N, s = 0.9999, 1_000_000, 0.03
-    model = TailModel(n, _draws(rng, n, nu, 20_000, s), p, dof=TAIL_DOF)
-    independent = np.zeros(N)
-    numerators = np.zeros(N)
+@pytest.mark.parametrize("nu", [TAIL_DOF, 30.0, np.inf])
+def test_group_thresholds_against_sums_of_independent_closures(n, nu):
+    """Monte Carlo of sums of g independent statistics of a model with known s and ν: heavy-tailed
+    (ν = 5: one big jump) and light-tailed (χ²: the sum is χ²_gn) within the Monte Carlo's error;
+    between them (ν = 30) neither limit holds and the threshold is up to 20 % low (stricter)."""
+    rng = np.random.default_rng(40 + n + (0 if np.isinf(nu) else int(nu)))
+    p, N, s = 0.9999, 4_000_000, 0.03  # the 0.9999 quantile of F(3, 5) to about 2 %
+    model = TailModel(n, np.ones(4), p)
+    model.scale, model.dof = s, (DOF_RANGE[1] if np.isinf(nu) else nu)
+    total = np.zeros(N)
     for g in range(1, 11):
-        independent += _draws(rng, n, nu, N, s)
-        numerators += rng.chisquare(n, N)
-        shared = s * numerators / (1.0 if np.isinf(nu) else rng.chisquare(nu, N) / nu)
+        total += _draws(rng, n, nu, N, s)
         if g in (1, 2, 5, 10):
-            q_ind, q_shared = np.quantile(independent, p), np.quantile(shared, p)
-            t = model.threshold(g)
-            assert t == pytest.approx(max(q_ind, q_shared), rel=0.1)
-            assert t >= 0.92 * min(q_ind, q_shared)
+            ratio = model.threshold(g) / np.quantile(total, p)
+            assert (0.8 < ratio < 1.05) if nu == 30.0 else (0.92 < ratio < 1.08), (g, ratio)
 
 
 def _recall_on_small_grid(kind: str, seed: int) -> tuple[float, float]:
