@@ -210,6 +210,7 @@ class BatchInner:
             noise = _gaussian_part(f.noiseModel())
             stripped.add(f if noise is f.noiseModel() else with_noise(f, noise))
         self.lm = _GncLevenbergMarquardt(stripped, initial, lm_params, linear_solver=linear_solver)
+        self._pose_graph = None
         self.size = size
         self.slots = np.asarray(slots, dtype=np.int64)
         self._left_out = np.setdiff1d(np.arange(size), self.slots)
@@ -223,16 +224,35 @@ class BatchInner:
                         exclude=()) -> "BatchInner":
         """The same solver on a :class:`~lie_factors.posegraph.graph.PoseGraph` (its edges, then its
         priors, are the factor slots), starting from the poses ``X`` (P, m, m) in ``pg.keys``
-        order: the arrays become the batch problem directly, with no factor object."""
+        order: the arrays become the batch problem directly, with no factor object.
+
+        Here a solve also leaves out every slot its weights set to 0 (TLS's weights are exactly 0
+        beyond its outer threshold): a rejected closure's place in the pattern fills the factor
+        as a known outlier's would.  The pattern is read again when that set changes; the
+        factor errors still cover every slot."""
         import gtsam
 
-        from ..batch.graph import Problem
-
-        E, Q = len(pg.edge_keys), len(pg.prior_keys)
-        size = E + Q
+        size = len(pg.edge_keys) + len(pg.prior_keys)
         excluded = {int(k) for k in exclude}
         if any(not 0 <= k < size for k in excluded):
             raise ValueError(f"BatchInner: excluded slots must be factor slots (0..{size - 1})")
+        self = cls.__new__(cls)
+        self._pose_graph = (pg, X, lm_params, linear_solver)
+        self.lm, self.slots = self._pose_graph_lm(excluded)
+        self.size = size
+        self._left_out = np.setdiff1d(np.arange(size), self.slots)
+        self.dims = np.full(size, pg.info.dim, dtype=np.int64)
+        self._solver = (frozenset(), self.lm, self.slots)
+        P = self.lm.problem
+        self.initial = _BatchState(self.lm, {n: b.X0 for n, b in P.blocks.items()}, gtsam.Values())
+        return self
+
+    def _pose_graph_lm(self, excluded: set):
+        """(LM on the pose graph without the slots ``excluded``, the slots it holds)."""
+        from ..batch.graph import Problem
+
+        pg, X, lm_params, linear_solver = self._pose_graph
+        E, Q = len(pg.edge_keys), len(pg.prior_keys)
         edge_out = {k for k in excluded if k < E}
         prior_out = {k - E for k in excluded if k >= E}
         ek, pk = pg.edge_keys.tolist(), pg.prior_keys.tolist()
@@ -244,16 +264,19 @@ class BatchInner:
         kept = dataclasses.replace(pg.with_edges(edges), prior_keys=pg.prior_keys[priors_in],
                                    prior_measured=pg.prior_measured[priors_in],
                                    prior_information=pg.prior_information[priors_in], landmarks=None)
-        self = cls.__new__(cls)
-        self.lm = _GncLevenbergMarquardt(Problem.from_pose_graph(kept, X), None, lm_params,
-                                         linear_solver=linear_solver)
-        self.size = size
-        self.slots = np.concatenate([edges, E + priors_in]).astype(np.int64)
-        self._left_out = np.setdiff1d(np.arange(size), self.slots)
-        self.dims = np.full(size, pg.info.dim, dtype=np.int64)
-        P = self.lm.problem
-        self.initial = _BatchState(self.lm, {n: b.X0 for n, b in P.blocks.items()}, gtsam.Values())
-        return self
+        lm = _GncLevenbergMarquardt(Problem.from_pose_graph(kept, X), None, lm_params, linear_solver=linear_solver)
+        return lm, np.concatenate([edges, E + priors_in]).astype(np.int64)
+
+    def _solver_for(self, weights: np.ndarray):
+        """(LM, its slots) for a solve at ``weights``: the one holding every slot not permanently
+        left out, or, on a pose graph, one without the slots weighing 0."""
+        if self._pose_graph is None:
+            return self.lm, self.slots
+        zero = frozenset(self.slots[weights[self.slots] == 0.0].tolist())
+        if zero != self._solver[0]:
+            lm, slots = (self.lm, self.slots) if not zero else self._pose_graph_lm(set(self._left_out.tolist()) | zero)
+            self._solver = (zero, lm, slots)
+        return self._solver[1], self._solver[2]
 
     def factor_errors(self, state) -> np.ndarray:
         out = np.zeros(self.size)
@@ -280,7 +303,8 @@ class BatchInner:
         weights = np.asarray(weights, dtype=np.float64)
         if np.any(weights[self._left_out] != 0.0):
             raise ValueError("BatchInner: an excluded factor slot has a nonzero weight")
-        self.lm.restart(weights[self.slots])
-        res = self.lm.optimize()
-        P = self.lm.problem
+        lm, slots = self._solver_for(weights)
+        lm.restart(weights[slots])
+        res = lm.optimize()
+        P = lm.problem
         return _BatchState(self.lm, P.elements(), P.other), int(res.iterations)

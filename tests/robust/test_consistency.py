@@ -561,3 +561,27 @@ def test_manhattan_without_false_closures_is_the_plain_optimum():
     assert record.outliers == [] and record.rejected_by == {}
     graph = build_graph(base, "native")
     assert graph.error(result.values) == pytest.approx(graph.error(plain.values), rel=1e-6)
+
+
+def test_a_pose_graph_solve_leaves_out_the_slots_weighing_zero():
+    """The solve's pattern holds no slot whose weight is 0 (a false closure there fills the factor),
+    its estimate equals a solver's built without them, and the errors still cover every slot."""
+    ds, planted, _ = _planted_dataset(120, 21, "uniform", 0.3)
+    pg = ds.with_first_prior()
+    X = pg.start_poses
+    weights = np.ones(len(pg.edge_keys) + len(pg.prior_keys))
+    weights[planted] = 0.0
+    weights[planted[0]] = 0.25  # a false closure at a small weight stays in the pattern
+    solving = inner.BatchInner.from_pose_graph(pg, X)
+    state, _ = solving.optimize(weights)
+    lm, slots = solving._solver_for(weights)
+    assert set(slots.tolist()) == set(range(weights.size)) - set(planted[1:].tolist())
+    between = [g for g in lm.problem.groups if g.kind == "between"]
+    assert sum(g.fidx.size for g in between) == len(pg.edge_keys) - (planted.size - 1)
+    cut = inner.BatchInner.from_pose_graph(pg, X, exclude=planted[1:])
+    reference, _ = cut.optimize(weights)
+    assert np.max(np.abs(state.Xs["Pose3"] - reference.Xs["Pose3"])) < 1e-9
+    errors = solving.factor_errors(state)
+    assert np.all(errors[planted] > 0) and np.all(cut.factor_errors(reference)[planted[1:]] == 0)
+    weights[planted] = 1.0  # every slot back: the solver holding them all
+    assert solving._solver_for(weights)[0] is solving.lm
