@@ -41,6 +41,9 @@ class Result:
     ``outliers`` (k,) and ``rejected_by``, where rejection ran: the rejected
     edges (indices into the pose graph's edges) and the stage that rejected
     each (``gate``, ``clique``, ``gnc`` or ``final``; None for plain GNC).
+    ``robust_status``, where rejection ran: ``{"status": "ok" | "uncertain", "reasons":
+    [...]}``, why the verdict may be wrong (:func:`lie_factors.robust.rejection.uncertainty`;
+    named apart from ``robust``, the loss of ``--robust``).
     ``init`` and ``init_seconds``: the initializer that chose the start
     (:mod:`lie_factors.initialization`), ``init_inliers_only``: whether it used
     the odometry and the prior alone.  ``backend``: ``batch``, ``dropin`` or
@@ -57,6 +60,7 @@ class Result:
     timings: dict[str, float] = field(default_factory=dict)
     outliers: np.ndarray | None = None
     rejected_by: dict[int, str] | None = None
+    robust_status: dict | None = None
     init: str | None = None
     init_seconds: float = 0.0
     init_inliers_only: bool | None = None
@@ -187,6 +191,9 @@ class Result:
             d["outliers"] = [int(k) for k in self.outliers]
         if self.rejected_by is not None:
             d["rejected_by"] = {str(k): v for k, v in sorted(self.rejected_by.items())}
+        if self.robust_status is not None:
+            d["robust_status"] = {"status": self.robust_status["status"],
+                                  "reasons": list(self.robust_status["reasons"])}
         if self.init_inliers_only is not None:
             d["init_inliers_only"] = bool(self.init_inliers_only)
         return d

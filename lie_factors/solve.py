@@ -416,7 +416,8 @@ def _optimize_gnc(posed: PoseGraph, start, opts: Options, params, events: Events
     res = out.gnc
     result = Result(float(res.cost), initial_error, int(res.iterations), out.converged, out.seconds,
                     errors=[initial_error, float(res.cost)], timings={"setup": setup, "iterations": out.seconds},
-                    outliers=out.outliers, rejected_by=out.rejected_by, factors=size)
+                    outliers=out.outliers, rejected_by=out.rejected_by, factors=size,
+                    robust_status={"status": out.status, "reasons": list(out.reasons)})
     inliers = posed.with_edges(np.setdiff1d(np.arange(posed.edge_count), out.outliers))
     if values0 is None:
         result._keys, result._group = np.asarray(posed.keys, dtype=np.int64), posed.group

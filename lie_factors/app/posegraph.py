@@ -192,6 +192,8 @@ def _report(out: Printer, args, pg, result) -> None:
                 f"closures{stages}; error {result.initial_error:.6g} -> weighted {result.error:.6g} after "
                 f"{result.iterations} GNC iterations, {result.seconds:.3f} s (+ {result.init_seconds:.3f} s "
                 f"initialization), {status}")
+        if result.robust_status is not None and result.robust_status["status"] != "ok":
+            out.say("uncertain: " + "; ".join(result.robust_status["reasons"]))
     else:
         out.say(f"error {result.initial_error:.6g} -> {result.error:.6g} after {result.iterations} iterations, "
                 f"{result.seconds:.3f} s (+ {result.init_seconds:.3f} s initialization), {status}")

@@ -28,12 +28,18 @@ class RobustOutcome:
     """What :func:`reject_and_optimize` found: ``gnc`` (GNC's result, its estimate and weights
     after the final check), ``outliers`` (k,) the rejected edges, increasing, ``rejected_by``
     edge → stage (``gate``, ``clique``, ``gnc``, ``final``; None without the consistency
-    stage), ``seconds`` (the whole pipeline, compilation excluded)."""
+    stage), ``seconds`` (the whole pipeline, compilation excluded), ``reasons``: why the verdict
+    may be wrong (:func:`~lie_factors.robust.rejection.uncertainty`; empty: ``status`` "ok")."""
 
     gnc: GncResult
     outliers: np.ndarray
     rejected_by: dict[int, str] | None
     seconds: float
+    reasons: tuple = ()
+
+    @property
+    def status(self) -> str:
+        return "uncertain" if self.reasons else "ok"
 
     @property
     def converged(self) -> bool:
@@ -61,10 +67,12 @@ def reject_and_optimize(graph: PoseGraph, solver: Solver, size: int, *, loss: st
             res, seconds = rejection.gnc, rejection.seconds
             rejected_by = {int(k): v for k, v in rejection.rejected_by.items()}
             outliers = np.array(sorted(rejected_by), dtype=np.int64)
+            reasons = rejection.reasons
         else:
             res = solver.gnc(params)
             seconds, rejected_by = res.seconds, None
             outliers = np.array([int(k) for k in res.outliers if k < len(graph.edge_keys)], dtype=np.int64)
+            reasons = ("GNC stopped at its iteration limit",) if res.stop == "maxIterations" else ()
     except RuntimeError as exc:
         raise gtsam_failure(exc) from None
-    return RobustOutcome(res, outliers, rejected_by, seconds)
+    return RobustOutcome(res, outliers, rejected_by, seconds, reasons)

@@ -173,7 +173,8 @@ class Rejection:
     ``"final"``) for every rejected loop closure; ``readmitted``: edges the final
     check put back; ``screening``: the first stage's verdict (None if it was
     off); ``rounds``: re-solves the final check ran; ``scale``: the tail model's
-    scale s at the end; ``seconds``: the whole."""
+    scale s at the end; ``seconds``: the whole; ``status``: ``"ok"``, or ``"uncertain"``
+    with its ``reasons`` (:func:`uncertainty`)."""
 
     gnc: GncResult
     rejected_by: dict
@@ -182,6 +183,11 @@ class Rejection:
     rounds: int
     scale: float
     seconds: float
+    reasons: tuple = ()
+
+    @property
+    def status(self) -> str:
+        return "uncertain" if self.reasons else "ok"
 
     @property
     def outliers(self) -> np.ndarray:
@@ -266,6 +272,7 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
         return verdict
 
     verdict = check()
+    settled = not (verdict.drop.size or verdict.back.size)
     # The likelihood-ratio trials: GNC's rejections that the linear test turns down by little.
     taken = False
     for G in verdict.trials:
@@ -282,12 +289,29 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
             readmitted.update(G.tolist())
             taken = True
     if taken:
-        check()
+        verdict = check()
+        settled = not (verdict.drop.size or verdict.back.size)
     out = dataclasses.replace(res, values=values, weights=weights,
                               cost=float(np.dot(weights, errors(values))) if rounds or resolved else res.cost)
     rejected_by = {e: s for e, s in sorted(stage.items()) if weights[e] < 0.5}
+    reasons = uncertainty(screening, res, settled)
     return Rejection(out, rejected_by, sorted(readmitted - set(rejected_by)), screening, rounds,
-                     model.scale if model is not None else float("nan"), clock.seconds())
+                     model.scale if model is not None else float("nan"), clock.seconds(), reasons)
+
+
+def uncertainty(screening: Screening | None, gnc: GncResult, settled: bool) -> tuple:
+    """Why a run's verdict may be wrong (empty: nothing says so), one sentence each: a stage
+    stopped at its bound — the clique search at its branch budget (its clique is not a maximum
+    one), GNC at its iteration limit, the final check at :data:`MAX_ROUNDS` with a change still
+    to make."""
+    reasons = []
+    if screening is not None and not screening.exact:
+        reasons.append("the pairwise-consistency clique search stopped at its branch budget")
+    if gnc.stop == "maxIterations":
+        reasons.append("GNC stopped at its iteration limit")
+    if not settled:
+        reasons.append(f"the final check stopped after {MAX_ROUNDS} rounds with a change still to make")
+    return tuple(reasons)
 
 
 @dataclass

@@ -201,3 +201,4 @@ def fit_scaled_f(T, n: int, probability: float) -> tuple[float, float]:
             break
         kept = now
     return s, nu
+

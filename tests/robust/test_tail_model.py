@@ -103,3 +103,24 @@ def test_false_closures_that_a_heavy_tail_would_pass_are_rejected_on_a_light_tai
     took most of them back (recall 0.14); fitted to the graph's own statistics it rejects them."""
     recall, precision = _recall_on_small_grid("uniform", 1)
     assert recall == 1.0 and precision > 0.9
+
+
+def test_a_settled_run_is_ok_and_a_stage_at_its_bound_is_uncertain():
+    from types import SimpleNamespace
+
+    from lie_factors.robust.rejection import uncertainty
+
+    ok, done = SimpleNamespace(exact=True), SimpleNamespace(stop="binary weights")
+    assert uncertainty(ok, done, True) == () and uncertainty(None, done, True) == ()
+    reasons = uncertainty(SimpleNamespace(exact=False), SimpleNamespace(stop="maxIterations"), False)
+    assert len(reasons) == 3
+    assert "branch budget" in reasons[0] and "iteration limit" in reasons[1] and "rounds" in reasons[2]
+
+
+def test_the_status_reaches_the_result_and_its_json():
+    c = lf.corrupt(SMALL, fraction=0.2, kind="uniform", seed=1)
+    r = lf.optimize(c.graph, gnc="tls")
+    assert r.robust_status["status"] in ("ok", "uncertain")
+    assert (r.robust_status["status"] == "ok") == (r.robust_status["reasons"] == [])
+    assert r.to_dict()["robust_status"] == r.robust_status
+    assert lf.optimize(c.graph).robust_status is None
