@@ -127,8 +127,8 @@ class TailModel:
     ``singles`` (K,): the statistics of accepted single closures.  (s, ν) is their maximum-
     likelihood fit over the statistics it passes (:func:`~lie_factors.robust.statistics.fit_scaled_f`),
     where that fit's tail is no heavier than ν = ``dof`` (default :data:`TAIL_DOF`); otherwise ν
-    is ``dof`` and s = median/(n·median F(n, ν)).  With fewer than two finite statistics: the
-    noise models' own, s = 1 and ν = ``dof``.  :meth:`threshold` of a group of g closures, at
+    is ``dof`` and s = median/(n·median F(n, ν)).  With one finite statistic, ν = ``dof`` and s
+    from it; with none, the noise models' own scale, s = 1.  :meth:`threshold` of a group of g closures, at
     ``probability`` p, is that of g independent closures:
 
     * g = 1: the quantile s·n·F⁻¹_{n,ν}(p);
