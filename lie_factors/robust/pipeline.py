@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import gtsam_failure
 from ..posegraph.graph import PoseGraph
 from .gnc import GncSettings, GncResult
-from .rejection import Solver, reject_false_closures
+from .rejection import Solver, reject_false_closures, uncertainty
 
 __all__ = ["GNC_LOSSES", "RobustOutcome", "reject_and_optimize"]
 
@@ -72,7 +72,7 @@ def reject_and_optimize(graph: PoseGraph, solver: Solver, size: int, *, loss: st
             res = solver.gnc(params)
             seconds, rejected_by = res.seconds, None
             outliers = np.array([int(k) for k in res.outliers if k < len(graph.edge_keys)], dtype=np.int64)
-            reasons = ("GNC stopped at its iteration limit",) if res.stop == "maxIterations" else ()
+            reasons = uncertainty(None, res)
     except RuntimeError as exc:
         raise gtsam_failure(exc) from None
     return RobustOutcome(res, outliers, rejected_by, seconds, reasons)

@@ -151,9 +151,8 @@ class TailModel:
             s, nu = fit_scaled_f(finite, self.n, self.probability)
             if nu > dof:
                 self.scale, self.dof = s, nu
-            else:
-                self.scale = float(np.median(finite)) / (n * f_quantile(n, dof, 0.5))
-        elif finite.size:
+                return
+        if finite.size:
             self.scale = float(np.median(finite)) / (n * f_quantile(n, dof, 0.5))
 
     def threshold(self, g: int = 1) -> float:
@@ -173,8 +172,8 @@ class Rejection:
     ``"final"``) for every rejected loop closure; ``readmitted``: edges the final
     check put back; ``screening``: the first stage's verdict (None if it was
     off); ``rounds``: re-solves the final check ran; ``scale``: the tail model's
-    scale s at the end; ``seconds``: the whole; ``status``: ``"ok"``, or ``"uncertain"``
-    with its ``reasons`` (:func:`uncertainty`)."""
+    scale s at the end; ``seconds``: the whole; ``reasons``: why the verdict may be wrong
+    (:func:`uncertainty`)."""
 
     gnc: GncResult
     rejected_by: dict
@@ -184,10 +183,6 @@ class Rejection:
     scale: float
     seconds: float
     reasons: tuple = ()
-
-    @property
-    def status(self) -> str:
-        return "uncertain" if self.reasons else "ok"
 
     @property
     def outliers(self) -> np.ndarray:
@@ -272,7 +267,6 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
         return verdict
 
     verdict = check()
-    settled = not (verdict.drop.size or verdict.back.size)
     # The likelihood-ratio trials: GNC's rejections that the linear test turns down by little.
     taken = False
     for G in verdict.trials:
@@ -290,20 +284,19 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
             taken = True
     if taken:
         verdict = check()
-        settled = not (verdict.drop.size or verdict.back.size)
     out = dataclasses.replace(res, values=values, weights=weights,
                               cost=float(np.dot(weights, errors(values))) if rounds or resolved else res.cost)
     rejected_by = {e: s for e, s in sorted(stage.items()) if weights[e] < 0.5}
-    reasons = uncertainty(screening, res, settled)
+    reasons = uncertainty(screening, res, settled=not (verdict.drop.size or verdict.back.size))
     return Rejection(out, rejected_by, sorted(readmitted - set(rejected_by)), screening, rounds,
                      model.scale if model is not None else float("nan"), clock.seconds(), reasons)
 
 
-def uncertainty(screening: Screening | None, gnc: GncResult, settled: bool) -> tuple:
+def uncertainty(screening: Screening | None, gnc: GncResult, settled: bool = True) -> tuple:
     """Why a run's verdict may be wrong (empty: nothing says so), one sentence each: a stage
     stopped at its bound — the clique search at its branch budget (its clique is not a maximum
-    one), GNC at its iteration limit, the final check at :data:`MAX_ROUNDS` with a change still
-    to make."""
+    one; ``screening`` None: the stage did not run), GNC at its iteration limit, the final check
+    at :data:`MAX_ROUNDS` with a change still to make (``settled`` False)."""
     reasons = []
     if screening is not None and not screening.exact:
         reasons.append("the pairwise-consistency clique search stopped at its branch budget")

@@ -201,4 +201,3 @@ def fit_scaled_f(T, n: int, probability: float) -> tuple[float, float]:
             break
         kept = now
     return s, nu
-
