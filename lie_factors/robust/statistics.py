@@ -163,12 +163,9 @@ def _fit_below(T, n: float, cut: float) -> tuple[float, float]:
     log_T_sum = float(np.sum(np.log(T)))
     lo, hi = 1.0 / DOF_RANGE[1], 1.0 / DOF_RANGE[0]
     s0 = float(np.log(np.median(T) / n))
-    best = None
-    for u0 in (lo, 0.5 * hi):
-        r = minimize(_scaled_f_nll, np.array([s0, u0]), args=(T, float(n), log_T_sum, float(cut)),
-                     method="L-BFGS-B", bounds=[(None, None), (lo, hi)])
-        if best is None or r.fun < best.fun:
-            best = r
+    best = min((minimize(_scaled_f_nll, np.array([s0, u0]), args=(T, float(n), log_T_sum, float(cut)),
+                         method="L-BFGS-B", bounds=[(None, None), (lo, hi)]) for u0 in (lo, 0.5 * hi)),
+               key=lambda r: r.fun)
     return float(np.exp(best.x[0])), float(1.0 / best.x[1])
 
 
