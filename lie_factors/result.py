@@ -231,7 +231,9 @@ class ReplayResult(Result):
                 "update_p50": float(self.update_p50), "update_p99": float(self.update_p99),
                 "seconds": float(self.seconds), "final_error": float(self.error),
                 "relinearizations": None if self.relinearizations is None else int(self.relinearizations),
-                "reorderings": None if self.reorderings is None else int(self.reorderings)}
+                "reorderings": None if self.reorderings is None else int(self.reorderings),
+                **{k: v for k, v in Result.to_dict(self).items()
+                   if k in ("gnc", "outliers", "rejected_by", "robust_status")}}
 
     def __repr__(self) -> str:
         return (f"<ReplayResult: {self.updates} updates in {self.update_seconds:.3f} s "

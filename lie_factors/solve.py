@@ -454,11 +454,18 @@ RELINEARIZE_SKIP = 10
 
 
 def replay_options(*, backend: str = DEFAULT_BACKEND, relinearize_threshold: float = RELINEARIZE_THRESHOLD,
-                   relinearize_skip: int = RELINEARIZE_SKIP) -> None:
+                   relinearize_skip: int = RELINEARIZE_SKIP, gnc: str | None = None) -> None:
     """The options of :func:`replay`, checked: a one-line :class:`~lie_factors.errors.InputError`
     for anything wrong (as :func:`options` for :func:`optimize`)."""
     if backend not in BACKENDS:
         raise InputError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
+    if gnc is not None:
+        from .robust.online import ROBUST_LOSSES
+
+        if gnc not in ROBUST_LOSSES:
+            raise InputError(f"replay: unknown gnc {gnc!r} (online, choose from {', '.join(ROBUST_LOSSES)})")
+        if backend != "batch":
+            raise InputError(f"replay: gnc runs on the batch backend only, not {backend!r}")
     if isinstance(relinearize_threshold, bool) or not isinstance(relinearize_threshold, (int, float)) \
             or not 0 < relinearize_threshold < float("inf"):
         raise InputError(f"relinearize_threshold: must be a finite number > 0, got {relinearize_threshold!r}")
@@ -469,7 +476,7 @@ def replay_options(*, backend: str = DEFAULT_BACKEND, relinearize_threshold: flo
 
 def replay(pose_graph: PoseGraph, *, backend: str = DEFAULT_BACKEND,
            relinearize_threshold: float = RELINEARIZE_THRESHOLD, relinearize_skip: int = RELINEARIZE_SKIP,
-           events: Events | None = None) -> "ReplayResult":
+           gnc: str | None = None, events: Events | None = None) -> "ReplayResult":
     """Replay a pose graph online, as a robot would have built it; returns a
     :class:`~lie_factors.result.ReplayResult` (``lie-factors posegraph FILE --incremental``).
 
@@ -478,16 +485,19 @@ def replay(pose_graph: PoseGraph, *, backend: str = DEFAULT_BACKEND,
     between them. ``backend``: ``batch`` (default: the incremental smoother,
     :class:`lie_factors.Smoother`, on the arrays), ``dropin`` (our factors in
     :class:`lie_factors.optimizers.ISAM2`) or ``native`` (GTSAM's factors in ``gtsam.ISAM2``);
-    ``relinearize_threshold`` and ``relinearize_skip``: ISAM2's. ``events.replayed`` hears
-    the progress every thousand updates.
+    ``relinearize_threshold`` and ``relinearize_skip``: ISAM2's. ``gnc="tls"``: the loop closures
+    are candidate outliers, tested as they arrive and tested again as the map grows
+    (:mod:`lie_factors.robust.online`); ``result.outliers`` are the edges the smoother does not
+    hold at the end. ``events.replayed`` hears the progress every thousand updates.
     """
-    replay_options(backend=backend, relinearize_threshold=relinearize_threshold, relinearize_skip=relinearize_skip)
+    replay_options(backend=backend, relinearize_threshold=relinearize_threshold, relinearize_skip=relinearize_skip,
+                   gnc=gnc)
     if not isinstance(pose_graph, PoseGraph):
         raise InputError(f"replay: expected a PoseGraph, got {type(pose_graph).__name__}")
     from .incremental.replay import replay as run
 
     events = events if events is not None else Events()
     result = run(pose_graph, backend=backend, relinearize_threshold=float(relinearize_threshold),
-                 relinearize_skip=int(relinearize_skip), progress=events.replayed)
+                 relinearize_skip=int(relinearize_skip), progress=events.replayed, gnc=gnc)
     result._marginals_of = lambda: _pose_graph_marginals(pose_graph.with_first_prior(), result.poses)
     return result

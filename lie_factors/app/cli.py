@@ -138,7 +138,9 @@ def _add_posegraph(p: argparse.ArgumentParser) -> None:
                         "the JSON gains 'outliers' (rejected edges, 0-based file order); the loop "
                         "closures first pass a consistency stage (odometry gate, pairwise consistency) "
                         "and a final chi-square check after, and 'rejected_by' names the stage that "
-                        "rejected each edge (gate, clique, gnc, final)")
+                        "rejected each edge (gate, clique, gnc, final); with --incremental (tls only), "
+                        "each loop closure is tested as it arrives and again as the map grows "
+                        "(rejected_by: online)")
     p.add_argument("--no-consistency", action="store_true",
                    help="with --gnc: skip the consistency stage and the final check (plain GNC, as "
                         "GTSAM's GncOptimizer)")

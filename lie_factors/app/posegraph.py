@@ -101,7 +101,7 @@ def check(args):
     options (one-line errors naming the flags) and the output paths."""
     if args.incremental:
         for option, value, default in (("--robust", args.robust, None), ("--robust-all", args.robust_all, False),
-                                       ("--gnc", args.gnc, None), ("--init", args.init, "auto"),
+                                       ("--init", args.init, "auto"),
                                        ("--max-iterations", args.max_iterations, 100)):
             if value != default:
                 raise InputError(f"{option} does not apply to --incremental (ISAM2 replays the file "
@@ -109,6 +109,8 @@ def check(args):
         opts = None
         if args.backend not in lf.solve.BACKENDS:
             options(backend=args.backend, spell=flag)
+        if args.gnc is not None:
+            lf.solve.replay_options(backend=args.backend, gnc=args.gnc)
     else:
         if args.relinearize_threshold != lf.solve.RELINEARIZE_THRESHOLD \
                 or args.relinearize_skip != lf.solve.RELINEARIZE_SKIP:
@@ -155,10 +157,16 @@ def run(args, imports: float, started: float) -> int:
         out.say(f"{pg.describe()}; incremental (ISAM2, relinearize threshold {args.relinearize_threshold:g}, "
                 f"skip {args.relinearize_skip}), backend {args.backend}")
         result = lf.replay(pg, backend=args.backend, relinearize_threshold=args.relinearize_threshold,
-                           relinearize_skip=args.relinearize_skip, events=out)
+                           relinearize_skip=args.relinearize_skip, gnc=args.gnc, events=out)
         out.say(f"{result.updates} updates in {result.update_seconds:.3f} s (per update: median "
                 f"{result.update_p50 * 1e3:.3f} ms, p99 {result.update_p99 * 1e3:.3f} ms); "
                 f"final error {result.error:.6g}")
+        if result.gnc is not None:
+            out.say(f"online {result.gnc.upper()}: rejected {len(result.outliers)} of {len(pg.loop_closures())} "
+                    f"loop closures; {result.seconds:.3f} s in all (the updates, then every decision tested "
+                    "again at the end)")
+            if result.robust_status["status"] != "ok":
+                out.say("uncertain: " + "; ".join(result.robust_status["reasons"]))
         report_compile(args)
     else:
         out.say(f"{pg.describe()}{' (no vertices in the file)' if pg.vertices is None else ''}; "

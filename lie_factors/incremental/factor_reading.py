@@ -45,29 +45,30 @@ class FactorReading:
         """The factors on any of ``variables``, each once, increasing."""
         return factors_of(variables, self.store, self.nf)
 
-    def joint_covariance(self, variables) -> np.ndarray:
-        """(Σd, Σd): the blocks of Λ⁻¹ of ``variables``, in their order: Y_aᵀ Y_b over the nodes
-        the paths of a and b to their roots share (:func:`~lie_factors.incremental.substitution.path_rows`)."""
+    def joint_covariance(self, variables, paths: dict | None = None) -> np.ndarray:
+        """(Σd, Σd): the blocks of Λ⁻¹ of ``variables``, in their order.  Λ⁻¹ = YᵀY with
+        Y = R⁻ᵀ, whose column of a variable is nonzero only on the path from it to its root
+        (:func:`~lie_factors.incremental.substitution.path_rows`): the columns of ``variables``,
+        scattered onto the union of their paths, give every block in one product.  ``paths``: a
+        cache of the paths (variable → :func:`path_rows`), valid while the factor is unchanged."""
         variables = [int(v) for v in variables]
-        dims = [int(self.tree.dim[v]) for v in variables]
-        offs = np.concatenate([[0], np.cumsum(dims)]).astype(int)
-        rows = []
+        dim = self.tree.dim
+        paths = {} if paths is None else paths
         for v in variables:
-            path, start, Y = path_rows(v, self.tree, self.pools)
-            rows.append(({int(j): (int(a), int(a) + int(self.tree.dim[j])) for j, a in zip(path, start)}, Y))
-        out = np.zeros((offs[-1], offs[-1]))
-        for i, (pi, Yi) in enumerate(rows):
-            for j in range(i, len(rows)):
-                pj, Yj = rows[j]
-                common = [n for n in pi if n in pj]
-                if not common:
-                    continue
-                ri = np.concatenate([np.arange(*pi[n]) for n in common])
-                rj = np.concatenate([np.arange(*pj[n]) for n in common])
-                block = Yi[ri].T @ Yj[rj]
-                out[offs[i]:offs[i + 1], offs[j]:offs[j + 1]] = block
-                out[offs[j]:offs[j + 1], offs[i]:offs[i + 1]] = block.T
-        return out
+            if v not in paths:
+                paths[v] = path_rows(v, self.tree, self.pools)
+        found = [paths[v] for v in variables]
+        nodes = np.unique(np.concatenate([path for path, _, _ in found]))
+        first = np.concatenate([[0], np.cumsum(dim[nodes])]).astype(np.int64)
+        Y = np.zeros((int(first[-1]), sum(int(dim[v]) for v in variables)))
+        col = 0
+        for path, _, Yv in found:
+            d = np.asarray(dim[path], dtype=np.int64)
+            at = first[np.searchsorted(nodes, path)]
+            rows = np.repeat(at - np.concatenate([[0], np.cumsum(d)[:-1]]), d) + np.arange(int(d.sum()))
+            Y[rows, col:col + Yv.shape[1]] = Yv
+            col += Yv.shape[1]
+        return Y.T @ Y
 
     def conditional_error(self, x: np.ndarray) -> float:
         """½ Σ over the nodes of ‖R_j x_j + T_j x_S − d_j‖² at the scalars ``x`` (nscalar,): the

@@ -122,16 +122,16 @@ def factor_graph(pose_graph: PoseGraph, backend: str) -> gtsam.NonlinearFactorGr
 
 
 def new_isam(backend: str, relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
-             relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP):
+             relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP, robust: str | None = None):
     """The incremental smoother of ``backend`` with ISAM2's two parameters: the smoother for
-    ``batch``, the drop-in :class:`lie_factors.optimizers.ISAM2` for ``dropin``, ``gtsam.ISAM2``
-    for ``native``."""
+    ``batch`` (``robust``: its online rejection), the drop-in :class:`lie_factors.optimizers.ISAM2`
+    for ``dropin``, ``gtsam.ISAM2`` for ``native``."""
     if backend == "batch":
         from .params import SmootherParams
         from .smoother import Smoother
 
         return Smoother(SmootherParams(relinearizeThreshold=float(relinearize_threshold),
-                                       relinearizeSkip=int(relinearize_skip)))
+                                       relinearizeSkip=int(relinearize_skip)), robust=robust)
     if backend == "dropin":
         from ..optimizers.isam2 import ISAM2
 
@@ -143,25 +143,41 @@ def replay(pose_graph: PoseGraph, *, backend: str = "batch",
            relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
            relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP,
            progress: Callable[[int, int, float], None] | None = None,
-           max_seconds: float | None = None) -> ReplayResult:
+           max_seconds: float | None = None, gnc: str | None = None) -> ReplayResult:
     """Replay ``pose_graph`` online (module docstring) through ``backend``'s smoother.
 
     ``relinearize_threshold``, ``relinearize_skip``: ISAM2's ``relinearizeThreshold`` and
     ``relinearizeSkip``.  ``progress(done, total, seconds)`` is called every
     :data:`PROGRESS_EVERY` updates.  ``max_seconds``: stop after the update that passes this
     many seconds; ``updates`` then counts the updates done, ``converged`` is False and the
-    errors are NaN.  Raises :class:`InputError` for an unknown backend, bad parameters, a pose
-    that cannot be added online, or an update that fails (naming the update and its pose).
+    errors are NaN.  ``gnc``: ``"tls"`` rejects false loop closures as they arrive
+    (:mod:`lie_factors.robust.online`; the ``batch`` backend on a graph without landmarks);
+    the result's ``outliers`` are then the edges the smoother does not hold at the end, and
+    ``error`` the error of the edges it holds.  Raises :class:`InputError` for an unknown
+    backend, bad parameters, a pose that cannot be added online, or an update that fails
+    (naming the update and its pose).
     """
     if backend not in BACKENDS:
         raise InputError(f"unknown backend {backend!r} for a replay (choose from {', '.join(BACKENDS)})")
+    if gnc is not None:
+        from ..robust.online import ROBUST_LOSSES
+
+        if gnc not in ROBUST_LOSSES:
+            raise InputError(f"unknown online rejection {gnc!r} (choose from {', '.join(ROBUST_LOSSES)})")
+        if backend != "batch" or pose_graph.landmarks is not None:
+            raise InputError("an online rejection of loop closures runs on the batch backend, on a pose "
+                             "graph without landmarks")
+        if not len(pose_graph.loop_closures()) or len(pose_graph.loop_closures()) == len(pose_graph.edge_keys):
+            raise InputError("an online rejection needs odometry (edges between consecutive ids) and loop "
+                             "closures (the other edges); this graph has "
+                             + ("no loop closure" if not len(pose_graph.loop_closures()) else "no odometry"))
     if not (math.isfinite(relinearize_threshold) and relinearize_threshold >= 0):
         raise InputError(f"relinearize_threshold must be finite and >= 0, got {relinearize_threshold}")
     if int(relinearize_skip) < 1:
         raise InputError(f"relinearize_skip must be >= 1, got {relinearize_skip}")
-    isam = new_isam(backend, relinearize_threshold, relinearize_skip)
+    isam = new_isam(backend, relinearize_threshold, relinearize_skip, gnc)
     if backend == "batch" and pose_graph.landmarks is None:
-        return replay_arrays(pose_graph, isam, progress=progress, max_seconds=max_seconds)
+        return replay_arrays(pose_graph, isam, progress=progress, max_seconds=max_seconds, gnc=gnc)
     return replay_graph(pose_graph, factor_graph(pose_graph, backend), isam, backend=backend, progress=progress,
                         max_seconds=max_seconds)
 
@@ -269,10 +285,11 @@ def replay_graph(pose_graph: PoseGraph, graph: gtsam.NonlinearFactorGraph, isam,
 
 
 def replay_arrays(pose_graph: PoseGraph, smoother=None, *, progress: Callable[[int, int, float], None] | None = None,
-                  max_seconds: float | None = None) -> ReplayResult:
+                  max_seconds: float | None = None, gnc: str | None = None) -> ReplayResult:
     """The replay of a pose graph (no landmarks) through the smoother on arrays: the same updates,
     initial values and figures as :func:`replay_graph`, and no factor object at all.
-    ``smoother``: a :class:`~lie_factors.incremental.Smoother` (default: ISAM2's parameters)."""
+    ``smoother``: a :class:`~lie_factors.incremental.Smoother` (default: ISAM2's parameters);
+    ``gnc``: as for :func:`replay` (checked there; the smoother given is then robust)."""
     from ..batch.graph import Problem
     from ..interop import values_from_matrices
     from .factor_arrays import FactorArrays
@@ -285,8 +302,10 @@ def replay_arrays(pose_graph: PoseGraph, smoother=None, *, progress: Callable[[i
     steps = schedule(pose_graph, pg.edge_keys.tolist() + [[k] for k in pg.prior_keys.tolist()])
     edges = [np.array([k for k in s.factors if k < E], dtype=np.int64) for s in steps]
     priors = [np.array([k - E for k in s.factors if k >= E], dtype=np.int64) for s in steps]
+    if gnc is not None:
+        from ..robust.online import robust_update
     warm_up_smoother(fa.group)  # compile before the clock starts
-    smoother = Smoother() if smoother is None else smoother
+    smoother = Smoother(robust=gnc) if smoother is None else smoother
     start = np.empty((len(steps), fa.spec.mat, fa.spec.mat))
     file_poses = pose_graph.start_poses
     times = np.empty(len(steps))
@@ -301,7 +320,10 @@ def replay_arrays(pose_graph: PoseGraph, smoother=None, *, progress: Callable[[i
         start[n] = guess
         t0 = time.perf_counter()
         try:
-            smoother.update_prepared(fa, [step.key], guess[None], edges[n], priors[n])
+            if gnc is None:
+                smoother.update_prepared(fa, [step.key], guess[None], edges[n], priors[n])
+            else:
+                robust_update(smoother, fa, [step.key], guess[None], None, edges[n], priors[n])
             previous = smoother.estimate_matrix(step.key)
         except ValueError as exc:
             raise InputError(f"update {n + 1} (pose {step.key}) failed: {str(exc).strip()}") from None
@@ -309,17 +331,27 @@ def replay_arrays(pose_graph: PoseGraph, smoother=None, *, progress: Callable[[i
         if _stop_after(n, len(steps), clock, progress, max_seconds):
             times = times[:n + 1]
             break
-    seconds = clock.seconds()
     done = len(times)
+    rejection = smoother.rejection
+    if rejection is not None and done == len(steps):
+        rejection.settle(smoother)  # the final state: every decision tested at the end
+    seconds = clock.seconds()
     keys = pg.keys[:done]
     X = smoother.estimate_matrices(keys)
     complete = done == len(steps)
-    return ReplayResult(error=float(Problem.from_pose_graph(pg, X).error()) if complete else math.nan,
-                        initial_error=float(Problem.from_pose_graph(pg, start).error()) if complete else math.nan,
+    robust = {}
+    held = pg
+    if rejection is not None:
+        out = np.sort(np.array([rejection.source[c][1] for c in rejection.outliers().tolist()], dtype=np.int64))
+        held = pg.with_edges(np.setdiff1d(np.arange(E), out))
+        robust = dict(gnc=gnc, outliers=out, rejected_by={int(e): "online" for e in out.tolist()},
+                      robust_status=rejection.status())
+    return ReplayResult(error=float(Problem.from_pose_graph(held, X).error()) if complete else math.nan,
+                        initial_error=float(Problem.from_pose_graph(held, start).error()) if complete else math.nan,
                         **_figures(times, len(steps), seconds), relinearizations=smoother.relinearizations,
                         reorderings=smoother.reorderings, factors=E + len(pg.prior_keys), backend="batch",
                         pose_graph=pose_graph, _keys=keys, _poses=X, _group=pg.group,
-                        _start=lambda: values_from_matrices(pg.group, keys, start[:done]))
+                        _start=lambda: values_from_matrices(pg.group, keys, start[:done]), **robust)
 
 
 def warm_up_smoother(group: str) -> None:

@@ -83,7 +83,14 @@ class Smoother(Queries):
     every variable afresh).
     """
 
-    def __init__(self, params=None, **overrides):
+    def __init__(self, params=None, robust: str | None = None, **overrides):
+        if robust is not None:
+            from ..robust.online import ROBUST_LOSSES
+
+            if robust not in ROBUST_LOSSES:
+                raise InputError(f"robust: unknown {robust!r} (choose from {', '.join(ROBUST_LOSSES)})")
+        self.robust = robust
+        self.rejection = None  # the online rejection of loop closures, with ``robust``
         given = params
         if params is None:
             params = SmootherParams(**overrides)
@@ -160,27 +167,61 @@ class Smoother(Queries):
         ``gtsam.KeyGroupMap``); ``noRelinKeys``: keys held at their linearization point;
         ``extraReelimKeys``: keys re-eliminated whatever their δ.  Or ``update(newFactors,
         newTheta, gtsam.ISAM2UpdateParams)``."""
+        if self.robust is not None:
+            raise InputError("a robust smoother takes its factors through update_arrays (its loop closures "
+                             "are tested before they enter)")
         args = read_args(removeFactorIndices, constrainedKeys, noRelinKeys, extraReelimKeys, force_relinearize)
         return self._apply(read_update(newFactors, newTheta, self._setup), args)
 
     def update_arrays(self, group: str, keys=(), values=None, edge_keys=None, measured=None, information=None,
-                      prior_keys=None, prior_measured=None, prior_information=None) -> UpdateResult:
+                      prior_keys=None, prior_measured=None, prior_information=None,
+                      robust_factors=None) -> UpdateResult:
         """An update from arrays, with no factor object: new variables ``keys`` (P,) with
         elements ``values`` (P, m, m); between factors ``edge_keys`` (E, 2), ``measured``
         (E, m, m) (Z ≈ X₁⁻¹·X₂), ``information`` (E, n, n); priors ``prior_keys`` (Q,),
         ``prior_measured`` (Q, m, m), ``prior_information`` (Q, n, n).  ``group``: Pose2,
         Pose3, Rot3, Similarity2 or Similarity3; GTSAM's tangent order.  (A replay that
         knows its factors in advance prepares them once: :class:`FactorArrays`,
-        :meth:`update_prepared`.)"""
-        fa = FactorArrays(group, edge_keys, measured, information, prior_keys, prior_measured, prior_information)
-        return self.update_prepared(fa, keys, values, np.arange(fa.E), np.arange(fa.Q))
+        :meth:`update_prepared`.)
 
-    def update_prepared(self, fa: "FactorArrays", keys, values, edges=(), priors=()) -> UpdateResult:
+        With ``robust``: the between factors ``robust_factors`` (a boolean mask (E,) or
+        indices; default: the loop closures, |key₁ − key₂| ≠ 1) are candidate outliers,
+        tested before they enter and again as the map grows (:mod:`lie_factors.robust.online`);
+        the others and the priors are known inliers.  The result reports the update of the
+        known inliers."""
+        fa = FactorArrays(group, edge_keys, measured, information, prior_keys, prior_measured, prior_information)
+        if self.robust is None:
+            if robust_factors is not None:
+                raise InputError("robust_factors: the smoother is not robust (Smoother(robust='tls'))")
+            return self.update_prepared(fa, keys, values, np.arange(fa.E), np.arange(fa.Q))
+        from ..robust.online import robust_update
+
+        return robust_update(self, fa, keys, values, robust_factors)
+
+    def outliers(self) -> np.ndarray:
+        """(k, 2) int64: the keys of the candidate outliers the robust smoother does not hold now."""
+        if self.rejection is None:
+            return np.zeros((0, 2), dtype=np.int64)
+        return self.rejection.keys[self.rejection.outliers()]
+
+    def settle(self) -> bool:
+        """Test every decision of the robust smoother again, at the solution, until none changes
+        (:meth:`lie_factors.robust.online.OnlineRejection.settle`: not bounded per update);
+        returns whether it settled."""
+        return True if self.rejection is None else self.rejection.settle(self)
+
+    def update_prepared(self, fa: "FactorArrays", keys, values, edges=(), priors=(),
+                        removeFactorIndices=None) -> UpdateResult:
         """An update adding the new variables ``keys`` (P,) at ``values`` (P, m, m) and the
-        factors ``edges``/``priors`` (indices) of the prepared ``fa``."""
-        result = try_update(self, fa, keys, values, edges, priors)
-        if result is not None:
-            return result
+        factors ``edges``/``priors`` (indices) of the prepared ``fa``, numbered in that order
+        from the smoother's factor count; ``removeFactorIndices``: as for :meth:`update`."""
+        args = PLAIN
+        if removeFactorIndices is not None and len(removeFactorIndices):
+            args = read_args(removeFactorIndices)
+        else:
+            result = try_update(self, fa, keys, values, edges, priors)
+            if result is not None:
+                return result
         spec = fa.spec
         m, n = spec.mat, spec.dim
         keys = np.asarray(keys, dtype=np.int64).reshape(-1)
@@ -200,7 +241,7 @@ class Smoother(Queries):
             arrays[("prior", fa.group)] = dict(keys=fa.prior_keys[priors, None], C=fa.Pinv[priors],
                                                R=fa.prior_R[priors], src=[None] * len(priors),
                                                pos=len(edges) + np.arange(len(priors)))
-        return self._apply(NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, []))
+        return self._apply(NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, []), args)
 
     def estimate_matrices(self, keys) -> np.ndarray:
         """(K, m, m): the estimates of the group variables ``keys`` (all of one group)."""

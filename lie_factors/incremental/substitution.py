@@ -155,7 +155,8 @@ def _root_path(v, parent):
 @inline_kernel
 def _forward_node(q, path, start, where, Y, tree, pools):
     """Path node ``q``'s rows of Y = R⁻ᵀ(E − the contributions already subtracted), then Tᵀ
-    times them subtracted from the rows of its separator (all on the path)."""
+    times them subtracted from the rows of its separator (all on the path); ``where[j]``: node
+    j's place on the path, −1 off it."""
     cond = tree.cond
     sep_len = tree.sep_len
     sep_start = tree.sep_start
@@ -179,7 +180,7 @@ def _forward_node(q, path, start, where, Y, tree, pools):
     for t in range(sep_start[j], sep_start[j] + sep_len[j]):
         w = ipool[t]
         dw = dim[w]
-        if w in where:
+        if where[w] >= 0:
             yw = start[where[w]]
             for i in range(dw):
                 for col in range(dv):
@@ -209,7 +210,9 @@ def path_rows(v, tree, pools):
         start[q] = tot
         tot += dim[path[q]]
     Y = np.zeros((tot, dv))
-    where = {}
+    # each path node's place on the path (-1 off it): an array, which numba indexes far faster
+    # than it looks up a dict
+    where = np.full(parent.shape[0], -1, dtype=np.int64)
     for q in range(plen):
         where[path[q]] = q
     for i in range(dv):

@@ -16,8 +16,9 @@ import numpy as np
 __all__ = ["positions", "rmse", "diagonal", "map_error_percent", "consistent_planted", "stage_counts",
            "STAGES"]
 
-#: The stages of the false-closure pipeline that reject a closure, in their order.
-STAGES = ("gate", "clique", "gnc", "final")
+#: The stages of the false-closure pipeline that reject a closure, in their order (``online``: the
+#: online rejection of a replay, :mod:`lie_factors.robust.online`).
+STAGES = ("gate", "clique", "gnc", "final", "online")
 
 
 def positions(poses: np.ndarray) -> np.ndarray:

@@ -1,0 +1,404 @@
+"""False loop closures rejected online: each closure tested when it arrives, every decision tested again.
+
+The smoother holds the known inliers (odometry, priors) and the closures accepted
+so far; a closure it does not hold is *pending*.  The test is the final check's
+(:mod:`lie_factors.robust.leave_out`, :class:`~lie_factors.robust.rejection.TailModel`),
+on the smoother's estimate and its marginal covariances instead of a batch
+solution: for a group G of closures with whitened residual b_G and Jacobian
+A_G at the estimate, and Σ the joint marginal covariance of their ends,
+
+    T_G = b_Gᵀ (I + A_G Σ A_Gᵀ)⁻¹ b_G     (pending: the innovation statistic)
+    T_G = b_Gᵀ (I − A_G Σ A_Gᵀ)⁻¹ b_G     (accepted: the leave-group-out statistic),
+
+each χ²-like with dim(b_G) degrees of freedom for a true group, tested against the
+tail model at the same probability as the batch check (:data:`PROBABILITY`).
+
+Each update that brings closures:
+
+1. tests each new closure alone, then the new closures that pass as groups
+   (:func:`~lie_factors.robust.rejection.closure_groups`: ends within
+   :data:`~lie_factors.robust.rejection.GROUP_WINDOW` poses of each other);
+   the smoother takes those that pass;
+2. tests again :data:`RETEST` earlier decisions, oldest first: an accepted
+   closure with the accepted closures near it (its group) and alone — it
+   leaves if either fails (aliased false closures hold one another); a pending
+   closure with the pending closures near it, then alone — it comes back if
+   either passes.
+
+So an update's work is bounded by its new closures plus :data:`RETEST` groups,
+each of at most :data:`~lie_factors.robust.rejection.GROUP_MAX` closures, a joint
+covariance over the paths from their ends to the root of the smoother's tree; not
+by the graph's size.  A decision made early is revisited as the map firms up:
+the round robin reaches every closure within (closures ÷ :data:`RETEST`)
+updates that bring closures.
+
+The tail model's scale starts at the noise models' own (s = 1, with the batch
+check's heaviest tail, ν = :data:`~lie_factors.robust.rejection.TAIL_DOF`) and
+is fitted to the accepted closures' statistics once there are
+:data:`MIN_FIT` of them: enough for their sample median to lie between the true
+distribution's quartiles with probability :data:`PROBABILITY` (a binomial
+bound, :func:`min_fit`).  It is fitted again each time the accepted closures
+grow by a quarter.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import math
+
+import numpy as np
+
+from .rejection import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
+
+__all__ = ["OnlineRejection", "RETEST", "MIN_FIT", "PROBABILITY", "min_fit", "ROBUST_LOSSES"]
+
+#: The losses a robust smoother takes: ``tls`` (truncated least squares: a closure is in, weight 1,
+#: or out, weight 0, by the test of the module docstring).
+ROBUST_LOSSES = ("tls",)
+
+#: The probability of the tests (the batch final check's).
+PROBABILITY = 0.9999
+
+#: Earlier decisions tested again in each update that brings closures.
+RETEST = 4
+
+#: :meth:`OnlineRejection.settle`'s Gauss–Newton iterations at most, and its step tolerance.
+SETTLE_ITERATIONS = 20
+SETTLE_TOLERANCE = 1e-6
+
+PENDING, ACCEPTED = 0, 1
+
+
+def min_fit(probability: float = PROBABILITY) -> int:
+    """The fewest statistics whose sample median lies between the 1/4 and 3/4 quantiles of their
+    distribution with probability ``probability``: the smallest k with
+    P(Binomial(k, 1/4) ≥ k/2) ≤ (1 − p)/2 (each side)."""
+    k = 1
+    while sum(math.comb(k, j) * 0.25 ** j * 0.75 ** (k - j) for j in range((k + 1) // 2, k + 1)) \
+            > (1.0 - probability) / 2.0:
+        k += 1
+    return k
+
+
+#: Accepted closures needed before the tail model is fitted to them (:func:`min_fit`).
+MIN_FIT = min_fit()
+
+
+@dataclass
+class Decision:
+    """What one update changes: closures to ``add`` and closures to ``remove`` (closure ids)."""
+
+    add: list
+    remove: list
+
+
+class OnlineRejection:
+    """The decisions of a robust smoother (module docstring) on the closures of one group.
+
+    ``n``: the group's tangent dimension.  Closures are offered with :meth:`offer` (their keys,
+    and where their factor lives: a :class:`~lie_factors.incremental.factor_arrays.FactorArrays`
+    and an edge index); :meth:`decide` runs the tests of one update against a smoother;
+    :meth:`outliers` names the pending ones.
+    """
+
+    def __init__(self, n: int, retest: int = RETEST, probability: float = PROBABILITY):
+        self.n, self.retest, self.probability = int(n), int(retest), float(probability)
+        self.keys = np.zeros((0, 2), dtype=np.int64)
+        self.state = np.zeros(0, dtype=np.int8)
+        self.T = np.full(0, np.nan)  # each closure's statistic at its last test
+        self.epoch = np.zeros(0, dtype=np.int64)  # the tail model's fit in force at its last test
+        self.source: list = []  # closure id -> (FactorArrays, edge index)
+        self.Minv = np.zeros((0, 0, 0))  # each closure's M⁻¹ and whitening R, from its source
+        self.R = np.zeros((0, self.n, self.n))
+        self.fid = np.zeros(0, dtype=np.int64)  # the smoother's factor id of an accepted closure
+        self.queue: deque = deque()  # closure ids, the oldest decision first
+        self.model = TailModel(self.n, np.zeros(0), self.probability)
+        self._limits: dict = {}  # group size -> the model's threshold
+        self._paths: dict = {}  # variable -> its path in the smoother's factor, while it is unchanged
+        self._fitted_at = 0
+        self.fits = 0  # the tail model's fits so far
+        self.tests = 0  # group statistics computed (the work the bound counts)
+
+    # ------------------------------------------------------------------ bookkeeping
+    def offer(self, fa, edges) -> np.ndarray:
+        """Closures ``edges`` (indices into ``fa``'s between factors), new; returns their ids."""
+        edges = np.asarray(edges, dtype=np.int64).reshape(-1)
+        c0 = len(self.keys)
+        self.keys = np.concatenate([self.keys, fa.edge_keys[edges]])
+        self.state = np.concatenate([self.state, np.full(len(edges), PENDING, dtype=np.int8)])
+        self.T = np.concatenate([self.T, np.full(len(edges), np.nan)])
+        self.epoch = np.concatenate([self.epoch, np.full(len(edges), -1, dtype=np.int64)])
+        self.fid = np.concatenate([self.fid, np.full(len(edges), -1, dtype=np.int64)])
+        self.source.extend((fa, int(e)) for e in edges.tolist())
+        self.Minv = np.concatenate([self.Minv.reshape(-1, *fa.Minv.shape[1:]), fa.Minv[edges]])
+        self.R = np.concatenate([self.R, fa.R[edges]])
+        return np.arange(c0, c0 + len(edges))
+
+    def outliers(self) -> np.ndarray:
+        """Ids of the closures the smoother does not hold now."""
+        return np.flatnonzero(self.state == PENDING)
+
+    def status(self) -> dict:
+        """``{"status": "ok" | "uncertain", "reasons": [...]}``: uncertain where decisions stand
+        that were last tested under an earlier fit of the tail model (the round robin has not
+        reached them since)."""
+        stale = int(np.count_nonzero(self.epoch < self.fits))
+        reasons = [f"{stale} of {len(self.epoch)} loop-closure decisions were last tested before the tail "
+                   "model's last fit"] if stale else []
+        return {"status": "uncertain" if reasons else "ok", "reasons": reasons}
+
+    def accepted(self) -> np.ndarray:
+        return np.flatnonzero(self.state == ACCEPTED)
+
+    def _refit(self) -> None:
+        acc = self.accepted()
+        if acc.size >= MIN_FIT and acc.size >= 1.25 * self._fitted_at:
+            self.model = TailModel(self.n, self.T[acc], self.probability)
+            self._limits = {}
+            self._fitted_at = acc.size
+            self.fits += 1
+
+    def _near(self, c: int, state: int) -> np.ndarray:
+        """Closures in ``state`` whose ends (low, high key) are each within GROUP_WINDOW of
+        closure ``c``'s, ``c`` first, the nearest GROUP_MAX in all."""
+        return self._near_among(c, np.flatnonzero(self.state == state))
+
+    def _near_among(self, c: int, among) -> np.ndarray:
+        """:meth:`_near` among the closures ``among``."""
+        among = np.asarray(among, dtype=np.int64)
+        lo, hi = self.keys[among].min(axis=1), self.keys[among].max(axis=1)
+        k = self.keys[c]
+        d = np.maximum(np.abs(lo - k.min()), np.abs(hi - k.max()))
+        near = among[d <= GROUP_WINDOW]
+        d = d[d <= GROUP_WINDOW]
+        d = d[near != c]
+        near = near[near != c]
+        near = near[np.argsort(d, kind="stable")][:GROUP_MAX - 1]
+        return np.concatenate([[c], near]).astype(np.int64)
+
+    # ------------------------------------------------------------------ the statistic
+    def statistic(self, smoother, group) -> float:
+        """T of closures ``group`` (all accepted: leave-group-out; all pending: innovation) at
+        ``smoother``'s estimate; NaN where the others do not measure what the group does."""
+        group = np.asarray(group, dtype=np.int64)
+        states = self.state[group]
+        sign = -1.0 if states[0] == ACCEPTED else 1.0
+        assert np.all(states == states[0]), "a group is all accepted or all pending"
+        self.tests += 1
+        self.epoch[group] = self.fits
+        ends, where = np.unique(self.keys[group].reshape(-1), return_inverse=True)
+        where = where.reshape(-1, 2)
+        fa = self.source[int(group[0])][0]
+        loops = smoother.elements[fa.group].loops
+        X = np.ascontiguousarray(smoother.estimate_matrices(ends))
+        Sigma = smoother.bf.joint_covariance([smoother._var_of(int(k)) for k in ends.tolist()], self._paths)
+        n, g = self.n, len(group)
+        Minv, R = self.Minv[group], self.R[group]
+        A1, A2, b, sq = np.empty((g, n, n)), np.empty((g, n, n)), np.empty((g, n)), np.empty(g)
+        loops.between_lin(X, np.ascontiguousarray(where[:, 0]), np.ascontiguousarray(where[:, 1]), Minv, R,
+                          np.arange(g, dtype=np.int64), A1, A2, b, sq)
+        A = np.zeros((g * n, len(ends) * n))
+        for t in range(g):
+            A[t * n:(t + 1) * n, where[t, 0] * n:(where[t, 0] + 1) * n] += A1[t]
+            A[t * n:(t + 1) * n, where[t, 1] * n:(where[t, 1] + 1) * n] += A2[t]
+        M = np.eye(g * n) + sign * (A @ Sigma @ A.T)
+        M = 0.5 * (M + M.T)
+        if np.linalg.eigvalsh(M)[0] <= 1e-9:
+            return float("nan")
+        bb = b.reshape(-1)
+        return float(bb @ np.linalg.solve(M, bb))
+
+    def _passes(self, T: float, g: int) -> bool:
+        limit = self._limits.get(g)
+        if limit is None:
+            limit = self._limits[g] = self.model.threshold(g)
+        return not (T > limit)  # NaN (nothing else measures it) passes
+
+    # ------------------------------------------------------------------ one update
+    def decide(self, smoother, new) -> Decision:
+        """The tests of one update (module docstring): ``new`` (closure ids offered in this
+        update, pending).  Returns what the smoother should add and remove; the caller applies it
+        and reports the factor ids with :meth:`applied`."""
+        self._paths = {}
+        new = [int(c) for c in np.asarray(new, dtype=np.int64).tolist()]
+        if self.fits == 0:
+            if len(self.state) < MIN_FIT:
+                return Decision([], [])  # held: the tail model's scale is not known yet
+            self._first_fit(smoother)
+            new = []
+        else:
+            self._refit()
+            for c in new:
+                self.T[c] = self.statistic(smoother, [c])
+        passing = [c for c in new if self._passes(self.T[c], 1)]
+        grouped: set = set()
+        for c in list(passing):
+            if c in grouped:
+                continue
+            near = [int(x) for x in self._near_among(c, passing) if x not in grouped]
+            grouped.update(near)
+            if len(near) > 1 and not self._passes(self.statistic(smoother, near), len(near)):
+                # new closures that support only one another (an aliased run): set aside
+                passing = [x for x in passing if x not in near]
+        add, remove = list(passing), []
+        self.queue.extend(new)
+        for _ in range(min(self.retest, len(self.queue) - len(new))):
+            c = self.queue.popleft()
+            self.queue.append(c)
+            self._retest(smoother, c, add, remove, new)
+        return Decision(sorted(set(add)), sorted(set(remove)))
+
+    def _first_fit(self, smoother) -> None:
+        """The end of the wait for :data:`MIN_FIT` closures: the tail model fitted to their
+        statistics against the map they found (the known inliers alone), then each decided in
+        the order they came, against the map the ones before it made (an update each)."""
+        held = list(range(len(self.state)))
+        for c in held:
+            self.T[c] = self.statistic(smoother, [c])
+        self.model = TailModel(self.n, self.T[held], self.probability)
+        self._limits = {}
+        self.fits = 1
+        self.queue.extend(held)
+        for c in held:
+            self._paths = {}
+            self.T[c] = self.statistic(smoother, [c])
+            if self._passes(self.T[c], 1):
+                apply_decision(smoother, self, Decision([c], []))
+
+    def _retest(self, smoother, c: int, add: list, remove: list, new=()) -> None:
+        """Test closure ``c``'s decision again, appending to ``add`` or ``remove`` what changes:
+        an accepted closure alone, then with the accepted closures near it; a pending closure with
+        the pending closures near it, then alone."""
+        if c in add or c in remove:
+            return
+        if self.state[c] == ACCEPTED:
+            self.T[c] = self.statistic(smoother, [c])
+            if not self._passes(self.T[c], 1):
+                remove.append(c)
+                return
+            near = [int(x) for x in self._near(c, ACCEPTED) if x not in remove]
+            if len(near) > 1 and not self._passes(self.statistic(smoother, near), len(near)):
+                remove += near
+            return
+        near = [int(x) for x in self._near(c, PENDING) if x not in add and x not in new]
+        if len(near) > 1 and self._passes(self.statistic(smoother, near), len(near)):
+            add += near
+            return
+        self.T[c] = self.statistic(smoother, [c])
+        if self._passes(self.T[c], 1):
+            add.append(c)
+
+    def settle(self, smoother, rounds: int = MAX_ROUNDS) -> bool:
+        """Test every decision again and apply the changes, until none changes (at most ``rounds``
+        passes, each O(closures) statistics and Gauss–Newton to convergence on the whole graph,
+        :meth:`~lie_factors.incremental.Smoother.optimize`: the tests hold at a solution);
+        returns whether it settled.  Not bounded per update: the end of a run, or whenever the
+        caller can afford it."""
+        if self.fits == 0 and len(self.state):
+            self._first_fit(smoother)  # fewer than MIN_FIT closures came: the fit to what there is
+        for _ in range(rounds):
+            smoother.optimize(max_iterations=SETTLE_ITERATIONS, tolerance=SETTLE_TOLERANCE)
+            self._refit()
+            self._paths = {}
+            decision = self._settle_round(smoother)
+            if not decision.add and not decision.remove:
+                return True
+            apply_decision(smoother, self, decision)
+        smoother.optimize(max_iterations=SETTLE_ITERATIONS, tolerance=SETTLE_TOLERANCE)
+        return False
+
+    def _settle_round(self, smoother) -> Decision:
+        """One kind of change, as the batch final check makes them: the accepted closures that fail
+        alone; else the accepted groups that fail; else the pending closures that pass, with their
+        group or alone."""
+        acc = self.accepted().tolist()
+        for c in acc:
+            self.T[c] = self.statistic(smoother, [c])
+        drop = [c for c in acc if not self._passes(self.T[c], 1)]
+        if drop:
+            return Decision([], drop)
+        for c in acc:
+            if c in drop:
+                continue
+            near = [int(x) for x in self._near(c, ACCEPTED) if x not in drop]
+            if len(near) > 1 and not self._passes(self.statistic(smoother, near), len(near)):
+                drop += near
+        if drop:
+            return Decision([], sorted(set(drop)))
+        back: list = []
+        for c in self.outliers().tolist():
+            self._retest(smoother, c, back, [])
+        return Decision(sorted(set(back)), [])
+
+    def applied(self, decision: Decision, fids) -> None:
+        """Record that the smoother took ``decision``: ``fids`` the factor ids of its added closures."""
+        self.state[decision.remove] = PENDING
+        self.fid[decision.remove] = -1
+        self.state[decision.add] = ACCEPTED
+        self.fid[decision.add] = np.asarray(fids, dtype=np.int64)
+
+
+def apply_decision(smoother, rejection: OnlineRejection, decision: Decision) -> None:
+    """Make ``smoother`` take ``decision`` (one update per set of prepared factors the added
+    closures come from; the removals in the first) and record it in ``rejection``."""
+    if not decision.add and not decision.remove:
+        return
+    parts: dict = {}
+    for c in decision.add:
+        fa, e = rejection.source[c]
+        parts.setdefault(id(fa), (fa, []))[1].append((c, e))
+    items = list(parts.values()) or [(rejection.source[decision.remove[0]][0], [])]
+    remove = rejection.fid[decision.remove].tolist()
+    fids = {}
+    for i, (fa, ce) in enumerate(items):
+        base = smoother.bf.nf
+        smoother.update_prepared(fa, [], None, [e for _, e in ce], removeFactorIndices=remove if i == 0 else None)
+        fids.update((c, base + t) for t, (c, _) in enumerate(ce))
+    rejection.applied(decision, [fids[c] for c in decision.add])
+
+
+def robust_update(smoother, fa, keys, values, robust_factors=None, edges=None, priors=None):
+    """:meth:`~lie_factors.incremental.Smoother.update_arrays` of a robust smoother: the known
+    inliers among ``fa``'s between factors ``edges`` (default all) and its priors ``priors``
+    (default all) enter, then the candidate outliers (``robust_factors``: a mask or indices
+    into ``edges``; default the loop closures) are offered and decided.  A new key that only
+    candidates reach enters with them (nothing else measures it)."""
+    from ..errors import InputError
+    from ..posegraph.graph import is_loop_closure
+
+    edges = np.arange(fa.E) if edges is None else np.asarray(edges, dtype=np.int64).reshape(-1)
+    priors = np.arange(fa.Q) if priors is None else np.asarray(priors, dtype=np.int64).reshape(-1)
+    E = len(edges)
+    ek = fa.edge_keys[edges]
+    if robust_factors is None:
+        candidate = is_loop_closure(ek[:, 0], ek[:, 1]) if E else np.zeros(0, dtype=bool)
+    else:
+        r = np.asarray(robust_factors)
+        if r.dtype == bool:
+            if r.shape != (E,):
+                raise InputError(f"robust_factors: a mask of the {E} between factors, got shape {r.shape}")
+            candidate = r
+        else:
+            idx = r.astype(np.int64).reshape(-1)
+            if not np.array_equal(idx, r.reshape(-1)) or np.any((idx < 0) | (idx >= E)):
+                raise InputError(f"robust_factors: indices of the {E} between factors, got {r.tolist()}")
+            candidate = np.zeros(E, dtype=bool)
+            candidate[idx] = True
+    new = np.asarray(keys, dtype=np.int64).reshape(-1)
+    measured = np.concatenate([ek[~candidate].reshape(-1), fa.prior_keys[priors]])
+    alone = new[~np.isin(new, measured)]
+    if alone.size:
+        candidate = candidate & ~np.isin(ek, alone).any(axis=1)
+    rej = smoother.rejection
+    if rej is None:
+        rej = smoother.rejection = OnlineRejection(fa.spec.dim)
+    elif rej.source and rej.source[0][0].group != fa.group:
+        raise InputError(f"a robust smoother's loop closures are of one group ({rej.source[0][0].group}); "
+                         f"this update's are {fa.group}")
+    result = smoother.update_prepared(fa, keys, values, edges[~candidate], priors)
+    if candidate.any():
+        ids = rej.offer(fa, edges[candidate])
+        apply_decision(smoother, rej, rej.decide(smoother, ids))
+    return result
