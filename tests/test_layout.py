@@ -9,7 +9,8 @@ prefix listed, and may import only modules of its rank or below:
 2. ``interop`` (GTSAM objects ⇄ arrays); 3. ``factors``;
 4. the data model, ``posegraph``; 5. g2o files, ``g2o``, then ``result`` (what the front door returns);
 6. the solvers, ordered: ``lm`` and ``dogleg`` < ``optimizers`` < ``dropin`` < ``sparse`` <
-   ``robust.losses`` and ``robust.statistics`` (the batch solver's robust costs) < ``batch`` <
+   ``robust.losses``, ``robust.statistics`` (the batch solver's robust costs), ``robust.tail`` and
+   ``robust.online`` (the closure tests the incremental smoother runs) < ``batch`` <
    ``initialization`` < ``incremental`` < the rest of ``robust`` < ``backends``;
 7. the front door (``solve``, ``events``, the package's ``__init__``);
 8. the app: ``app``, and ``sweeps`` (the front door's runs over many cases, on Dask: the app's
@@ -44,7 +45,7 @@ RANKS = {
     "posegraph": 4,
     "g2o": 5,
     "lm": 6.0, "dogleg": 6.0, "optimizers": 6.1, "dropin": 6.2, "sparse": 6.3,
-    "robust.losses": 6.4, "robust.statistics": 6.4,
+    "robust.losses": 6.4, "robust.statistics": 6.4, "robust.tail": 6.4, "robust.online": 6.4,
     "batch": 6.5, "initialization": 6.6, "incremental": 6.7, "robust": 6.8, "backends": 6.9,
     "result": 5.5,
     "events": 7, "solve": 7, "files": 7, "corruption": 7, "": 7,

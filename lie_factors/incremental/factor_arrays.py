@@ -141,6 +141,29 @@ class FactorArrays:
         self.prior_keys = pk.reshape(-1)
         self.E, self.Q = len(self.edge_keys), len(self.prior_keys)
 
+    def new_factors(self, keys, values, edges, priors) -> "NewFactors":
+        """One update of the general path: new variables ``keys`` (P,) at ``values`` (P, m, m)
+        and the factors ``edges``/``priors`` (indices), numbered in that order."""
+        m, n = self.spec.mat, self.spec.dim
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1)
+        P = len(keys)
+        X = np.zeros((0, m, m)) if P == 0 and values is None else np.asarray(values, dtype=np.float64)
+        if X.shape != (P, m, m):
+            raise InputError(f"values: expected shape ({P}, {m}, {m}), got {X.shape}")
+        if not np.all(np.isfinite(X)):
+            raise InputError("values: not finite")
+        arrays = {}
+        edges = np.asarray(edges, dtype=np.int64).reshape(-1)
+        priors = np.asarray(priors, dtype=np.int64).reshape(-1)
+        if len(edges):
+            arrays[("between", self.group)] = dict(keys=self.edge_keys[edges], C=self.Minv[edges], R=self.R[edges],
+                                                   src=[None] * len(edges), pos=np.arange(len(edges)))
+        if len(priors):
+            arrays[("prior", self.group)] = dict(keys=self.prior_keys[priors, None], C=self.Pinv[priors],
+                                                 R=self.prior_R[priors], src=[None] * len(priors),
+                                                 pos=len(edges) + np.arange(len(priors)))
+        return NewFactors(keys.tolist(), [self.group] * P, list(X), [n] * P, arrays, [])
+
 
 @dataclass
 class NewFactors:

@@ -60,6 +60,7 @@ from .reports import adaptive_reorder, error_before, update_result
 from .removal import plan as removal_plan
 from .removal import structure as removal_structure
 from .update_args import PLAIN, UpdateArgs, order_groups, read_args
+from ..robust.online import ROBUST_LOSSES, RobustSmoothing, robust_update
 from .structures import grow
 from .undo import Undo
 
@@ -67,7 +68,7 @@ from .undo import Undo
 UNDETERMINED = "the update leaves a variable undetermined"
 
 
-class Smoother(Queries):
+class Smoother(Queries, RobustSmoothing):
     """Incremental smoothing and mapping with ``gtsam.ISAM2``'s everyday interface.
 
     ``params``: a :class:`SmootherParams`, a ``gtsam.ISAM2Params`` (its
@@ -78,17 +79,16 @@ class Smoother(Queries):
     ``calculateEstimate(key)`` and ``calculateEstimatePose2/Pose3/Point3/…(key)``;
     ``getLinearizationPoint()``; ``getFactorsUnsafe()``; ``getDelta()``;
     ``marginalCovariance(key)``; ``optimize()`` (relinearize everything and
-    iterate to convergence).  Counters: ``relinearizations`` (variables
+    iterate to convergence).  ``robust="tls"``: loop closures are tested before they enter
+    and again as the map grows (:mod:`lie_factors.robust.online`; ``outliers()``,
+    ``settle()``).  Counters: ``relinearizations`` (variables
     relinearized, summed over updates), ``reorderings`` (updates that ordered
     every variable afresh).
     """
 
     def __init__(self, params=None, robust: str | None = None, **overrides):
-        if robust is not None:
-            from ..robust.online import ROBUST_LOSSES
-
-            if robust not in ROBUST_LOSSES:
-                raise InputError(f"robust: unknown {robust!r} (choose from {', '.join(ROBUST_LOSSES)})")
+        if robust is not None and robust not in ROBUST_LOSSES:
+            raise InputError(f"robust: unknown {robust!r} (choose from {', '.join(ROBUST_LOSSES)})")
         self.robust = robust
         self.rejection = None  # the online rejection of loop closures, with ``robust``
         given = params
@@ -184,31 +184,12 @@ class Smoother(Queries):
         knows its factors in advance prepares them once: :class:`FactorArrays`,
         :meth:`update_prepared`.)
 
-        With ``robust``: the between factors ``robust_factors`` (a boolean mask (E,) or
-        indices; default: the loop closures, |key₁ − key₂| ≠ 1) are candidate outliers,
-        tested before they enter and again as the map grows (:mod:`lie_factors.robust.online`);
-        the others and the priors are known inliers.  The result reports the update of the
-        known inliers."""
+        With ``robust``, ``robust_factors`` (default: the loop closures) are candidate outliers:
+        :func:`lie_factors.robust.online.robust_update`."""
         fa = FactorArrays(group, edge_keys, measured, information, prior_keys, prior_measured, prior_information)
-        if self.robust is None:
-            if robust_factors is not None:
-                raise InputError("robust_factors: the smoother is not robust (Smoother(robust='tls'))")
+        if self.robust is None and robust_factors is None:
             return self.update_prepared(fa, keys, values, np.arange(fa.E), np.arange(fa.Q))
-        from ..robust.online import robust_update
-
         return robust_update(self, fa, keys, values, robust_factors)
-
-    def outliers(self) -> np.ndarray:
-        """(k, 2) int64: the keys of the candidate outliers the robust smoother does not hold now."""
-        if self.rejection is None:
-            return np.zeros((0, 2), dtype=np.int64)
-        return self.rejection.keys[self.rejection.outliers()]
-
-    def settle(self) -> bool:
-        """Test every decision of the robust smoother again, at the solution, until none changes
-        (:meth:`lie_factors.robust.online.OnlineRejection.settle`: not bounded per update);
-        returns whether it settled."""
-        return True if self.rejection is None else self.rejection.settle(self)
 
     def update_prepared(self, fa: "FactorArrays", keys, values, edges=(), priors=(),
                         removeFactorIndices=None) -> UpdateResult:
@@ -222,26 +203,8 @@ class Smoother(Queries):
             result = try_update(self, fa, keys, values, edges, priors)
             if result is not None:
                 return result
-        spec = fa.spec
-        m, n = spec.mat, spec.dim
-        keys = np.asarray(keys, dtype=np.int64).reshape(-1)
-        P = len(keys)
-        X = np.zeros((0, m, m)) if P == 0 and values is None else np.asarray(values, dtype=np.float64)
-        if X.shape != (P, m, m):
-            raise InputError(f"values: expected shape ({P}, {m}, {m}), got {X.shape}")
-        if not np.all(np.isfinite(X)):
-            raise InputError("values: not finite")
-        arrays = {}
-        edges = np.asarray(edges, dtype=np.int64).reshape(-1)
-        priors = np.asarray(priors, dtype=np.int64).reshape(-1)
-        if len(edges):
-            arrays[("between", fa.group)] = dict(keys=fa.edge_keys[edges], C=fa.Minv[edges], R=fa.R[edges],
-                                                 src=[None] * len(edges), pos=np.arange(len(edges)))
-        if len(priors):
-            arrays[("prior", fa.group)] = dict(keys=fa.prior_keys[priors, None], C=fa.Pinv[priors],
-                                               R=fa.prior_R[priors], src=[None] * len(priors),
-                                               pos=len(edges) + np.arange(len(priors)))
-        return self._apply(NewFactors(keys.tolist(), [fa.group] * P, list(X), [n] * P, arrays, []), args)
+        nf = fa.new_factors(keys, values, edges, priors)
+        return self._apply(nf) if args is PLAIN else self._apply(nf, args)
 
     def estimate_matrices(self, keys) -> np.ndarray:
         """(K, m, m): the estimates of the group variables ``keys`` (all of one group)."""

@@ -2,7 +2,7 @@
 
 The smoother holds the known inliers (odometry, priors) and the closures accepted
 so far; a closure it does not hold is *pending*.  The test is the final check's
-(:mod:`lie_factors.robust.leave_out`, :class:`~lie_factors.robust.rejection.TailModel`),
+(:mod:`lie_factors.robust.leave_out`, :class:`~lie_factors.robust.tail.TailModel`),
 on the smoother's estimate and its marginal covariances instead of a batch
 solution: for a group G of closures with whitened residual b_G and Jacobian
 A_G at the estimate, and Σ the joint marginal covariance of their ends,
@@ -50,9 +50,13 @@ import math
 
 import numpy as np
 
-from .rejection import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
+from ..errors import InputError
+from ..posegraph.graph import is_loop_closure
 
-__all__ = ["OnlineRejection", "RETEST", "MIN_FIT", "PROBABILITY", "min_fit", "ROBUST_LOSSES"]
+from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
+
+__all__ = ["OnlineRejection", "RobustSmoothing", "robust_update", "RETEST", "MIN_FIT", "PROBABILITY", "min_fit",
+           "ROBUST_LOSSES"]
 
 #: The losses a robust smoother takes: ``tls`` (truncated least squares: a closure is in, weight 1,
 #: or out, weight 0, by the test of the module docstring).
@@ -359,15 +363,30 @@ def apply_decision(smoother, rejection: OnlineRejection, decision: Decision) -> 
     rejection.applied(decision, [fids[c] for c in decision.add])
 
 
+class RobustSmoothing:
+    """What a robust smoother answers (:class:`~lie_factors.incremental.Smoother` with
+    ``robust``): its ``rejection`` (an :class:`OnlineRejection`, or None before any closure)."""
+
+    rejection: "OnlineRejection | None"
+
+    def outliers(self) -> np.ndarray:
+        """(k, 2) int64: the keys of the candidate outliers the smoother does not hold now."""
+        if self.rejection is None:
+            return np.zeros((0, 2), dtype=np.int64)
+        return self.rejection.keys[self.rejection.outliers()]
+
+    def settle(self) -> bool:
+        """Test every decision again at the solution until none changes
+        (:meth:`OnlineRejection.settle`: not bounded per update); returns whether it settled."""
+        return True if self.rejection is None else self.rejection.settle(self)
+
+
 def robust_update(smoother, fa, keys, values, robust_factors=None, edges=None, priors=None):
     """:meth:`~lie_factors.incremental.Smoother.update_arrays` of a robust smoother: the known
     inliers among ``fa``'s between factors ``edges`` (default all) and its priors ``priors``
     (default all) enter, then the candidate outliers (``robust_factors``: a mask or indices
     into ``edges``; default the loop closures) are offered and decided.  A new key that only
     candidates reach enters with them (nothing else measures it)."""
-    from ..errors import InputError
-    from ..posegraph.graph import is_loop_closure
-
     edges = np.arange(fa.E) if edges is None else np.asarray(edges, dtype=np.int64).reshape(-1)
     priors = np.arange(fa.Q) if priors is None else np.asarray(priors, dtype=np.int64).reshape(-1)
     E = len(edges)
@@ -391,6 +410,8 @@ def robust_update(smoother, fa, keys, values, robust_factors=None, edges=None, p
     alone = new[~np.isin(new, measured)]
     if alone.size:
         candidate = candidate & ~np.isin(ek, alone).any(axis=1)
+    if smoother.robust is None:
+        raise InputError("robust_factors: the smoother is not robust (Smoother(robust='tls'))")
     rej = smoother.rejection
     if rej is None:
         rej = smoother.rejection = OnlineRejection(fa.spec.dim)
