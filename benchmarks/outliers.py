@@ -414,10 +414,12 @@ def suite(args) -> int:
     return 0
 
 
-#: The suite's methods as a sweep's: name → (title in the tables, lf.optimize's keywords). GTSAM's is its
+#: The suite's methods as a sweep's: name → (title in the tables, the keywords of lf.optimize, or of
+#: lf.replay for the online rejection). GTSAM's is its
 #: GncOptimizer on its own factors (backend native, no consistency stage).
 SWEEP_METHODS = {"gtsam-gnc": ("GTSAM GNC", 'backend = "native"\ngnc = "tls"\nconsistency = false'),
-                 "lie-factors": ("lie-factors", 'gnc = "tls"')}
+                 "lie-factors": ("lie-factors", 'gnc = "tls"'),
+                 "lie-factors-online": ("lie-factors online", 'run = "replay"\ngnc = "tls"')}
 
 
 def graph_path(name: str) -> str:
