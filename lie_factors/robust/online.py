@@ -53,6 +53,7 @@ import numpy as np
 from ..errors import InputError
 from ..posegraph.graph import is_loop_closure
 
+from .statistics import DOF_RANGE, chi2_inlier_threshold
 from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
 
 __all__ = ["OnlineRejection", "RobustSmoothing", "robust_update", "RETEST", "MIN_FIT", "PROBABILITY", "min_fit",
@@ -217,7 +218,10 @@ class OnlineRejection:
     def _passes(self, T: float, g: int) -> bool:
         limit = self._limits.get(g)
         if limit is None:
-            limit = self._limits[g] = self.model.threshold(g)
+            # never above the batch odometry gate's χ²_gn at the noise models' own scale: the
+            # first closures may all be false (planted near one another, before any true one)
+            gate = 2.0 * chi2_inlier_threshold(g * self.n, self.probability)
+            limit = self._limits[g] = min(self.model.threshold(g), gate)
         return not (T > limit)  # NaN (nothing else measures it) passes
 
     # ------------------------------------------------------------------ one update
@@ -261,7 +265,9 @@ class OnlineRejection:
         held = list(range(len(self.state)))
         for c in held:
             self.T[c] = self.statistic(smoother, [c])
-        self.model = TailModel(self.n, self.T[held], self.probability)
+        # Up to half of them may be false: the scale from their median alone, with the noise
+        # models' own shape (χ²_n); the tail's weight is fitted later, to accepted closures.
+        self.model = TailModel(self.n, self.T[held], self.probability, dof=DOF_RANGE[1], fit=False)
         self._limits = {}
         self.fits = 1
         self.queue.extend(held)

@@ -33,8 +33,8 @@ class TailModel:
     ``singles`` (K,): the statistics of accepted single closures.  (s, ν) is their maximum-
     likelihood fit over the statistics it passes (:func:`~lie_factors.robust.statistics.fit_scaled_f`),
     where that fit's tail is no heavier than ν = ``dof`` (default :data:`TAIL_DOF`); otherwise ν
-    is ``dof`` and s = median/(n·median F(n, ν)).  With one finite statistic, ν = ``dof`` and s
-    from it; with none, the noise models' own scale, s = 1.  :meth:`threshold` of a group of g closures, at
+    is ``dof`` and s = median/(n·median F(n, ν)).  With one finite statistic, or ``fit`` False,
+    ν = ``dof`` and s from the median; with none, the noise models' own scale, s = 1.  :meth:`threshold` of a group of g closures, at
     ``probability`` p, is that of g independent closures:
 
     * g = 1: the quantile s·n·F⁻¹_{n,ν}(p);
@@ -45,7 +45,8 @@ class TailModel:
       χ²_n, so the sum's upper quantiles are not below it).
     """
 
-    def __init__(self, n: int, singles: np.ndarray, probability: float, dof: float | None = None):
+    def __init__(self, n: int, singles: np.ndarray, probability: float, dof: float | None = None,
+                 fit: bool = True):
         dof = TAIL_DOF if dof is None else float(dof)
         if not dof > 2.0:
             raise ValueError(f"the tail model needs more than 2 degrees of freedom (a finite mean), got {dof}")
@@ -53,7 +54,7 @@ class TailModel:
         finite = singles[np.isfinite(singles) & (singles > 0)]
         self.n, self.probability = int(n), float(probability)
         self.scale, self.dof = 1.0, dof
-        if finite.size >= 2:
+        if fit and finite.size >= 2:
             s, nu = fit_scaled_f(finite, self.n, self.probability)
             if nu > dof:
                 self.scale, self.dof = s, nu
