@@ -125,6 +125,7 @@ class OnlineRejection:
         self._fitted_at = 0
         self.fits = 0  # the tail model's fits so far
         self.tests = 0  # group statistics computed (the work the bound counts)
+        self.unsettled = False  # settle() stopped at its rounds with a change to make
 
     # ------------------------------------------------------------------ bookkeeping
     def offer(self, fa, edges) -> np.ndarray:
@@ -148,10 +149,12 @@ class OnlineRejection:
     def status(self) -> dict:
         """``{"status": "ok" | "uncertain", "reasons": [...]}``: uncertain where decisions stand
         that were last tested under an earlier fit of the tail model (the round robin has not
-        reached them since)."""
+        reached them since), or where :meth:`settle` stopped at its rounds with a change to make."""
         stale = int(np.count_nonzero(self.epoch < self.fits))
         reasons = [f"{stale} of {len(self.epoch)} loop-closure decisions were last tested before the tail "
                    "model's last fit"] if stale else []
+        if self.unsettled:
+            reasons.append(f"the final rounds stopped after {MAX_ROUNDS} with a change still to make")
         return {"status": "uncertain" if reasons else "ok", "reasons": reasons}
 
     def accepted(self) -> np.ndarray:
@@ -314,9 +317,11 @@ class OnlineRejection:
             self._paths = {}
             decision = self._settle_round(smoother)
             if not decision.add and not decision.remove:
+                self.unsettled = False
                 return True
             apply_decision(smoother, self, decision)
         smoother.optimize(max_iterations=SETTLE_ITERATIONS, tolerance=SETTLE_TOLERANCE)
+        self.unsettled = True
         return False
 
     def _settle_round(self, smoother) -> Decision:
