@@ -1,7 +1,7 @@
 """Compile the kernels of the commands a user reaches into numba's on-disk cache.
 
 The install runs this (``setup.py``'s build step, in pip's build environment, from the source
-tree): a user's first ``lie-factors demo``, ``posegraph`` (batch, ``--incremental``, ``--gnc``,
+tree): a user's first ``lie-factors demo``, ``posegraph`` (batch, ``--incremental``, ``--gnc``, both,
 ``--covariances``), ``corrupt``, smoother loop or solve of a BAL scene then loads its kernels
 instead of compiling them (docs/installing.md).  Each workload is small, and compiles what the
 same command on a large graph compiles: the kernels are specialized on types (the group, the
@@ -101,6 +101,8 @@ def workloads(tmp: str) -> list[tuple[str, Callable[[], None]]]:
         runs += [(f"posegraph {name}", _cli("posegraph", str(path), "--quiet")),
                  (f"posegraph {name} --incremental", _cli("posegraph", str(path), "--incremental", "--quiet")),
                  (f"posegraph {name} --gnc tls", _cli("posegraph", str(path), "--gnc", "tls", "--quiet")),
+                 (f"posegraph {name} --incremental --gnc tls", _cli("posegraph", str(path), "--incremental",
+                                                                      "--gnc", "tls", "--quiet")),
                  (f"posegraph {name} --covariances", _cli("posegraph", str(path), "--quiet", "--covariances",
                                                           str(Path(tmp) / "c.npz"))),
                  (f"corrupt {name}", _cli("corrupt", str(path), str(Path(tmp) / f"bad-{name}"), "--fraction", "0.2",

@@ -27,12 +27,13 @@ def test_the_suite_as_a_spec(outliers):
     assert [g.path for g in spec.graphs] == [os.path.join(ROOT, "data", f"{n}.g2o") for n in args.graphs]
     assert spec.timeout == 90.0 and (spec.kinds, spec.fractions, spec.seeds) == (("uniform", "group"), (0.2, 0.5),
                                                                                  (1, 2))
-    methods = {m.name: m.options for m in spec.methods}
-    assert methods == {"gtsam-gnc": {"backend": "native", "gnc": "tls", "consistency": False},
-                       "lie-factors": {"gnc": "tls"}}
-    assert len(cases_of(spec)) == 2 * 2 * 2 * 2 * 2
+    methods = {m.name: (m.run, m.options) for m in spec.methods}
+    assert methods == {"gtsam-gnc": ("optimize", {"backend": "native", "gnc": "tls", "consistency": False}),
+                       "lie-factors": ("optimize", {"gnc": "tls"}),
+                       "lie-factors-online": ("replay", {"gnc": "tls"})}
+    assert len(cases_of(spec)) == 2 * 2 * 2 * 2 * 3
     args.no_native = True
     spec = parse_spec(outliers.sweep_spec(args, [0.2], ["near"]), os.path.join(ROOT, "s.toml"))
-    assert [m.name for m in spec.methods] == ["lie-factors"]
+    assert [m.name for m in spec.methods] == ["lie-factors", "lie-factors-online"]
     with pytest.raises(SystemExit, match="chainN"):
         outliers.graph_path("chain1000")
