@@ -16,9 +16,9 @@ tail model at the same probability as the batch check (:data:`PROBABILITY`).
 Each update that brings closures:
 
 1. tests each new closure alone, then the new closures that pass as groups
-   (:func:`~lie_factors.robust.rejection.closure_groups`: ends within
-   :data:`~lie_factors.robust.rejection.GROUP_WINDOW` poses of each other);
-   the smoother takes those that pass;
+   (each with the others whose ends lie within
+   :data:`~lie_factors.robust.tail.GROUP_WINDOW` poses of its own, as the batch
+   check groups them); the smoother takes those that pass;
 2. tests again :data:`RETEST` earlier decisions, oldest first: an accepted
    closure with the accepted closures near it (its group) and alone — it
    leaves if either fails (aliased false closures hold one another); a pending
@@ -26,19 +26,23 @@ Each update that brings closures:
    either passes.
 
 So an update's work is bounded by its new closures plus :data:`RETEST` groups,
-each of at most :data:`~lie_factors.robust.rejection.GROUP_MAX` closures, a joint
+each of at most :data:`~lie_factors.robust.tail.GROUP_MAX` closures, a joint
 covariance over the paths from their ends to the root of the smoother's tree; not
 by the graph's size.  A decision made early is revisited as the map firms up:
 the round robin reaches every closure within (closures ÷ :data:`RETEST`)
 updates that bring closures.
 
-The tail model's scale starts at the noise models' own (s = 1, with the batch
-check's heaviest tail, ν = :data:`~lie_factors.robust.rejection.TAIL_DOF`) and
-is fitted to the accepted closures' statistics once there are
-:data:`MIN_FIT` of them: enough for their sample median to lie between the true
-distribution's quartiles with probability :data:`PROBABILITY` (a binomial
-bound, :func:`min_fit`).  It is fitted again each time the accepted closures
-grow by a quarter.
+The first closures wait outside the smoother until :data:`MIN_FIT` have come: enough
+for their sample median to lie between the true distribution's quartiles with
+probability :data:`PROBABILITY` (a binomial bound, :func:`min_fit`).  The tail
+model's scale is then set from the median of their statistics against the map
+they found (the known inliers alone) with the noise models' χ²_n shape — up to
+half of them may be false — and each is decided in the order it came
+(:meth:`OnlineRejection._first_fit`).  Later the model is fitted to the accepted
+closures' statistics (as the batch check's, its tail at most as heavy as
+ν = :data:`~lie_factors.robust.tail.TAIL_DOF`) each time they have grown by
+:data:`REFIT_GROWTH`.  No threshold exceeds the batch odometry gate's,
+χ²_gn(:data:`PROBABILITY`) at the noise models' own scale.
 """
 
 from __future__ import annotations
@@ -68,6 +72,11 @@ PROBABILITY = 0.9999
 
 #: Earlier decisions tested again in each update that brings closures.
 RETEST = 4
+
+#: The tail model is fitted again when the accepted closures have grown by this factor since its
+#: last fit (a fit's spread shrinks as 1/√K: doubling K narrows it by 30 %; each fit and its
+#: thresholds cost ~0.2 s, the slowest updates of a run).
+REFIT_GROWTH = 2.0
 
 #: :meth:`OnlineRejection.settle`'s Gauss–Newton iterations at most, and its step tolerance.
 SETTLE_ITERATIONS = 20
@@ -162,7 +171,7 @@ class OnlineRejection:
 
     def _refit(self) -> None:
         acc = self.accepted()
-        if acc.size >= MIN_FIT and acc.size >= 1.25 * self._fitted_at:
+        if acc.size >= MIN_FIT and acc.size >= REFIT_GROWTH * self._fitted_at:
             self.model = TailModel(self.n, self.T[acc], self.probability)
             self._limits = {}
             self._fitted_at = acc.size
