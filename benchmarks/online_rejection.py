@@ -34,16 +34,11 @@ from lie_factors.testing.outliers import classify  # noqa: E402
 DATA = os.path.join(os.path.dirname(HERE), "data")
 
 
-def best(run, repeat: int):
-    """The run with the smallest update time of ``repeat``, and the smallest whole time."""
-    out, whole = None, np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        r = run()
-        whole = min(whole, time.perf_counter() - t)
-        if out is None or r.update_seconds < out.update_seconds:
-            out = r
-    return out, whole
+def timed(run):
+    """(the run's result, its whole wall-clock seconds)."""
+    t = time.perf_counter()
+    r = run()
+    return r, time.perf_counter() - t
 
 
 def recording(every: int, robust: str | None):
@@ -104,12 +99,12 @@ def main(argv=None) -> int:
                 for seed in args.seeds:
                     c = corruption.plant(pg, fraction=fraction, kind=kind, seed=seed, reference=clean.poses)
                     base, base_whole, robust, robust_whole = None, np.inf, None, np.inf
-                    for _ in range(args.repeat):  # alternated
-                        r, w = best(lambda: lf.replay(pg), 1)
+                    for _ in range(args.repeat):  # alternated; the best update time and whole time of each
+                        r, w = timed(lambda: lf.replay(pg))
                         if base is None or r.update_seconds < base.update_seconds:
                             base = r
                         base_whole = min(base_whole, w)
-                        r, w = best(lambda: lf.replay(c.graph, gnc="tls"), 1)
+                        r, w = timed(lambda: lf.replay(c.graph, gnc="tls"))
                         if robust is None or r.update_seconds < robust.update_seconds:
                             robust = r
                         robust_whole = min(robust_whole, w)

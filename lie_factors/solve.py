@@ -460,10 +460,9 @@ def replay_options(*, backend: str = DEFAULT_BACKEND, relinearize_threshold: flo
     if backend not in BACKENDS:
         raise InputError(f"unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
     if gnc is not None:
-        from .robust.online import ROBUST_LOSSES
+        from .robust.online import check_loss
 
-        if gnc not in ROBUST_LOSSES:
-            raise InputError(f"replay: unknown gnc {gnc!r} (online, choose from {', '.join(ROBUST_LOSSES)})")
+        check_loss(gnc, "gnc")
         if backend != "batch":
             raise InputError(f"replay: gnc runs on the batch backend only, not {backend!r}")
     if isinstance(relinearize_threshold, bool) or not isinstance(relinearize_threshold, (int, float)) \

@@ -160,17 +160,17 @@ def replay(pose_graph: PoseGraph, *, backend: str = "batch",
     if backend not in BACKENDS:
         raise InputError(f"unknown backend {backend!r} for a replay (choose from {', '.join(BACKENDS)})")
     if gnc is not None:
-        from ..robust.online import ROBUST_LOSSES
+        from ..robust.online import check_loss
 
-        if gnc not in ROBUST_LOSSES:
-            raise InputError(f"unknown online rejection {gnc!r} (choose from {', '.join(ROBUST_LOSSES)})")
+        check_loss(gnc, "gnc")
         if backend != "batch" or pose_graph.landmarks is not None:
             raise InputError("an online rejection of loop closures runs on the batch backend, on a pose "
                              "graph without landmarks")
-        if not len(pose_graph.loop_closures()) or len(pose_graph.loop_closures()) == len(pose_graph.edge_keys):
+        closures = len(pose_graph.loop_closures())
+        if not closures or closures == len(pose_graph.edge_keys):
             raise InputError("an online rejection needs odometry (edges between consecutive ids) and loop "
                              "closures (the other edges); this graph has "
-                             + ("no loop closure" if not len(pose_graph.loop_closures()) else "no odometry"))
+                             + ("no loop closure" if not closures else "no odometry"))
     if not (math.isfinite(relinearize_threshold) and relinearize_threshold >= 0):
         raise InputError(f"relinearize_threshold must be finite and >= 0, got {relinearize_threshold}")
     if int(relinearize_skip) < 1:

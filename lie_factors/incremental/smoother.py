@@ -60,7 +60,7 @@ from .reports import adaptive_reorder, error_before, update_result
 from .removal import plan as removal_plan
 from .removal import structure as removal_structure
 from .update_args import PLAIN, UpdateArgs, order_groups, read_args
-from ..robust.online import ROBUST_LOSSES, RobustSmoothing, robust_update
+from ..robust.online import RobustSmoothing, check_loss, robust_update
 from .structures import grow
 from .undo import Undo
 
@@ -87,8 +87,8 @@ class Smoother(Queries, RobustSmoothing):
     """
 
     def __init__(self, params=None, robust: str | None = None, **overrides):
-        if robust is not None and robust not in ROBUST_LOSSES:
-            raise InputError(f"robust: unknown {robust!r} (choose from {', '.join(ROBUST_LOSSES)})")
+        if robust is not None:
+            check_loss(robust, "robust")
         self.robust = robust
         self.rejection = None  # the online rejection of loop closures, with ``robust``
         given = params

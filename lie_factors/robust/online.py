@@ -60,12 +60,20 @@ from ..posegraph.graph import is_loop_closure
 from .statistics import DOF_RANGE, chi2_inlier_threshold
 from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
 
-__all__ = ["OnlineRejection", "RobustSmoothing", "robust_update", "RETEST", "MIN_FIT", "PROBABILITY", "min_fit",
-           "ROBUST_LOSSES"]
+__all__ = ["OnlineRejection", "RobustSmoothing", "robust_update", "check_loss", "RETEST", "MIN_FIT", "PROBABILITY",
+           "min_fit", "ONLINE_LOSSES"]
 
 #: The losses a robust smoother takes: ``tls`` (truncated least squares: a closure is in, weight 1,
-#: or out, weight 0, by the test of the module docstring).
-ROBUST_LOSSES = ("tls",)
+#: or out, weight 0, by the test of the module docstring).  (The batch solver's m-estimators are
+#: :data:`lie_factors.solve.ROBUST_LOSSES`.)
+ONLINE_LOSSES = ("tls",)
+
+def check_loss(name, what: str) -> None:
+    """An :class:`~lie_factors.errors.InputError` naming :data:`ONLINE_LOSSES` unless ``name`` is
+    one of them; ``what``: the argument, as the message names it."""
+    if name not in ONLINE_LOSSES:
+        raise InputError(f"{what}: unknown {name!r} (online rejection; choose from {', '.join(ONLINE_LOSSES)})")
+
 
 #: The probability of the tests (the batch final check's).
 PROBABILITY = 0.9999
@@ -239,8 +247,9 @@ class OnlineRejection:
     # ------------------------------------------------------------------ one update
     def decide(self, smoother, new) -> Decision:
         """The tests of one update (module docstring): ``new`` (closure ids offered in this
-        update, pending).  Returns what the smoother should add and remove; the caller applies it
-        and reports the factor ids with :meth:`applied`."""
+        update, pending).  Returns what the smoother should add and remove (:func:`apply_decision`
+        applies it); the update that ends the wait for :data:`MIN_FIT` closures applies its own
+        decisions, one closure at a time (:meth:`_first_fit`), and returns the retests'."""
         self._paths = {}
         new = [int(c) for c in np.asarray(new, dtype=np.int64).tolist()]
         if self.fits == 0:
@@ -284,10 +293,10 @@ class OnlineRejection:
         self.fits = 1
         self.queue.extend(held)
         for c in held:
-            self._paths = {}
             self.T[c] = self.statistic(smoother, [c])
             if self._passes(self.T[c], 1):
                 apply_decision(smoother, self, Decision([c], []))
+                self._paths = {}  # the smoother's factor changed
 
     def _retest(self, smoother, c: int, add: list, remove: list, new=()) -> None:
         """Test closure ``c``'s decision again, appending to ``add`` or ``remove`` what changes:
@@ -407,6 +416,8 @@ def robust_update(smoother, fa, keys, values, robust_factors=None, edges=None, p
     (default all) enter, then the candidate outliers (``robust_factors``: a mask or indices
     into ``edges``; default the loop closures) are offered and decided.  A new key that only
     candidates reach enters with them (nothing else measures it)."""
+    if smoother.robust is None:
+        raise InputError("robust_factors: the smoother is not robust (Smoother(robust='tls'))")
     edges = np.arange(fa.E) if edges is None else np.asarray(edges, dtype=np.int64).reshape(-1)
     priors = np.arange(fa.Q) if priors is None else np.asarray(priors, dtype=np.int64).reshape(-1)
     E = len(edges)
@@ -430,8 +441,6 @@ def robust_update(smoother, fa, keys, values, robust_factors=None, edges=None, p
     alone = new[~np.isin(new, measured)]
     if alone.size:
         candidate = candidate & ~np.isin(ek, alone).any(axis=1)
-    if smoother.robust is None:
-        raise InputError("robust_factors: the smoother is not robust (Smoother(robust='tls'))")
     rej = smoother.rejection
     if rej is None:
         rej = smoother.rejection = OnlineRejection(fa.spec.dim)
