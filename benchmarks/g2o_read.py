@@ -1,6 +1,7 @@
 """g2o read throughput (MB/s) and peak memory: our readers against gtsam.readG2o, each in a fresh process.
 
-    python benchmarks/g2o_read.py FILE [FILE ...] [--readers scan numpy check readG2o] [--repeat 5]
+    python benchmarks/g2o_read.py FILE [FILE ...] [--readers scan numpy check read_g2o loaded readG2o]
+                                  [--repeat 5] [--reference DIR]
 
 FILE is a path or the name of a file in ``--data-dir`` (default ``data/``).  For every file
 the readers run in turn, ``--repeat`` rounds (so all see the same machine load), each run
@@ -12,7 +13,14 @@ a fresh process; the best run counts.  Readers:
   before the scan;
 * ``check``: ``check_g2o`` + ``read_arrays`` — the whole input check (parse, per-record
   and whole-graph checks) and the ``PoseGraph`` arrays;
+* ``read_g2o``: ``lie_factors.read_g2o(path)``, the public call, the first in its process:
+  what a user's script pays, numba's import and its first kernel load included;
+* ``loaded``: the same call in a process that has read a one-line file first (numba and
+  the scan's kernels loaded): the call's own cost;
 * ``readG2o``: ``gtsam.readG2o(path, is3d)`` — GTSAM's graph and values.
+
+``--reference DIR``: the readers of ours also run from the checkout DIR (another commit),
+alternated with this one's, labelled "(reference)".
 
 Timed: from the path to the result, the file's reading included; imports are not (a
 ``scan`` run first scans a one-line file, which imports numba and loads the cached
@@ -32,7 +40,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-READERS = ("scan", "numpy", "check", "readG2o")
+READERS = ("scan", "numpy", "check", "read_g2o", "loaded", "readG2o")
 
 _CHILD = r"""
 import json, sys, time
@@ -49,6 +57,14 @@ warm = 0.0
 if reader == "readG2o":
     import gtsam
     run = lambda: gtsam.readG2o(path, is3d)
+elif reader in ("read_g2o", "loaded"):
+    import lie_factors as lf
+    if reader == "loaded":
+        t = time.perf_counter()
+        from lie_factors.g2o import parse
+        parse.scan_parse(b"VERTEX_SE2 0 0 0 0\n")
+        warm = time.perf_counter() - t
+    run = lambda: lf.read_g2o(path)
 else:
     from lie_factors.g2o import check, dataset, parse, read
     if reader == "scan":
@@ -96,8 +112,8 @@ def _is3d(path: str) -> bool:
     return False
 
 
-def _run(reader: str, path: str, is3d: bool) -> dict:
-    p = subprocess.run([sys.executable, "-c", _CHILD, str(ROOT), reader, path, "1" if is3d else "0"],
+def _run(reader: str, path: str, is3d: bool, root: Path = ROOT) -> dict:
+    p = subprocess.run([sys.executable, "-c", _CHILD, str(root), reader, path, "1" if is3d else "0"],
                        capture_output=True, text=True, check=True)
     return json.loads(p.stdout.strip().splitlines()[-1])
 
@@ -108,7 +124,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data-dir", default=os.environ.get("LIE_FACTORS_DATA", str(ROOT / "data")))
     ap.add_argument("--readers", nargs="+", choices=READERS, default=["scan", "readG2o"])
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--reference", type=Path, help="a checkout of another commit, run alternated with this one")
     args = ap.parse_args(argv)
+    sides = [("", ROOT)] + ([(" (reference)", args.reference.resolve())] if args.reference else [])
 
     with open("/proc/loadavg") as fh:
         print(f"load average before: {' '.join(fh.read().split()[:3])}", file=sys.stderr)
@@ -120,14 +138,15 @@ def main(argv=None) -> int:
         path = _path(args.data_dir, name)
         size = os.path.getsize(path)
         is3d = _is3d(path)
-        runs: dict[str, list[dict]] = {r: [] for r in args.readers}
+        runs: dict[str, list[dict]] = {}
         for _ in range(args.repeat):  # in turn, so every reader sees the same load
             for reader in args.readers:
-                runs[reader].append(_run(reader, path, is3d))
+                for label, root in (sides if reader != "readG2o" else sides[:1]):
+                    runs.setdefault(reader + label, []).append(_run(reader, path, is3d, root))
         arrays = max((r["arrays"] for rs in runs.values() for r in rs), default=0)
         for reader, rs in runs.items():
             best = min(rs, key=lambda r: r["seconds"])
-            warm = f"{min(r['warm'] for r in rs):.3f}" if reader == "scan" else "–"
+            warm = f"{min(r['warm'] for r in rs):.3f}" if reader.split()[0] in ("scan", "loaded") else "–"
             both = f"{(size + arrays) / mib:.0f}" if arrays else "–"
             label = reader + (" (refused)" if best["refused"] else "")
             print(f"| {os.path.basename(path)} | {size / 1e6:.1f} | {label} | {best['seconds']:.3f} "

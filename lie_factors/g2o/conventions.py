@@ -49,12 +49,14 @@ dropped; we write g2o's defaults ``1 1 0 0``.
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 
 import gtsam
 
 from .records import RECORDS, Rows, same_rows, upper_to_symmetric
+from .rotations import rot2, rot3_quaternion, rot3_ypr
 
 
 def landmark_key(j: int) -> int:
@@ -94,44 +96,6 @@ def point_information_2d(bearing: float, range_: float, info_br: np.ndarray) -> 
 _SE3_INFO_ORDER = np.array([3, 4, 5, 0, 1, 2])
 
 
-def _rot2(theta: np.ndarray) -> np.ndarray:
-    """Rot2::fromAngle(θ) as (N, 2, 2) matrices."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.stack((np.stack((c, -s), -1), np.stack((s, c), -1)), -2)
-
-
-def _rot3_quaternion(q: np.ndarray) -> np.ndarray:
-    """Rot3::Quaternion(qw, qx, qy, qz) of rows ``q`` = (qx, qy, qz, qw), shape (N, 3, 3).
-
-    ``readG2o``'s normalization, f = 1 / √(w² + x² + y² + z²) summed in that order and
-    each component times f, then Eigen's ``toRotationMatrix`` products 2x·w, 2x·x, ...:
-    the same operations in the same order, so the same bits as ``readG2o`` (tested).
-    """
-    x, y, z, w = q.T
-    f = 1.0 / np.sqrt(w * w + x * x + y * y + z * z)
-    x, y, z, w = x * f, y * f, z * f, w * f
-    tx, ty, tz = 2 * x, 2 * y, 2 * z
-    twx, twy, twz = tx * w, ty * w, tz * w
-    txx, txy, txz = tx * x, ty * x, tz * x
-    tyy, tyz, tzz = ty * y, tz * y, tz * z
-    R = np.empty((len(q), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = 1 - (tyy + tzz), txy - twz, txz + twy
-    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = txy + twz, 1 - (txx + tzz), tyz - twx
-    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = txz - twy, tyz + twx, 1 - (txx + tyy)
-    return R
-
-
-def _rot3_ypr(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """Rot3::Ypr(yaw, pitch, roll) = Rz(yaw)·Ry(pitch)·Rx(roll), shape (N, 3, 3)."""
-    cx, sx, cy, sy, cz, sz = (np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch),
-                              np.cos(yaw), np.sin(yaw))
-    R = np.empty((len(yaw), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = cy * cz, sx * sy * cz - cx * sz, cx * sy * cz + sx * sz
-    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = cy * sz, sx * sy * sz + cx * cz, cx * sy * sz - sx * cz
-    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -sy, sx * cy, cx * cy
-    return R
-
-
 def _sim3_exp(v: np.ndarray) -> np.ndarray:
     """GTSAM's Similarity3 matrix of a Sim(3) record's [ω, υ, σ]: (7,) → (4, 4), (N, 7) → (N, 4, 4)."""
     from .. import sim3  # numba: loaded only when a Sim(3) record is converted
@@ -152,14 +116,18 @@ def elements(rows: Rows) -> np.ndarray:
         return _sim3_exp(np.ascontiguousarray(v[:, :7]))
     if rec.dim == 2:
         X = np.zeros((N, 3, 3))
-        X[:, :2, :2] = _rot2(v[:, 2])
+        X[:, :2, :2] = rot2(v[:, 2])
         X[:, 0, 2], X[:, 1, 2], X[:, 2, 2] = v[:, 0], v[:, 1], 1.0
         return X
+    if "qw" in rec.values and "numba" in sys.modules:  # compiled only where numba is loaded already
+        from .compiled import quaternion_poses
+
+        return quaternion_poses(v)
     X = np.zeros((N, 4, 4))
     if "qw" in rec.values:
-        X[:, :3, :3] = _rot3_quaternion(v[:, 3:7])
+        X[:, :3, :3] = rot3_quaternion(v[:, 3:7])
     else:  # VERTEX3 / EDGE3: x y z roll pitch yaw
-        X[:, :3, :3] = _rot3_ypr(v[:, 5], v[:, 4], v[:, 3])
+        X[:, :3, :3] = rot3_ypr(v[:, 5], v[:, 4], v[:, 3])
     X[:, :3, 3] = v[:, :3]
     X[:, 3, 3] = 1.0
     return X

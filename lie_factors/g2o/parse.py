@@ -351,7 +351,7 @@ def fast_parse(name: str, data: bytes):
 def _scan_table():
     """The record table as the arrays :mod:`.scan` takes (one entry per record type, RECORDS order).
 
-    Returns (records, tags (T, W) uint8, tag_len, family, nids, nvals, fragile_tag).
+    Returns (records, tags (T, W) uint8, tag_len, family, nids, nvals, ninfo, fragile_tag).
     """
     recs = list(RECORDS.values())
     tags = np.zeros((len(recs), max(len(r.tag) for r in recs)), dtype=np.uint8)
@@ -362,6 +362,7 @@ def _scan_table():
     return (recs, tags, np.array([len(r.tag) for r in recs], dtype=np.int64), family,
             np.array([len(r.ids) for r in recs], dtype=np.int64),
             np.array([len(r.values) + r.info for r in recs], dtype=np.int64),
+            np.array([r.info for r in recs], dtype=np.int64),
             np.array([_may_stop_gtsam(r) for r in recs]))
 
 
@@ -375,7 +376,7 @@ def scan_parse(data: bytes):
     """
     from .scan import DONE, count_records, fill_records  # numba: only where it pays (:func:`parse`)
 
-    recs, tags, tag_len, family, nids, nvals, fragile_tag = _scan_table()
+    recs, tags, tag_len, family, nids, nvals, ninfo, fragile_tag = _scan_table()
     buf = np.frombuffer(data, dtype=np.uint8)
     status, counts, first, n_comments, indented = count_records(buf, tags, tag_len, family)
     if status != DONE:
@@ -385,7 +386,7 @@ def scan_parse(data: bytes):
     lines = tuple(np.empty(n, dtype=np.int64) for n in counts)
     fragile_at = tuple(np.zeros(n if f else 0, dtype=np.int64) for n, f in zip(counts, fragile_tag))
     comments = np.empty(n_comments, dtype=np.int64)
-    status, exact = fill_records(buf, tags, tag_len, nids, nvals, fragile_tag, ids, values,
+    status, exact = fill_records(buf, tags, tag_len, nids, nvals, ninfo, fragile_tag, ids, values,
                                  lines, fragile_at, comments)
     if status != DONE:
         return None

@@ -180,9 +180,28 @@ def _size_t_sure(buf, i, j):
 
 
 @kernel
-def fill_records(buf, tags, tag_len, nids, nvals, fragile_tag, ids, values, lines, fragile_at,
+def _same_bytes(buf, a, b, length):
+    """Are buf[a:a+length] and buf[b:b+length] the same bytes?  8 bytes a step, then 1."""
+    m = 0
+    while m + 8 <= length:
+        if load8(buf, a + m) != load8(buf, b + m):
+            return False
+        m += 8
+    while m < length:
+        if buf[a + m] != buf[b + m]:
+            return False
+        m += 1
+    return True
+
+
+@kernel
+def fill_records(buf, tags, tag_len, nids, nvals, ninfo, fragile_tag, ids, values, lines, fragile_at,
                  comments):
     """Fill the arrays of every tag; returns (status, exact) of the file ``buf``.
+
+    A row's information matrix (its last ``ninfo[t]`` values) written with the same bytes,
+    to the end of the line, as the previous row of its tag is copied from that row rather
+    than read again: most files state one matrix on every edge.
 
     ``ids[t]`` (n_t, nids[t]) int64, ``values[t]`` (n_t, nvals[t]) float64,
     ``lines[t]`` (n_t,) 1-based line numbers, ``fragile_at[t]`` (n_t,) int64
@@ -194,6 +213,11 @@ def fill_records(buf, tags, tag_len, nids, nvals, fragile_tag, ids, values, line
     """
     n = len(buf)
     row = np.zeros(len(tag_len), dtype=np.int64)
+    # per tag: where the previous row's information text starts, its length to the newline
+    # (-1: not reusable, e.g. a number left to the exact conversion), and that row
+    info_at = np.zeros(len(tag_len), dtype=np.int64)
+    info_len = np.full(len(tag_len), -1, dtype=np.int64)
+    info_row = np.zeros(len(tag_len), dtype=np.int64)
     exact = np.empty((16, 5), dtype=np.int64)
     n_exact = 0
     n_comments = 0
@@ -217,11 +241,25 @@ def fill_records(buf, tags, tag_len, nids, nvals, fragile_tag, ids, values, line
         out_ids = ids[t]
         out_values = values[t]
         k_ids = nids[t]
+        first_info = k_ids + nvals[t] - ninfo[t] if ninfo[t] > 0 else -1
+        info_start = -1
+        exact_before_info = 0
         second = 0  # where the 2nd field starts
         for k in range(k_ids + nvals[t]):
             s = _skip_space(buf, i, n)
             if s >= n or buf[s] == 10:
                 return GIVE_UP, exact[:n_exact]
+            if k == first_info:
+                L = info_len[t]
+                if (L > 0 and s + L <= n and (s + L == n or buf[s + L] == 10)
+                        and _same_bytes(buf, s, info_at[t], L)):
+                    p = info_row[t]
+                    for c in range(k - k_ids, nvals[t]):
+                        out_values[r, c] = out_values[p, c]
+                    i = s + L
+                    break
+                info_start = s
+                exact_before_info = n_exact
             if k < k_ids:
                 v, i = _id(buf, s, n)
                 if v < 0:
@@ -257,5 +295,9 @@ def fill_records(buf, tags, tag_len, nids, nvals, fragile_tag, ids, values, line
         i = _skip_space(buf, i, n)
         if i < n and buf[i] != 10:
             return GIVE_UP, exact[:n_exact]
+        if info_start >= 0:  # read here: the text the next rows may repeat
+            info_at[t] = info_start
+            info_len[t] = i - info_start if n_exact == exact_before_info else -1
+            info_row[t] = r
         i += 1
     return DONE, exact[:n_exact]

@@ -123,6 +123,26 @@ def test_records_match_readg2o(tmp_path, is3d, seed):
         np.testing.assert_array_equal(a.vertices[n], at(int(key)).matrix())
 
 
+def test_quaternion_rotations_compiled_and_numpy_are_readg2os_bits(tmp_path):
+    """Both readings of a quaternion (numpy's, for a small file read without numba, and the
+    compiled one) give the rotations readG2o builds, bit for bit, on quaternions far from unit."""
+    from lie_factors.g2o.compiled import quaternion_poses
+    from lie_factors.g2o.rotations import rot3_quaternion
+
+    rng = np.random.default_rng(5)
+    n = 400
+    lines = [f"VERTEX_SE3:QUAT {i} {_nums(rng.normal(size=3))} {_nums(_quat(rng) * 10.0 ** rng.integers(-6, 7))}"
+             for i in range(n)]
+    lines += [f"EDGE_SE3:QUAT {i} {i + 1} 1 0 0 0 0 0 1 {_upper(np.eye(6))}" for i in range(n - 1)]
+    path = tmp_path / "q.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    rows = g2o.check_g2o(str(path)).rows["VERTEX_SE3:QUAT"]
+    _, initial = gtsam.readG2o(str(path), True)
+    theirs = np.array([initial.atPose3(i).matrix() for i in range(n)])
+    np.testing.assert_array_equal(quaternion_poses(rows.values), theirs)
+    np.testing.assert_array_equal(rot3_quaternion(rows.values[:, 3:7]), theirs[:, :3, :3])
+
+
 @pytest.mark.parametrize("is3d", [False, True], ids=["2d", "3d"])
 def test_one_information_matrix_for_every_edge_is_shared(tmp_path, is3d):
     """Edges that all state one information matrix share it (a read-only broadcast), with readG2o's
@@ -336,7 +356,8 @@ def test_g2o_modules_import_one_way():
     """Inside lie_factors.g2o each module imports only the ones before it in this order (no cycle)."""
     import ast
 
-    order = ["dataset", "records", "strtod", "scan", "parse", "conventions", "check", "read", "load", "write"]
+    order = ["dataset", "records", "strtod", "scan", "parse", "rotations", "compiled", "conventions", "check",
+             "read", "load", "write"]
     package = ROOT / "lie_factors" / "g2o"
     assert sorted(p.stem for p in package.glob("*.py")) == sorted(order + ["__init__"])
     for k, name in enumerate(order):
