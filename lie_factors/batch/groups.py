@@ -11,7 +11,7 @@ import numpy as np
 
 from ..kernels.jit import kernel
 from ..util.arrays import sorted_unique
-from .loops import GroupLoops
+from .loops import GroupLoops, whiten_all
 
 
 def noise_whitening(noise_model):
@@ -26,11 +26,18 @@ def noise_whitening(noise_model):
 def whitening(information: np.ndarray) -> np.ndarray:
     """R (..., n, n) upper triangular with RᵀR = Λ for information matrices Λ (..., n, n).
 
-    ``noiseModel.Gaussian.Information``'s square root (the Cholesky factor);
-    ``numpy.linalg.LinAlgError`` if some Λ is not positive definite.
+    ``noiseModel.Gaussian.Information``'s square root (the Cholesky factor,
+    :func:`~lie_factors.batch.loops.upper_cholesky`); ``numpy.linalg.LinAlgError`` if some Λ
+    is not positive definite.
     """
-    L = np.linalg.cholesky(np.asarray(information, dtype=np.float64))
-    return np.ascontiguousarray(np.swapaxes(L, -1, -2))
+    A = np.ascontiguousarray(information, dtype=np.float64)
+    if A.ndim < 2 or A.shape[-1] != A.shape[-2]:
+        raise np.linalg.LinAlgError(f"information matrices must be square, got shape {A.shape}")
+    flat = A.reshape(-1, A.shape[-1], A.shape[-1])
+    R = np.empty_like(flat)
+    if whiten_all(flat, R) >= 0:
+        raise np.linalg.LinAlgError("an information matrix is not positive definite")
+    return R.reshape(A.shape)
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

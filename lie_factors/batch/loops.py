@@ -33,6 +33,7 @@ from numba import prange
 
 from ..kernels import dispatch as _dispatch
 from ..kernels import relative as _relative
+from ..kernels.checks import OK as ELEMENT_OK
 from ..kernels.retraction import retract_range
 from ..kernels.jit import inline_kernel, kernel, parallel_kernel
 
@@ -173,6 +174,77 @@ def _setup(g, M, Minv, codes):
         codes[i] = _relative.between_setup(g, M[i], Minv[i], Ad)
 
 
+@inline_kernel
+def upper_cholesky(A, R):
+    """R (n, n) upper triangular with RᵀR = A, from A's lower triangle (as LAPACK's ``potrf``
+    reads it; A symmetric positive definite).  False, R unfinished, when a pivot is not
+    positive (or NaN): A is not positive definite."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= R[k, j] * R[k, j]
+        if not s > 0.0:
+            return False
+        d = np.sqrt(s)
+        R[j, j] = d
+        for i in range(j + 1, n):
+            t = A[i, j]
+            for k in range(j):
+                t -= R[k, j] * R[k, i]
+            R[j, i] = t / d
+        for i in range(j):
+            R[j, i] = 0.0
+    return True
+
+
+@kernel
+def whiten_all(A, R):
+    """R[i] = :func:`upper_cholesky` of A[i] for A (N, n, n); the first i whose A[i] is not
+    positive definite, or −1."""
+    for i in range(A.shape[0]):
+        if not upper_cholesky(A[i], R[i]):
+            return i
+    return -1
+
+
+#: :func:`prepare` status: the factors are ready; a number is not finite; a key is its own
+#: neighbour; a measurement is not in the group (``codes``); an information matrix is not
+#: positive definite.
+READY, NOT_FINITE, SELF_LOOP, NOT_ELEMENT, NOT_DEFINITE = 0, 1, 2, 3, 4
+
+
+@kernel
+def prepare(g, keys, M, info, Minv, R, codes):
+    """Check and set up F factors at once: ``keys`` (F, k), measurements ``M`` (F, m, m),
+    information ``info`` (F, n, n) → M⁻¹ and the whitening R (RᵀR = Λ) in ``Minv``, ``R``,
+    the element checks in ``codes``.  Returns (status, factor): the first problem in the
+    order the checks are stated (every number finite, then no self-loop, then each
+    element, then each Λ), as :data:`READY` … :data:`NOT_DEFINITE`."""
+    F = M.shape[0]
+    for i in range(F):
+        for v in M[i].ravel():
+            if not np.isfinite(v):
+                return NOT_FINITE, i
+        for v in info[i].ravel():
+            if not np.isfinite(v):
+                return NOT_FINITE, i
+    if keys.shape[1] == 2:
+        for i in range(F):
+            if keys[i, 0] == keys[i, 1]:
+                return SELF_LOOP, i
+    n = _dispatch.dim(g)
+    Ad = np.empty((n, n))
+    for i in range(F):
+        codes[i] = _relative.between_setup(g, M[i], Minv[i], Ad)
+        if codes[i] != ELEMENT_OK:
+            return NOT_ELEMENT, i
+    for i in range(F):
+        if not upper_cholesky(info[i], R[i]):
+            return NOT_DEFINITE, i
+    return READY, -1
+
+
 class GroupLoops:
     """The loops above bound to one group (``spec.group``, a :mod:`lie_factors.kernels.dispatch` tag):
     ``between_lin(X, i1, i2, Minv, R, ridx, A1, A2, b, sq)`` and ``prior_lin(X, i1, Pinv, R,
@@ -226,6 +298,13 @@ class GroupLoops:
             _factor_chunks(self.g, X, fs, A1, A2, b, sq, jacobians)
         else:
             factor_range(self.g, X, fs, A1, A2, b, sq, 0, fs.i1.shape[0], jacobians)
+
+    def prepare(self, keys, M, info):
+        """(status, factor, M⁻¹ (F, m, m), R (F, n, n), codes (F,)) of F factors: :func:`prepare`."""
+        F, m, n = M.shape[0], M.shape[1], info.shape[1]
+        Minv, R, codes = np.empty((F, m, m)), np.empty((F, n, n)), np.zeros(F, dtype=np.int64)
+        status, at = prepare(self.g, keys, M, info, Minv, R, codes)
+        return int(status), int(at), Minv, R, codes
 
     def setup(self, M):
         """(M⁻¹ (N, m, m), check codes (N,)) of elements ``M`` (N, m, m)."""

@@ -158,6 +158,9 @@ class BlockFactor(FactorReading):
 
     def _reserve_factors(self, n: int, nfv: int, njac: int) -> None:
         store = self.store
+        # (each group of fields grows together: its first field's length is the group's room)
+        if store.fnv.shape[0] >= n and store.fvars.shape[0] >= nfv and store.jac.shape[0] >= njac:
+            return
         if store.fnv.shape[0] < n:
             store = st.grown(store, n, dict.fromkeys(st.FACTOR_FIELDS, 0))
             self.fremoved = st.grow(self.fremoved, store.fnv.shape[0], False)

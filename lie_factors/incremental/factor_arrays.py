@@ -16,8 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import factors as _factors
-from ..batch.graph import whitening
-from ..batch.loops import GroupLoops
+from ..batch.loops import NOT_DEFINITE, NOT_ELEMENT, NOT_FINITE, SELF_LOOP, GroupLoops
 from ..errors import InputError
 from .structures import grow
 
@@ -33,14 +32,14 @@ class Elements:
         self.n = 0
 
     def append(self, X: np.ndarray, var: np.ndarray) -> np.ndarray:
-        k = len(X)
-        self.X = grow(self.X, self.n + k)
-        self.var = grow(self.var, self.n + k)
-        idx = np.arange(self.n, self.n + k)
-        self.X[idx] = X
-        self.var[idx] = var
-        self.n += k
-        return idx
+        n0, k = self.n, len(X)
+        if n0 + k > self.X.shape[0]:
+            self.X = grow(self.X, n0 + k)
+            self.var = grow(self.var, n0 + k)
+        self.X[n0:n0 + k] = X
+        self.var[n0:n0 + k] = var
+        self.n = n0 + k
+        return np.arange(n0, n0 + k)
 
 
 class FactorKind:
@@ -58,14 +57,14 @@ class FactorKind:
         self.n = 0
 
     def append(self, v, e, C, R, sources) -> np.ndarray:
-        k = len(v)
-        for name in ("v", "e", "C", "R", "fid"):
-            setattr(self, name, grow(getattr(self, name), self.n + k))
-        idx = np.arange(self.n, self.n + k)
-        self.v[idx], self.e[idx], self.C[idx], self.R[idx] = v, e, C, R
+        n0, k = self.n, len(v)
+        if n0 + k > self.v.shape[0]:  # the five arrays grow together
+            for name in ("v", "e", "C", "R", "fid"):
+                setattr(self, name, grow(getattr(self, name), n0 + k))
+        self.v[n0:n0 + k], self.e[n0:n0 + k], self.C[n0:n0 + k], self.R[n0:n0 + k] = v, e, C, R
         self.source.extend(sources)
-        self.n += k
-        return idx
+        self.n = n0 + k
+        return np.arange(n0, n0 + k)
 
     def truncate(self, n: int) -> None:
         self.n = n
@@ -118,23 +117,21 @@ class FactorArrays:
             if M.shape != (F, m, m) or info.shape != (F, n, n):
                 raise InputError(f"{kind} factors: expected measurements ({F}, {m}, {m}) and information "
                                     f"({F}, {n}, {n}), got {M.shape} and {info.shape}")
-            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(info))):
-                raise InputError(f"{kind} factors: a measurement or information matrix is not finite")
             if F == 0:  # (an update often has no prior: no compiled call for nothing)
                 parts[kind] = (k, np.zeros((0, m, m)), np.zeros((0, n, n)))
                 continue
-            if kind == "between" and np.any(k[:, 0] == k[:, 1]):
+            # every check and the constants in one compiled call (a smoother update makes one of these)
+            status, q, Minv, R, codes = loops.prepare(np.ascontiguousarray(k), np.ascontiguousarray(M),
+                                                      np.ascontiguousarray(info))
+            if status == NOT_FINITE:
+                raise InputError(f"{kind} factors: a measurement or information matrix is not finite")
+            if status == SELF_LOOP:
                 raise InputError("between factors: a factor connects a key to itself")
-            Minv, codes = loops.setup(M)
-            bad = np.flatnonzero(codes != _factors.OK)
-            if bad.size:
-                q = int(bad[0])
+            if status == NOT_ELEMENT:
                 raise InputError(str(_factors.element_error(spec, M[q], int(codes[q]), f"{kind} {q}",
                                                                 "update")))
-            try:
-                R = whitening(info)
-            except np.linalg.LinAlgError:
-                raise InputError(f"{kind} factors: an information matrix is not positive definite") from None
+            if status == NOT_DEFINITE:
+                raise InputError(f"{kind} factors: an information matrix is not positive definite")
             parts[kind] = (k, Minv, R)
         self.edge_keys, self.Minv, self.R = parts["between"]
         pk, self.Pinv, self.prior_R = parts["prior"]

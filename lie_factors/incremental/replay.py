@@ -360,7 +360,7 @@ def warm_up_smoother(group: str) -> None:
     from .smoother import Smoother
 
     info = registry.group(group)
-    I = np.eye(info.mat)
+    I = np.eye(info.mat)  # noqa: E741 (the identity)
     s = Smoother(SmootherParams(relinearizeSkip=2, relinearizeThreshold=0.0))  # both paths
     s.update_arrays(group, [0, 1], np.stack([I, I]), [[0, 1]], I[None], np.eye(info.dim)[None], [0], I[None],
                     np.eye(info.dim)[None])
@@ -376,3 +376,9 @@ def warm_up_smoother(group: str) -> None:
     s.update_arrays(group, [9], I[None], [[8, 9], [3, 9]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))
     s.bf._compact()
     s.estimate_matrix(9)
+    # the replay's final errors: the batch problem of the graph at the estimate
+    from ..batch.graph import Problem
+    from ..posegraph.graph import PoseGraph
+
+    tiny = PoseGraph(group, np.arange(2), np.array([[0, 1]]), I[None], np.eye(info.dim)[None], None, None)
+    Problem.from_pose_graph(tiny, np.stack([I, I])).error()
