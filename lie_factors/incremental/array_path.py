@@ -25,7 +25,9 @@ from ..batch.loops import whiten_jacobian, whiten_residual
 from ..errors import IndeterminantLinearSystem, InputError
 from ..kernels import dispatch as _dispatch
 from ..kernels.jit import inline_kernel, kernel
+from .factor_arrays import FactorArrays
 from .marking import mark_affected
+from .removal import NONE as NO_REMOVAL
 from .storage import init_variables, link_adjacency
 
 #: A :class:`~lie_factors.incremental.factor_arrays.FactorArrays`' constants, as the kernel
@@ -161,10 +163,43 @@ def _observed(s, fa, klist: list, edges: list, priors: list) -> list:
     return obs
 
 
-def try_update(s, fa, keys, values, edges, priors):
+def try_objects(s, nf):
+    """The update of :meth:`Smoother.update` (GTSAM's factor objects, read into ``nf``, a
+    :class:`~lie_factors.incremental.factor_arrays.NewFactors`) on the array path, or None when
+    it needs the general path: the update holds only one group's Between and Prior factors
+    (numbered Betweens first, as the array path numbers them) and new variables of that group,
+    and :func:`takes` it.  The general path's own checks run first, so a refusal reads the same."""
+    if nf.native or nf.nulls or not nf.arrays:
+        return None
+    names = {name for _, name in nf.arrays}
+    if len(names) != 1:
+        return None
+    (group,) = names
+    between, prior = nf.arrays.get(("between", group)), nf.arrays.get(("prior", group))
+    if len(nf.arrays) != (between is not None) + (prior is not None) or any(k != group for k in nf.kinds):
+        return None
+    E = 0 if between is None else len(between["keys"])
+    Q = 0 if prior is None else len(prior["keys"])
+    if (E and not np.array_equal(between["pos"], np.arange(E))) or \
+            (Q and not np.array_equal(prior["pos"], np.arange(E, E + Q))):
+        return None
+    fa = FactorArrays.of_constants(group, None if between is None else between["keys"],
+                                   None if between is None else between["C"], None if between is None else between["R"],
+                                   None if prior is None else prior["keys"], None if prior is None else prior["C"],
+                                   None if prior is None else prior["R"])
+    if not takes(s, fa):
+        return None
+    s._validate(nf)
+    values = np.array(nf.values) if nf.values else None
+    sources = {"between": [] if between is None else between["src"], "prior": [] if prior is None else prior["src"]}
+    return try_update(s, fa, nf.keys, values, range(E), range(Q), sources, nf)
+
+
+def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):
     """The update of :meth:`Smoother.update_prepared` on the array path, or None when it needs
     the general path (:func:`takes`).  Raises as the general path does, with the smoother
-    as it was."""
+    as it was.  ``sources``: kind → the factor objects read (by default none, arrays only);
+    ``nf``: the update read from them, for its report."""
     if not takes(s, fa):
         return None
     spec = fa.spec
@@ -202,7 +237,8 @@ def try_update(s, fa, keys, values, edges, priors):
     at, fid = P, bf.nf
     for kind, C, R, idx, k in kinds:
         v = np.array(obs[at:at + k * len(idx)], dtype=np.int64).reshape(-1, k)
-        local = kind.append(v, s.velem[v], C[idx], R[idx], [None] * len(idx))
+        local = kind.append(v, s.velem[v], C[idx], R[idx],
+                            [None] * len(idx) if sources is None else sources[kind.kind])
         kind.fid[local] = np.arange(fid, fid + len(idx))
         s._register(kind.fid[local], kind.code, local, kind.kind == "between")
         at += k * len(idx)
@@ -221,4 +257,4 @@ def try_update(s, fa, keys, values, edges, priors):
             raise s._indeterminant(exc, klist) from None
         raise
     s.gauge.commit(joined)
-    return s._updated(0)
+    return s._updated(0) if nf is None else s._updated(0, nf, NO_REMOVAL, (), ())

@@ -138,6 +138,24 @@ class FactorArrays:
         self.prior_keys = pk.reshape(-1)
         self.E, self.Q = len(self.edge_keys), len(self.prior_keys)
 
+    @classmethod
+    def of_constants(cls, group: str, edge_keys, Minv, R, prior_keys, Pinv, prior_R) -> "FactorArrays":
+        """Factors already checked and set up (M⁻¹ and R given, as an update read from GTSAM's
+        factor objects has them): ``edge_keys`` (E, 2), ``Minv`` (E, m, m), ``R`` (E, n, n);
+        ``prior_keys`` (Q,), ``Pinv``, ``prior_R``; None for none of a kind."""
+        self = cls.__new__(cls)
+        self.group = group
+        self.spec = spec = _factors.GROUPS[group]
+        m, n = spec.mat, spec.dim
+        self.edge_keys = np.zeros((0, 2), dtype=np.int64) if edge_keys is None else edge_keys.reshape(-1, 2)
+        self.Minv = np.zeros((0, m, m)) if Minv is None else Minv
+        self.R = np.zeros((0, n, n)) if R is None else R
+        self.prior_keys = np.zeros(0, dtype=np.int64) if prior_keys is None else prior_keys.reshape(-1)
+        self.Pinv = np.zeros((0, m, m)) if Pinv is None else Pinv
+        self.prior_R = np.zeros((0, n, n)) if prior_R is None else prior_R
+        self.E, self.Q = len(self.edge_keys), len(self.prior_keys)
+        return self
+
     def new_factors(self, keys, values, edges, priors) -> "NewFactors":
         """One update of the general path: new variables ``keys`` (P,) at ``values`` (P, m, m)
         and the factors ``edges``/``priors`` (indices), numbered in that order."""

@@ -46,7 +46,7 @@ from ..errors import IndeterminantLinearSystem, InputError
 from ..interop import to_gtsam
 from ..posegraph import gauge
 from ..sparse.pivots import PIVOT_TOLERANCE
-from .array_path import try_update
+from .array_path import try_objects, try_update
 from .cholesky import BlockFactor
 from .dogleg import dogleg_step
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
@@ -171,7 +171,12 @@ class Smoother(Queries, RobustSmoothing):
             raise InputError("a robust smoother takes its factors through update_arrays (its loop closures "
                              "are tested before they enter)")
         args = read_args(removeFactorIndices, constrainedKeys, noRelinKeys, extraReelimKeys, force_relinearize)
-        return self._apply(read_update(newFactors, newTheta, self._setup), args)
+        nf = read_update(newFactors, newTheta, self._setup)
+        if args == PLAIN:
+            result = try_objects(self, nf)
+            if result is not None:
+                return result
+        return self._apply(nf, args)
 
     def update_arrays(self, group: str, keys=(), values=None, edge_keys=None, measured=None, information=None,
                       prior_keys=None, prior_measured=None, prior_information=None,

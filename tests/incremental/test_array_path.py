@@ -131,3 +131,92 @@ def test_refusals_on_the_array_path_leave_the_smoother_as_it_was():
     assert np.array_equal(s.bf.dense_factor()[1], t.bf.dense_factor()[1])
     keys = list(range(len(updates)))
     assert np.max(np.abs(s.estimate_matrices(keys) - t.estimate_matrices(keys))) <= 1e-12
+
+
+def _gtsam_updates(fa, updates, start):
+    """The same updates as GTSAM's factor objects: (graph, values) per pose."""
+    import gtsam
+
+    out = []
+    for i, mine in enumerate(updates):
+        g = gtsam.NonlinearFactorGraph()
+        for k in mine:
+            a, b = (int(x) for x in fa.edge_keys[k])
+            g.add(gtsam.BetweenFactorPose3(a, b, gtsam.Pose3(np.linalg.inv(fa.Minv[k])),
+                                           gtsam.noiseModel.Gaussian.Information(fa.R[k].T @ fa.R[k])))
+        if i == 0:
+            g.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+        v = gtsam.Values()
+        v.insert(i, gtsam.Pose3(start[i]))
+        out.append((g, v))
+    return out
+
+
+def test_updates_of_gtsam_factor_objects_take_the_array_path_and_equal_the_general_one(monkeypatch):
+    """update() with GTSAM's Between/Prior objects: nine updates in ten (the others relinearize)
+    run on the array path, and every factor, estimate and report equals the general path's."""
+    import lie_factors.incremental.smoother as smoother_module
+
+    fa, updates, start = _graph(seed=4)
+    steps = _gtsam_updates(fa, updates, start)
+    fast = Smoother()
+    general_calls = []
+    apply = SmootherClass._apply
+    monkeypatch.setattr(SmootherClass, "_apply", lambda self, *a: general_calls.append(1) or apply(self, *a))
+    fast_results = [fast.update(g, v) for g, v in steps]
+    # only the relinearizing updates (every 10th, ISAM2's relinearizeSkip) take the general path
+    assert len(general_calls) == len(steps) // 10
+    monkeypatch.setattr(smoother_module, "try_objects", lambda s, nf: None)
+    slow = Smoother()
+    slow_results = [slow.update(g, v) for g, v in steps]
+    assert len(general_calls) == len(steps) // 10 + len(steps)
+    assert np.array_equal(fast.bf.dense_factor()[1], slow.bf.dense_factor()[1])
+    keys = list(range(len(updates)))
+    assert np.array_equal(fast.estimate_matrices(keys), slow.estimate_matrices(keys))
+    for a, b in zip(fast_results, slow_results):
+        assert a.getNewFactorsIndices() == b.getNewFactorsIndices()
+        assert a.getObservedKeys() == b.getObservedKeys()
+        assert list(a.getMarkedKeys()) == list(b.getMarkedKeys())
+        assert a.getVariablesReeliminated() == b.getVariablesReeliminated()
+    fg, sg = fast.getFactorsUnsafe(), slow.getFactorsUnsafe()
+    assert fg.size() == sg.size()
+    for k in range(fg.size()):
+        assert type(fg.at(k)) is type(sg.at(k)) and fg.at(k).equals(sg.at(k), 0.0)
+
+
+def test_gtsam_object_updates_the_array_path_refuses_read_as_the_general_paths(monkeypatch):
+    import gtsam
+    import lie_factors.incremental.smoother as smoother_module
+
+    fa, updates, start = _graph(seed=5)
+    steps = _gtsam_updates(fa, updates, start)
+    noise = gtsam.noiseModel.Isotropic.Sigma(6, 0.1)
+    unknown = gtsam.NonlinearFactorGraph()
+    unknown.add(gtsam.BetweenFactorPose3(11, 99, gtsam.Pose3(), noise))
+    known = gtsam.Values()
+    known.insert(3, gtsam.Pose3())
+    lone = gtsam.NonlinearFactorGraph()
+    lone.add(gtsam.BetweenFactorPose3(200, 201, gtsam.Pose3(), noise))
+    two = gtsam.Values()
+    two.insert(200, gtsam.Pose3())
+    two.insert(201, gtsam.Pose3())
+    cases = [(unknown, gtsam.Values()), (gtsam.NonlinearFactorGraph(), known), (lone, two)]
+
+    def refusals():
+        s = Smoother()
+        for g, v in steps[:12]:
+            s.update(g, v)
+        before = (s.bf.nv, s.bf.nf, len(s.keys), s.update_count, s.estimate_matrices(list(range(12))))
+        out = []
+        for g, v in cases:
+            with pytest.raises((InputError, IndeterminantLinearSystem)) as info:
+                s.update(g, v)
+            out.append((type(info.value), str(info.value)))
+            assert (s.bf.nv, s.bf.nf, len(s.keys), s.update_count) == before[:4]
+            assert np.array_equal(s.estimate_matrices(list(range(12))), before[4])
+        return out
+
+    fast = refusals()
+    monkeypatch.setattr(smoother_module, "try_objects", lambda s, nf: None)
+    assert fast == refusals()
+    assert "uses key 99, which has no value" in fast[0][1] and "already a variable" in fast[1][1]
