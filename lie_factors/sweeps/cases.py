@@ -156,6 +156,9 @@ def measure(case: Case, data: GraphData, clean: CleanOptimum) -> dict[str, Any]:
         "reference": "groundtruth" if truth is not None else "clean optimum",
         "map_error": metrics.map_error_percent(metrics.positions(result.poses), metrics.positions(clean.poses)),
         "final_error": float(result.error), "iterations": int(result.iterations), "seconds": float(result.seconds)}
+    status = getattr(result, "robust_status", None)
+    if status is not None:
+        row["robust_status"] = status["status"] + "".join(f"; {r}" for r in status["reasons"])
     rejected = getattr(result, "outliers", None)
     if rejected is not None:
         row["rejected"] = int(len(rejected))

@@ -28,8 +28,12 @@ COLUMNS: dict[str, type] = {
     "planted_consistent": int, "precision_consistent": float, "recall_consistent": float, "rejected_by": str,
     "ate_rmse": float, "rpe_rmse": float, "reference": str, "map_error": float,
     "final_error": float, "iterations": int, "seconds": float, "case_seconds": float, "peak_rss": int,
-    "worker": str, "sweep_run": str,
+    "worker": str, "sweep_run": str, "robust_status": str,
 }
+
+#: The columns of the files written before ``robust_status`` (read, and resumed with the column
+#: added: every earlier row gets it empty).
+EARLIER_COLUMNS = tuple(name for name in COLUMNS if name != "robust_status")
 
 #: The formats by extension.
 FORMATS = (".csv", ".parquet")
@@ -38,6 +42,10 @@ FORMATS = (".csv", ".parquet")
 PARQUET_INTERVAL = 5.0
 
 _MARK = b"lie_factors.sweep"
+
+#: :func:`_read_csv`'s cut for a file of :data:`EARLIER_COLUMNS`: rewritten with every column
+#: before the first new row is appended.
+_EARLIER = -1
 
 
 def _format(path: str) -> str:
@@ -79,7 +87,8 @@ def _read_csv(path: str) -> tuple[list[dict[str, Any]], int | None]:
     with open(path, "rb") as fh:
         content = fh.read()
     header = content.split(b"\n", 1)[0].rstrip(b"\r")
-    if header != ",".join(COLUMNS).encode():
+    columns = next((c for c in (tuple(COLUMNS), EARLIER_COLUMNS) if header == ",".join(c).encode()), None)
+    if columns is None:
         raise InputError(f"{path}: not a sweep's results file (its first line is not the sweep's columns); "
                          "left as it is, choose another --out")
     cut = None
@@ -89,11 +98,11 @@ def _read_csv(path: str) -> tuple[list[dict[str, Any]], int | None]:
     rows = []
     reader = csv.reader(content.decode("utf-8").splitlines()[1:])
     for values in reader:
-        if len(values) != len(COLUMNS):
+        if len(values) != len(columns):
             raise InputError(f"{path}:{reader.line_num + 1}: a row of {len(values)} fields, the sweep's have "
-                             f"{len(COLUMNS)}; left as it is")
-        rows.append(_typed(dict(zip(COLUMNS, values))))
-    return rows, cut
+                             f"{len(columns)}; left as it is")
+        rows.append(_typed(dict(zip(columns, values))))
+    return rows, cut if columns == tuple(COLUMNS) else _EARLIER
 
 
 def _read_parquet(path: str) -> list[dict[str, Any]]:
@@ -102,7 +111,7 @@ def _read_parquet(path: str) -> list[dict[str, Any]]:
         schema = pa.parquet.read_schema(path)
     except (pa.ArrowInvalid, OSError) as exc:
         raise InputError(f"{path}: not a sweep's results file ({exc}); left as it is, choose another --out") from None
-    if list(schema.names) != list(COLUMNS) or _MARK not in (schema.metadata or {}):
+    if list(schema.names) not in (list(COLUMNS), list(EARLIER_COLUMNS)) or _MARK not in (schema.metadata or {}):
         raise InputError(f"{path}: not a sweep's results file (its columns are not the sweep's); left as it is, "
                          "choose another --out")
     return [_typed(r) for r in pa.parquet.read_table(path).to_pylist()]
@@ -144,7 +153,17 @@ class ResultsFile:
 
     def _open_csv(self) -> None:
         """Open the CSV file for appending on the first new row (nothing is written before a case ends)."""
-        if self._cut is not None:  # a row cut short by a killed sweep: its case runs again
+        if self._cut == _EARLIER:  # an earlier sweep's file: its rows again, with every column
+            from ..util.atomic import replace_atomically
+
+            def write(tmp):
+                with open(tmp, "w", newline="", encoding="utf-8") as fh:
+                    out = csv.writer(fh, lineterminator="\n")
+                    out.writerow(COLUMNS)
+                    out.writerows(_csv_values(r) for r in self.rows)
+
+            replace_atomically(self.path, write, suffix=".csv")
+        elif self._cut is not None:  # a row cut short by a killed sweep: its case runs again
             with open(self.path, "r+b") as fh:
                 fh.truncate(self._cut)
         new = not os.path.exists(self.path)
@@ -165,8 +184,7 @@ class ResultsFile:
         if self.ext == ".csv":
             if self._fh is None:
                 self._open_csv()
-            self._csv.writerow(["" if v is None else (repr(v) if isinstance(v, float) and math.isfinite(v) else v)
-                                for v in row.values()])
+            self._csv.writerow(_csv_values(row))
             self._fh.flush()
         else:
             self._pending = True
@@ -196,6 +214,11 @@ class ResultsFile:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _csv_values(row: dict[str, Any]) -> list:
+    """A typed row's fields as the CSV file writes them (floats by ``repr``: read back bit for bit)."""
+    return ["" if v is None else (repr(v) if isinstance(v, float) and math.isfinite(v) else v) for v in row.values()]
 
 
 def rows_of(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -1,5 +1,6 @@
 """A sweep's results per cell (graph, fraction, kind, method): the worst and the median over the
-seeds, as the tables of docs/benchmarks.md, and a plot of them against the fraction.
+seeds, and how many cases said their rejection was uncertain (``robust_status``), as the tables
+of docs/benchmarks.md, and a plot of them against the fraction.
 
 A case that failed or ran past its timeout counts as failed: precision and recall 0, map
 error infinite.
@@ -64,8 +65,8 @@ def summary(results, tuning: Iterable[int] = ()) -> str:
     lines = [f"# worst and median over the seeds{f' (tuning seeds {tuning} left out)' if tuning else ''}; "
              "failed cases and those past the timeout count as failed in precision, recall and map error",
              "| graph | false | kind | method | seeds | precision worst / median | recall worst / median | "
-             "map error / diag worst / median | seconds worst / median |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "map error / diag worst / median | seconds worst / median | uncertain |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     # cells in reading order (graph, kind, fraction, method), whatever order the cases finished in
     ordered = sorted(cells(rows, tuning).items(), key=lambda item: (item[0][0], item[0][2], item[0][1], item[0][3]))
     for (graph, fraction, kind, method), rs in ordered:
@@ -84,8 +85,18 @@ def summary(results, tuning: Iterable[int] = ()) -> str:
         note = f" ({', '.join(over)})" if over else ""
         lines.append(f"| {graph} | {fraction:.0%} | {kind} | {method}{note} | {seeds} | "
                      f"{_pair(pr, np.nanmin, '.3f')} | {_pair(rc, np.nanmin, '.3f')} | "
-                     f"{_pair(mp, np.nanmax, '.3g', ' %')} | {_pair(sec, np.nanmax, '.2f')} |")
+                     f"{_pair(mp, np.nanmax, '.3g', ' %')} | {_pair(sec, np.nanmax, '.2f')} | {_uncertain(rs)} |")
     return "\n".join(lines)
+
+
+def _uncertain(rows: list[dict[str, Any]]) -> str:
+    """"k of n": the cases that said ``uncertain`` among the n that ran to a robust status, the
+    failed ones apart (they have none); "–" where no case reports one (a method without rejection,
+    or rows written before the status was recorded)."""
+    said = [r["robust_status"] for r in rows if not _failed(r) and r.get("robust_status")]
+    if not said:
+        return "–"
+    return f"{sum(s.startswith('uncertain') for s in said)} of {len(said)}"
 
 
 def _role(method: str, rows: list[dict[str, Any]]) -> str:

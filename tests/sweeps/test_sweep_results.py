@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lie_factors.errors import InputError
-from lie_factors.sweeps.results import COLUMNS, ResultsFile, read_results
+from lie_factors.sweeps.results import COLUMNS, EARLIER_COLUMNS, ResultsFile, read_results
 from lie_factors.sweeps.summary import summary
 
 
@@ -96,3 +96,39 @@ def test_summary_is_the_worst_and_the_median_per_cell(tmp_path):
     assert gtsam[5] == "0.000 / 1.000" and gtsam[7] == "inf % / 1.5 %"
     assert ours[8].startswith(f"{0.3:.2f} / {np.median([0.1, 0.2, 0.3]):.2f}")
     assert not math.isnan(float(ours[6].split(" / ")[0]))
+
+
+def test_summary_counts_the_uncertain_cases_per_cell():
+    said = ["ok", "uncertain; GNC stopped at its iteration limit", "ok", "uncertain; final check at its bound"]
+    rows = [row(f"g/group/0.5/{s}/ours", s, 1.0, robust_status=x) for s, x in enumerate(said, start=1)]
+    rows.append(row("g/group/0.5/5/ours", 5, None, status="failed"))  # no status: not counted
+    rows += [row(f"g/group/0.5/{s}/plain", s, None) for s in (1, 2)]  # a method without rejection
+    table = summary(rows).splitlines()
+    assert table[1].split(" | ")[-1] == "uncertain |"
+    ours = next(line for line in table if "| ours (1 failed) |" in line).split(" | ")
+    plain = next(line for line in table if "| plain |" in line).split(" | ")
+    assert ours[-1] == "2 of 4 |" and plain[-1] == "– |"
+
+
+def test_an_earlier_sweeps_file_is_read_and_resumed_with_the_status_column(tmp_path):
+    """A file written before robust_status: read (the status empty), and resumed: rewritten with
+    every column, its rows kept bit for bit, then the new row appended."""
+    import csv
+
+    path = tmp_path / "r.csv"
+    earlier = [row(f"g/uniform/0.2/{s}/ours", s, 0.1 * s + 0.05) for s in (1, 2)]
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        out = csv.writer(fh, lineterminator="\n")
+        out.writerow(EARLIER_COLUMNS)
+        for r in earlier:
+            out.writerow(["" if r.get(c) is None else (repr(r[c]) if isinstance(r.get(c), float) else r[c])
+                          for c in EARLIER_COLUMNS])
+    path.write_bytes(path.read_bytes() + b"g/uniform/0.2/3/ours,g,unif")  # and a row cut short
+    back = read_results(str(path))
+    assert [r["precision"] for r in back] == [0.15000000000000002, 0.25] and all(r["robust_status"] == "" for r in back)
+    with ResultsFile(str(path)) as results:
+        assert results.done == {"g/uniform/0.2/1/ours", "g/uniform/0.2/2/ours"}
+        results.add(row("g/uniform/0.2/3/ours", 3, 0.5, robust_status="ok"))
+    assert path.read_bytes().split(b"\n", 1)[0].decode() == ",".join(COLUMNS)
+    again = read_results(str(path))
+    assert again[:2] == back and again[2]["robust_status"] == "ok" and again[2]["precision"] == 0.5

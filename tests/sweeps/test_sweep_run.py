@@ -85,8 +85,10 @@ def test_rows_are_what_the_runs_give_directly(local_rows):
         if r["method"] == "ours":
             k = classify(result.outliers, c.planted)
             assert (r["precision"], r["recall"], r["rejected"]) == (k.precision, k.recall, len(result.outliers))
-        else:  # plain least squares rejects nothing: no precision or recall
-            assert r["precision"] is None and r["rejected"] is None
+            status = result.robust_status
+            assert r["robust_status"] == status["status"] + "".join(f"; {x}" for x in status["reasons"])
+        else:  # plain least squares rejects nothing: no precision or recall, no status
+            assert r["precision"] is None and r["rejected"] is None and r["robust_status"] == ""
         assert r["peak_rss"] > 0 and r["case_seconds"] >= r["seconds"] > 0
 
 
