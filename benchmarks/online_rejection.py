@@ -142,7 +142,8 @@ def main_rerun(args) -> int:
                     map_ref = (f"{metrics.map_error_percent(metrics.positions(X), ref):.3g} %" if done
                                else f"stopped at {len(X)} of {len(pg.keys)} poses")
                     map_ours = metrics.map_error_percent(metrics.positions(ours.poses), ref)
-                    print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {runs} | {seconds:.2f}{'' if done else ' (stopped)'} "
+                    stopped = "" if done else " (stopped)"
+                    print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {runs} | {seconds:.2f}{stopped} "
                           f"| {ours.update_seconds:.2f} | {ours.update_seconds / seconds:.3f}× "
                           f"| {kr.precision:.3f} / {ko.precision:.3f} | {kr.recall:.3f} / {ko.recall:.3f} "
                           f"| {map_ref} / {map_ours:.3g} % |", flush=True)
