@@ -163,12 +163,12 @@ def _observed(s, fa, klist: list, edges: list, priors: list) -> list:
     return obs
 
 
-def try_objects(s, nf):
-    """The update of :meth:`Smoother.update` (GTSAM's factor objects, read into ``nf``, a
-    :class:`~lie_factors.incremental.factor_arrays.NewFactors`) on the array path, or None when
-    it needs the general path: the update holds only one group's Between and Prior factors
-    (numbered Betweens first, as the array path numbers them) and new variables of that group,
-    and :func:`takes` it.  The general path's own checks run first, so a refusal reads the same."""
+def arrays_of(nf, numbered: bool = True):
+    """(FactorArrays, the new values (P, m, m), the factor objects by kind) of an update read from
+    GTSAM's factor objects (``nf``, a :class:`~lie_factors.incremental.factor_arrays.NewFactors`)
+    that holds only one group's Between and Prior factors and new variables of that group; with
+    ``numbered``, also the Betweens first in the update's graph (as the array path numbers them).
+    None for any other update."""
     if nf.native or nf.nulls or not nf.arrays:
         return None
     names = {name for _, name in nf.arrays}
@@ -180,19 +180,28 @@ def try_objects(s, nf):
         return None
     E = 0 if between is None else len(between["keys"])
     Q = 0 if prior is None else len(prior["keys"])
-    if (E and not np.array_equal(between["pos"], np.arange(E))) or \
-            (Q and not np.array_equal(prior["pos"], np.arange(E, E + Q))):
+    if numbered and ((E and not np.array_equal(between["pos"], np.arange(E))) or
+                     (Q and not np.array_equal(prior["pos"], np.arange(E, E + Q)))):
         return None
     fa = FactorArrays.of_constants(group, None if between is None else between["keys"],
                                    None if between is None else between["C"], None if between is None else between["R"],
                                    None if prior is None else prior["keys"], None if prior is None else prior["C"],
                                    None if prior is None else prior["R"])
-    if not takes(s, fa):
-        return None
-    s._validate(nf)
     values = np.array(nf.values) if nf.values else None
-    sources = {"between": [] if between is None else between["src"], "prior": [] if prior is None else prior["src"]}
-    return try_update(s, fa, nf.keys, values, range(E), range(Q), sources, nf)
+    return fa, values, {"between": [] if between is None else between["src"],
+                        "prior": [] if prior is None else prior["src"]}
+
+
+def try_objects(s, nf):
+    """The update of :meth:`Smoother.update` (GTSAM's factor objects, read into ``nf``) on the
+    array path, or None when it needs the general path: :func:`arrays_of` takes the update and
+    :func:`takes` it.  The general path's own checks run first, so a refusal reads the same."""
+    found = arrays_of(nf)
+    if found is None or not takes(s, found[0]):
+        return None
+    fa, values, sources = found
+    s._validate(nf)
+    return try_update(s, fa, nf.keys, values, range(fa.E), range(fa.Q), sources, nf)
 
 
 def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):
