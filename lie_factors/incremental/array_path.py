@@ -25,9 +25,11 @@ from ..batch.loops import whiten_jacobian, whiten_residual
 from ..errors import IndeterminantLinearSystem, InputError
 from ..kernels import dispatch as _dispatch
 from ..kernels.jit import inline_kernel, kernel
+from ..robust.online import robust_update
 from .factor_arrays import FactorArrays
 from .marking import mark_affected
 from .removal import NONE as NO_REMOVAL
+from .update_args import PLAIN
 from .storage import init_variables, link_adjacency
 
 #: A :class:`~lie_factors.incremental.factor_arrays.FactorArrays`' constants, as the kernel
@@ -202,6 +204,24 @@ def try_objects(s, nf):
     fa, values, sources = found
     s._validate(nf)
     return try_update(s, fa, nf.keys, values, range(fa.E), range(fa.Q), sources, nf)
+
+
+def robust_objects(smoother, nf, args):
+    """:meth:`~lie_factors.incremental.Smoother.update` of a robust smoother: ``nf``, the update
+    read from GTSAM's (or our) Between and Prior factors of one group, offered as
+    :func:`robust_update` offers arrays (its loop closures the candidates); ``args`` the update's
+    other arguments, which must be none."""
+    if args != PLAIN:
+        raise InputError("a robust smoother takes new factors and values only (no removeFactorIndices, "
+                         "constrainedKeys, noRelinKeys, extraReelimKeys or force_relinearize): it adds "
+                         "and removes loop closures by its own decisions")
+    smoother._validate(nf)
+    found = arrays_of(nf, numbered=False)
+    if found is None:
+        raise InputError("a robust smoother takes Between and Prior factors of one group and their new "
+                         "values (or update_arrays): its loop closures are tested before they enter")
+    fa, values, _ = found
+    return robust_update(smoother, fa, nf.keys, values)
 
 
 def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):

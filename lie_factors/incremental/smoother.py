@@ -46,7 +46,7 @@ from ..errors import IndeterminantLinearSystem, InputError
 from ..interop import to_gtsam
 from ..posegraph import gauge
 from ..sparse.pivots import PIVOT_TOLERANCE
-from .array_path import arrays_of, try_objects, try_update
+from .array_path import robust_objects, try_objects, try_update
 from .cholesky import BlockFactor
 from .dogleg import dogleg_step
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
@@ -168,30 +168,14 @@ class Smoother(Queries, RobustSmoothing):
         ``extraReelimKeys``: keys re-eliminated whatever their δ.  Or ``update(newFactors,
         newTheta, gtsam.ISAM2UpdateParams)``."""
         args = read_args(removeFactorIndices, constrainedKeys, noRelinKeys, extraReelimKeys, force_relinearize)
-        if self.robust is not None:
-            return self._robust_objects(newFactors, newTheta, args)
         nf = read_update(newFactors, newTheta, self._setup)
+        if self.robust is not None:
+            return robust_objects(self, nf, args)
         if args == PLAIN:
             result = try_objects(self, nf)
             if result is not None:
                 return result
         return self._apply(nf, args)
-
-    def _robust_objects(self, newFactors, newTheta, args) -> UpdateResult:
-        """``update`` of a robust smoother: GTSAM's Between and Prior factors of one group, read into
-        arrays and offered as :meth:`update_arrays` offers them (its loop closures the candidates)."""
-        if args != PLAIN:
-            raise InputError("a robust smoother takes new factors and values only (no removeFactorIndices, "
-                             "constrainedKeys, noRelinKeys, extraReelimKeys or force_relinearize): it adds "
-                             "and removes loop closures by its own decisions")
-        nf = read_update(newFactors, newTheta, self._setup)
-        self._validate(nf)
-        found = arrays_of(nf, numbered=False)
-        if found is None:
-            raise InputError("a robust smoother takes Between and Prior factors of one group and their new "
-                             "values (or update_arrays): its loop closures are tested before they enter")
-        fa, values, _ = found
-        return robust_update(self, fa, nf.keys, values)
 
     def update_arrays(self, group: str, keys=(), values=None, edge_keys=None, measured=None, information=None,
                       prior_keys=None, prior_measured=None, prior_information=None,
