@@ -127,9 +127,12 @@ def prepared(fa) -> Prepared:
 
 def takes(s, fa) -> bool:
     """Whether the smoother ``s`` can take an update of ``fa``'s factors on the array path: it
-    holds only ``fa``'s group and array factors, and this update relinearizes nothing."""
+    holds only ``fa``'s group and array factors, this update relinearizes nothing, and neither
+    ``evaluateNonlinearError`` nor ``enableAdaptiveReorder`` is set."""
     p = s.smoother_params
-    if s.native or s.other_types or (s.group_names and s.group_names != [fa.group]) or p.evaluateNonlinearError:
+    # (an update that reports the error, or may reorder every variable, is the general path's)
+    if s.native or s.other_types or (s.group_names and s.group_names != [fa.group]) or p.evaluateNonlinearError \
+            or p.enableAdaptiveReorder:
         return False
     return not (p.enableRelinearization and (s.update_count + 1) % p.relinearizeSkip == 0 and s.bf.nv)
 

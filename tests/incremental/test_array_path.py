@@ -220,3 +220,19 @@ def test_gtsam_object_updates_the_array_path_refuses_read_as_the_general_paths(m
     monkeypatch.setattr(smoother_module, "try_objects", lambda s, nf: None)
     assert fast == refusals()
     assert "uses key 99, which has no value" in fast[0][1] and "already a variable" in fast[1][1]
+
+
+def test_adaptive_reordering_keeps_every_update_on_the_general_path(monkeypatch):
+    """With enableAdaptiveReorder an update may order every variable afresh: the general path's
+    decision, so no update takes the array path (from arrays or from factor objects)."""
+    fa, updates, start = _graph(seed=6)
+    calls = []
+    apply = SmootherClass._apply
+    monkeypatch.setattr(SmootherClass, "_apply", lambda self, *a: calls.append(1) or apply(self, *a))
+    s = Smoother(enableAdaptiveReorder=True)
+    _replay(s, fa, updates, start)
+    assert len(calls) == len(updates)
+    t = Smoother(enableAdaptiveReorder=True)
+    for g, v in _gtsam_updates(fa, updates, start):
+        t.update(g, v)
+    assert len(calls) == 2 * len(updates)
