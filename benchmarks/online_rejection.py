@@ -122,31 +122,39 @@ def rerun_reference(pg, limit: float):
     return X, rejected, seconds, runs, done
 
 
-def main_rerun(args) -> int:
-    print("| graph | kind | false | seed | reference: GNC runs | reference GNC s | ours: update s | ours / reference "
-          "| precision ref / ours | recall ref / ours | map ref / ours |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+def cases(args, warm):
+    """Every case of ``args`` (graphs × kinds × fractions × seeds): (graph name, clean pose graph,
+    its optimum, the optimum's positions, kind, fraction, seed, the planted corruption); ``warm(pg)``
+    runs once per graph before its first case (compiled and loaded before any clock)."""
     for name in args.graphs:
         pg = lf.read_g2o(os.path.join(DATA, name + ".g2o"))
         clean = lf.optimize(pg)
         ref = metrics.positions(clean.poses)
-        lf.replay(pg, gnc="tls")  # compiled and loaded before any clock
+        warm(pg)
         for kind in args.kinds:
             for fraction in args.fractions:
                 for seed in args.seeds:
                     c = corruption.plant(pg, fraction=fraction, kind=kind, seed=seed, reference=clean.poses)
-                    ours = min((lf.replay(c.graph, gnc="tls") for _ in range(args.repeat)),
-                               key=lambda r: r.update_seconds)
-                    X, rejected, seconds, runs, done = rerun_reference(c.graph, args.rerun_limit)
-                    kr, ko = classify(rejected, c.planted), classify(ours.outliers, c.planted)
-                    map_ref = (f"{metrics.map_error_percent(metrics.positions(X), ref):.3g} %" if done
-                               else f"stopped at {len(X)} of {len(pg.keys)} poses")
-                    map_ours = metrics.map_error_percent(metrics.positions(ours.poses), ref)
-                    stopped = "" if done else " (stopped)"
-                    print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {runs} | {seconds:.2f}{stopped} "
-                          f"| {ours.update_seconds:.2f} | {ours.update_seconds / seconds:.3f}× "
-                          f"| {kr.precision:.3f} / {ko.precision:.3f} | {kr.recall:.3f} / {ko.recall:.3f} "
-                          f"| {map_ref} / {map_ours:.3g} % |", flush=True)
+                    yield name, pg, clean, ref, kind, fraction, seed, c
+
+
+def main_rerun(args) -> int:
+    print("| graph | kind | false | seed | reference: GNC runs | reference GNC s | ours: update s | ours / reference "
+          "| precision ref / ours | recall ref / ours | map ref / ours |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, pg, clean, ref, kind, fraction, seed, c in cases(args, lambda pg: lf.replay(pg, gnc="tls")):
+        ours = min((lf.replay(c.graph, gnc="tls") for _ in range(args.repeat)),
+                   key=lambda r: r.update_seconds)
+        X, rejected, seconds, runs, done = rerun_reference(c.graph, args.rerun_limit)
+        kr, ko = classify(rejected, c.planted), classify(ours.outliers, c.planted)
+        map_ref = (f"{metrics.map_error_percent(metrics.positions(X), ref):.3g} %" if done
+                   else f"stopped at {len(X)} of {len(pg.keys)} poses")
+        map_ours = metrics.map_error_percent(metrics.positions(ours.poses), ref)
+        stopped = "" if done else " (stopped)"
+        print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {runs} | {seconds:.2f}{stopped} "
+              f"| {ours.update_seconds:.2f} | {ours.update_seconds / seconds:.3f}× "
+              f"| {kr.precision:.3f} / {ko.precision:.3f} | {kr.recall:.3f} / {ko.recall:.3f} "
+              f"| {map_ref} / {map_ours:.3g} % |", flush=True)
     print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
     return 0
 
@@ -174,34 +182,26 @@ def main(argv=None) -> int:
     print("| graph | kind | false | seed | precision | recall | map vs clean optimum | map vs clean replay "
           "| updates / clean | p99 / clean | settle s | whole / clean | status |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for name in args.graphs:
-        pg = lf.read_g2o(os.path.join(DATA, name + ".g2o"))
-        clean = lf.optimize(pg)
-        ref = metrics.positions(clean.poses)
-        lf.replay(pg)  # compiled and loaded before any clock
-        for kind in args.kinds:
-            for fraction in args.fractions:
-                for seed in args.seeds:
-                    c = corruption.plant(pg, fraction=fraction, kind=kind, seed=seed, reference=clean.poses)
-                    base, base_whole, robust, robust_whole = None, np.inf, None, np.inf
-                    for _ in range(args.repeat):  # alternated; the best update time and whole time of each
-                        r, w = timed(lambda: lf.replay(pg))
-                        if base is None or r.update_seconds < base.update_seconds:
-                            base = r
-                        base_whole = min(base_whole, w)
-                        r, w = timed(lambda: lf.replay(c.graph, gnc="tls"))
-                        if robust is None or r.update_seconds < robust.update_seconds:
-                            robust = r
-                        robust_whole = min(robust_whole, w)
-                    k = classify(robust.outliers, c.planted)
-                    P = metrics.positions(robust.poses)
-                    settle = robust.seconds - float(np.sum(robust.times))
-                    print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {k.precision:.3f} | {k.recall:.3f} | "
-                          f"{metrics.map_error_percent(P, ref):.3g} % | "
-                          f"{100 * metrics.rmse(P, metrics.positions(base.poses)) / metrics.diagonal(ref):.3g} % | "
-                          f"{robust.update_seconds / base.update_seconds:.1f}× | "
-                          f"{robust.update_p99 / base.update_p99:.1f}× | {settle:.2f} | "
-                          f"{robust_whole / base_whole:.1f}× | {robust.robust_status['status']} |", flush=True)
+    for name, pg, clean, ref, kind, fraction, seed, c in cases(args, lf.replay):
+        base, base_whole, robust, robust_whole = None, np.inf, None, np.inf
+        for _ in range(args.repeat):  # alternated; the best update time and whole time of each
+            r, w = timed(lambda: lf.replay(pg))
+            if base is None or r.update_seconds < base.update_seconds:
+                base = r
+            base_whole = min(base_whole, w)
+            r, w = timed(lambda: lf.replay(c.graph, gnc="tls"))
+            if robust is None or r.update_seconds < robust.update_seconds:
+                robust = r
+            robust_whole = min(robust_whole, w)
+        k = classify(robust.outliers, c.planted)
+        P = metrics.positions(robust.poses)
+        settle = robust.seconds - float(np.sum(robust.times))
+        print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {k.precision:.3f} | {k.recall:.3f} | "
+              f"{metrics.map_error_percent(P, ref):.3g} % | "
+              f"{100 * metrics.rmse(P, metrics.positions(base.poses)) / metrics.diagonal(ref):.3g} % | "
+              f"{robust.update_seconds / base.update_seconds:.1f}× | "
+              f"{robust.update_p99 / base.update_p99:.1f}× | {settle:.2f} | "
+              f"{robust_whole / base_whole:.1f}× | {robust.robust_status['status']} |", flush=True)
     print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
     return 0
 
@@ -209,16 +209,10 @@ def main(argv=None) -> int:
 def main_during(args) -> int:
     print("| graph | kind | false | seed | updates within 1 % of the clean replay's | worst map error during the run |")
     print("|---|---|---|---|---|---|")
-    for name in args.graphs:
-        pg = lf.read_g2o(os.path.join(DATA, name + ".g2o"))
-        clean = lf.optimize(pg)
-        diagonal = metrics.diagonal(metrics.positions(clean.poses))
-        for kind in args.kinds:
-            for fraction in args.fractions:
-                for seed in args.seeds:
-                    c = corruption.plant(pg, fraction=fraction, kind=kind, seed=seed, reference=clean.poses)
-                    within, worst = during(pg, c.graph, diagonal, args.during)
-                    print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {within:.1%} | {worst:.3g} % |", flush=True)
+    for name, pg, clean, ref, kind, fraction, seed, c in cases(args, lambda pg: None):
+        diagonal = metrics.diagonal(ref)
+        within, worst = during(pg, c.graph, diagonal, args.during)
+        print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {within:.1%} | {worst:.3g} % |", flush=True)
     return 0
 
 
