@@ -233,15 +233,13 @@ def prepare(g, keys, M, info, Minv, R, codes):
         for i in range(F):
             if keys[i, 0] == keys[i, 1]:
                 return SELF_LOOP, i
-    n = _dispatch.dim(g)
-    Ad = np.empty((n, n))
+    _setup(g, M, Minv, codes)
     for i in range(F):
-        codes[i] = _relative.between_setup(g, M[i], Minv[i], Ad)
         if codes[i] != ELEMENT_OK:
             return NOT_ELEMENT, i
-    for i in range(F):
-        if not upper_cholesky(info[i], R[i]):
-            return NOT_DEFINITE, i
+    at = whiten_all(info, R)
+    if at >= 0:
+        return NOT_DEFINITE, at
     return READY, -1
 
 

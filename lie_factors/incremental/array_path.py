@@ -180,21 +180,16 @@ def arrays_of(nf, numbered: bool = True):
     if len(names) != 1:
         return None
     (group,) = names
-    between, prior = nf.arrays.get(("between", group)), nf.arrays.get(("prior", group))
-    if len(nf.arrays) != (between is not None) + (prior is not None) or any(k != group for k in nf.kinds):
+    between, prior = nf.arrays.get(("between", group), {}), nf.arrays.get(("prior", group), {})
+    if len(nf.arrays) != bool(between) + bool(prior) or any(k != group for k in nf.kinds):
         return None
-    E = 0 if between is None else len(between["keys"])
-    Q = 0 if prior is None else len(prior["keys"])
-    if numbered and ((E and not np.array_equal(between["pos"], np.arange(E))) or
-                     (Q and not np.array_equal(prior["pos"], np.arange(E, E + Q)))):
+    fa = FactorArrays.of_constants(group, between.get("keys"), between.get("C"), between.get("R"),
+                                   prior.get("keys"), prior.get("C"), prior.get("R"))
+    if numbered and not (np.array_equal(between.get("pos", []), np.arange(fa.E))
+                         and np.array_equal(prior.get("pos", []), np.arange(fa.E, fa.E + fa.Q))):
         return None
-    fa = FactorArrays.of_constants(group, None if between is None else between["keys"],
-                                   None if between is None else between["C"], None if between is None else between["R"],
-                                   None if prior is None else prior["keys"], None if prior is None else prior["C"],
-                                   None if prior is None else prior["R"])
     values = np.array(nf.values) if nf.values else None
-    return fa, values, {"between": [] if between is None else between["src"],
-                        "prior": [] if prior is None else prior["src"]}
+    return fa, values, {"between": between.get("src", []), "prior": prior.get("src", [])}
 
 
 def try_objects(s, nf):

@@ -45,6 +45,7 @@ from ..batch.graph import key_name
 from ..errors import IndeterminantLinearSystem, InputError
 from ..interop import to_gtsam
 from ..posegraph import gauge
+from ..robust.online import RobustSmoothing, check_loss, robust_update
 from ..sparse.pivots import PIVOT_TOLERANCE
 from .array_path import robust_objects, try_objects, try_update
 from .cholesky import BlockFactor
@@ -60,7 +61,6 @@ from .reports import adaptive_reorder, error_before, update_result
 from .removal import plan as removal_plan
 from .removal import structure as removal_structure
 from .update_args import PLAIN, UpdateArgs, order_groups, read_args
-from ..robust.online import RobustSmoothing, check_loss, robust_update
 from .structures import grow
 from .undo import Undo
 
@@ -208,7 +208,7 @@ class Smoother(Queries, RobustSmoothing):
             if result is not None:
                 return result
         nf = fa.new_factors(keys, values, edges, priors)
-        return self._apply(nf) if args is PLAIN else self._apply(nf, args)
+        return self._apply(nf, args)
 
     def estimate_matrices(self, keys) -> np.ndarray:
         """(K, m, m): the estimates of the group variables ``keys`` (all of one group)."""

@@ -56,7 +56,6 @@ import numpy as np
 
 from ..errors import InputError
 from ..posegraph.graph import is_loop_closure
-
 from .statistics import DOF_RANGE, chi2_inlier_threshold
 from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
 
@@ -67,6 +66,7 @@ __all__ = ["OnlineRejection", "RobustSmoothing", "robust_update", "check_loss", 
 #: or out, weight 0, by the test of the module docstring).  (The batch solver's m-estimators are
 #: :data:`lie_factors.solve.ROBUST_LOSSES`.)
 ONLINE_LOSSES = ("tls",)
+
 
 def check_loss(name, what: str) -> None:
     """An :class:`~lie_factors.errors.InputError` naming :data:`ONLINE_LOSSES` unless ``name`` is
