@@ -2,15 +2,16 @@
 
 :meth:`Smoother.update_prepared <lie_factors.incremental.smoother.Smoother.update_prepared>`
 adds new poses and some of a :class:`~lie_factors.incremental.factor_arrays.FactorArrays`'
-factors.  When the smoother holds only that group's variables and array factors, and the
-update relinearizes nothing (nine updates in ten with ISAM2's ``relinearizeSkip``),
+factors.  When the smoother holds only that group's variables and array factors,
 :func:`try_update` takes it here: Python checks the keys and maps them to variables (a dict
-lookup each), appends the new values and factors to the smoother's arrays, and one compiled
-call (:func:`add_and_mark`) linearizes the new factors into the block factor's store, links
-them to their variables and marks the columns to re-eliminate; then the ordering and the
-re-elimination, one compiled call each.  Any other update goes through the general path
+lookup each) and appends the new values and factors to the smoother's arrays; on an update
+that relinearizes (every ``relinearizeSkip``-th), ISAM2's check picks the variables and their
+factors are linearized again (a compiled call per group and per kind); then one compiled call
+(:func:`add_and_mark`) linearizes the new factors into the block factor's store, links them
+to their variables and marks the columns to re-eliminate, and the ordering and the
+re-elimination are one compiled call each.  Any other update goes through the general path
 (:meth:`Smoother._apply <lie_factors.incremental.smoother.Smoother._apply>`): the same
-kernels and the same linearization cores, with GTSAM's objects and relinearization.
+kernels and the same linearization cores, with GTSAM's objects.
 """
 
 from __future__ import annotations
@@ -28,9 +29,14 @@ from ..kernels.jit import inline_kernel, kernel
 from ..robust.online import robust_update
 from .factor_arrays import FactorArrays
 from .marking import mark_affected
+from .relinearization import relinearize_set, relinearizes
 from .removal import NONE as NO_REMOVAL
 from .update_args import PLAIN
 from .storage import init_variables, link_adjacency
+from .undo import Undo
+
+#: No variable (relinearized).
+NO_VARIABLES = np.zeros(0, dtype=np.int64)
 
 #: A :class:`~lie_factors.incremental.factor_arrays.FactorArrays`' constants, as the kernel
 #: takes them: per between factor M⁻¹ (E, m, m) and the whitening R (E, n, n), per prior P⁻¹
@@ -58,10 +64,11 @@ def _store_factor(f, vs, nfv, njac, rows, D1, store):
 
 
 @kernel
-def add_and_mark(g, X, velem, prep, plan, counts, tree, store, delta, work, ipool, marks):
+def add_and_mark(g, X, velem, prep, plan, relin, counts, tree, store, delta, work, ipool, marks):
     """Add P new variables and E between factors and Q priors of ``prep`` (a :data:`Prepared`)
     to the block factor, linearized at the elements ``X`` (``velem``: a variable's element),
-    and mark the columns to re-eliminate.
+    and mark the columns to re-eliminate: the new factors' variables and the relinearized
+    ``relin``, whose factors the caller has linearized again.
 
     ``plan``: the factors' indices in ``prep`` (E between, then Q priors), then the observed
     variables: the P new ones, each between factor's two, each prior's one.  ``counts``:
@@ -112,7 +119,7 @@ def add_and_mark(g, X, velem, prep, plan, counts, tree, store, delta, work, ipoo
         njac += n * D1
     link_adjacency(store, nf0, nf0 + E + Q)
     nv = nv0 + P
-    na, no = mark_affected(observed, plan[:0], tree, ipool, work.flag, marks[:nv], marks[nv:2 * nv])
+    na, no = mark_affected(observed, relin, tree, ipool, work.flag, marks[:nv], marks[nv:2 * nv])
     return ns, na, no
 
 
@@ -127,14 +134,12 @@ def prepared(fa) -> Prepared:
 
 def takes(s, fa) -> bool:
     """Whether the smoother ``s`` can take an update of ``fa``'s factors on the array path: it
-    holds only ``fa``'s group and array factors, this update relinearizes nothing, and neither
-    ``evaluateNonlinearError`` nor ``enableAdaptiveReorder`` is set."""
+    holds only ``fa``'s group and array factors, and neither ``evaluateNonlinearError`` nor
+    ``enableAdaptiveReorder`` is set."""
     p = s.smoother_params
     # (an update that reports the error, or may reorder every variable, is the general path's)
-    if s.native or s.other_types or (s.group_names and s.group_names != [fa.group]) or p.evaluateNonlinearError \
-            or p.enableAdaptiveReorder:
-        return False
-    return not (p.enableRelinearization and (s.update_count + 1) % p.relinearizeSkip == 0 and s.bf.nv)
+    return not (s.native or s.other_types or (s.group_names and s.group_names != [fa.group])
+                or p.evaluateNonlinearError or p.enableAdaptiveReorder)
 
 
 def _observed(s, fa, klist: list, edges: list, priors: list) -> list:
@@ -247,6 +252,11 @@ def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):
     joined, free = s.gauge.join(P, obs[P:E2:2], obs[P + 1:E2:2], obs[E2:], obs)
     if free is not None:
         raise s._refusal(free, klist)
+    if relinearizes(s):
+        s._solve()
+        relin = relinearize_set(s)
+    else:
+        relin = NO_VARIABLES
     nv0 = len(s.keys)
     el = s._elements(fa.group)
     n_el = el.n
@@ -271,9 +281,13 @@ def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):
         at += k * len(idx)
         fid += len(idx)
     plan = np.array(edges + priors + obs, dtype=np.int64)
+    undo = Undo(s)
     try:
-        bf.update_arrays(spec.group, el.X, s.velem, prepared(fa), plan, (P, len(edges), len(priors), n))
+        refreshed = s._relinearize(relin, undo) if len(relin) else ()
+        bf.update_arrays(spec.group, el.X, s.velem, prepared(fa), plan, (P, len(edges), len(priors), n),
+                         refreshed, relin)
     except BaseException as exc:
+        undo.run()
         del s.keys[nv0:], s.vgroup[nv0:]
         for k in klist:
             s.var.pop(k, None)
@@ -284,4 +298,4 @@ def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):
             raise s._indeterminant(exc, klist) from None
         raise
     s.gauge.commit(joined)
-    return s._updated(0) if nf is None else s._updated(0, nf, NO_REMOVAL, (), ())
+    return s._updated(len(relin)) if nf is None else s._updated(len(relin), nf, NO_REMOVAL, (), relin)

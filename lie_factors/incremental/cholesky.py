@@ -305,12 +305,15 @@ class BlockFactor(FactorReading):
                     raise ValueError(f"variable {v} is not a leaf: variable {c} below it is not marginalized")
                 c = int(tree.nxt[c])
 
-    def update_arrays(self, g, X: np.ndarray, velem: np.ndarray, prep, plan: np.ndarray, sizes: tuple) -> None:
+    def update_arrays(self, g, X: np.ndarray, velem: np.ndarray, prep, plan: np.ndarray, sizes: tuple,
+                      refreshed=(), relin: np.ndarray = array_path.NO_VARIABLES) -> None:
         """The array path's update (:mod:`~lie_factors.incremental.array_path`): P new variables
         of the group ``g`` (dimension n), E between factors and Q priors of ``prep``, linearized
         at ``X`` and marked by one compiled call, then ordered and re-eliminated.  ``plan`` as
         :func:`~lie_factors.incremental.array_path.add_and_mark` takes it; ``sizes`` (P, E, Q, n).
-        Raises :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive."""
+        ``refreshed`` and ``relin``: the new Jacobians of existing factors and the relinearized
+        variables, as :meth:`update` takes them.  Raises :class:`IndeterminantLinearSystem`
+        (state unchanged) when a pivot is not positive."""
         P, E, Q, n = sizes
         counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
         nv = self.nv + P
@@ -321,18 +324,22 @@ class BlockFactor(FactorReading):
             self._marks = np.empty(4 * nv + 64, dtype=np.int64)
         observed = plan[E + Q:]
         heads = self.store.ahead[observed]  # a copy: the heads to put back if the update fails
-        entry = _add_and_mark.get(g)
-        args = (g, X, velem, prep, plan, np.array(counts + (P, E, Q, n), dtype=np.int64), self.tree, self.store,
-                self.delta, self.work, self.pools.ipool, self._marks)
-        if entry is None:
-            entry = _add_and_mark[g] = entry_point(array_path.add_and_mark, [typeof(a) for a in args])
-        ns, na, no = entry(*args)
-        self.nv, self.nf, self.nfv, self.njac, self.nscalar = nv, self.nf + E + Q, self.nfv + 2 * E + Q, \
-            self.njac + n * (E * (2 * n + 1) + Q * (n + 1)), int(ns)
+        undo = []
         try:
+            self._refresh(refreshed, undo)
+            entry = _add_and_mark.get(g)
+            args = (g, X, velem, prep, plan, relin, np.array(counts + (P, E, Q, n), dtype=np.int64), self.tree,
+                    self.store, self.delta, self.work, self.pools.ipool, self._marks)
+            if entry is None:
+                entry = _add_and_mark[g] = entry_point(array_path.add_and_mark, [typeof(a) for a in args])
+            ns, na, no = entry(*args)
+            self.nv, self.nf, self.nfv, self.njac, self.nscalar = nv, self.nf + E + Q, self.nfv + 2 * E + Q, \
+                self.njac + n * (E * (2 * n + 1) + Q * (n + 1)), int(ns)
             self._reeliminate_set(self._marks[:na].copy(), self._marks[nv:nv + no].copy(), observed)
         except BaseException:
             self.store.ahead[observed] = heads
+            for array, idx, old in reversed(undo):
+                array[idx] = old
             self.nv, self.nf, self.nfv, self.njac, self.nscalar = counts
             raise
         self.updates += 1

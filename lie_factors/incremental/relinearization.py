@@ -14,6 +14,13 @@ from __future__ import annotations
 import numpy as np
 
 
+def relinearizes(s, force: bool = False) -> bool:
+    """Whether the next update of the smoother ``s`` looks for variables to relinearize: every
+    ``relinearizeSkip``-th update (ISAM2's count), or now with ``force`` (``force_relinearize``)."""
+    p = s.smoother_params
+    return bool(p.enableRelinearization and (force or (s.update_count + 1) % p.relinearizeSkip == 0) and s.bf.nv)
+
+
 def relinearize_set(s, frozen=()) -> np.ndarray:
     """The variables of the smoother ``s`` to relinearize now (module docstring); ``frozen``:
     variable indices held this update."""

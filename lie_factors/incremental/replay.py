@@ -361,7 +361,7 @@ def warm_up_smoother(group: str) -> None:
 
     info = registry.group(group)
     I = np.eye(info.mat)  # noqa: E741 (the identity)
-    s = Smoother(SmootherParams(relinearizeSkip=2, relinearizeThreshold=0.0))  # both paths
+    s = Smoother(SmootherParams(relinearizeSkip=2, relinearizeThreshold=0.0))  # every other update relinearizes
     s.update_arrays(group, [0, 1], np.stack([I, I]), [[0, 1]], I[None], np.eye(info.dim)[None], [0], I[None],
                     np.eye(info.dim)[None])
     s.update_arrays(group, [2], I[None], [[1, 2], [0, 2]], np.stack([I, I]), np.stack([np.eye(info.dim)] * 2))

@@ -68,9 +68,9 @@ def test_an_update_on_the_array_path_is_one_compiled_call_that_adds_and_marks(mo
         room = (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
         s.update_prepared(fa, [i], start[i][None], updates[i], [])
         pools_changed = room != (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
-        relinearizing = (i + 1) % s.smoother_params.relinearizeSkip == 0
-        assert calls["general"] - before["general"] == int(relinearizing)
-        assert calls["add"] - before["add"] == int(not relinearizing)
+        # every update, relinearizing ones (each relinearizeSkip-th) too
+        assert calls["general"] == before["general"]
+        assert calls["add"] - before["add"] == 1
         # one re-elimination, but when the pools had no room for it: then it asked for the room
         # after its symbolic pass and ran again (a batch step's fresh pools always)
         assert calls["reeliminate"] - before["reeliminate"] == 1 or s.bf.last.batch or pools_changed
@@ -153,8 +153,8 @@ def _gtsam_updates(fa, updates, start):
 
 
 def test_updates_of_gtsam_factor_objects_take_the_array_path_and_equal_the_general_one(monkeypatch):
-    """update() with GTSAM's Between/Prior objects: nine updates in ten (the others relinearize)
-    run on the array path, and every factor, estimate and report equals the general path's."""
+    """update() with GTSAM's Between/Prior objects runs on the array path, relinearizing updates
+    too, and every factor, estimate and report equals the general path's."""
     import lie_factors.incremental.smoother as smoother_module
 
     fa, updates, start = _graph(seed=4)
@@ -164,12 +164,13 @@ def test_updates_of_gtsam_factor_objects_take_the_array_path_and_equal_the_gener
     apply = SmootherClass._apply
     monkeypatch.setattr(SmootherClass, "_apply", lambda self, *a: general_calls.append(1) or apply(self, *a))
     fast_results = [fast.update(g, v) for g, v in steps]
-    # only the relinearizing updates (every 10th, ISAM2's relinearizeSkip) take the general path
-    assert len(general_calls) == len(steps) // 10
+    assert not general_calls
+    assert fast.relinearizations > 0  # (the updates every relinearizeSkip-th relinearized some)
     monkeypatch.setattr(smoother_module, "try_objects", lambda s, nf: None)
     slow = Smoother()
     slow_results = [slow.update(g, v) for g, v in steps]
-    assert len(general_calls) == len(steps) // 10 + len(steps)
+    assert len(general_calls) == len(steps)
+    assert fast.relinearizations == slow.relinearizations
     assert np.array_equal(fast.bf.dense_factor()[1], slow.bf.dense_factor()[1])
     keys = list(range(len(updates)))
     assert np.array_equal(fast.estimate_matrices(keys), slow.estimate_matrices(keys))
@@ -178,6 +179,7 @@ def test_updates_of_gtsam_factor_objects_take_the_array_path_and_equal_the_gener
         assert a.getObservedKeys() == b.getObservedKeys()
         assert list(a.getMarkedKeys()) == list(b.getMarkedKeys())
         assert a.getVariablesReeliminated() == b.getVariablesReeliminated()
+        assert a.getVariablesRelinearized() == b.getVariablesRelinearized()
     fg, sg = fast.getFactorsUnsafe(), slow.getFactorsUnsafe()
     assert fg.size() == sg.size()
     for k in range(fg.size()):
@@ -236,3 +238,76 @@ def test_adaptive_reordering_keeps_every_update_on_the_general_path(monkeypatch)
     for g, v in _gtsam_updates(fa, updates, start):
         t.update(g, v)
     assert len(calls) == 2 * len(updates)
+
+
+def _general_only(monkeypatch):
+    """Every update of ``update_prepared`` through the general path."""
+    import lie_factors.incremental.smoother as smoother_module
+
+    monkeypatch.setattr(smoother_module, "try_update", lambda *a, **k: None)
+
+
+@pytest.mark.parametrize("threshold", [0.0, 0.01])
+def test_relinearizing_updates_on_the_array_path_equal_the_general_path(monkeypatch, threshold):
+    """Every other update relinearizes (every variable at threshold 0, some at 0.01): the array
+    path moves the same θ, linearizes the same factors again and reports the same counts as the
+    general path, bit for bit."""
+    fa, updates, start = _graph(seed=7)
+
+    def run():
+        s = Smoother(relinearizeSkip=2, relinearizeThreshold=threshold)
+        counts = []
+        for i, mine in enumerate(updates):
+            r = s.update_prepared(fa, [i], start[i][None], mine, [0] if i == 0 else [])
+            counts.append((r.getVariablesRelinearized(), r.getVariablesReeliminated()))
+            s.estimate_matrix(i)  # (δ solved between updates, as a user's loop reads it)
+        return s, counts
+
+    fast, fast_counts = run()
+    _general_only(monkeypatch)
+    slow, slow_counts = run()
+    assert fast_counts == slow_counts
+    relinearized = [r for r, _ in fast_counts]
+    assert sum(relinearized) > 0 and relinearized.count(0) > len(updates) // 2 - 1
+    if threshold == 0.0:  # every variable there was before the update, each other update
+        assert relinearized == [i if i % 2 else 0 for i in range(len(updates))]
+    el_fast, el_slow = fast.elements["Pose3"], slow.elements["Pose3"]
+    assert np.array_equal(el_fast.X[:el_fast.n], el_slow.X[:el_slow.n])
+    nj = slow.bf.njac
+    assert np.array_equal(fast.bf.store.jac[:nj], slow.bf.store.jac[:nj])
+    keys = list(range(len(updates)))
+    assert np.array_equal(fast.estimate_matrices(keys), slow.estimate_matrices(keys))
+
+
+def test_a_failed_relinearizing_update_leaves_theta_and_the_jacobians_as_they_were(monkeypatch):
+    """A relinearizing update that fails in the re-elimination, after θ moved and the Jacobians
+    were replaced: both are put back, and the smoother goes on as one that never failed."""
+    fa, updates, start = _graph(seed=8)
+
+    def smoother():
+        return Smoother(relinearizeSkip=2, relinearizeThreshold=0.0, wildfireThreshold=0.0)
+
+    s = smoother()
+    _replay(s, fa, updates, start, 21)
+    assert (s.update_count + 1) % 2 == 0  # the next update relinearizes every variable
+    el = s.elements["Pose3"]
+    before = (el.X[:el.n].copy(), s.bf.store.jac[:s.bf.njac].copy(), s.bf.nv, s.bf.nf, s.relinearizations,
+              len(s.keys), s.update_count)
+    reeliminate = cholesky.reeliminate
+
+    def interrupted(*a):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cholesky, "reeliminate", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        s.update_prepared(fa, [21], start[21][None], updates[21], [])
+    monkeypatch.setattr(cholesky, "reeliminate", reeliminate)
+    assert np.array_equal(el.X[:el.n], before[0])
+    assert np.array_equal(s.bf.store.jac[:s.bf.njac], before[1])
+    assert (s.bf.nv, s.bf.nf, s.relinearizations, len(s.keys), s.update_count) == before[2:]
+    for i in range(21, len(updates)):
+        s.update_prepared(fa, [i], start[i][None], updates[i], [])
+    t = smoother()
+    _replay(t, fa, updates, start)
+    keys = list(range(len(updates)))
+    assert np.array_equal(s.estimate_matrices(keys), t.estimate_matrices(keys))
