@@ -54,6 +54,8 @@ VERBOSITY_LM = {name: i for i, name in enumerate(
     ("SILENT", "SUMMARY", "TERMINATION", "LAMBDA", "TRYLAMBDA", "TRYCONFIG", "DAMPED", "TRYDELTA"))}
 
 _SILENT, _TERMINATION, _ERROR, _VALUES = 0, 1, 2, 3
+#: LM's warning when λ reaches its upper bound.
+GIVING_UP = "Warning:  Levenberg-Marquardt giving up because cannot decrease error with maximum lambda"
 _SUMMARY, _TRYLAMBDA, _DAMPED, _TRYDELTA = 1, 4, 6, 7
 _EPS = float(np.finfo(float).eps)
 
@@ -293,7 +295,7 @@ def default_optimize(opt, params, progress: Callable[[IterationInfo], None] | No
         say(f"Initial error: {num(new)}")
     if opt.iterations() >= max_iterations:
         if verbosity >= _TERMINATION:
-            say(f"iterations: {opt.iterations()} >? {max_iterations}")
+            _say_iterations(opt.iterations(), max_iterations, False)
         return result()
     relative_tol = float(params.getRelativeErrorTol())
     absolute_tol = float(params.getAbsoluteErrorTol())
@@ -335,10 +337,36 @@ def default_optimize(opt, params, progress: Callable[[IterationInfo], None] | No
         if converged or not math.isfinite(current):
             break
     if verbosity >= _TERMINATION:
-        say(f"iterations: {opt.iterations()} >? {max_iterations}")
-        if opt.iterations() >= max_iterations:
-            say("Terminating because reached maximum iterations")
+        _say_iterations(opt.iterations(), max_iterations)
     return result()
+
+
+def _say_iterations(iterations: int, max_iterations: int, reached: bool = True) -> None:
+    """GTSAM's last lines at TERMINATION: the iteration count, and (when the loop ran, ``reached``)
+    whether it stopped at the maximum."""
+    COUT.line(f"iterations: {iterations} >? {max_iterations}")
+    if reached and iterations >= max_iterations:
+        COUT.line("Terminating because reached maximum iterations")
+
+
+def print_termination(params, errors: list, iterations: int, gave_up: int) -> None:
+    """What :func:`default_optimize` (with LM's or Gauss–Newton's ``iterate``) prints at the
+    params' verbosity TERMINATION, for a loop that ran elsewhere (the small path's compiled
+    one), from its record: ``errors`` (the initial error, then each iteration's), the
+    ``iterations`` taken, and ``gave_up``, how many times LM stopped at its maximum λ (each
+    prints its warning during its iteration, before the last convergence test)."""
+    max_iterations = int(params.getMaxIterations())
+    if errors[0] <= params.getErrorTol():
+        return  # converged at the start: TERMINATION prints nothing
+    if len(errors) == 1:  # no iteration allowed
+        _say_iterations(iterations, max_iterations, False)
+        return
+    for _ in range(gave_up):
+        COUT.line(GIVING_UP)
+    if iterations < max_iterations:  # (the test on the iteration that reaches the maximum is silent)
+        check_convergence(float(params.getRelativeErrorTol()), float(params.getAbsoluteErrorTol()),
+                          float(params.getErrorTol()), errors[-2], errors[-1], _TERMINATION)
+    _say_iterations(iterations, max_iterations)
 
 
 # --------------------------------------------------------------------------- #
@@ -558,8 +586,7 @@ class LevenbergMarquardt:
             self._increase_lambda()
             if self._lambda >= self._lambda_upper:
                 if self._verbosity >= _TERMINATION or level == _SUMMARY:
-                    say("Warning:  Levenberg-Marquardt giving up because "
-                        "cannot decrease error with maximum lambda")
+                    say(GIVING_UP)
                 return True
             return False
         if verbose:

@@ -438,6 +438,8 @@ class BatchLevenbergMarquardt(lm.LevenbergMarquardt, dogleg.Dogleg):
         if progress is not None:
             for info in result.history:
                 progress(info)
+        if str(self.params.getVerbosity()) == "TERMINATION":
+            lm.print_termination(self.params, result.errors, result.iterations, self._small.gave_up)
         return result
 
 

@@ -48,7 +48,7 @@ def refusal(problem, params, hooks: bool, losses: bool = False) -> str | None:
         return "a cost or reweighting hook"
     if not isinstance(params, (gtsam.LevenbergMarquardtParams, gtsam.GaussNewtonParams)):
         return f"{type(params).__name__} (the small path runs Levenberg-Marquardt and Gauss-Newton)"
-    if str(params.getVerbosity()) != "SILENT" or params.iterationHook is not None:
+    if str(params.getVerbosity()) not in ("SILENT", "TERMINATION") or params.iterationHook is not None:
         return "the params print or call a hook each iteration"
     if isinstance(params, gtsam.LevenbergMarquardtParams) and (
             str(params.getVerbosityLM()) != "SILENT" or params.getLogFile()):
@@ -133,6 +133,7 @@ class SmallSolve:
         self.params = params
         self.gauss_newton = isinstance(params, gtsam.GaussNewtonParams)
         self._keep: list = []  # every array a descriptor points at
+        self.gave_up = 0  # the last run's iterations at which LM gave up (λ at its upper bound)
         self._read_variables()
         self._read_groups()
 
@@ -285,6 +286,7 @@ class SmallSolve:
                lambdas, stats)
         self._outcome(stats)
         self._write_back()
+        self.gave_up = int(stats[7])
         recorded = int(stats[6])
         errs, lams = errors[:recorded].tolist(), lambdas[:recorded].tolist()
         history = [lm.IterationInfo(k, e, la, math.nan) for k, (e, la) in enumerate(zip(errs[1:], lams[1:]), 1)]

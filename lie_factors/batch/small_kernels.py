@@ -59,8 +59,8 @@ P_COLUMNS = ("lambda_initial", "lambda_factor", "lambda_upper", "lambda_lower", 
              "fixed_factor", "gauss_newton")
 #: Entries of ``stats``: iterations, λ tried, converged (0/1), the outcome code, the group and
 #: factor (within the group) of a fault or the scalar column of a refused pivot, the number of
-#: errors recorded.
-S_COLUMNS = ("iterations", "inner", "converged", "code", "group", "where", "recorded")
+#: errors recorded, the iterations at which LM gave up (λ reached its upper bound).
+S_COLUMNS = ("iterations", "inner", "converged", "code", "group", "where", "recorded", "gave_up")
 #: Outcome codes.
 OK, FAULT, SINGULAR, NONFINITE_START, NONFINITE_STEP = range(5)
 
@@ -532,6 +532,7 @@ def _levenberg_marquardt(G, pools, losses, R, X, L, system, params, error, sched
         lam, factor = _after_failure(lam, factor, fixed)
         stats[1] += 1
         if lam >= upper:
+            stats[7] += 1
             break
     schedule[0], schedule[1] = lam, factor
     return error

@@ -10,6 +10,8 @@ general loop refuses it, with the same exception.
 
 from __future__ import annotations
 
+import re
+
 import gtsam
 import numpy as np
 import pytest
@@ -223,6 +225,64 @@ def test_what_the_small_path_refuses_runs_the_general_loop():
     g3.add(ready.GenericProjectionFactorCal3_S2(np.zeros(2), gtsam.noiseModel.Unit.Create(2), gtsam.symbol_shorthand.X(0),
                                                 gtsam.symbol_shorthand.L(0), K, True, False))
     assert "behind the camera" in BatchLevenbergMarquardt(g3, v3).small_refusal
+
+
+def _perturbed(name, seed, scale):
+    """GRAPHS[name] with its initial values moved far (LM's first steps fail)."""
+    graph, initial = GRAPHS[name](seed)
+    rng = np.random.default_rng(seed)
+    moved = gtsam.Values()
+    for k in initial.keys():
+        if initial.exists(k) and gtsam.Symbol(k).chr() == ord("x"):
+            moved.insert(k, initial.atPose2(k).retract(rng.normal(scale=scale, size=3)))
+        else:
+            x = initial.atVector(k)
+            moved.insert(k, x + rng.normal(scale=2 * scale, size=x.shape))
+    return graph, moved
+
+
+def _printed(capsys, monkeypatch, graph, initial, params, linear_solver):
+    from lie_factors import lm
+
+    monkeypatch.setattr(lm.COUT, "precision", 6)  # (std::cout's precision carries from print to print)
+    capsys.readouterr()
+    opt, res = run(graph, initial, params, linear_solver)
+    return opt, res, capsys.readouterr().out
+
+
+@pytest.mark.parametrize("case", ["converged", "maximum", "none allowed", "converged at start", "gave up",
+                                  "gauss-newton"])
+def test_termination_prints_on_the_small_path_are_the_general_loops(case, capsys, monkeypatch):
+    """Verbosity TERMINATION takes the small path; what it prints after the compiled loop is what
+    the general loop prints as it goes (GTSAM's lines: the last convergence test, LM's warning
+    when it gives up at the maximum λ, the iteration count)."""
+    graph, initial = planar(9)
+    settings = {"maximum": dict(setMaxIterations=1), "none allowed": dict(setMaxIterations=0),
+                "converged at start": dict(setErrorTol=1e9),
+                "gave up": dict(setlambdaUpperBound=1e-3, setlambdaInitial=1e-4)}
+    if case == "gave up":  # (LM's steps fail from far: a failure takes λ to its bound)
+        graph, initial = _perturbed("planar", 5, 2.5)
+    params = gtsam.GaussNewtonParams() if case == "gauss-newton" else lm_params(**settings.get(case, {}))
+    params.setVerbosity("TERMINATION")
+    opt, res, text = _printed(capsys, monkeypatch, graph, initial, params, "auto")
+    assert opt.small_refusal is None and res.linear_solver == "small"
+    _, ref, expected = _printed(capsys, monkeypatch, graph, initial, params, "cholmod")
+    assert (res.iterations, res.converged) == (ref.iterations, ref.converged)
+    assert opt._small.gave_up == (case == "gave up")
+    expected_lines = {"converged": ["converged", "errorThreshold", "absoluteDecrease", "relativeDecrease",
+                                    "iterations"],
+                      "maximum": ["iterations", "Terminating"], "none allowed": ["iterations"],
+                      "converged at start": [],
+                      "gave up": ["Warning", "converged", "errorThreshold", "absoluteDecrease",
+                                  "relativeDecrease", "iterations"]}
+    lines, ref_lines = text.splitlines(), expected.splitlines()
+    assert [line.split()[0].rstrip(":") for line in ref_lines] == expected_lines.get(case, expected_lines["converged"])
+    assert len(lines) == len(ref_lines)
+    number = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?")
+    for line, ref_line in zip(lines, ref_lines):
+        assert number.sub("#", line) == number.sub("#", ref_line)
+        a, b = (np.array([float(x) for x in number.findall(t)]) for t in (line, ref_line))
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-12 * res.errors[0])
 
 
 def _nan_start():
