@@ -54,7 +54,6 @@ VERBOSITY_LM = {name: i for i, name in enumerate(
     ("SILENT", "SUMMARY", "TERMINATION", "LAMBDA", "TRYLAMBDA", "TRYCONFIG", "DAMPED", "TRYDELTA"))}
 
 _SILENT, _TERMINATION, _ERROR, _VALUES = 0, 1, 2, 3
-#: LM's warning when λ reaches its upper bound.
 GIVING_UP = "Warning:  Levenberg-Marquardt giving up because cannot decrease error with maximum lambda"
 _SUMMARY, _TRYLAMBDA, _DAMPED, _TRYDELTA = 1, 4, 6, 7
 _EPS = float(np.finfo(float).eps)
@@ -341,32 +340,28 @@ def default_optimize(opt, params, progress: Callable[[IterationInfo], None] | No
     return result()
 
 
-def _say_iterations(iterations: int, max_iterations: int, reached: bool = True) -> None:
-    """GTSAM's last lines at TERMINATION: the iteration count, and (when the loop ran, ``reached``)
-    whether it stopped at the maximum."""
+def _say_iterations(iterations: int, max_iterations: int, ran: bool = True) -> None:
+    """GTSAM's last lines at TERMINATION (whether it stopped at the maximum: when the loop ``ran``)."""
     COUT.line(f"iterations: {iterations} >? {max_iterations}")
-    if reached and iterations >= max_iterations:
+    if ran and iterations >= max_iterations:
         COUT.line("Terminating because reached maximum iterations")
 
 
 def print_termination(params, errors: list, iterations: int, gave_up: int) -> None:
-    """What :func:`default_optimize` (with LM's or Gauss–Newton's ``iterate``) prints at the
-    params' verbosity TERMINATION, for a loop that ran elsewhere (the small path's compiled
-    one), from its record: ``errors`` (the initial error, then each iteration's), the
-    ``iterations`` taken, and ``gave_up``, how many times LM stopped at its maximum λ (each
-    prints its warning during its iteration, before the last convergence test)."""
+    """What :func:`default_optimize` prints at verbosity TERMINATION, for a loop run elsewhere
+    (the small path's compiled one), from its record: ``errors`` (the initial error, then each
+    iteration's), the ``iterations`` taken, and ``gave_up``, the times LM stopped at its maximum
+    λ (each warned during its iteration, before the last convergence test)."""
     max_iterations = int(params.getMaxIterations())
     if errors[0] <= params.getErrorTol():
         return  # converged at the start: TERMINATION prints nothing
-    if len(errors) == 1:  # no iteration allowed
-        _say_iterations(iterations, max_iterations, False)
-        return
-    for _ in range(gave_up):
-        COUT.line(GIVING_UP)
-    if iterations < max_iterations:  # (the test on the iteration that reaches the maximum is silent)
-        check_convergence(float(params.getRelativeErrorTol()), float(params.getAbsoluteErrorTol()),
-                          float(params.getErrorTol()), errors[-2], errors[-1], _TERMINATION)
-    _say_iterations(iterations, max_iterations)
+    if len(errors) > 1:  # (else no iteration was allowed)
+        for _ in range(gave_up):
+            COUT.line(GIVING_UP)
+        if iterations < max_iterations:  # (the test on the iteration reaching the maximum is silent)
+            check_convergence(float(params.getRelativeErrorTol()), float(params.getAbsoluteErrorTol()),
+                              float(params.getErrorTol()), errors[-2], errors[-1], _TERMINATION)
+    _say_iterations(iterations, max_iterations, len(errors) > 1)
 
 
 # --------------------------------------------------------------------------- #

@@ -64,14 +64,15 @@ def _store_factor(f, vs, nfv, njac, rows, D1, store):
 
 
 @kernel
-def add_and_mark(g, X, velem, prep, plan, relin, counts, tree, store, delta, work, ipool, marks):
+def add_and_mark(g, X, velem, prep, plan, counts, tree, store, delta, work, ipool, marks):
     """Add P new variables and E between factors and Q priors of ``prep`` (a :data:`Prepared`)
     to the block factor, linearized at the elements ``X`` (``velem``: a variable's element),
-    and mark the columns to re-eliminate: the new factors' variables and the relinearized
-    ``relin``, whose factors the caller has linearized again.
+    and mark the columns to re-eliminate: the new factors' variables and the relinearized ones,
+    whose factors the caller has linearized again.
 
     ``plan``: the factors' indices in ``prep`` (E between, then Q priors), then the observed
-    variables: the P new ones, each between factor's two, each prior's one.  ``counts``:
+    variables: the P new ones, each between factor's two, each prior's one; then the
+    relinearized variables.  ``counts``:
     :data:`COUNTS`.  The structures have room for everything (the caller grows them).  Writes
     the affected variables to ``marks[:nv]`` and the orphans to ``marks[nv:2 nv]`` (nv the new
     variable count); returns (scalars, affected, orphans).
@@ -80,7 +81,8 @@ def add_and_mark(g, X, velem, prep, plan, relin, counts, tree, store, delta, wor
         counts[5], counts[6], counts[7], counts[8]
     dims = np.full(P, n, dtype=np.int64)
     ns = init_variables(nv0, dims, ns0, tree, store.ahead, delta)
-    observed = plan[E + Q:]
+    observed = plan[E + Q:E + Q + P + 2 * E + Q]
+    relin = plan[E + Q + P + 2 * E + Q:]
     jac = store.jac
     e = np.empty(n)
     H1 = np.empty((n, n))
@@ -280,12 +282,12 @@ def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):
         s._register(kind.fid[local], kind.code, local, kind.kind == "between")
         at += k * len(idx)
         fid += len(idx)
-    plan = np.array(edges + priors + obs, dtype=np.int64)
+    plan = np.concatenate([np.array(edges + priors + obs, dtype=np.int64), relin])
     undo = Undo(s)
     try:
         refreshed = s._relinearize(relin, undo) if len(relin) else ()
         bf.update_arrays(spec.group, el.X, s.velem, prepared(fa), plan, (P, len(edges), len(priors), n),
-                         refreshed, relin)
+                         refreshed)
     except BaseException as exc:
         undo.run()
         del s.keys[nv0:], s.vgroup[nv0:]

@@ -306,13 +306,13 @@ class BlockFactor(FactorReading):
                 c = int(tree.nxt[c])
 
     def update_arrays(self, g, X: np.ndarray, velem: np.ndarray, prep, plan: np.ndarray, sizes: tuple,
-                      refreshed=(), relin: np.ndarray = array_path.NO_VARIABLES) -> None:
+                      refreshed=()) -> None:
         """The array path's update (:mod:`~lie_factors.incremental.array_path`): P new variables
         of the group ``g`` (dimension n), E between factors and Q priors of ``prep``, linearized
         at ``X`` and marked by one compiled call, then ordered and re-eliminated.  ``plan`` as
         :func:`~lie_factors.incremental.array_path.add_and_mark` takes it; ``sizes`` (P, E, Q, n).
-        ``refreshed`` and ``relin``: the new Jacobians of existing factors and the relinearized
-        variables, as :meth:`update` takes them.  Raises :class:`IndeterminantLinearSystem`
+        ``refreshed``: the new Jacobians of the relinearized variables' factors, as :meth:`update`
+        takes them.  Raises :class:`IndeterminantLinearSystem`
         (state unchanged) when a pivot is not positive."""
         P, E, Q, n = sizes
         counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
@@ -322,13 +322,13 @@ class BlockFactor(FactorReading):
         self._reserve_factors(self.nf + E + Q, self.nfv + 2 * E + Q, self.njac + n * (E * (2 * n + 1) + Q * (n + 1)))
         if self._marks.shape[0] < 2 * nv:
             self._marks = np.empty(4 * nv + 64, dtype=np.int64)
-        observed = plan[E + Q:]
+        observed = plan[E + Q:E + Q + P + 2 * E + Q]
         heads = self.store.ahead[observed]  # a copy: the heads to put back if the update fails
         undo = []
         try:
             self._refresh(refreshed, undo)
             entry = _add_and_mark.get(g)
-            args = (g, X, velem, prep, plan, relin, np.array(counts + (P, E, Q, n), dtype=np.int64), self.tree,
+            args = (g, X, velem, prep, plan, np.array(counts + (P, E, Q, n), dtype=np.int64), self.tree,
                     self.store, self.delta, self.work, self.pools.ipool, self._marks)
             if entry is None:
                 entry = _add_and_mark[g] = entry_point(array_path.add_and_mark, [typeof(a) for a in args])
