@@ -7,9 +7,10 @@ factors.  When the smoother holds only that group's variables and array factors,
 lookup each) and appends the new values and factors to the smoother's arrays; on an update
 that relinearizes (every ``relinearizeSkip``-th), ISAM2's check picks the variables and their
 factors are linearized again (a compiled call per group and per kind); then one compiled call
-(:func:`add_and_mark`) linearizes the new factors into the block factor's store, links them
-to their variables and marks the columns to re-eliminate, and the ordering and the
-re-elimination are one compiled call each.  Any other update goes through the general path
+(:func:`add_and_reeliminate`) linearizes the new factors into the block factor's store, links
+them to their variables, marks the columns to re-eliminate, orders them and re-eliminates
+them (a set that COLAMD orders, a batch step, pools to grow or a refused pivot: then by the
+block factor's Python after it).  Any other update goes through the general path
 (:meth:`Smoother._apply <lie_factors.incremental.smoother.Smoother._apply>`): the same
 kernels and the same linearization cores, with GTSAM's objects.
 """
@@ -28,7 +29,9 @@ from ..kernels import dispatch as _dispatch
 from ..kernels.jit import inline_kernel, kernel
 from ..robust.online import robust_update
 from .factor_arrays import FactorArrays
+from .elimination import reeliminate
 from .marking import mark_affected
+from .ordering import SMALL_SET, has_graph_room, order_small
 from .relinearization import relinearize_set, relinearizes
 from .removal import NONE as NO_REMOVAL
 from .update_args import PLAIN
@@ -43,9 +46,16 @@ NO_VARIABLES = np.zeros(0, dtype=np.int64)
 #: and R.
 Prepared = namedtuple("Prepared", ["Minv", "R", "Pinv", "prior_R"])
 
-#: ``counts`` of :func:`add_and_mark`: variables, factors, variable entries, Jacobian floats
-#: and scalars so far; new variables P, between factors E, priors Q; the group's dimension.
-COUNTS = ("nv", "nf", "nfv", "njac", "nscalar", "P", "E", "Q", "n")
+#: ``counts`` of :func:`add_and_reeliminate`: variables, factors, variable entries, Jacobian
+#: floats and scalars so far; new variables P, between factors E, priors Q; the group's
+#: dimension; then for the re-elimination: the next position, the pools' tops (ints, floats),
+#: the largest update matrix kept, a new factor stamp, the largest set ordered here and the
+#: smallest set that is a batch step.
+COUNTS = ("nv", "nf", "nfv", "njac", "nscalar", "P", "E", "Q", "n", "base", "itop", "ftop", "keep_update", "stamp",
+          "max_small", "batch_at")
+#: The status of :func:`add_and_reeliminate` when it left the ordering and re-elimination to
+#: the caller (a larger set, a batch step, no room for the ordering graph).
+LEFT = -1
 
 
 @inline_kernel
@@ -64,18 +74,22 @@ def _store_factor(f, vs, nfv, njac, rows, D1, store):
 
 
 @kernel
-def add_and_mark(g, X, velem, prep, plan, counts, tree, store, delta, work, ipool, marks):
+def add_and_reeliminate(g, X, velem, prep, plan, counts, tree, store, delta, work, pools, scratch):
     """Add P new variables and E between factors and Q priors of ``prep`` (a :data:`Prepared`)
     to the block factor, linearized at the elements ``X`` (``velem``: a variable's element),
-    and mark the columns to re-eliminate: the new factors' variables and the relinearized ones,
-    whose factors the caller has linearized again.
+    mark the columns to re-eliminate (the new factors' variables and the relinearized ones,
+    whose factors the caller has linearized again), order them and re-eliminate them.
 
     ``plan``: the factors' indices in ``prep`` (E between, then Q priors), then the observed
     variables: the P new ones, each between factor's two, each prior's one; then the
-    relinearized variables.  ``counts``:
-    :data:`COUNTS`.  The structures have room for everything (the caller grows them).  Writes
-    the affected variables to ``marks[:nv]`` and the orphans to ``marks[nv:2 nv]`` (nv the new
-    variable count); returns (scalars, affected, orphans).
+    relinearized variables.  ``counts``: :data:`COUNTS`.  The structures have room for the
+    factors (the caller grows them); ``scratch``: (marks (≥ 3 nv), the ordering graph's
+    pointers and lists).  Writes the affected variables to ``marks[:nv]``, the orphans to
+    ``marks[nv:2 nv]`` and the order to ``marks[2 nv:]`` (nv the new variable count).  Returns
+    (scalars, affected, orphans, status, new itop, new ftop): status that of
+    :func:`~lie_factors.incremental.elimination.reeliminate`, or :data:`LEFT` when the set is
+    a batch step, larger than ``max_small`` or its graph has no room (the factors are added
+    and the set marked either way).
     """
     nv0, nf0, nfv, njac, ns0, P, E, Q, n = counts[0], counts[1], counts[2], counts[3], counts[4], \
         counts[5], counts[6], counts[7], counts[8]
@@ -121,8 +135,17 @@ def add_and_mark(g, X, velem, prep, plan, counts, tree, store, delta, work, ipoo
         njac += n * D1
     link_adjacency(store, nf0, nf0 + E + Q)
     nv = nv0 + P
-    na, no = mark_affected(observed, relin, tree, ipool, work.flag, marks[:nv], marks[nv:2 * nv])
-    return ns, na, no
+    marks, ptr, lists = scratch
+    na, no = mark_affected(observed, relin, tree, pools.ipool, work.flag, marks[:nv], marks[nv:2 * nv])
+    base, itop, ftop, keep, stamp, max_small, batch_at = counts[9], counts[10], counts[11], counts[12], \
+        counts[13], counts[14], counts[15]
+    affected, orphans, order = marks[:na], marks[nv:nv + no], marks[2 * nv:2 * nv + na]
+    if na >= batch_at or na > max_small or (na > SMALL_SET and not has_graph_room(nf0 + E + Q, nfv, orphans, tree,
+                                                                                affected, ptr, lists)):
+        return ns, na, no, LEFT, itop, ftop
+    order_small(affected, orphans, observed, store, tree, pools.ipool, work.flag, stamp, ptr, lists, work.loc, order)
+    status, _, it, ft = reeliminate(order, orphans, base, tree, pools, itop, ftop, store, work, keep)
+    return ns, na, no, status, it, ft
 
 
 def prepared(fa) -> Prepared:

@@ -32,6 +32,7 @@ information (a pivot that is not positive) raises
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -45,6 +46,7 @@ from . import array_path, elimination, marking, ordering, storage
 from . import structures as st
 from .elimination import KEEP_UPDATE
 from .marking import marked_among
+from .ordering import SMALL_SET
 from .storage import compact_pools
 from .factor_reading import FactorReading
 
@@ -61,16 +63,12 @@ ordering_graph = direct(marking.ordering_graph)
 order_small = direct(ordering.order_small)
 reeliminate = direct(elimination.reeliminate)
 #: The array path's kernel, through its entry point for each group (its tag's type differs).
-_add_and_mark: dict = {}
+_add_and_reeliminate: dict = {}
 
 
 #: ISAM2's share of re-eliminated variables from which an update orders and eliminates everything.
 BATCH_SHARE = 0.65
 
-#: Sets this small are ordered as they were, the observed variables last (an odometry step:
-#: the previous pose and the new one, perhaps the one before), without building a graph for
-#: COLAMD (a graph and a GTSAM call cost more than the choice is worth there).
-SMALL_SET = 3
 
 
 @dataclass
@@ -309,33 +307,45 @@ class BlockFactor(FactorReading):
                       refreshed=()) -> None:
         """The array path's update (:mod:`~lie_factors.incremental.array_path`): P new variables
         of the group ``g`` (dimension n), E between factors and Q priors of ``prep``, linearized
-        at ``X`` and marked by one compiled call, then ordered and re-eliminated.  ``plan`` as
-        :func:`~lie_factors.incremental.array_path.add_and_mark` takes it; ``sizes`` (P, E, Q, n).
-        ``refreshed``: the new Jacobians of the relinearized variables' factors, as :meth:`update`
-        takes them.  Raises :class:`IndeterminantLinearSystem`
-        (state unchanged) when a pivot is not positive."""
+        at ``X``, marked, ordered and re-eliminated by one compiled call (the ordering of a set
+        larger than :data:`~lie_factors.incremental.ordering.MAX_SMALL`, a batch step, pools too
+        small or a refused pivot: by :meth:`_reeliminate_set` after it).  ``plan`` as
+        :func:`~lie_factors.incremental.array_path.add_and_reeliminate` takes it; ``sizes`` (P, E, Q, n).
+        ``refreshed``: the relinearized factors' new Jacobians, as :meth:`update` takes them.
+        Raises :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive."""
         P, E, Q, n = sizes
         counts = self.nv, self.nf, self.nfv, self.njac, self.nscalar
         nv = self.nv + P
         self._reserve_vars(nv)
         self._reserve_delta(self.nscalar + P * n)
         self._reserve_factors(self.nf + E + Q, self.nfv + 2 * E + Q, self.njac + n * (E * (2 * n + 1) + Q * (n + 1)))
-        if self._marks.shape[0] < 2 * nv:
-            self._marks = np.empty(4 * nv + 64, dtype=np.int64)
+        if self._marks.shape[0] < 3 * nv:
+            self._marks = np.empty(6 * nv + 64, dtype=np.int64)
         observed = plan[E + Q:E + Q + P + 2 * E + Q]
         heads = self.store.ahead[observed]  # a copy: the heads to put back if the update fails
         undo = []
+        before = self.work.stats.copy()
+        self.fstamp_box += 1
+        tops = self.itop, self.ftop
+        # (a set of BATCH_SHARE of the variables or more is a batch step: ceil, as the count is whole)
+        elimination_counts = (self.next_pos, *tops, self.keep_update, self.fstamp_box,
+                              max(SMALL_SET, self.max_small), math.ceil(BATCH_SHARE * (self.live + P)))
         try:
             self._refresh(refreshed, undo)
-            entry = _add_and_mark.get(g)
-            args = (g, X, velem, prep, plan, np.array(counts + (P, E, Q, n), dtype=np.int64), self.tree,
-                    self.store, self.delta, self.work, self.pools.ipool, self._marks)
+            entry = _add_and_reeliminate.get(g)
+            args = (g, X, velem, prep, plan, np.array(counts + (P, E, Q, n) + elimination_counts, dtype=np.int64),
+                    self.tree, self.store, self.delta, self.work, self.pools,
+                    (self._marks, self._graph_ptr, self._graph_vars))
             if entry is None:
-                entry = _add_and_mark[g] = entry_point(array_path.add_and_mark, [typeof(a) for a in args])
-            ns, na, no = entry(*args)
+                entry = _add_and_reeliminate[g] = entry_point(array_path.add_and_reeliminate, [typeof(a) for a in args])
+            ns, na, no, status, it, ft = entry(*args)
             self.nv, self.nf, self.nfv, self.njac, self.nscalar = nv, self.nf + E + Q, self.nfv + 2 * E + Q, \
                 self.njac + n * (E * (2 * n + 1) + Q * (n + 1)), int(ns)
-            self._reeliminate_set(self._marks[:na].copy(), self._marks[nv:nv + no].copy(), observed)
+            if status == st.OK:
+                self._eliminated(self._marks[2 * nv:2 * nv + na], int(no), before, tops, (int(it), int(ft)))
+            else:  # what the call left to the general way, which orders, makes room or refuses
+                self.work.stats[:] = before
+                self._reeliminate_set(self._marks[:na].copy(), self._marks[nv:nv + no].copy(), observed)
         except BaseException:
             self.store.ahead[observed] = heads
             for array, idx, old in reversed(undo):
@@ -463,17 +473,24 @@ class BlockFactor(FactorReading):
                 self._make_room(status, int(detail))
                 pools, itop, ftop = self.pools, self.itop, self.ftop
         self.pools = pools
-        self.pool_written += (int(it) - itop, int(ft) - ftop)
         if dead is not None and dead.size:
             clear_nodes(dead, self.vdead, self.tree, self.delta, stats)
         if batch:
             stats[4:6] = 0
-        self.itop, self.ftop = int(it), int(ft)
+        self._eliminated(order, 0 if batch else len(orphans), before, (itop, ftop), (int(it), int(ft)), batch)
+
+    def _eliminated(self, order: np.ndarray, orphans: int, before: np.ndarray, tops: tuple, new_tops: tuple,
+                    batch: bool = False) -> None:
+        """The bookkeeping of a re-elimination of ``order`` that succeeded: the pools' tops
+        (``tops`` → ``new_tops``), the next position, the wildfire's marks, the update's counts
+        (``work.stats`` against ``before``)."""
+        self.pool_written += (new_tops[0] - tops[0], new_tops[1] - tops[1])
+        self.itop, self.ftop = new_tops
         self.next_pos += len(order)
         self.wildfire.replaced[order] = 1
-        done = stats - before
-        self.last = UpdateStats(columns=int(done[0]), orphans=0 if batch else len(orphans),
-                                extend_adds=int(done[1]), factors=int(done[2]), batch=bool(batch))
+        done = self.work.stats - before
+        self.last = UpdateStats(columns=int(done[0]), orphans=orphans, extend_adds=int(done[1]),
+                                factors=int(done[2]), batch=bool(batch))
         self.totals.add(self.last)
 
     @staticmethod
@@ -503,15 +520,8 @@ class BlockFactor(FactorReading):
         not observed)."""
         na = len(affected)
         flag = self.work.flag
-        if na <= SMALL_SET:
-            # no choice to make: the others (in their order so far), then the observed ones
-            # (lists: for three variables or fewer, numpy's set routines cost more than the work)
-            obs = marked_among(affected, observed, flag).tolist()
-            pos = self.tree.pos
-            rest = sorted((v for v in affected.tolist() if v not in obs), key=lambda v: pos[v])
-            return np.array(rest + obs, dtype=np.int64)
         stamp = self._graph_room(affected, orphans)
-        if na <= self.max_small:
+        if na <= max(SMALL_SET, self.max_small):
             out = np.empty(na, dtype=np.int64)
             order_small(affected, orphans, observed, self.store, self.tree, self.pools.ipool, flag, stamp,
                         self._graph_ptr, self._graph_vars, self.work.loc, out)
@@ -545,8 +555,8 @@ class BlockFactor(FactorReading):
         """Room in ``_graph_ptr``/``_graph_vars`` for the graph the affected variables are
         ordered on (:func:`~lie_factors.incremental.marking.ordering_graph`); returns a new
         factor stamp for it."""
-        nptr = self.nf + len(orphans) + 1 + len(affected)
-        nout = self.nfv + int(self.tree.sep_len[orphans].sum()) + 1 + len(affected)
+        nptr, nout = ordering.graph_size(self.nf, self.nfv, len(orphans), int(self.tree.sep_len[orphans].sum()),
+                                         len(affected))
         if self._graph_ptr.shape[0] < nptr:
             self._graph_ptr = np.empty(2 * nptr, dtype=np.int64)
         if self._graph_vars.shape[0] < nout:

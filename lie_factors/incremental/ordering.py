@@ -28,6 +28,31 @@ WORD = 64
 #: well, later updates re-eliminate more on graphs whose affected sets are large (sphere2500:
 #: 1.8 times the work of CCOLAMD's trees, city10000: 1.16 times).
 MAX_SMALL = 32
+#: Sets this small are ordered as they were, the observed variables last (an odometry step:
+#: the previous pose and the new one, perhaps the one before), without building a graph
+#: (the choice is not worth the graph).
+SMALL_SET = 3
+
+
+def graph_size(nf: int, nfv: int, orphans: int, separator_entries: int, affected: int) -> tuple:
+    """(list pointers, entries) the ordering graph of an affected set may need
+    (:func:`~lie_factors.incremental.marking.ordering_graph`): a list for each factor and each
+    orphan's separator, one for each affected variable, and one pointer past the end."""
+    return nf + orphans + 1 + affected, nfv + separator_entries + 1 + affected
+
+
+_graph_size = inline_kernel(graph_size)
+
+
+@inline_kernel
+def has_graph_room(nf, nfv, orphans, tree, affected, ptr, lists):
+    """Whether ``ptr`` and ``lists`` hold the ordering graph of the ``affected`` variables
+    over the ``orphans`` (:func:`graph_size`), ``nf`` factors with ``nfv`` entries so far."""
+    entries = 0
+    for q in range(orphans.shape[0]):
+        entries += tree.sep_len[orphans[q]]
+    nptr, nout = _graph_size(nf, nfv, orphans.shape[0], entries, affected.shape[0])
+    return nptr <= ptr.shape[0] and nout <= lists.shape[0]
 
 _ONE = np.uint64(1)
 
@@ -81,14 +106,44 @@ def _eliminate_in_turn(candidates, remaining, adj, rank, K, out, done):
     return remaining, done
 
 
+@inline_kernel
+def _as_they_were(affected, observed, pos, flag, out):
+    """``affected`` not in ``observed`` by their positions so far (stable), then those in it,
+    in the order of ``affected``.  ``flag`` zero on entry and return."""
+    for q in range(observed.shape[0]):
+        flag[observed[q]] = 1
+    rest = np.empty(affected.shape[0], dtype=np.int64)
+    keys = np.empty(affected.shape[0], dtype=np.int64)
+    n = 0
+    for q in range(affected.shape[0]):
+        if flag[affected[q]] == 0:
+            rest[n] = affected[q]
+            keys[n] = pos[affected[q]]
+            n += 1
+    at = 0
+    for q in np.argsort(keys[:n], kind="mergesort"):
+        out[at] = rest[q]
+        at += 1
+    for q in range(affected.shape[0]):
+        if flag[affected[q]] == 1:
+            out[at] = affected[q]
+            at += 1
+    for q in range(observed.shape[0]):
+        flag[observed[q]] = 0
+
+
 @kernel
 def order_small(affected, orphans, observed, store, tree, ipool, flag, stamp, ptr, lists, local, out):
     """The affected variables (at most :data:`WORD`) in elimination order, written to
     ``out``: minimum degree on the graph of :func:`ordering_graph` (scratch ``ptr``/``lists``
-    sized as for it, ``stamp`` a new factor stamp), the variables in ``observed`` (repeats
-    allowed) last when some are not observed.  ``flag`` (V,) zero on entry and return;
-    ``local`` (V,) scratch."""
+    sized as :func:`graph_size` says, ``stamp`` a new factor stamp), the variables in
+    ``observed`` (repeats allowed) last when some are not observed; up to :data:`SMALL_SET`,
+    as they were (by position) with the observed ones last.  ``flag`` (V,) zero on entry and
+    return; ``local`` (V,) scratch."""
     K = affected.shape[0]
+    if K <= SMALL_SET:
+        _as_they_were(affected, observed, tree.pos, flag, out)
+        return
     n, m = ordering_graph(affected, orphans, store, tree, ipool, flag, stamp, ptr, lists)
     for a in range(K):
         local[affected[a]] = a

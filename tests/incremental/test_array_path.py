@@ -44,15 +44,22 @@ def _replay(s: Smoother, fa, updates, start, upto=None):
         s.update_prepared(fa, [i], start[i][None], mine, [0] if i == 0 else [])
 
 
-def test_an_update_on_the_array_path_is_one_compiled_call_that_adds_and_marks(monkeypatch):
-    fa, updates, start = _graph()
-    s = Smoother()
+#: The block factor's compiled kernels that Python calls (``cholesky``'s entry points).
+KERNELS = ("init_variables", "append_factors", "link_adjacency", "unlink_factors", "relink", "clear_nodes",
+           "mark_affected", "ordering_graph", "order_small", "reeliminate")
+
+
+def test_an_update_on_the_array_path_is_one_compiled_call(monkeypatch):
+    """An update adds its factors, marks, orders and re-eliminates in one compiled call; Python
+    calls nothing else of the block factor's kernels, but where the call leaves the set to it:
+    a set larger than the minimum-degree bound (COLAMD's), a batch step, pools to grow."""
+    from lie_factors.incremental.ordering import SMALL_SET
+
+    fa, updates, start = _graph(poses=60)
+    s = Smoother(enableRelinearization=False)
     _replay(s, fa, updates, start, 3)  # compiles the entry points
     tag = registry.group("Pose3")
-    calls = {"add": 0, "general": 0, "reeliminate": 0}
-    entry = cholesky._add_and_mark[tag]
-    reeliminate = cholesky.reeliminate
-    apply = SmootherClass._apply
+    calls = {name: 0 for name in ("entry", "general", "python_reelimination", *KERNELS)}
 
     def count(name, f):
         def counted(*a, **k):
@@ -60,20 +67,48 @@ def test_an_update_on_the_array_path_is_one_compiled_call_that_adds_and_marks(mo
             return f(*a, **k)
         return counted
 
-    monkeypatch.setitem(cholesky._add_and_mark, tag, count("add", entry))
-    monkeypatch.setattr(cholesky, "reeliminate", count("reeliminate", reeliminate))
+    monkeypatch.setitem(cholesky._add_and_reeliminate, tag, count("entry", cholesky._add_and_reeliminate[tag]))
+    for name in KERNELS:
+        monkeypatch.setattr(cholesky, name, count(name, getattr(cholesky, name)))
+    apply, reelim = SmootherClass._apply, cholesky.BlockFactor._reeliminate_set
     monkeypatch.setattr(SmootherClass, "_apply", lambda self, *a: count("general", apply)(self, *a))
+    monkeypatch.setattr(cholesky.BlockFactor, "_reeliminate_set",
+                        lambda self, *a: count("python_reelimination", reelim)(self, *a))
+    one_call = 0
     for i in range(3, len(updates)):
         before = dict(calls)
-        room = (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
+        def room():
+            return (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions,
+                    s.bf._graph_ptr.shape[0], s.bf._graph_vars.shape[0])
+
+        had = room()
         s.update_prepared(fa, [i], start[i][None], updates[i], [])
-        pools_changed = room != (s.bf.pools.ipool.shape[0], s.bf.pools.fpool.shape[0], s.bf.compactions)
-        # every update, relinearizing ones (each relinearizeSkip-th) too
-        assert calls["general"] == before["general"]
-        assert calls["add"] - before["add"] == 1
-        # one re-elimination, but when the pools had no room for it: then it asked for the room
-        # after its symbolic pass and ran again (a batch step's fresh pools always)
-        assert calls["reeliminate"] - before["reeliminate"] == 1 or s.bf.last.batch or pools_changed
+        made = {k: calls[k] - before[k] for k in calls}
+        assert made["general"] == 0 and made["entry"] == 1
+        # (the pools or the ordering graph's arrays grew: the call had no room)
+        left = s.bf.last.batch or room() != had or s.bf.last.columns > max(SMALL_SET, s.bf.max_small)
+        if not left:
+            assert sum(made[k] for k in KERNELS) == 0 and made["python_reelimination"] == 0
+            one_call += 1
+    assert one_call >= 0.9 * (len(updates) - 3)
+
+
+def test_a_set_larger_than_the_bound_is_ordered_and_eliminated_after_the_call(monkeypatch):
+    """With the minimum-degree bound at 0, every set is left to the block factor's Python
+    (COLAMD orders those above SMALL_SET): the same factor as with the bound, to rounding."""
+    fa, updates, start = _graph(seed=3)
+    one = Smoother(enableRelinearization=False, wildfireThreshold=0.0)
+    left = Smoother(enableRelinearization=False, wildfireThreshold=0.0)
+    left.bf.max_small = 0
+    calls = []
+    reelim = cholesky.BlockFactor._reeliminate_set
+    monkeypatch.setattr(cholesky.BlockFactor, "_reeliminate_set", lambda self, *a: calls.append(1) or reelim(self, *a))
+    _replay(one, fa, updates, start)
+    n_one = len(calls)
+    _replay(left, fa, updates, start)
+    assert len(calls) - n_one > n_one  # (sets of more than SMALL_SET variables left to Python)
+    keys = list(range(len(updates)))
+    assert np.max(np.abs(one.estimate_matrices(keys) - left.estimate_matrices(keys))) <= 1e-9
 
 
 def test_the_array_path_builds_the_factor_the_general_path_builds():
