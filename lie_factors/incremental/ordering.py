@@ -10,7 +10,8 @@ one 64-bit word (so the kernel takes up to :data:`WORD` variables), and the exac
 fewest remaining neighbours next, its neighbours made a clique) costs a few
 word operations per variable and neighbour.  Ties go to the variable earliest
 in the order so far (new variables last), which keeps the tree's shape where
-the degrees do not decide.
+the degrees do not decide.  A set of at most :data:`SMALL_SET` variables keeps
+its order, the observed variables last, with no graph built.
 """
 
 from __future__ import annotations
