@@ -70,7 +70,6 @@ _add_and_reeliminate: dict = {}
 BATCH_SHARE = 0.65
 
 
-
 @dataclass
 class UpdateStats:
     """What one update did: columns re-eliminated (``columns``), orphan subtrees reattached,
@@ -309,8 +308,8 @@ class BlockFactor(FactorReading):
         of the group ``g`` (dimension n), E between factors and Q priors of ``prep``, linearized
         at ``X``, marked, ordered and re-eliminated by one compiled call (the ordering of a set
         larger than :data:`~lie_factors.incremental.ordering.MAX_SMALL`, a batch step, pools too
-        small or a refused pivot: by :meth:`_reeliminate_set` after it).  ``plan`` as
-        :func:`~lie_factors.incremental.array_path.add_and_reeliminate` takes it; ``sizes`` (P, E, Q, n).
+        small or a refused pivot: by :meth:`_reeliminate_set` after it).  ``plan``: as
+        :func:`~.array_path.add_and_reeliminate` takes it; ``sizes`` (P, E, Q, n).
         ``refreshed``: the relinearized factors' new Jacobians, as :meth:`update` takes them.
         Raises :class:`IndeterminantLinearSystem` (state unchanged) when a pivot is not positive."""
         P, E, Q, n = sizes
@@ -337,7 +336,8 @@ class BlockFactor(FactorReading):
                     self.tree, self.store, self.delta, self.work, self.pools,
                     (self._marks, self._graph_ptr, self._graph_vars))
             if entry is None:
-                entry = _add_and_reeliminate[g] = entry_point(array_path.add_and_reeliminate, [typeof(a) for a in args])
+                entry = _add_and_reeliminate[g] = entry_point(array_path.add_and_reeliminate,
+                                                              [typeof(a) for a in args])
             ns, na, no, status, it, ft = entry(*args)
             self.nv, self.nf, self.nfv, self.njac, self.nscalar = nv, self.nf + E + Q, self.nfv + 2 * E + Q, \
                 self.njac + n * (E * (2 * n + 1) + Q * (n + 1)), int(ns)
