@@ -32,14 +32,11 @@ from .factor_arrays import FactorArrays
 from .elimination import reeliminate
 from .marking import mark_affected
 from .ordering import SMALL_SET, has_graph_room, order_small
-from .relinearization import relinearize_set, relinearizes
+from .relinearization import relinearized_now
 from .removal import NONE as NO_REMOVAL
 from .update_args import PLAIN
 from .storage import init_variables, link_adjacency
 from .undo import Undo
-
-#: No variable (relinearized).
-NO_VARIABLES = np.zeros(0, dtype=np.int64)
 
 #: A :class:`~lie_factors.incremental.factor_arrays.FactorArrays`' constants, as the kernel
 #: takes them: per between factor M⁻¹ (E, m, m) and the whitening R (E, n, n), per prior P⁻¹
@@ -277,11 +274,7 @@ def try_update(s, fa, keys, values, edges, priors, sources=None, nf=None):
     joined, free = s.gauge.join(P, obs[P:E2:2], obs[P + 1:E2:2], obs[E2:], obs)
     if free is not None:
         raise s._refusal(free, klist)
-    if relinearizes(s):
-        s._solve()
-        relin = relinearize_set(s)
-    else:
-        relin = NO_VARIABLES
+    relin = relinearized_now(s)
     nv0 = len(s.keys)
     el = s._elements(fa.group)
     n_el = el.n

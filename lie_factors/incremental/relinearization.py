@@ -14,11 +14,15 @@ from __future__ import annotations
 import numpy as np
 
 
-def relinearizes(s, force: bool = False) -> bool:
-    """Whether the next update of the smoother ``s`` looks for variables to relinearize: every
-    ``relinearizeSkip``-th update (ISAM2's count), or now with ``force`` (``force_relinearize``)."""
+def relinearized_now(s, force: bool = False, frozen=()) -> np.ndarray:
+    """The variables the next update of the smoother ``s`` relinearizes: on every
+    ``relinearizeSkip``-th update (ISAM2's count), or now with ``force`` (``force_relinearize``),
+    δ brought up to date and :func:`relinearize_set` (``frozen`` held); none on the others."""
     p = s.smoother_params
-    return bool(p.enableRelinearization and (force or (s.update_count + 1) % p.relinearizeSkip == 0) and s.bf.nv)
+    if not (p.enableRelinearization and (force or (s.update_count + 1) % p.relinearizeSkip == 0) and s.bf.nv):
+        return np.zeros(0, dtype=np.int64)
+    s._solve()
+    return relinearize_set(s, frozen)
 
 
 def relinearize_set(s, frozen=()) -> np.ndarray:

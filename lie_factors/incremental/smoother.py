@@ -55,7 +55,7 @@ from .gtsam_objects import VALUE_TYPES, insert_from, native_rows, read_update, t
 from .params import SmootherParams, UpdateResult
 from .queries import Queries
 from .marginalize import marginalize_leaves, row_subtree_keys
-from .relinearization import relinearize_set, relinearizes
+from .relinearization import relinearized_now
 from .removal import check_keys, forget, users
 from .reports import adaptive_reorder, error_before, update_result
 from .removal import plan as removal_plan
@@ -274,10 +274,7 @@ class Smoother(Queries, RobustSmoothing):
         groups = order_groups(self, args, len(nf.keys), new)
         commit_structure = self._structure(nf, removal)
         p = self.smoother_params
-        relin_vars = np.zeros(0, dtype=np.int64)
-        if relinearizes(self, args.force_relinearize):
-            self._solve()
-            relin_vars = relinearize_set(self, frozen)
+        relin_vars = relinearized_now(self, args.force_relinearize, frozen)
         before = error_before(self, nf, removal) if p.evaluateNonlinearError else None
         batch = adaptive_reorder(self)
         undo = Undo(self)
