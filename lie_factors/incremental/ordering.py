@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels.jit import inline_kernel, kernel
-from .marking import ordering_graph
+from .marking import marked_among, ordering_graph
 
 #: The largest set the kernel can order: its adjacency rows are single 64-bit words.
 WORD = 64
@@ -110,27 +110,21 @@ def _eliminate_in_turn(candidates, remaining, adj, rank, K, out, done):
 @inline_kernel
 def _as_they_were(affected, observed, pos, flag, out):
     """``affected`` not in ``observed`` by their positions so far (stable), then those in it,
-    in the order of ``affected``.  ``flag`` zero on entry and return."""
-    for q in range(observed.shape[0]):
-        flag[observed[q]] = 1
-    rest = np.empty(affected.shape[0], dtype=np.int64)
-    keys = np.empty(affected.shape[0], dtype=np.int64)
+    in the order of ``affected`` (:func:`~lie_factors.incremental.marking.marked_among`).
+    ``flag`` zero on entry and return."""
+    last = marked_among(affected, observed, flag)
+    rest = np.empty(affected.shape[0] - last.shape[0], dtype=np.int64)
+    keys = np.empty_like(rest)
     n = 0
     for q in range(affected.shape[0]):
-        if flag[affected[q]] == 0:
+        if not (last == affected[q]).any():
             rest[n] = affected[q]
             keys[n] = pos[affected[q]]
             n += 1
-    at = 0
-    for q in np.argsort(keys[:n], kind="mergesort"):
+    for at, q in enumerate(np.argsort(keys, kind="mergesort")):
         out[at] = rest[q]
-        at += 1
-    for q in range(affected.shape[0]):
-        if flag[affected[q]] == 1:
-            out[at] = affected[q]
-            at += 1
-    for q in range(observed.shape[0]):
-        flag[observed[q]] = 0
+    for q in range(last.shape[0]):  # (a loop: a slice assignment compiles numba's shape-mismatch message)
+        out[n + q] = last[q]
 
 
 @kernel
