@@ -21,7 +21,8 @@ Pose3SLAMExample_g2o on pose3example.txt and on smallGrid3D.g2o (its Gauss–New
 * ``process``: a whole script that reads dubrovnik-3-7 as SFMExample_bal does and optimizes it,
   with ``lf.optimize`` against the same with GTSAM's LM, in fresh processes with the cache warm,
   alternated, best of ``--repeat``; and numba's floor apart (``import numba`` and the first call
-  of a cached trivial kernel).
+  of a cached trivial kernel).  Python's compiled modules are written and read, as a user's
+  install has them (PYTHONDONTWRITEBYTECODE dropped for these processes).
 
 The machine's load is printed before and after.
 """
@@ -239,15 +240,22 @@ print(t1 - t0, t2 - t1, t3 - t2)
 """
 
 
+def _fresh(code: str, *args: str) -> subprocess.CompletedProcess:
+    """``code`` run in a fresh interpreter, with Python's compiled modules written (as a user's
+    install has them: PYTHONDONTWRITEBYTECODE dropped)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    return subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True, text=True, env=env)
+
+
 def process(repeat: int) -> None:
     print(f"load before: {load()}")
-    for which in ("gtsam", "ours"):  # once untimed each: the cache and the OS's file cache warm
-        subprocess.run([sys.executable, "-c", _PROCESS, which], check=True, capture_output=True)
+    for which in ("gtsam", "ours"):  # once untimed each: the caches (numba's, Python's) and the OS's file cache warm
+        _fresh(_PROCESS, which)
     best = {"gtsam": float("inf"), "ours": float("inf"), "wall gtsam": float("inf"), "wall ours": float("inf")}
     for _ in range(repeat):
         for which in ("gtsam", "ours"):
             t = time.perf_counter()
-            out = subprocess.run([sys.executable, "-c", _PROCESS, which], check=True, capture_output=True, text=True)
+            out = _fresh(_PROCESS, which)
             wall = time.perf_counter() - t
             best[which] = min(best[which], float(out.stdout.split()[0]))
             best["wall " + which] = min(best["wall " + which], wall)
@@ -256,7 +264,7 @@ def process(repeat: int) -> None:
           f"ours {best['ours']:.3f} s")
     floors = []
     for _ in range(repeat):
-        out = subprocess.run([sys.executable, "-c", _FLOOR], check=True, capture_output=True, text=True)
+        out = _fresh(_FLOOR)
         floors.append([float(x) for x in out.stdout.split()])
     numpy_s, numba_s, first = (min(f[k] for f in floors) for k in range(3))
     print(f"numba's floor: import numpy {numpy_s:.3f} s, import numba {numba_s:.3f} s, "

@@ -3,9 +3,10 @@
 A problem whose every factor the batch solver holds in arrays (lie_factors' Between/Prior groups,
 factor kinds: no factor GTSAM must linearize) and whose settings print nothing is solved by
 :func:`lie_factors.batch.small_kernels.solve`: GTSAM's Levenberg–Marquardt (or Gauss–Newton)
-schedule, every group's kernel reached by address, Λ assembled and factored block-sparse in a
-fill-reducing order (:mod:`lie_factors.sparse.blockchol`), no Python between iterations and no
-call out of compiled code.  :class:`SmallSolve` builds its arrays from a
+schedule, every group's kernel reached by address, Λ assembled and factored block-sparse
+(:mod:`lie_factors.sparse.blockchol`) in a minimum-degree order computed inside the call
+(:mod:`lie_factors.sparse.min_degree`), no Python between iterations and no call out of compiled
+code.  :class:`SmallSolve` builds its arrays from a
 :class:`~lie_factors.batch.graph.Problem`; what it refuses, :func:`refusal` names, and the batch
 solver's own loop runs instead (same schedule, the same optimum).
 
@@ -107,21 +108,47 @@ GROUP_LAYOUT = dict(X=0, i1=1, i2=2, C=3, R=4, ridx=5, A1=6, A2=7, b=8, sq=9, N=
                     f1=16, jacobians=17, size=18)
 
 
-def _address(a: np.ndarray, start: int = 0) -> int:
-    return int(a.ctypes.data) + 8 * int(start)
+_CODE = {name: code for code, name in enumerate(sk.BUFFERS)}
+_ARENA = {"floats": np.float64, "ints": np.int64}
 
 
 class _Pools:
-    """The flat arrays every group writes into (:mod:`~lie_factors.batch.small_kernels`), grown
-    group by group: ``alloc(kind, count)`` returns the start of ``count`` entries."""
+    """Sizes of the flat arrays every group writes into (:mod:`~lie_factors.batch.small_kernels`)
+    and of the arena of constants and indices the descriptors point at, grown group by group:
+    ``alloc(kind, count)`` returns the start of ``count`` entries; ``put(kind, array)`` holds a
+    copy of ``array`` in the arena (``"floats"`` or ``"ints"``) and returns its start."""
 
     def __init__(self):
-        self.sizes = {"a": 0, "b": 0, "f": 0}
+        self.sizes = {"a": 0, "b": 0, "f": 0, "floats": 0, "ints": 0}
+        self.parts: dict = {"floats": [], "ints": []}
 
     def alloc(self, kind: str, count: int) -> int:
         start = self.sizes[kind]
         self.sizes[kind] += int(count)
         return start
+
+    def put(self, kind: str, array) -> int:
+        array = np.ravel(np.asarray(array, dtype=_ARENA[kind]))
+        self.parts[kind].append(array)
+        return self.alloc(kind, array.size)
+
+    def arena(self) -> sk.Arena:
+        # (one entry more than asked: an array of none still has an address)
+        return sk.Arena(*(np.concatenate(self.parts[k] + [np.zeros(1, _ARENA[k])]) for k in ("floats", "ints")))
+
+
+class _Descriptors:
+    """Descriptor rows as :func:`~lie_factors.batch.small_kernels.solve` takes them: ``entries``
+    (numbers, or element offsets into the arrays of :data:`~lie_factors.batch.small_kernels.
+    BUFFERS`) and their ``codes``."""
+
+    def __init__(self, rows: int, width: int):
+        self.entries = np.zeros((rows, width), dtype=np.int64)
+        self.codes = np.zeros((rows, width), dtype=np.int64)
+
+    def point(self, row: int, at: int, buffer: str, offset: int) -> None:
+        """Entry ``at`` of ``row``: element ``offset`` of ``buffer``."""
+        self.entries[row, at], self.codes[row, at] = offset, _CODE[buffer]
 
 
 class SmallSolve:
@@ -132,7 +159,6 @@ class SmallSolve:
         self.problem = problem
         self.params = params
         self.gauss_newton = isinstance(params, gtsam.GaussNewtonParams)
-        self._keep: list = []  # every array a descriptor points at
         self.gave_up = 0  # the last run's iterations at which LM gave up (λ at its upper bound)
         self._read_variables()
         self._read_groups()
@@ -146,21 +172,22 @@ class SmallSolve:
             starts.append(at)
             at += b.X.size
         self.blocks, self.starts = blocks, starts
-        self.state = X = sk.State(np.empty(at), np.empty(at), np.zeros(int(P.total_dim)))
-        pairs = self._variable_pairs()
-        position = _order(len(P.var_keys), pairs)  # variable → elimination position
-        self.variables = sk.Variables(np.ascontiguousarray(P.var_dims, dtype=np.int64), position, pairs)
+        self.state = sk.State(np.empty(at), np.empty(at), np.zeros(int(P.total_dim)))
+        self.variables = sk.Variables(np.ascontiguousarray(P.var_dims, dtype=np.int64), self._variable_pairs())
         # each value's variable; the solve writes each one's offset in δ into offsets
         rvar = np.concatenate([np.asarray(b.var, dtype=np.int64) for b in blocks]) if blocks else np.zeros(0, np.int64)
-        offsets = np.zeros_like(rvar)
-        address, descs, at = [], [], 0
-        for b, s in zip(blocks, starts):
-            address.append(centry.retraction_entry(_value_type(b)))
-            descs.append([_address(X.best, s), _address(X.work, s), len(b.keys), _address(X.delta), len(X.delta),
-                          _address(offsets, at)])
+        d = _Descriptors(len(blocks), 6)
+        at = 0
+        for r, (b, s) in enumerate(zip(blocks, starts)):
+            d.point(r, 0, "best", s)
+            d.point(r, 1, "work", s)
+            d.entries[r, 2], d.entries[r, 4] = len(b.keys), len(self.state.delta)
+            d.point(r, 3, "delta", 0)
+            d.point(r, 5, "offsets", at)
             at += len(b.keys)
-        self.retraction = sk.Retraction(np.array(address, dtype=np.int64),
-                                        np.array(descs, dtype=np.int64).reshape(-1, 6), rvar, offsets)
+        address = np.array([centry.retraction_entry(_value_type(b)) for b in blocks], dtype=np.int64)
+        self.retraction = sk.Retraction(address, d.entries, d.codes, np.empty_like(d.entries), rvar,
+                                        np.zeros_like(rvar))
 
     def _variable_pairs(self) -> np.ndarray:
         P = self.problem
@@ -168,8 +195,8 @@ class SmallSolve:
         out += [kg.pairs() for kg in P.kinds]
         return np.ascontiguousarray(np.concatenate(out), dtype=np.int64) if out else np.zeros((0, 2), np.int64)
 
-    def _x_address(self, block) -> int:
-        return _address(self.state.work, self.starts[self.blocks.index(block)])
+    def _x_start(self, block) -> int:
+        return self.starts[self.blocks.index(block)]
 
     # ------------------------------------------------------------ groups
     def _read_groups(self) -> None:
@@ -208,46 +235,51 @@ class SmallSolve:
         self.fidx = np.concatenate([g.fidx for g in (*P.groups, *P.kinds)]).astype(np.int64) if rows else \
             np.zeros(0, np.int64)
         width = max([GROUP_LAYOUT["size"]] + [d[3].size for d in descs if d[0] == self._describe_kind])
-        table = np.zeros((len(descs), width), dtype=np.int64)
+        table = _Descriptors(len(descs), width)
         for k, (describe, *args) in enumerate(descs):
-            describe(table[k], *args)
+            describe(table, k, pools, *args)
+        self.arena = pools.arena()
         s = np.array(slots, dtype=np.int64).reshape(-1, 4)
-        self.groups = sk.Groups(np.array(rows, dtype=np.int64).reshape(-1, len(sk.G_COLUMNS)), table,
+        self.groups = sk.Groups(np.array(rows, dtype=np.int64).reshape(-1, len(sk.G_COLUMNS)), table.entries,
+                                table.codes, np.empty_like(table.entries),
                                 *(np.ascontiguousarray(s[:, j]) for j in range(4)),
                                 np.concatenate(fvar).astype(np.int64) if fvar else np.zeros(0, np.int64))
 
-    def _describe_group(self, d: np.ndarray, g, a1: int, a2: int, b0: int, f0: int) -> None:
-        L, pools = GROUP_LAYOUT, self.pools
+    def _describe_group(self, d: _Descriptors, k: int, pools: _Pools, g, a1: int, a2: int, b0: int,
+                        f0: int) -> None:
+        L = GROUP_LAYOUT
         between = g.kind == "between"
         block = self.problem.blocks[g.spec.name]
-        i2 = g.i2 if between else np.zeros(0, np.int64)
-        arrays = [np.ascontiguousarray(a) for a in (g.i1, i2, g.C, g.R, g.ridx)]
-        self._keep.extend(arrays)
-        d[L["X"]] = self._x_address(block)
-        for name, a in zip(("i1", "i2", "C", "R", "ridx"), arrays):
-            d[L[name]] = _address(a)
-        d[L["A1"]], d[L["A2"]] = _address(pools.a, a1), _address(pools.a, a2) if between else 0
-        d[L["b"]], d[L["sq"]] = _address(pools.b, b0), _address(pools.sq, f0)
-        d[L["N"]], d[L["U"]], d[L["F"]], d[L["F2"]] = len(block.keys), len(g.R), g.E, g.E if between else 0
-        d[L["f0"]], d[L["f1"]] = 0, g.E
+        d.point(k, L["X"], "work", self._x_start(block))
+        for name, kind, a in (("i1", "ints", g.i1), ("i2", "ints", g.i2 if between else ()), ("C", "floats", g.C),
+                              ("R", "floats", g.R), ("ridx", "ints", g.ridx)):
+            d.point(k, L[name], kind, pools.put(kind, a))
+        d.point(k, L["A1"], "a", a1)
+        if between:
+            d.point(k, L["A2"], "a", a2)
+        d.point(k, L["b"], "b", b0)
+        d.point(k, L["sq"], "sq", f0)
+        e = d.entries[k]
+        e[L["N"]], e[L["U"]], e[L["F"]], e[L["F2"]] = len(block.keys), len(g.R), g.E, g.E if between else 0
+        e[L["f0"]], e[L["f1"]] = 0, g.E
 
-    def _describe_kind(self, d: np.ndarray, kg, a: int, lay, b0: int, f0: int) -> None:
-        pools = self.pools
+    def _describe_kind(self, d: _Descriptors, k: int, pools: _Pools, kg, a: int, lay, b0: int, f0: int) -> None:
         F, m = kg.E, kg.kind.dim
-        d[0] = F
+        e = d.entries[k]
+        e[0] = F
         for (x, n, i), block, index in zip(lay.variables, kg.blocks, kg.index):
-            index = np.ascontiguousarray(index, dtype=np.int64)
-            self._keep.append(index)
-            d[x], d[n], d[i] = self._x_address(block), len(block.keys), _address(index)
+            d.point(k, x, "work", self._x_start(block))
+            e[n] = len(block.keys)
+            d.point(k, i, "ints", pools.put("ints", index))
         for at, C in zip(lay.constants, kg.C):
-            d[at] = _address(C)
-        e = np.zeros((F, m))
-        self._keep.append(e)
-        d[lay.R], d[lay.U], d[lay.ridx] = _address(kg.R), len(kg.R), _address(kg.ridx)
-        for at, address in zip(lay.outputs, (_address(e), _address(pools.a, a), _address(pools.b, b0),
-                                             _address(pools.sq, f0), _address(pools.status, f0))):
-            d[at] = address
-        d[lay.f0], d[lay.f1] = 0, F
+            d.point(k, at, "floats", pools.put("floats", C))
+        d.point(k, lay.R, "floats", pools.put("floats", kg.R))
+        d.point(k, lay.ridx, "ints", pools.put("ints", kg.ridx))
+        e[lay.U] = len(kg.R)
+        for at, (buffer, offset) in zip(lay.outputs, (("floats", pools.put("floats", np.zeros(F * m))), ("a", a),
+                                                      ("b", b0), ("sq", f0), ("status", f0))):
+            d.point(k, at, buffer, offset)
+        e[lay.f0], e[lay.f1] = 0, F
 
     # ------------------------------------------------------------ the run
     def _params(self) -> np.ndarray:
@@ -282,8 +314,8 @@ class SmallSolve:
         errors = np.zeros(max_iterations + 2)
         lambdas = np.zeros(max_iterations + 2)
         stats = np.zeros(len(sk.S_COLUMNS), dtype=np.int64)
-        _solve(self.groups, self.variables, self.pools, self.losses, self.retraction, X, self._params(), errors,
-               lambdas, stats)
+        _solve(self.groups, self.variables, self.pools, self.losses, self.retraction, X, self.arena, self._params(),
+               errors, lambdas, stats)
         self._outcome(stats)
         self._write_back()
         self.gave_up = int(stats[7])
@@ -332,27 +364,3 @@ def _value_type(block):
     from ..expressions.types import value_type
 
     return block.t if hasattr(block, "t") else value_type(block.spec.name)
-
-
-def _order(V: int, pairs: np.ndarray) -> np.ndarray:
-    """Each variable's elimination position: CHOLMOD's AMD of the variables' graph (the batch
-    solver's order), or the variables' own order where CHOLMOD is not installed."""
-    if V == 0:
-        return np.zeros(0, np.int64)
-    lo, hi = np.minimum(pairs[:, 0], pairs[:, 1]), np.maximum(pairs[:, 0], pairs[:, 1])
-    cols = np.concatenate([np.arange(V), lo])
-    rows = np.concatenate([np.arange(V), hi])
-    key = np.unique(cols * V + rows)
-    cols, rows = np.divmod(key, V)
-    colptr = np.zeros(V + 1, dtype=np.int64)
-    np.add.at(colptr, cols + 1, 1)
-    np.cumsum(colptr, out=colptr)
-    try:
-        from ..sparse.cholmod import order_blocks
-
-        perm = order_blocks(colptr, rows.astype(np.int64))  # position → variable
-    except ImportError:  # neither CHOLMOD nor cvxopt's AMD
-        return np.arange(V, dtype=np.int64)
-    position = np.empty(V, dtype=np.int64)
-    position[perm] = np.arange(V)
-    return position

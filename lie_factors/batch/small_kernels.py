@@ -42,27 +42,16 @@ from ..kernels.ccall import call_c
 from ..kernels.jit import helper_kernel, inline_kernel, kernel
 from ..robust import losses as robust
 from ..sparse import blockchol
+from ..sparse.min_degree import minimum_degree
 from ..sparse.pivots import PIVOT_TOLERANCE
+from .small_arrays import (BUFFERS, FAULT, G_COLUMNS, NONFINITE_START, NONFINITE_STEP, OK, P_COLUMNS, S_COLUMNS,
+                           SINGULAR, Arena, Groups, Losses, Pools, Retraction, State, Variables)
 
-__all__ = ["Groups", "Variables", "Pools", "Losses", "Retraction", "State", "G_COLUMNS", "P_COLUMNS", "S_COLUMNS",
-           "OK", "FAULT", "SINGULAR", "NONFINITE_START", "NONFINITE_STEP", "solve"]
+__all__ = ["Groups", "Variables", "Pools", "Losses", "Retraction", "Arena", "State", "G_COLUMNS", "P_COLUMNS",
+           "S_COLUMNS", "BUFFERS", "OK", "FAULT", "SINGULAR", "NONFINITE_START", "NONFINITE_STEP", "solve"]
 
-#: Columns of ``gtab``: the kernel's address, the position of ``jacobians`` in its descriptor,
-#: factors, rows, variable slots, its first slot (in the slot tables), its first factor slot (in
-#: ``fvar``), its first slot pair (in the assembly's targets), where its b rows start, its first
-#: factor (in ``sqpool``/``stpool``/the losses).
-G_COLUMNS = ("address", "jacobians", "F", "m", "nslot", "slot0", "fvar0", "pair0", "b0", "f0")
 _ADDR, _JAC, _F, _M, _NSLOT, _SLOT0, _FVAR0, _PAIR0, _B0, _FIRST = range(len(G_COLUMNS))
-#: Entries of ``params``.
-P_COLUMNS = ("lambda_initial", "lambda_factor", "lambda_upper", "lambda_lower", "min_model_fidelity",
-             "relative_tol", "absolute_tol", "error_tol", "max_iterations", "diagonal_damping",
-             "fixed_factor", "gauss_newton")
-#: Entries of ``stats``: iterations, λ tried, converged (0/1), the outcome code, the group and
-#: factor (within the group) of a fault or the scalar column of a refused pivot, the number of
-#: errors recorded, the iterations at which LM gave up (λ reached its upper bound).
-S_COLUMNS = ("iterations", "inner", "converged", "code", "group", "where", "recorded", "gave_up")
-#: Outcome codes.
-OK, FAULT, SINGULAR, NONFINITE_START, NONFINITE_STEP = range(5)
+_VALUE, _BEST, _WORK, _DELTA, _OFFSETS, _A, _B, _SQ, _STATUS, _FLOATS, _INTS = range(len(BUFFERS))
 
 register_jitable(lm.ieee_divide)  # what lm.converged divides with, compiled where it is
 #: False, True as values read at run time: a literal True or False argument would compile the
@@ -73,64 +62,6 @@ _converged = inline_kernel(lm.converged)
 _after_success = inline_kernel(lm.lambda_after_success)
 _after_failure = inline_kernel(lm.lambda_after_failure)
 _judge = inline_kernel(lm.judge_step)
-
-
-class Groups(NamedTuple):
-    """The factor groups (module docstring): ``gtab`` (K, :data:`G_COLUMNS`), their descriptors
-    ``descs`` (K, D); per variable slot (S,): where its Jacobian block starts in the A pool, its
-    strides between factors and rows, its dimension; ``fvar`` each factor slot's variable."""
-
-    gtab: np.ndarray
-    descs: np.ndarray
-    astart: np.ndarray
-    fstride: np.ndarray
-    rstride: np.ndarray
-    dim: np.ndarray
-    fvar: np.ndarray
-
-
-class Variables(NamedTuple):
-    """The variables by index (V,): their ``dims``, each one's elimination ``position``, and the
-    ``pairs`` (Q, 2) that factors join."""
-
-    dims: np.ndarray
-    position: np.ndarray
-    pairs: np.ndarray
-
-
-class Pools(NamedTuple):
-    """What the groups write: the A pool, the b pool, ‖b‖² and the status of each factor."""
-
-    a: np.ndarray
-    b: np.ndarray
-    sq: np.ndarray
-    status: np.ndarray
-
-
-class Losses(NamedTuple):
-    """Each factor's loss id, its parameter and its scale s (module docstring)."""
-
-    kind: np.ndarray
-    k: np.ndarray
-    scale: np.ndarray
-
-
-class Retraction(NamedTuple):
-    """Each value type's retraction entry (``address``, ``descs``); ``var`` the variable of each
-    value, block by block, and ``offsets`` where the solve writes each one's offset in δ."""
-
-    address: np.ndarray
-    descs: np.ndarray
-    var: np.ndarray
-    offsets: np.ndarray
-
-
-class State(NamedTuple):
-    """The estimate ``best``, the values the groups read ``work``, and the step ``delta``."""
-
-    best: np.ndarray
-    work: np.ndarray
-    delta: np.ndarray
 
 
 class _Layout(NamedTuple):
@@ -171,6 +102,27 @@ def _copy(src, dst):
     """``dst`` = ``src`` (1-D, the same length), element by element (:func:`_fill`: why)."""
     for i in range(src.shape[0]):
         dst[i] = src[i]
+
+
+@helper_kernel
+def _resolve(G, R, X, pools, arena):
+    """``G.descs`` and ``R.descs`` from their ``entries`` and ``codes`` (:data:`BUFFERS`)."""
+    bases = np.zeros(len(BUFFERS), dtype=np.int64)
+    bases[_BEST], bases[_WORK], bases[_DELTA] = X.best.ctypes.data, X.work.ctypes.data, X.delta.ctypes.data
+    bases[_OFFSETS] = R.offsets.ctypes.data
+    bases[_A], bases[_B], bases[_SQ] = pools.a.ctypes.data, pools.b.ctypes.data, pools.sq.ctypes.data
+    bases[_STATUS] = pools.status.ctypes.data
+    bases[_FLOATS], bases[_INTS] = arena.floats.ctypes.data, arena.ints.ctypes.data
+    _point(G.entries, G.codes, bases, G.descs)
+    _point(R.entries, R.codes, bases, R.descs)
+
+
+@inline_kernel
+def _point(entries, codes, bases, descs):
+    for i in range(entries.shape[0]):
+        for j in range(entries.shape[1]):
+            c = codes[i, j]
+            descs[i, j] = entries[i, j] if c == _VALUE else bases[c] + 8 * entries[i, j]
 
 
 @helper_kernel
@@ -227,10 +179,10 @@ def _scale_rows(G, pools, k, f, root):
 
 @helper_kernel
 def _layout(G, V, R):
-    """The :class:`_Layout` of the problem: the supernodes in the variables' elimination order
-    (:func:`_supernodes`), Λ's pattern over them, each factor slot's place; writes each value's
-    offset in δ into ``R.offsets``."""
-    vnode, vwithin, dims = _supernodes(V.dims, V.position, V.pairs)
+    """The :class:`_Layout` of the problem: the supernodes in the variables' minimum-degree order
+    (:func:`lie_factors.sparse.min_degree.minimum_degree`, :func:`_supernodes`), Λ's pattern over
+    them, each factor slot's place; writes each value's offset in δ into ``R.offsets``."""
+    vnode, vwithin, dims = _supernodes(V.dims, minimum_degree(V.dims.shape[0], V.pairs), V.pairs)
     bpairs = np.empty_like(V.pairs)
     for t in range(V.pairs.shape[0]):
         bpairs[t, 0] = vnode[V.pairs[t, 0]]
@@ -539,16 +491,18 @@ def _levenberg_marquardt(G, pools, losses, R, X, L, system, params, error, sched
 
 
 @kernel
-def solve(G, V, pools, losses, R, X, params, errors, lambdas, stats):
+def solve(G, V, pools, losses, R, X, arena, params, errors, lambdas, stats):
     """GTSAM's ``defaultOptimize`` of LM (or Gauss–Newton) on the problem (module docstring),
     with :class:`Groups` ``G``, :class:`Variables` ``V``, :class:`Pools`, :class:`Losses`,
-    :class:`Retraction` ``R`` and :class:`State` ``X``.  The step δ (n,), in the order of the
-    supernodes, is what the retraction entries read, each value at its variable's offset.
+    :class:`Retraction` ``R``, :class:`State` ``X`` and the :class:`Arena` of the descriptors
+    (:mod:`lie_factors.batch.small_arrays`).  The step δ (n,), in the order of the supernodes, is
+    what the retraction entries read, each value at its variable's offset.
     Writes ``X.best`` (the estimate), ``errors``, ``lambdas`` (max_iterations + 2,) and
     ``stats``."""
     rel_tol, abs_tol, err_tol = params[5], params[6], params[7]
     max_iterations = int(params[8])
     gauss_newton = params[11] != 0.0
+    _resolve(G, R, X, pools, arena)
     L = _layout(G, V, R)
     n = L.pattern.soff[L.pattern.dims.shape[0]]
     system = _System(np.empty(L.pattern.size), np.empty(L.pattern.size), np.empty(n), np.empty(n), np.ones(n))

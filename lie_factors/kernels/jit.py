@@ -17,10 +17,12 @@ from numba import njit, typeof, types
 from numba.core.registry import CPUDispatcher
 from numba.core import event as _event
 
-from . import cache
+from . import blas_check, cache
 
-# Before anything is compiled: symbols unique across processes, cache keys over the whole package.
+# Before anything is compiled: symbols unique across processes, cache keys over the whole package,
+# and numba's BLAS check made without importing scipy.linalg.
 cache.install()
+blas_check.check_blas()
 
 #: Decorator for element cores. ``error_model="numpy"`` gives IEEE semantics
 #: (no Python ZeroDivisionError checks inside hot loops); ``cache=True`` keeps
