@@ -59,7 +59,8 @@ class _KindEvaluation:
     def evaluate(self, values) -> None:
         kind = self.kind
         args = list(kind.tags)
-        name = type(self.members[0]).__name__
+        first = self.members[0]
+        name = type(first.factor if hasattr(first, "twin") else first).__name__  # GTSAM's class, for a twin's row
         for j, t in enumerate(kind.variables):
             X = np.empty((len(self.slot_keys[j]),) + t.shape)
             for i, key in enumerate(self.slot_keys[j]):

@@ -83,6 +83,11 @@ class TwinRow:
         self.twin = twin
         self.flags = flags
 
+    @property
+    def kind(self):
+        """The twin's kind, which evaluates this row."""
+        return self.twin.kind
+
     def silent_fallback(self) -> bool:
         """Whether a caught cheirality changes nothing but the residual (GTSAM's factor neither
         prints nor raises): :meth:`lie_factors.expressions.kind.KindFactor.silent_fallback`."""

@@ -5,7 +5,7 @@ a ``gtsam.Values``) as the batch solver reads a graph: lie_factors'
 Between/Prior factors and GTSAM's own on the registry's groups with a
 Gaussian noise model become arrays (:class:`~lie_factors.incremental.factor_arrays.NewFactors`);
 any other factor stays an object, linearized by GTSAM (:func:`native_jacobian`), or, a factor
-kind's, by its kernel, a kind at a time (:func:`native_rows`).
+kind's or GTSAM's with a twin kind, by the kind's kernel, a kind at a time (:class:`NativeRows`).
 :func:`make_factor` makes GTSAM's factor of an array factor back, and
 :func:`typed_estimate` ISAM2's typed ``calculateEstimate<Type>`` accessors.
 """
@@ -22,6 +22,7 @@ from ..batch.graph import key_name, noise_whitening
 from ..errors import InputError
 from ..expressions.kind import KindFactor
 from ..expressions.plan import whitened_rows
+from ..expressions.twins import twin_row
 from ..interop import to_gtsam
 from .factor_arrays import FactorKind, NewFactors
 
@@ -202,25 +203,52 @@ def native_jacobian(f, theta: gtsam.Values) -> np.ndarray:
     return J
 
 
-def native_rows(factors: list, theta: gtsam.Values) -> list:
-    """[A | b] of each factor GTSAM would linearize, at ``theta``: a factor kind's with Gaussian
-    noise by its kernel, every factor of a kind in one call
-    (:func:`lie_factors.expressions.plan.whitened_rows`), any other by GTSAM (:func:`native_jacobian`)."""
-    out: list = [None] * len(factors)
-    kinds, whitening = [], []
-    for i, f in enumerate(factors):
-        R = noise_whitening(f.noiseModel()) if isinstance(f, KindFactor) else None
-        if R is None:
-            out[i] = native_jacobian(f, theta)
+class NativeRows:
+    """[A | b] of each factor GTSAM would linearize, at ``theta``: a factor kind's, or GTSAM's
+    factor with a twin kind (:mod:`lie_factors.expressions.twins`), with a Gaussian noise model
+    by the kind's kernel, every factor of a kind in one call
+    (:func:`lie_factors.expressions.plan.whitened_rows`); any other by GTSAM
+    (:func:`native_jacobian`).  What each factor is evaluated as is read once per factor object
+    (a twin's row: pybind11's accessors and GTSAM's comparison, microseconds a factor)."""
+
+    def __init__(self):
+        self._rows: dict = {}  # id(factor) → (factor, the row a kernel evaluates or None, R)
+        self._conversions: dict = {}  # the twin readers' converted calibrations
+
+    def __call__(self, factors: list, theta: gtsam.Values) -> list:
+        out: list = [None] * len(factors)
+        kinds, rows, whitening = [], [], []
+        for i, f in enumerate(factors):
+            entry = self._rows.get(id(f))
+            if entry is None or entry[0] is not f:  # (the entry holds f: its id is not reused)
+                entry = self._rows[id(f)] = (f, *self._kernel_row(f))
+            if entry[1] is None:
+                out[i] = native_jacobian(f, theta)
+            else:
+                kinds.append(i)
+                rows.append(entry[1])
+                whitening.append(entry[2])
+        if kinds:
+            for i, J in zip(kinds, whitened_rows(rows, whitening, theta)):
+                if not np.all(np.isfinite(J)):
+                    raise InputError(f"{type(factors[i]).__name__} linearized to non-finite numbers")
+                out[i] = J
+        return out
+
+    def _kernel_row(self, f) -> tuple:
+        """(what a kind's kernel evaluates for ``f``, its R), or (None, None) where GTSAM must."""
+        if isinstance(f, KindFactor):
+            row, nm = f, f.noiseModel()
         else:
-            kinds.append(i)
-            whitening.append(np.ascontiguousarray(R, dtype=np.float64))
-    if kinds:
-        for i, J in zip(kinds, whitened_rows([factors[i] for i in kinds], whitening, theta)):
-            if not np.all(np.isfinite(J)):
-                raise InputError(f"{type(factors[i]).__name__} linearized to non-finite numbers")
-            out[i] = J
-    return out
+            read = twin_row(f, self._conversions)
+            if read is None:
+                return None, None
+            row, nm = read
+        R = noise_whitening(nm)
+        m = row.kind.dim
+        if R is None or R.shape != (m, m) or len(set(row._keys_)) != len(row._keys_):
+            return None, None  # (a twin whose noise or keys GTSAM's own evaluation must judge)
+        return row, np.ascontiguousarray(R, dtype=np.float64)
 
 
 def make_factor(store: FactorKind, local: int, keys: list):

@@ -51,7 +51,7 @@ from .array_path import robust_objects, try_objects, try_update
 from .cholesky import BlockFactor
 from .dogleg import dogleg_step
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
-from .gtsam_objects import VALUE_TYPES, insert_from, native_rows, read_update, typed_estimate
+from .gtsam_objects import VALUE_TYPES, NativeRows, insert_from, read_update, typed_estimate
 from .params import SmootherParams, UpdateResult
 from .queries import Queries
 from .marginalize import marginalize_leaves, row_subtree_keys
@@ -121,6 +121,7 @@ class Smoother(Queries, RobustSmoothing):
         self.flocal = np.zeros(0, dtype=np.int64)  # factor id -> index in its kind (or in native)
         self.frelative = np.zeros(0, dtype=bool)  # factor id -> known to be relative (lie_factors.posegraph.gauge)
         self.native: list = []  # (factor, var indices, factor id)
+        self.native_rows = NativeRows()
         self.native_theta = gtsam.Values()  # θ of every variable a native factor touches
         self.other = gtsam.Values()  # θ of the variables GTSAM holds (no group of ours)
         self.other_types: dict[int, str] = {}  # their keys -> type names (``Values.at<Type>``)
@@ -452,7 +453,7 @@ class Smoother(Queries, RobustSmoothing):
             out.append((v, store.jacobians(idx), fids))
         if nf.native:
             undo.native(len(self.native))
-            rows = native_rows([f for f, _ in nf.native], self.native_theta)
+            rows = self.native_rows([f for f, _ in nf.native], self.native_theta)
             for (f, keys), J, pos in zip(nf.native, rows, nf.native_pos):
                 vs = np.array([var[k] for k in keys], dtype=np.int64)
                 self.native.append((f, vs, base + pos))
@@ -516,7 +517,7 @@ class Smoother(Queries, RobustSmoothing):
             if len(idx):
                 out.append((store.fid[idx], store.jacobians(idx)))
         natives = [self.native[local] for local in fl[fk < 0].tolist()]
-        for (f, _, fid), J in zip(natives, native_rows([f for f, _, _ in natives], self.native_theta)):
+        for (f, _, fid), J in zip(natives, self.native_rows([f for f, _, _ in natives], self.native_theta)):
             out.append((np.array([fid]), J[None]))
         return out
 
