@@ -1,7 +1,7 @@
 """GTSAM's own ISAM2 tests as the judge of the incremental smoother: with ``gtsam.ISAM2 =
 lf.Smoother`` (and ``gtsam.IncrementalFixedLagSmoother = lf.IncrementalFixedLagSmoother``)
-assigned before they import, every test of these files passes, but the one that compares a
-floating-point accident (docs/incremental.md, "GTSAM's tests")."""
+assigned before they import, every test of these files passes; the one that compares a
+floating-point accident may fail, by rounding only (docs/incremental.md, "GTSAM's tests")."""
 
 from __future__ import annotations
 
@@ -34,7 +34,6 @@ def test_gtsams_isam2_tests_pass_with_our_smoother(tmp_path):
     counts = {name: len(tests) for name, tests in results.items()}
     assert counts["test_ISAM2.py"] == 4 and counts["test_ISAM2FillIn.py"] == 7 and counts["test_ISAM2ResultKeys.py"] == 4
     failed = {t: text for tests in results.values() for t, (o, text) in tests.items() if o != "passed"}
-    assert set(failed) == ROUNDING, "\n".join(f"{t}:\n{text}" for t, text in failed.items() if t not in ROUNDING)
-    # the one left is off by rounding only: 34212421.14732 to 7 decimals
-    text = failed[next(iter(ROUNDING))]
-    assert "34212421.1473" in text and "within 7 places" in text
+    assert set(failed) <= ROUNDING, "\n".join(f"{t}:\n{text}" for t, text in failed.items() if t not in ROUNDING)
+    for text in failed.values():  # off by rounding only: 34212421.14732 to 7 decimals
+        assert "34212421.1473" in text and "within 7 places" in text
