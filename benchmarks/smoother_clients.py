@@ -9,8 +9,8 @@ copied as given) and each ``calculateEstimate``/``calculateBestEstimate``.  Each
 replayed, call for call, on a fresh ``gtsam.ISAM2`` and on a fresh ``lf.Smoother`` with the same
 params: in one process, after one untimed replay of each, alternated, best of ``--repeat``; a
 client's time is the sum over the ISAM2 instances it made.  The two final estimates are compared
-key by key (the largest entry of ``localCoordinates``, relative to a translation or point's
-magnitude where that is above 1).  The machine's load is printed before and after.
+key by key as the capture compares optima (the largest entry of ``localCoordinates``, relative to
+the variable's size where that is above 1).  The machine's load is printed before and after.
 """
 
 from __future__ import annotations
@@ -107,35 +107,6 @@ def replay(make, sessions) -> list:
     return out
 
 
-def deviation(reference, ours) -> float:
-    """The largest entry of ``reference.localCoordinates(ours)`` over the keys, each relative to
-    the value's translation or point magnitude where that is above 1."""
-    import numpy as np
-
-    import gtsam
-
-    worst = 0.0
-    delta = reference.localCoordinates(ours)
-    for k in reference.keys():
-        d = float(np.max(np.abs(delta.at(k)))) if delta.at(k).size else 0.0
-        value = _magnitude(reference, k, gtsam)
-        worst = max(worst, d / max(value, 1.0))
-    return worst
-
-
-def _magnitude(values, key, gtsam) -> float:
-    import numpy as np
-
-    for getter in ("atPose3", "atPose2", "atPoint3", "atPoint2"):
-        try:
-            v = getattr(values, getter)(key)
-        except RuntimeError:
-            continue
-        t = v.translation() if hasattr(v, "translation") else v
-        return float(np.linalg.norm(np.asarray(t, dtype=float)))
-    return 0.0
-
-
 def _replays(make, session) -> bool:
     try:
         replay(make, [session])
@@ -155,6 +126,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
     logs = record()
+    import capture_gtsam_graphs as cap  # (its estimates' comparison; record() put it on the path)
     import gtsam
 
     import lie_factors as lf
@@ -176,7 +148,7 @@ def main() -> None:
                   "the test expects the exception)")
         sessions = kept
         ref, ours = replay(isam2, sessions), replay(smoother, sessions)  # untimed once each
-        worst = max(deviation(r, o) for r, o in zip(ref, ours))
+        worst = max(cap._deviation(r, o) for r, o in zip(ref, ours))
         best = {"gtsam": float("inf"), "ours": float("inf")}
         for _ in range(args.repeat):
             best["gtsam"] = min(best["gtsam"], timed(isam2, sessions))
