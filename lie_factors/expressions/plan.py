@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..factors import PlanBase
 from . import kind as _kind
 from .kind import KindFactor, check_statuses, fetch
@@ -32,13 +33,15 @@ class _KindEvaluation:
         self.kind = kind
         self.members = members
         F = len(members)
-        keys = np.array([f._keys_ for f in members], dtype=np.int64).reshape(F, len(kind.variables))
         self.slot_keys = []
         self.index = []
         for j in range(len(kind.variables)):
-            unique, inverse = np.unique(keys[:, j], return_inverse=True)
-            self.slot_keys.append(unique.tolist())
-            self.index.append(inverse.astype(np.int64))
+            # each slot's distinct keys, first seen first (a dictionary: np.unique's sort costs
+            # more on the few factors of an update)
+            place: dict = {}
+            self.index.append(np.fromiter((place.setdefault(int(f._keys_[j]), len(place)) for f in members),
+                                          dtype=np.int64, count=F))
+            self.slot_keys.append(list(place))
         self.C = [np.ascontiguousarray(np.array([f._constants[c] for f in members])) for c in range(len(kind.constants))]
         m = kind.dim
         self.e = np.zeros((F, m))
@@ -59,8 +62,7 @@ class _KindEvaluation:
     def evaluate(self, values) -> None:
         kind = self.kind
         args = list(kind.tags)
-        first = self.members[0]
-        name = type(first.factor if hasattr(first, "twin") else first).__name__  # GTSAM's class, for a twin's row
+        name = _factor_name(self.members[0])
         for j, t in enumerate(kind.variables):
             X = np.empty((len(self.slot_keys[j]),) + t.shape)
             for i, key in enumerate(self.slot_keys[j]):
@@ -99,7 +101,8 @@ class KindPlan(PlanBase):
 def whitened_rows(factors: list, whitening: list, values) -> list:
     """[A | b] (m, Σd + 1) of each factor of a kind in ``factors`` at ``values``: its Jacobians
     whitened by ``whitening`` (its R, RᵀR = its information) and b = −R·e, what GTSAM's
-    linearization of it gives; one kernel call per kind."""
+    linearization of it gives; one kernel call per kind.  Numbers that are not finite raise
+    ``InputError`` naming the factor's class."""
     out: list = [None] * len(factors)
     by_kind: dict = {}
     for i, f in enumerate(factors):
@@ -108,6 +111,16 @@ def whitened_rows(factors: list, whitening: list, values) -> list:
         group = _KindEvaluation(factors[rows[0]].kind, [factors[i] for i in rows])
         group.whiten([whitening[i] for i in rows])
         group.evaluate(values)
+        Ab = np.concatenate([group.A, group.b[:, :, None]], axis=2)
+        finite = np.isfinite(Ab).all(axis=(1, 2))
+        if not finite.all():
+            bad = factors[rows[int(np.argmin(finite))]]
+            raise InputError(f"{_factor_name(bad)} linearized to non-finite numbers")
         for k, i in enumerate(rows):
-            out[i] = np.concatenate([group.A[k], group.b[k][:, None]], axis=1)
+            out[i] = Ab[k]
     return out
+
+
+def _factor_name(f) -> str:
+    """The class a user knows ``f`` by: GTSAM's, for a twin's row (:mod:`lie_factors.expressions.twins`)."""
+    return type(f.factor if hasattr(f, "twin") else f).__name__

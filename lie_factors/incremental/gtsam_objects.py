@@ -214,6 +214,7 @@ class NativeRows:
     def __init__(self):
         self._rows: dict = {}  # id(factor) → (factor, the row a kernel evaluates or None, R)
         self._conversions: dict = {}  # the twin readers' converted calibrations
+        self._whitening: dict = {}  # id(noise model) → (noise model, R or None): factors share them
 
     def __call__(self, factors: list, theta: gtsam.Values) -> list:
         out: list = [None] * len(factors)
@@ -230,8 +231,6 @@ class NativeRows:
                 whitening.append(entry[2])
         if kinds:
             for i, J in zip(kinds, whitened_rows(rows, whitening, theta)):
-                if not np.all(np.isfinite(J)):
-                    raise InputError(f"{type(factors[i]).__name__} linearized to non-finite numbers")
                 out[i] = J
         return out
 
@@ -244,11 +243,15 @@ class NativeRows:
             if read is None:
                 return None, None
             row, nm = read
-        R = noise_whitening(nm)
+        w = self._whitening.get(id(nm))
+        if w is None or w[0] is not nm:
+            R = noise_whitening(nm)
+            w = self._whitening[id(nm)] = (nm, None if R is None else np.ascontiguousarray(R, dtype=np.float64))
+        R = w[1]
         m = row.kind.dim
         if R is None or R.shape != (m, m) or len(set(row._keys_)) != len(row._keys_):
             return None, None  # (a twin whose noise or keys GTSAM's own evaluation must judge)
-        return row, np.ascontiguousarray(R, dtype=np.float64)
+        return row, R
 
 
 def make_factor(store: FactorKind, local: int, keys: list):
