@@ -454,11 +454,15 @@ class Smoother(Queries, RobustSmoothing):
         if nf.native:
             undo.native(len(self.native))
             rows = self.native_rows([f for f, _ in nf.native], self.native_theta)
-            for (f, keys), J, pos in zip(nf.native, rows, nf.native_pos):
+            fids, first, shapes = base + np.asarray(nf.native_pos, dtype=np.int64), len(self.native), {}
+            for q, ((f, keys), J) in enumerate(zip(nf.native, rows)):
                 vs = np.array([var[k] for k in keys], dtype=np.int64)
-                self.native.append((f, vs, base + pos))
-                self._register(np.array([base + pos]), -1, np.array([len(self.native) - 1]), gauge.is_relative(f))
-                out.append((vs[None, :], J[None], np.array([base + pos])))
+                self.native.append((f, vs, int(fids[q])))
+                shapes.setdefault((len(vs), J.shape), []).append(q)  # one block-factor chunk per shape
+            self._register(fids, -1, np.arange(first, len(self.native)), [gauge.is_relative(f) for f, _ in nf.native])
+            for qs in shapes.values():
+                vs = np.stack([self.native[first + q][1] for q in qs])
+                out.append((vs, np.stack([rows[q] for q in qs]), fids[qs]))
         if nf.nulls:
             # an empty slot of the graph keeps its index, as in ISAM2's factor graph
             fids = base + np.asarray(nf.nulls, dtype=np.int64)
@@ -471,9 +475,7 @@ class Smoother(Queries, RobustSmoothing):
         empty slot), ``relative`` or not (:func:`lie_factors.posegraph.gauge.is_relative`).
         (Ids past the block factor's count are dropped with it if the update fails.)"""
         n = int(fids.max()) + 1
-        self.fkind = grow(self.fkind, n)
-        self.flocal = grow(self.flocal, n)
-        self.frelative = grow(self.frelative, n)
+        self.fkind, self.flocal, self.frelative = (grow(a, n) for a in (self.fkind, self.flocal, self.frelative))
         self.fkind[fids] = code
         self.flocal[fids] = local
         self.frelative[fids] = relative
