@@ -117,7 +117,7 @@ class BlockFactor(FactorReading):
         self.store = st.empty_store()
         self.work = st.empty_workspace()
         self.wildfire = st.empty_wildfire()
-        self.pools = st.Pools(np.zeros(1 << 14, dtype=np.int64), np.zeros(1 << 18))
+        self.pools = st.Pools(np.empty(1 << 14, dtype=np.int64), np.empty(1 << 18))  # (written before read)
         self.itop = 0
         self.ftop = 0
         self.fstamp_box = 0
