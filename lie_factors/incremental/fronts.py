@@ -26,6 +26,10 @@ that fails leaves it as it was.
 from __future__ import annotations
 
 import numpy as np
+# numba's BLAS is SciPy's: the first compiled call of BLAS in a process imports scipy.linalg
+# (lie_factors.kernels.blas_check).  These kernels call it inside an update, once a front is
+# large: the import is made with this module, not in the middle of a robot's first large update.
+import scipy.linalg.cython_blas  # noqa: F401
 
 from ..kernels.jit import dense_kernel, inline_kernel  # dense_kernel keeps IEEE NaN, which the pivot test relies on
 from ..sparse.pivots import PIVOT_TOLERANCE  # the one pivot rule, CHOLMOD's too (its docstring: why 1e-13)

@@ -34,3 +34,11 @@ print(int(np.allclose(p, a @ a) and np.allclose(c, np.linalg.cholesky(a @ a.T + 
 def test_a_kernel_without_blas_imports_no_scipy_linalg_and_blas_still_works():
     out = subprocess.run([sys.executable, "-c", _SCRIPT], check=True, capture_output=True, text=True).stdout.split()
     assert out == ["0", "0", "1", "1", "1", "1"]
+
+
+def test_the_smoothers_fronts_load_blas_with_their_module():
+    """Their kernels call BLAS inside an update: scipy.linalg comes with the module, not with an
+    update."""
+    script = "import sys; import lie_factors.incremental.fronts; print(int('scipy.linalg' in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True).stdout
+    assert out.split() == ["1"]
