@@ -60,19 +60,12 @@ def load() -> str:
 def capture():
     """(label, capture) of the last capture of each client (an ISAM2's: the union of its updates)."""
     import gtsam
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     sys.path.insert(0, str(SUPPORT))
     import capture_gtsam_graphs as cap
 
-    argv = list(sys.argv)
-    cap.SCRATCH[0] = str(Path("/tmp") if Path("/tmp").exists() else Path.cwd())
+    cap.prepare(str(Path("/tmp") if Path("/tmp").exists() else Path.cwd()))
     cap.start_recording()
-    plt.show = lambda *a, **k: None
-    sys.path.insert(0, os.path.join(cap.PACKAGE, "examples"))
     out = []
     try:
         for client, label in CLIENTS.items():
@@ -88,7 +81,6 @@ def capture():
             out.append((label, items[-1]))
     finally:
         cap.stop_recording()
-        sys.argv = argv
     return out
 
 

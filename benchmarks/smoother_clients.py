@@ -29,8 +29,6 @@ CLIENTS = {
     "tests/test_VisualISAMExample.py": "test_VisualISAMExample",
     "tests/test_ISAM2.py": "test_ISAM2",
 }
-#: The calls a log keeps (what the clients call on an ISAM2, besides reading their results).
-LOGGED = ("update", "calculateEstimate", "calculateBestEstimate")
 
 
 def load() -> str:
@@ -40,22 +38,18 @@ def load() -> str:
 def record() -> dict:
     """client label → [(params, [(method, args, kwargs), ...]) per ISAM2 the client made]."""
     import gtsam
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     sys.path.insert(0, str(SUPPORT))
     import capture_gtsam_graphs as cap
 
     own = gtsam.ISAM2
-    sessions: list = []
+    made: list = []  # (params, log) of each ISAM2 the client being run makes
 
     class LoggingISAM2(own):
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
             self._log = []
-            sessions.append((args[0] if args else kwargs.get("params"), self._log))
+            made.append((args[0] if args else kwargs.get("params"), self._log))
 
         def update(self, *args, **kwargs):
             args = list(args)
@@ -75,31 +69,27 @@ def record() -> dict:
             return super().calculateBestEstimate()
 
     LoggingISAM2.__name__ = LoggingISAM2.__qualname__ = "ISAM2"
-    argv = list(sys.argv)
-    cap.SCRATCH[0] = "/tmp" if Path("/tmp").exists() else str(Path.cwd())
-    plt.show = lambda *a, **k: None
-    sys.path.insert(0, os.path.join(cap.PACKAGE, "examples"))
+    cap.prepare("/tmp" if Path("/tmp").exists() else str(Path.cwd()))
     logs = {}
     gtsam.ISAM2 = LoggingISAM2
     try:
         for client, label in CLIENTS.items():
-            sessions.clear()
+            made.clear()
             failure = cap.run_client(client)
-            kept = [(p, log) for p, log in sessions if any(m == "update" for m, _, _ in log)]
+            kept = [(p, log) for p, log in made if any(m == "update" for m, _, _ in log)]
             if failure or not kept:
                 print(f"{label}: nothing recorded ({failure.strip().splitlines()[-1] if failure else 'no update'})")
                 continue
             logs[label] = kept
     finally:
         gtsam.ISAM2 = own
-        sys.argv = argv
     return logs
 
 
-def replay(make, sessions) -> list:
-    """Each session's calls on ``make(params)``; the last estimate of each."""
+def replay(make, logs) -> list:
+    """Each log's calls on a fresh ``make(params)``; the last estimate of each."""
     out = []
-    for params, log in sessions:
+    for params, log in logs:
         s = make(params)
         for method, args, kwargs in log:
             getattr(s, method)(*args, **kwargs)
@@ -107,17 +97,17 @@ def replay(make, sessions) -> list:
     return out
 
 
-def _replays(make, session) -> bool:
+def _replays(make, one) -> bool:
     try:
-        replay(make, [session])
+        replay(make, [one])
     except RuntimeError:
         return False
     return True
 
 
-def timed(make, sessions) -> float:
+def timed(make, logs) -> float:
     t = time.perf_counter()
-    replay(make, sessions)
+    replay(make, logs)
     return time.perf_counter() - t
 
 
@@ -141,21 +131,21 @@ def main() -> None:
     print("| client | ISAM2 instances | updates | estimates | gtsam.ISAM2 s | lf.Smoother s | ours / ISAM2 | "
           "final estimates: largest difference |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
-    for label, sessions in logs.items():
-        kept = [one for one in sessions if _replays(isam2, one)]
-        if len(kept) < len(sessions):
-            print(f"({label}: {len(sessions) - len(kept)} ISAM2 instance(s) whose replay GTSAM refuses left out: "
+    for label, instances in logs.items():
+        kept = [one for one in instances if _replays(isam2, one)]
+        if len(kept) < len(instances):
+            print(f"({label}: {len(instances) - len(kept)} ISAM2 instance(s) whose replay GTSAM refuses left out: "
                   "the test expects the exception)")
-        sessions = kept
-        ref, ours = replay(isam2, sessions), replay(smoother, sessions)  # untimed once each
+        instances = kept
+        ref, ours = replay(isam2, instances), replay(smoother, instances)  # untimed once each
         worst = max(cap._deviation(r, o) for r, o in zip(ref, ours))
         best = {"gtsam": float("inf"), "ours": float("inf")}
         for _ in range(args.repeat):
-            best["gtsam"] = min(best["gtsam"], timed(isam2, sessions))
-            best["ours"] = min(best["ours"], timed(smoother, sessions))
-        updates = sum(m == "update" for _, log in sessions for m, _, _ in log)
-        estimates = sum(m != "update" for _, log in sessions for m, _, _ in log)
-        print(f"| {label} | {len(sessions)} | {updates} | {estimates} | {best['gtsam']:.6f} | {best['ours']:.6f} | "
+            best["gtsam"] = min(best["gtsam"], timed(isam2, instances))
+            best["ours"] = min(best["ours"], timed(smoother, instances))
+        updates = sum(m == "update" for _, log in instances for m, _, _ in log)
+        estimates = sum(m != "update" for _, log in instances for m, _, _ in log)
+        print(f"| {label} | {len(instances)} | {updates} | {estimates} | {best['gtsam']:.6f} | {best['ours']:.6f} | "
               f"{best['ours'] / best['gtsam']:.2f} | {worst:.1e} |")
     print(f"load after: {load()}")
 

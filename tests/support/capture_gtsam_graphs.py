@@ -184,12 +184,23 @@ def stop_recording() -> None:
 # Running the clients
 # --------------------------------------------------------------------------- #
 
+def prepare(scratch: str) -> None:
+    """What running the clients needs, once a process: their scratch directories under
+    ``scratch``, no plot window (Agg, ``show`` and ``pause`` doing nothing), GTSAM's examples
+    importable by one another."""
+    SCRATCH[0] = scratch
+    plt.show = lambda *a, **k: None
+    plt.pause = lambda *a, **k: None
+    sys.path.insert(0, os.path.join(PACKAGE, "examples"))
+
+
 def run_client(client: str) -> str:
-    """Run one client in a scratch directory; '' or the traceback of what it raised (a unit test's
-    failures are its own business: only a file that cannot run counts)."""
+    """Run one client in a scratch directory (:func:`prepare` first); '' or the traceback of what
+    it raised (a unit test's failures are its own business: only a file that cannot run counts).
+    ``sys.argv`` is as it was after it."""
     CAPTURES.client = client
     where = tempfile.mkdtemp(prefix="client_", dir=SCRATCH[0])
-    cwd = os.getcwd()
+    cwd, argv = os.getcwd(), list(sys.argv)
     os.chdir(where)
     try:
         if client.startswith("examples/"):
@@ -206,6 +217,7 @@ def run_client(client: str) -> str:
     finally:
         plt.close("all")
         os.chdir(cwd)
+        sys.argv = argv
 
 
 def run_example(name: str, args: list) -> None:
@@ -355,11 +367,8 @@ def _covariances(graph, result, rec: dict) -> str:
 
 def main() -> None:
     out, clients = sys.argv[1], sys.argv[2:]
-    SCRATCH[0] = os.path.dirname(os.path.abspath(out))
+    prepare(os.path.dirname(os.path.abspath(out)))
     start_recording()
-    plt.show = lambda *a, **k: None
-    plt.pause = lambda *a, **k: None
-    sys.path.insert(0, os.path.join(PACKAGE, "examples"))
     records: list[dict] = []
     failures: dict[str, str] = {}
     captured: list[dict] = []
