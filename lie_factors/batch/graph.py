@@ -42,7 +42,7 @@ import numpy as np
 from .. import factors as _factors
 from ..errors import InputError, first_line, nonfinite_error
 from ..expressions.kind import KindFactor
-from ..expressions.twins import TABLE, twin_row
+from ..expressions.twins import TABLE, evaluable, twin_row
 from .. import interop
 from ..posegraph import gauge
 from ..robust.losses import from_gtsam
@@ -243,9 +243,9 @@ class Problem:
                 read = twin_row(f, conversions)
                 if read is not None:
                     row, nm = read
-                    R = self._row_whitening(i, nm, whitening, rows.kind.dim, row._keys_)
+                    R = self._row_whitening(i, nm, whitening, row)
             elif kind is not None:
-                R = self._row_whitening(i, f._noise, whitening, None, None)
+                R = self._row_whitening(i, f._noise, whitening)
                 if kind == "between" and f._key1 == f._key2:
                     R = None  # a factor on one variable twice: GTSAM's linearization handles it
                     self.robust.pop(i, None)
@@ -300,16 +300,15 @@ class Problem:
             self.kinds.append(kg)
         return kg
 
-    def _row_whitening(self, i: int, nm, whitening: dict, dim, keys):
+    def _row_whitening(self, i: int, nm, whitening: dict, twin=None):
         """R of factor ``i``'s noise model ``nm`` (read once per noise model object), its robust
-        loss recorded in :attr:`robust`; None where GTSAM must linearize the factor.  A twin
-        (``dim`` its kind's residual dimension, ``keys`` its variables) also needs a noise model
-        of that dimension and distinct keys (else GTSAM's own evaluation says what is wrong)."""
+        loss recorded in :attr:`robust`; None where GTSAM must linearize the factor, as for a
+        ``twin`` row its kind does not evaluate (:func:`lie_factors.expressions.twins.evaluable`)."""
         w = whitening.get(id(nm))
         if w is None:
             w = whitening[id(nm)] = (nm, *self._whitening_of(nm))
         R = w[1]
-        if R is None or (dim is not None and (R.shape != (dim, dim) or len(set(keys)) != len(keys))):
+        if R is None or (twin is not None and not evaluable(twin, R)):
             return None
         if w[2] is not None:
             self.robust[i] = w[2]

@@ -112,6 +112,14 @@ class TwinRow:
             print(f"{self.twin.what}: Landmark {landmark} behind Camera {camera}")
 
 
+def evaluable(row, R) -> bool:
+    """Whether the kind evaluates the twin ``row`` with whitening ``R`` (RᵀR its information):
+    a noise model of the residual's dimension on distinct keys; else GTSAM's own evaluation of
+    the factor says what is wrong."""
+    m = row.kind.dim
+    return R is not None and R.shape == (m, m) and len(set(row._keys_)) == len(row._keys_)
+
+
 def twin_row(f, cache: dict) -> tuple[TwinRow, object] | None:
     """(the row, the noise model) of GTSAM's factor ``f`` if its class has a twin and ``f`` is
     one (module docstring), else None; ``cache``: the caller's dictionary of conversions, kept

@@ -22,7 +22,7 @@ from ..batch.graph import key_name, noise_whitening
 from ..errors import InputError
 from ..expressions.kind import KindFactor
 from ..expressions.plan import whitened_rows
-from ..expressions.twins import twin_row
+from ..expressions.twins import evaluable, twin_row
 from ..interop import to_gtsam
 from .factor_arrays import FactorKind, NewFactors
 
@@ -247,11 +247,7 @@ class NativeRows:
         if w is None or w[0] is not nm:
             R = noise_whitening(nm)
             w = self._whitening[id(nm)] = (nm, None if R is None else np.ascontiguousarray(R, dtype=np.float64))
-        R = w[1]
-        m = row.kind.dim
-        if R is None or R.shape != (m, m) or len(set(row._keys_)) != len(row._keys_):
-            return None, None  # (a twin whose noise or keys GTSAM's own evaluation must judge)
-        return row, R
+        return (row, w[1]) if w[1] is not None and evaluable(row, w[1]) else (None, None)
 
 
 def make_factor(store: FactorKind, local: int, keys: list):
