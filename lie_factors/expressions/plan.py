@@ -98,27 +98,73 @@ class KindPlan(PlanBase):
         _kind.active_plan = plan
 
 
-def whitened_rows(factors: list, whitening: list, values) -> list:
-    """[A | b] (m, Σd + 1) of each factor of a kind in ``factors`` at ``values``: its Jacobians
-    whitened by ``whitening`` (its R, RᵀR = its information) and b = −R·e, what GTSAM's
-    linearization of it gives; one kernel call per kind.  Numbers that are not finite raise
-    ``InputError`` naming the factor's class."""
-    out: list = [None] * len(factors)
-    by_kind: dict = {}
-    for i, f in enumerate(factors):
-        by_kind.setdefault(id(f.kind), []).append(i)
-    for rows in by_kind.values():
-        group = _KindEvaluation(factors[rows[0]].kind, [factors[i] for i in rows])
-        group.whiten([whitening[i] for i in rows])
-        group.evaluate(values)
-        Ab = np.concatenate([group.A, group.b[:, :, None]], axis=2)
+class KindRows:
+    """Stored factors of one kind, evaluated by index: each factor's keys, constants and
+    whitening R (RᵀR its information) are read once, into a slot (:meth:`add`); :meth:`rows`
+    then linearizes any set of slots with one kernel call, gathering the constants and
+    whitenings by index and reading each distinct variable once (an incremental smoother
+    relinearizes the same factors again and again)."""
+
+    def __init__(self, kind):
+        self.kind = kind
+        self.members: list = []  # each slot's factor (its statuses and names)
+        self.keys = np.empty((8, len(kind.variables)), dtype=np.uint64)
+        self.C = [np.empty((8,) + t.shape) for t in kind.constants]
+        self.ridx = np.empty(8, dtype=np.int64)
+        self._R: list = []  # the distinct whitenings, by first use
+        self._R_slot: dict = {}  # id(R) → its place in _R (R held there: its id stays its own)
+        self._R_stack = np.empty((0, kind.dim, kind.dim))
+
+    def add(self, f, R: np.ndarray) -> int:
+        """Store the factor ``f`` (``_keys_``, ``_constants``: a kind's factor, or a twin's row)
+        whitened by ``R``; returns its slot."""
+        n = len(self.members)
+        if n == self.keys.shape[0]:
+            self.keys, self.ridx = (np.concatenate([a, np.empty_like(a)]) for a in (self.keys, self.ridx))
+            self.C = [np.concatenate([C, np.empty_like(C)]) for C in self.C]
+        self.keys[n] = [int(k) for k in f._keys_]
+        for C, c in zip(self.C, f._constants):
+            C[n] = c
+        r = self._R_slot.get(id(R))
+        if r is None:
+            r = self._R_slot[id(R)] = len(self._R)
+            self._R.append(R)
+            self._R_stack = np.ascontiguousarray(np.array(self._R, dtype=np.float64))
+        self.ridx[n] = r
+        self.members.append(f)
+        return n
+
+    def rows(self, slots: np.ndarray, values) -> np.ndarray:
+        """[A | b] (F, m, Σd + 1) of the factors in ``slots`` (F,) at ``values``: the Jacobians
+        whitened by each factor's R and b = −R·e, what GTSAM's linearization of the factor gives.
+        Numbers that are not finite raise ``InputError`` naming the factor's class."""
+        kind = self.kind
+        F = len(slots)
+        members = self.members
+        name = _factor_name(members[slots[0]])
+        args = list(kind.tags)
+        keys = self.keys[slots]
+        for j, t in enumerate(kind.variables):
+            place: dict = {}  # each distinct key's place, first seen first (np.unique sorts: slower here)
+            index = np.fromiter((place.setdefault(k, len(place)) for k in keys[:, j].tolist()), dtype=np.int64,
+                                count=F)
+            X = np.empty((len(place),) + t.shape)
+            for i, key in enumerate(place):
+                X[i] = fetch(values, key, t, name)
+            args += [X, index]
+        args += [C[slots] for C in self.C]
+        m = kind.dim
+        A, b, status = np.zeros((F, m, kind.columns)), np.zeros((F, m)), np.zeros(F, dtype=np.int64)
+        args += [self._R_stack, self.ridx[slots], np.zeros((F, m)), A, b, np.zeros(F), status, 0, F, True]
+        kind.evaluate(*args)
+        if status.any():
+            check_statuses([members[s] for s in slots.tolist()], status)
+        Ab = np.concatenate([A, b[:, :, None]], axis=2)
         finite = np.isfinite(Ab).all(axis=(1, 2))
         if not finite.all():
-            bad = factors[rows[int(np.argmin(finite))]]
-            raise InputError(f"{_factor_name(bad)} linearized to non-finite numbers")
-        for k, i in enumerate(rows):
-            out[i] = Ab[k]
-    return out
+            raise InputError(f"{_factor_name(members[slots[int(np.argmin(finite))]])} linearized to "
+                             "non-finite numbers")
+        return Ab
 
 
 def _factor_name(f) -> str:

@@ -21,7 +21,7 @@ from .. import factors as _factors
 from ..batch.graph import key_name, noise_whitening
 from ..errors import InputError
 from ..expressions.kind import KindFactor
-from ..expressions.plan import whitened_rows
+from ..expressions.plan import KindRows
 from ..expressions.twins import evaluable, twin_row
 from ..interop import to_gtsam
 from .factor_arrays import FactorKind, NewFactors
@@ -42,6 +42,24 @@ def value_type(values: gtsam.Values, key: int) -> str:
             continue
         return t
     raise InputError(f"key {key_name(key)}: its value has a type the smoother cannot read")
+
+
+#: The types whose retraction GTSAM defines as the sum x + δ (its vector-space traits), done here
+#: without a ``gtsam.Values`` round trip.
+VECTOR_SPACE_TYPES = ("Point2", "Point3", "Vector")
+
+
+def retracted(values: gtsam.Values, key: int, type_name: str, step: np.ndarray):
+    """The value of ``key`` in ``values``, a ``type_name`` (:func:`value_type`), moved by ``step``
+    as ``gtsam.Values.retract`` moves it: x + δ for a vector space, else GTSAM's retraction."""
+    value = getattr(values, f"at{type_name}")(key)
+    if type_name in VECTOR_SPACE_TYPES:
+        return value + step
+    one = gtsam.Values()
+    one.insert(key, value)
+    vv = gtsam.VectorValues()
+    vv.insert(key, np.array(step, dtype=np.float64))
+    return getattr(one.retract(vv), f"at{type_name}")(key)
 
 
 def insert_from(dest: gtsam.Values, src: gtsam.Values, key: int, type_name: str) -> None:
@@ -207,35 +225,49 @@ class NativeRows:
     """[A | b] of each factor GTSAM would linearize, at ``theta``: a factor kind's, or GTSAM's
     factor with a twin kind (:mod:`lie_factors.expressions.twins`), with a Gaussian noise model
     by the kind's kernel, every factor of a kind in one call
-    (:func:`lie_factors.expressions.plan.whitened_rows`); any other by GTSAM
+    (:class:`lie_factors.expressions.plan.KindRows`); any other by GTSAM
     (:func:`native_jacobian`).  What each factor is evaluated as is read once per factor object
-    (a twin's row: pybind11's accessors and GTSAM's comparison, microseconds a factor)."""
+    (a twin's row: pybind11's accessors and GTSAM's comparison, microseconds a factor), into a
+    slot of its kind's rows."""
 
     def __init__(self):
-        self._rows: dict = {}  # id(factor) → (factor, the row a kernel evaluates or None, R)
+        self._rows: dict = {}  # id(factor) → (factor, its kind's KindRows or None, its slot)
+        self._kinds: dict = {}  # id(kind) → its KindRows
         self._conversions: dict = {}  # the twin readers' converted calibrations
         self._whitening: dict = {}  # id(noise model) → (noise model, R or None): factors share them
 
     def __call__(self, factors: list, theta: gtsam.Values) -> list:
-        out: list = [None] * len(factors)
-        kinds, rows, whitening = [], [], []
-        for i, f in enumerate(factors):
-            entry = self._rows.get(id(f))
-            if entry is None or entry[0] is not f:  # (the entry holds f: its id is not reused)
-                entry = self._rows[id(f)] = (f, *self._kernel_row(f))
+        """[(positions (F,), [A | b] (F, r, c)), ...]: the rows of ``factors`` (their positions
+        in the list), a chunk per kind and one per factor GTSAM linearizes; the column blocks
+        of A in the order of :meth:`keys`."""
+        out: list = []
+        by_kind: dict = {}
+        for q, f in enumerate(factors):
+            entry = self._entry(f)
             if entry[1] is None:
-                out[i] = native_jacobian(f, theta)
+                out.append((np.array([q], dtype=np.int64), native_jacobian(f, theta)[None]))
             else:
-                kinds.append(i)
-                rows.append(entry[1])
-                whitening.append(entry[2])
-        if kinds:
-            for i, J in zip(kinds, whitened_rows(rows, whitening, theta)):
-                out[i] = J
+                positions, slots = by_kind.setdefault(entry[1], ([], []))
+                positions.append(q)
+                slots.append(entry[2])
+        for rows, (positions, slots) in by_kind.items():
+            out.append((np.array(positions, dtype=np.int64), rows.rows(np.array(slots, dtype=np.int64), theta)))
         return out
 
-    def _kernel_row(self, f) -> tuple:
-        """(what a kind's kernel evaluates for ``f``, its R), or (None, None) where GTSAM must."""
+    def keys(self, f) -> list:
+        """The keys of ``f`` in the order of its rows' column blocks: its kind's variable order
+        (a twin's may differ from GTSAM's, as GeneralSFMFactor2's), else ``f.keys()``."""
+        entry = self._entry(f)
+        return [int(k) for k in (f.keys() if entry[1] is None else entry[1].keys[entry[2]].tolist())]
+
+    def _entry(self, f) -> tuple:
+        entry = self._rows.get(id(f))
+        if entry is None or entry[0] is not f:  # (the entry holds f: its id is not reused)
+            entry = self._rows[id(f)] = (f, *self._slot(f))
+        return entry
+
+    def _slot(self, f) -> tuple:
+        """(the KindRows evaluating ``f``, its slot there), or (None, None) where GTSAM must."""
         if isinstance(f, KindFactor):
             row, nm = f, f.noiseModel()
         else:
@@ -247,7 +279,12 @@ class NativeRows:
         if w is None or w[0] is not nm:
             R = noise_whitening(nm)
             w = self._whitening[id(nm)] = (nm, None if R is None else np.ascontiguousarray(R, dtype=np.float64))
-        return (row, w[1]) if w[1] is not None and evaluable(row, w[1]) else (None, None)
+        if w[1] is None or not evaluable(row, w[1]):
+            return None, None
+        rows = self._kinds.get(id(row.kind))
+        if rows is None:  # (the KindRows holds the kind: its id stays its own)
+            rows = self._kinds[id(row.kind)] = KindRows(row.kind)
+        return rows, rows.add(row, w[1])
 
 
 def make_factor(store: FactorKind, local: int, keys: list):

@@ -18,7 +18,7 @@ import numpy as np
 from ..batch.graph import key_name
 from ..errors import InputError
 from ..interop import to_gtsam
-from .gtsam_objects import make_factor
+from .gtsam_objects import make_factor, retracted
 
 
 class JointMarginal:
@@ -127,11 +127,7 @@ class Queries:
 
     def _other_estimate(self, v: int):
         k = self.keys[v]
-        vv = gtsam.VectorValues()
-        vv.insert(k, self._variable_step(v).copy())
-        one = gtsam.Values()
-        self._insert_from(one, self.other, k)
-        return getattr(one.retract(vv), f"at{self.other_types[k]}")(k)
+        return retracted(self.other, k, self.other_types[k], self._variable_step(v))
 
     def getLinearizationPoint(self) -> gtsam.Values:
         """θ as a ``gtsam.Values`` (a copy)."""

@@ -51,7 +51,7 @@ from .array_path import robust_objects, try_objects, try_update
 from .cholesky import BlockFactor
 from .dogleg import dogleg_step
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
-from .gtsam_objects import VALUE_TYPES, NativeRows, insert_from, read_update, typed_estimate
+from .gtsam_objects import VALUE_TYPES, NativeRows, insert_from, read_update, retracted, typed_estimate
 from .params import SmootherParams, UpdateResult
 from .queries import Queries
 from .marginalize import marginalize_leaves, row_subtree_keys
@@ -453,16 +453,15 @@ class Smoother(Queries, RobustSmoothing):
             out.append((v, store.jacobians(idx), fids))
         if nf.native:
             undo.native(len(self.native))
-            rows = self.native_rows([f for f, _ in nf.native], self.native_theta)
-            fids, first, shapes = base + np.asarray(nf.native_pos, dtype=np.int64), len(self.native), {}
-            for q, ((f, keys), J) in enumerate(zip(nf.native, rows)):
-                vs = np.array([var[k] for k in keys], dtype=np.int64)
-                self.native.append((f, vs, int(fids[q])))
-                shapes.setdefault((len(vs), J.shape), []).append(q)  # one block-factor chunk per shape
+            chunks = self.native_rows([f for f, _ in nf.native], self.native_theta)
+            fids, first = base + np.asarray(nf.native_pos, dtype=np.int64), len(self.native)
+            for q, (f, _) in enumerate(nf.native):
+                keys = self.native_rows.keys(f)
+                self.native.append((f, np.array([var[k] for k in keys], dtype=np.int64), int(fids[q])))
             self._register(fids, -1, np.arange(first, len(self.native)), [gauge.is_relative(f) for f, _ in nf.native])
-            for qs in shapes.values():
-                vs = np.stack([self.native[first + q][1] for q in qs])
-                out.append((vs, np.stack([rows[q] for q in qs]), fids[qs]))
+            for qs, J in chunks:  # a chunk per kind, whose factors have one variable count
+                vs = np.stack([self.native[first + q][1] for q in qs.tolist()])
+                out.append((vs, J, fids[qs]))
         if nf.nulls:
             # an empty slot of the graph keeps its index, as in ISAM2's factor graph
             fids = base + np.asarray(nf.nulls, dtype=np.int64)
@@ -496,11 +495,7 @@ class Smoother(Queries, RobustSmoothing):
         # the variables GTSAM holds: retracted one by one, in place (the old values kept for undo)
         for v in relin[codes < 0].tolist():
             k = self.keys[v]
-            one = gtsam.Values()
-            self._insert_from(one, self.other, k)
-            vv = gtsam.VectorValues()
-            vv.insert(k, self._variable_step(v).copy())
-            moved = getattr(one.retract(vv), f"at{self.other_types[k]}")(k)
+            moved = retracted(self.other, k, self.other_types[k], self._variable_step(v))
             for values in (self.other, self.native_theta):
                 if values.exists(k):
                     undo.updated(values, k, getattr(values, f"at{self.other_types[k]}")(k))
@@ -519,8 +514,9 @@ class Smoother(Queries, RobustSmoothing):
             if len(idx):
                 out.append((store.fid[idx], store.jacobians(idx)))
         natives = [self.native[local] for local in fl[fk < 0].tolist()]
-        for (f, _, fid), J in zip(natives, self.native_rows([f for f, _, _ in natives], self.native_theta)):
-            out.append((np.array([fid]), J[None]))
+        if natives:
+            for qs, J in self.native_rows([f for f, _, _ in natives], self.native_theta):
+                out.append((np.array([natives[q][2] for q in qs.tolist()], dtype=np.int64), J))
         return out
 
     # ------------------------------------------------------------------ solving and reading

@@ -11,7 +11,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from gtsam.symbol_shorthand import L, X
+from gtsam.symbol_shorthand import C, L, X
 
 from lie_factors.incremental import Smoother, gtsam_objects
 
@@ -91,3 +91,49 @@ def test_projection_factors_run_in_the_kernels_and_match_isam2(monkeypatch, robu
         assert names == {"GenericProjectionFactorCal3_S2"} and len(counted.calls) > 64
     else:
         assert not counted.calls
+
+
+def _bundler_steps(seed: int):
+    """(factors, values) per update of GeneralSFMFactor2Cal3Bundler, whose keys (pose, point,
+    calibration) are in another order than its twin kind's (pose, calibration, point)."""
+    rng = np.random.default_rng(seed)
+    K = gtsam.Cal3Bundler(50.0, 1e-3, 1e-5, 0.0, 0.0)
+    cameras = [gtsam.PinholeCameraCal3Bundler(gtsam.PinholeCameraCal3_S2.Lookat(
+        np.array([40 * np.cos(t), 40 * np.sin(t), 10.0]), gtsam.Point3(0, 0, 0), np.array([0.0, 0.0, 1.0]),
+        gtsam.Cal3_S2()).pose(), K) for t in np.linspace(0, np.pi, 6)]
+    points = [rng.uniform(-8, 8, size=3) for _ in range(8)]
+    pixel = gtsam.noiseModel.Isotropic.Sigma(2, 1.0)
+    steps = []
+    for i, camera in enumerate(cameras):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for j, p in enumerate(points):
+            z = camera.project(p) + rng.normal(scale=0.3, size=2)
+            graph.add(gtsam.GeneralSFMFactor2Cal3Bundler(z, pixel, X(i), L(j), C(0)))
+        if i == 0:
+            graph.add(gtsam.PriorFactorPose3(X(0), camera.pose(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+            graph.add(gtsam.PriorFactorPoint3(L(0), points[0], gtsam.noiseModel.Isotropic.Sigma(3, 0.01)))
+            graph.add(gtsam.PriorFactorCal3Bundler(C(0), K, gtsam.noiseModel.Diagonal.Sigmas([1.0, 1e-3, 1e-5])))
+            values.insert(C(0), gtsam.Cal3Bundler(50.5, 0.0, 0.0, 0.0, 0.0))
+            for j, p in enumerate(points):
+                values.insert(L(j), p + rng.normal(scale=0.1, size=3))
+        values.insert(X(i), camera.pose().compose(gtsam.Pose3(gtsam.Rot3.Rodrigues(*rng.normal(scale=0.01, size=3)),
+                                                              rng.normal(scale=0.05, size=3))))
+        steps.append((graph, values))
+    graph, values = steps.pop(0)
+    graph.push_back(steps[0][0])
+    values.insert(steps[0][1])
+    steps[0] = (graph, values)
+    return steps
+
+
+def test_a_twin_whose_keys_gtsam_orders_otherwise_matches_isam2(monkeypatch):
+    """The block factor holds a twin's rows with its variables in the kind's order, not in the
+    order of GTSAM's keys (GeneralSFMFactor2's point and calibration, both of dimension 3)."""
+    counted = _Counted(gtsam_objects.native_jacobian)
+    monkeypatch.setattr(gtsam_objects, "native_jacobian", counted)
+    isam, ours = gtsam.ISAM2(_params()), Smoother(_params())
+    for graph, values in _bundler_steps(5):
+        isam.update(graph, values)
+        ours.update(graph, values)
+        assert _deviation(isam.calculateEstimate(), ours.calculateEstimate()) < 1e-9
+    assert set(counted.calls) == {"PriorFactorCal3Bundler"}  # a class without a twin: GTSAM's linearization
