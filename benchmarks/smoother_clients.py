@@ -11,6 +11,13 @@ params: in one process, after one untimed replay of each, alternated, best of ``
 client's time is the sum over the ISAM2 instances it made.  The two final estimates are compared
 key by key as the capture compares optima (the largest entry of ``localCoordinates``, relative to
 the variable's size where that is above 1).  The machine's load is printed before and after.
+
+The "Python floor" column is what any smoother written in Python pays on the same calls, before
+it computes anything: each new factor's data read through GTSAM's accessors (``keys()``, its
+measurement or prior as an array, ``noiseModel().R()``, ``calibration()`` where it has one), each
+new value read as an array, and for each ``calculateEstimate()`` a ``gtsam.Values`` built from
+arrays (each variable's GTSAM object made and inserted; ``calculateEstimate(key)``: one object).
+It is timed as the replays are, and given beside ISAM2's time.
 """
 
 from __future__ import annotations
@@ -20,6 +27,9 @@ import os
 import sys
 import time
 from pathlib import Path
+
+import gtsam
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SUPPORT = ROOT / "tests" / "support"
@@ -37,8 +47,6 @@ def load() -> str:
 
 def record() -> dict:
     """client label → [(params, [(method, args, kwargs), ...]) per ISAM2 the client made]."""
-    import gtsam
-
     sys.path.insert(0, str(SUPPORT))
     import capture_gtsam_graphs as cap
 
@@ -97,6 +105,84 @@ def replay(make, logs) -> list:
     return out
 
 
+def _array(x):
+    """A GTSAM value or measurement as the array(s) a kernel would take."""
+    if hasattr(x, "matrix"):
+        return x.matrix()
+    if hasattr(x, "bearing"):  # a BearingRange
+        return _array(x.bearing()), x.range()
+    if hasattr(x, "point3"):  # a Unit3
+        return x.point3()
+    return np.asarray(x.vector() if hasattr(x, "vector") else x)
+
+
+#: factor class → the accessors of its data (besides keys and noise model) that it has
+_ACCESSORS: dict = {}
+
+
+class Floor:
+    """The Python floor of one log's calls (module docstring): ``update`` reads, the estimate
+    calls build; the value types are found once, untimed (:meth:`prepare`)."""
+
+    def __init__(self, types: dict):
+        self.types = types  # key → GTSAM type name
+        self.known: dict = {}  # key → (type, an array of its value): the variables so far
+
+    @staticmethod
+    def prepare(log) -> dict:
+        from lie_factors.incremental.gtsam_objects import value_type
+
+        types = {}
+        for method, args, _ in log:
+            if method == "update" and len(args) > 1:
+                types.update((int(k), value_type(args[1], int(k))) for k in args[1].keys())
+        return types
+
+    def update(self, graph=None, values=None, *rest, **kwargs):
+        for i in range(graph.size() if graph is not None else 0):
+            f = graph.at(i)
+            f.keys()
+            nm = f.noiseModel()
+            if hasattr(nm, "R"):
+                nm.R()
+            accessors = _ACCESSORS.get(type(f))
+            if accessors is None:
+                accessors = _ACCESSORS[type(f)] = [a for a in ("measured", "prior", "calibration") if hasattr(f, a)]
+            for accessor in accessors:
+                _array(getattr(f, accessor)())
+        if values is not None:
+            for k in values.keys():
+                t = self.types[int(k)]
+                self.known[int(k)] = (t, _array(getattr(values, f"at{t}")(k)))
+
+    def calculateEstimate(self, key=None):
+        if key is not None:
+            return self._object(*self.known[int(key)])
+        out = gtsam.Values()
+        for k, (t, a) in self.known.items():
+            out.insert(k, self._object(t, a))
+        return out
+
+    calculateBestEstimate = calculateEstimate
+
+    @staticmethod
+    def _object(t, a):
+        if t in ("Point2", "Point3", "Vector"):
+            return a
+        if t == "Pose2":
+            return gtsam.Pose2(gtsam.Rot2.atan2(a[1, 0], a[0, 0]), a[:2, 2])
+        return getattr(gtsam, t)(a)
+
+
+def floor_replay(logs, types: list) -> None:
+    """:func:`replay` on :class:`Floor`; ``types``: :meth:`Floor.prepare` of each log."""
+    for (params, log), key_types in zip(logs, types):
+        s = Floor(key_types)
+        for method, args, kwargs in log:
+            getattr(s, method)(*args, **kwargs)
+        s.calculateEstimate()
+
+
 def _replays(make, one) -> bool:
     try:
         replay(make, [one])
@@ -117,7 +203,6 @@ def main() -> None:
     args = parser.parse_args()
     logs = record()
     import capture_gtsam_graphs as cap  # (its estimates' comparison; record() put it on the path)
-    import gtsam
 
     import lie_factors as lf
 
@@ -129,8 +214,8 @@ def main() -> None:
 
     print(f"load before: {load()}")
     print("| client | ISAM2 instances | updates | estimates | gtsam.ISAM2 s | lf.Smoother s | ours / ISAM2 | "
-          "final estimates: largest difference |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+          "final estimates: largest difference | Python floor s | floor / ISAM2 |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for label, instances in logs.items():
         kept = [one for one in instances if _replays(isam2, one)]
         if len(kept) < len(instances):
@@ -139,14 +224,20 @@ def main() -> None:
         instances = kept
         ref, ours = replay(isam2, instances), replay(smoother, instances)  # untimed once each
         worst = max(cap._deviation(r, o) for r, o in zip(ref, ours))
-        best = {"gtsam": float("inf"), "ours": float("inf")}
+        types = [Floor.prepare(log) for _, log in instances]
+        floor_replay(instances, types)
+        best = {"gtsam": float("inf"), "ours": float("inf"), "floor": float("inf")}
         for _ in range(args.repeat):
             best["gtsam"] = min(best["gtsam"], timed(isam2, instances))
             best["ours"] = min(best["ours"], timed(smoother, instances))
+            t = time.perf_counter()
+            floor_replay(instances, types)
+            best["floor"] = min(best["floor"], time.perf_counter() - t)
         updates = sum(m == "update" for _, log in instances for m, _, _ in log)
         estimates = sum(m != "update" for _, log in instances for m, _, _ in log)
         print(f"| {label} | {len(instances)} | {updates} | {estimates} | {best['gtsam']:.6f} | {best['ours']:.6f} | "
-              f"{best['ours'] / best['gtsam']:.2f} | {worst:.1e} |")
+              f"{best['ours'] / best['gtsam']:.2f} | {worst:.1e} | {best['floor']:.6f} | "
+              f"{best['floor'] / best['gtsam']:.2f} |")
     print(f"load after: {load()}")
 
 
