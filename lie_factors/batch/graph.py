@@ -317,9 +317,12 @@ class Problem:
     def block_of_type(self, t):
         """The block holding variables of the expression type ``t``: the group's VarBlock for a
         registered matrix group, else the type's :class:`~lie_factors.batch.kinds.ValueBlock`."""
-        if t.is_group and t.group is not None:
-            return self.blocks.setdefault(t.name, VarBlock(_factors.GROUPS[t.name]))
-        return self.value_blocks.setdefault(t.name, ValueBlock(t))
+        group = t.is_group and t.group is not None
+        blocks = self.blocks if group else self.value_blocks
+        block = blocks.get(t.name)
+        if block is None:  # (made only when missing: a VarBlock sets up its group's loops)
+            block = blocks[t.name] = VarBlock(_factors.GROUPS[t.name]) if group else ValueBlock(t)
+        return block
 
     def _whitening_of(self, nm):
         """(R, robust loss) of a lie_factors factor's noise model; R None if GTSAM must linearize."""
