@@ -13,7 +13,9 @@ Pose3SLAMExample_g2o on pose3example.txt and on smallGrid3D.g2o (its Gauss–New
   process, after one untimed call of each, alternated, best of ``--repeat``; the two final errors
   (relative difference; absolute where GTSAM's is 0), the iterations, the path ``lf.optimize`` took
   (``small``: one compiled call; else why not), the ratio ours / GTSAM's.  ``lf.optimize`` is timed with ``result.values`` read (what
-  GTSAM's ``optimize()`` returns).
+  GTSAM's ``optimize()`` returns).  The "Python floor" (``python_floor.py``), timed the same way:
+  what any Python solver pays before computing, every factor and initial value read through
+  GTSAM's accessors and the result built as a ``gtsam.Values``; beside it, its ratio to GTSAM's time.
 * ``stages``: where ``lf.optimize``'s time goes on each capture (best of ``--repeat`` each):
   reading the graph into arrays (``Problem``), the small path's set-up (``SmallSolve``), the
   whole optimizer construction (both, the initial error, the LM state), the solve (one compiled
@@ -35,6 +37,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import python_floor as floor
 
 ROOT = Path(__file__).resolve().parents[1]
 SUPPORT = ROOT / "tests" / "support"
@@ -109,6 +113,14 @@ def _ours(item):
     return result
 
 
+def _floor(item, types: dict):
+    """The Python floor of ``lf.optimize`` on the capture (``python_floor.py``)."""
+    known: dict = {}
+    floor.read_factors(item["graph"])
+    floor.read_values(item["values"], types, known)
+    return floor.build_values(known)
+
+
 def _path(item) -> str:
     """``small`` where the batch solver solves the capture in one compiled call, else why not."""
     import gtsam
@@ -124,25 +136,26 @@ def warm(captures, repeat: int) -> None:
     import numpy as np
 
     print(f"load before: {load()}")
-    print("| client graph | factors | GTSAM s | ours s | ours / GTSAM | iterations GTSAM / ours | path | final error rel. diff |")
-    print("|---|---:|---:|---:|---:|---|---|---:|")
+    print("| client graph | factors | GTSAM s | ours s | ours / GTSAM | iterations GTSAM / ours | path | "
+          "final error rel. diff | Python floor s | floor / GTSAM |")
+    print("|---|---:|---:|---:|---:|---|---|---:|---:|---:|")
     for label, item in captures:
         graph = item["graph"]
         ref_values, ref_its = _gtsam_run(item)
         res = _ours(item)
-        best = {"gtsam": np.inf, "ours": np.inf}
+        types = floor.value_types(item["values"])
+        best = {"gtsam": np.inf, "ours": np.inf, "floor": np.inf}
         for _ in range(repeat):
-            t = time.perf_counter()
-            _gtsam_run(item)
-            best["gtsam"] = min(best["gtsam"], time.perf_counter() - t)
-            t = time.perf_counter()
-            _ours(item)
-            best["ours"] = min(best["ours"], time.perf_counter() - t)
+            for name, run in (("gtsam", _gtsam_run), ("ours", _ours), ("floor", lambda item: _floor(item, types))):
+                t = time.perf_counter()
+                run(item)
+                best[name] = min(best[name], time.perf_counter() - t)
         ref_error = float(graph.error(ref_values))
         diff = abs(res.error - ref_error) / abs(ref_error) if ref_error else abs(res.error)
         path = _path(item)
         print(f"| {label} | {graph.size()} | {best['gtsam']:.6f} | {best['ours']:.6f} | "
-              f"{best['ours'] / best['gtsam']:.2f} | {ref_its} / {res.iterations} | {path} | {diff:.1e} |")
+              f"{best['ours'] / best['gtsam']:.2f} | {ref_its} / {res.iterations} | {path} | {diff:.1e} | "
+              f"{best['floor']:.6f} | {best['floor'] / best['gtsam']:.2f} |")
     print(f"load after: {load()}")
 
 

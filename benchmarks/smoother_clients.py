@@ -13,11 +13,10 @@ key by key as the capture compares optima (the largest entry of ``localCoordinat
 the variable's size where that is above 1).  The machine's load is printed before and after.
 
 The "Python floor" column is what any smoother written in Python pays on the same calls, before
-it computes anything: each new factor's data read through GTSAM's accessors (``keys()``, its
-measurement or prior as an array, ``noiseModel().R()``, ``calibration()`` where it has one), each
-new value read as an array, and for each ``calculateEstimate()`` a ``gtsam.Values`` built from
-arrays (each variable's GTSAM object made and inserted; ``calculateEstimate(key)``: one object).
-It is timed as the replays are, and given beside ISAM2's time.
+it computes anything (:mod:`python_floor`): each new factor's data and each new value read
+through GTSAM's accessors, and for each ``calculateEstimate()`` a ``gtsam.Values`` built from
+arrays (``calculateEstimate(key)``: one object).  It is timed as the replays are, and given
+beside ISAM2's time.
 """
 
 from __future__ import annotations
@@ -29,7 +28,7 @@ import time
 from pathlib import Path
 
 import gtsam
-import numpy as np
+import python_floor as floor
 
 ROOT = Path(__file__).resolve().parents[1]
 SUPPORT = ROOT / "tests" / "support"
@@ -105,73 +104,34 @@ def replay(make, logs) -> list:
     return out
 
 
-def _array(x):
-    """A GTSAM value or measurement as the array(s) a kernel would take."""
-    if hasattr(x, "matrix"):
-        return x.matrix()
-    if hasattr(x, "bearing"):  # a BearingRange
-        return _array(x.bearing()), x.range()
-    if hasattr(x, "point3"):  # a Unit3
-        return x.point3()
-    return np.asarray(x.vector() if hasattr(x, "vector") else x)
-
-
-#: factor class → the accessors of its data (besides keys and noise model) that it has
-_ACCESSORS: dict = {}
-
-
 class Floor:
-    """The Python floor of one log's calls (module docstring): ``update`` reads, the estimate
-    calls build; the value types are found once, untimed (:meth:`prepare`)."""
+    """The Python floor (:mod:`python_floor`) of one log's calls: ``update`` reads, the estimate
+    calls build; ``types``: :func:`python_floor.value_types` of the log's values, found untimed."""
 
     def __init__(self, types: dict):
-        self.types = types  # key → GTSAM type name
+        self.types = types
         self.known: dict = {}  # key → (type, an array of its value): the variables so far
 
     @staticmethod
     def prepare(log) -> dict:
-        from lie_factors.incremental.gtsam_objects import value_type
-
         types = {}
         for method, args, _ in log:
             if method == "update" and len(args) > 1:
-                types.update((int(k), value_type(args[1], int(k))) for k in args[1].keys())
+                types.update(floor.value_types(args[1]))
         return types
 
     def update(self, graph=None, values=None, *rest, **kwargs):
-        for i in range(graph.size() if graph is not None else 0):
-            f = graph.at(i)
-            f.keys()
-            nm = f.noiseModel()
-            if hasattr(nm, "R"):
-                nm.R()
-            accessors = _ACCESSORS.get(type(f))
-            if accessors is None:
-                accessors = _ACCESSORS[type(f)] = [a for a in ("measured", "prior", "calibration") if hasattr(f, a)]
-            for accessor in accessors:
-                _array(getattr(f, accessor)())
+        if graph is not None:
+            floor.read_factors(graph)
         if values is not None:
-            for k in values.keys():
-                t = self.types[int(k)]
-                self.known[int(k)] = (t, _array(getattr(values, f"at{t}")(k)))
+            floor.read_values(values, self.types, self.known)
 
     def calculateEstimate(self, key=None):
         if key is not None:
-            return self._object(*self.known[int(key)])
-        out = gtsam.Values()
-        for k, (t, a) in self.known.items():
-            out.insert(k, self._object(t, a))
-        return out
+            return floor.gtsam_object(*self.known[int(key)])
+        return floor.build_values(self.known)
 
     calculateBestEstimate = calculateEstimate
-
-    @staticmethod
-    def _object(t, a):
-        if t in ("Point2", "Point3", "Vector"):
-            return a
-        if t == "Pose2":
-            return gtsam.Pose2(gtsam.Rot2.atan2(a[1, 0], a[0, 0]), a[:2, 2])
-        return getattr(gtsam, t)(a)
 
 
 def floor_replay(logs, types: list) -> None:
