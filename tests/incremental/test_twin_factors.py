@@ -4,6 +4,8 @@ A visual SLAM run as GTSAM's VisualISAM2Example writes it (GTSAM's projection fa
 without a body pose, its priors), updated pose by pose, relinearizing often: every estimate
 equals ``gtsam.ISAM2``'s, and GTSAM's linearization is called for no factor that has a twin;
 a factor whose noise model the kernels do not take (a robust one) is still GTSAM's to linearize.
+The rows the smoother stores keep their variables in the kind's order, which for GeneralSFMFactor2
+is not GTSAM's key order.
 """
 
 from __future__ import annotations
@@ -137,3 +139,43 @@ def test_a_twin_whose_keys_gtsam_orders_otherwise_matches_isam2(monkeypatch):
         ours.update(graph, values)
         assert _deviation(isam.calculateEstimate(), ours.calculateEstimate()) < 1e-9
     assert set(counted.calls) == {"PriorFactorCal3Bundler"}  # a class without a twin: GTSAM's linearization
+
+
+def test_native_rows_give_columns_in_the_order_of_their_keys():
+    """What the smoother stores (``NativeRows``): each factor's [A | b] with A's column blocks
+    in the order :meth:`NativeRows.keys` gives, equal to GTSAM's linearization of the factor
+    reordered that way, for twins whose kind orders the keys as GTSAM does and one that does not."""
+    rng = np.random.default_rng(11)
+    pose = gtsam.PinholeCameraCal3_S2.Lookat(np.array([10.0, 2.0, 3.0]), gtsam.Point3(0, 0, 0),
+                                             np.array([0.0, 0.0, 1.0]), gtsam.Cal3_S2()).pose()
+    point = rng.normal(0, 1, 3)
+    bundler = gtsam.Cal3Bundler(400.0, 0.01, -1e-3, 0.0, 0.0)
+    theta = gtsam.Values()
+    theta.insert(X(0), pose)
+    theta.insert(L(0), point)
+    theta.insert(C(0), bundler)
+    theta.insert(X(1), gtsam.Pose2(0.3, -0.2, 0.4))
+    theta.insert(L(1), np.array([2.0, 1.5]))
+    pixel, two = gtsam.noiseModel.Isotropic.Sigma(2, 0.7), gtsam.noiseModel.Diagonal.Sigmas([0.1, 0.3])
+    z = gtsam.PinholeCameraCal3Bundler(pose, bundler).project(point) + rng.normal(0, 1, 2)
+    factors = [
+        gtsam.GeneralSFMFactor2Cal3Bundler(z, pixel, X(0), L(0), C(0)),
+        gtsam.GenericProjectionFactorCal3_S2(np.array([300.0, 200.0]), pixel, X(0), L(0),
+                                             gtsam.Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)),
+        gtsam.BearingRangeFactor2D(X(1), L(1), gtsam.Rot2(0.2), 2.0, two),
+        gtsam.BetweenFactorPoint3(L(0), L(0) + 7, rng.normal(0, 1, 3), gtsam.noiseModel.Isotropic.Sigma(3, 0.2)),
+    ]
+    theta.insert(L(0) + 7, rng.normal(0, 1, 3))
+    rows = gtsam_objects.NativeRows()
+    dims = {int(k): len(theta.zeroVectors().at(k)) for k in theta.keys()}
+    for f in factors:
+        ((positions, J),) = rows([f], theta)
+        keys = rows.keys(f)
+        assert sorted(keys) == sorted(int(k) for k in f.keys())
+        A, b = f.linearize(theta).jacobian()
+        offsets = np.cumsum([0] + [dims[int(k)] for k in f.keys()])
+        block = {int(k): A[:, offsets[i]:offsets[i + 1]] for i, k in enumerate(f.keys())}
+        expected = np.concatenate([block[k] for k in keys] + [b[:, None]], axis=1)
+        scale = max(1.0, float(np.max(np.abs(expected))))
+        np.testing.assert_allclose(J[0], expected, rtol=0, atol=1e-9 * scale, err_msg=type(f).__name__)
+    assert rows.keys(factors[0]) == [X(0), C(0), L(0)]  # the kind's order: pose, calibration, point
