@@ -111,9 +111,8 @@ class KindRows:
         self.keys = np.empty((8, len(kind.variables)), dtype=np.uint64)
         self.C = [np.empty((8,) + t.shape) for t in kind.constants]
         self.ridx = np.empty(8, dtype=np.int64)
-        self._R: list = []  # the distinct whitenings, by first use
-        self._R_slot: dict = {}  # id(R) → its place in _R (R held there: its id stays its own)
-        self._R_stack = np.empty((0, kind.dim, kind.dim))
+        self._R_stack = np.empty((4, kind.dim, kind.dim))  # the distinct whitenings, by first use
+        self._R_slot: dict = {}  # R's bytes → its place in _R_stack (equal whitenings share one)
 
     def add(self, f, R: np.ndarray) -> int:
         """Store the factor ``f`` (``_keys_``, ``_constants``: a kind's factor, or a twin's row)
@@ -125,14 +124,22 @@ class KindRows:
         self.keys[n] = [int(k) for k in f._keys_]
         for C, c in zip(self.C, f._constants):
             C[n] = c
-        r = self._R_slot.get(id(R))
-        if r is None:
-            r = self._R_slot[id(R)] = len(self._R)
-            self._R.append(R)
-            self._R_stack = np.ascontiguousarray(np.array(self._R, dtype=np.float64))
+        R = np.ascontiguousarray(R, dtype=np.float64)
+        r = self._R_slot.get(R.tobytes())
+        if r is None:  # (a user may give each factor its own noise model object, all equal)
+            r = len(self._R_slot)
+            if r == self._R_stack.shape[0]:
+                self._R_stack = np.concatenate([self._R_stack, np.empty_like(self._R_stack)])
+            self._R_stack[r] = R
+            self._R_slot[R.tobytes()] = r
         self.ridx[n] = r
         self.members.append(f)
         return n
+
+    @property
+    def whitenings(self) -> int:
+        """How many distinct whitenings the stored factors use."""
+        return len(self._R_slot)
 
     def rows(self, slots: np.ndarray, values) -> np.ndarray:
         """[A | b] (F, m, Σd + 1) of the factors in ``slots`` (F,) at ``values``: the Jacobians

@@ -179,3 +179,26 @@ def test_native_rows_give_columns_in_the_order_of_their_keys():
         scale = max(1.0, float(np.max(np.abs(expected))))
         np.testing.assert_allclose(J[0], expected, rtol=0, atol=1e-9 * scale, err_msg=type(f).__name__)
     assert rows.keys(factors[0]) == [X(0), C(0), L(0)]  # the kind's order: pose, calibration, point
+
+
+def test_equal_noise_models_share_one_whitening():
+    """Factors each given its own, equal, noise model object (a loop that makes one per factor)
+    share one stored whitening: the table does not grow with the factors (each addition would
+    copy it), and the rows still equal GTSAM's linearization."""
+    K = gtsam.Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
+    theta = gtsam.Values()
+    theta.insert(X(0), gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, -10.0])))
+    factors = []
+    for j in range(40):
+        theta.insert(L(j), np.array([0.1 * j - 2.0, 0.05 * j, 1.0]))
+        sigma = 1.0 if j % 2 else 2.0
+        factors.append(gtsam.GenericProjectionFactorCal3_S2(np.array([320.0 + j, 240.0 - j]),
+                                                            gtsam.noiseModel.Isotropic.Sigma(2, sigma), X(0), L(j), K))
+    rows = gtsam_objects.NativeRows()
+    ((positions, J),) = rows(factors, theta)
+    (kind_rows,) = rows._kinds.values()
+    assert kind_rows.whitenings == 2
+    for q, f in zip(positions.tolist(), factors):
+        A, b = f.linearize(theta).jacobian()
+        np.testing.assert_allclose(J[q], np.concatenate([A, b[:, None]], axis=1), rtol=0,
+                                   atol=1e-9 * max(1.0, np.abs(A).max()))
