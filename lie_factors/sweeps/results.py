@@ -150,6 +150,7 @@ class ResultsFile:
         self._pending = False
         self._cut = cut
         self._fh: Any = None
+        self._cases = {r["case"] for r in self.rows}
 
     def _open_csv(self) -> None:
         """Open the CSV file for appending on the first new row (nothing is written before a case ends)."""
@@ -175,10 +176,15 @@ class ResultsFile:
     @property
     def done(self) -> set[str]:
         """The cases that have a row."""
-        return {r["case"] for r in self.rows}
+        return set(self._cases)
 
-    def add(self, row: dict[str, Any]) -> None:
-        """Record a finished case's row (CSV: appended now; Parquet: the file rewritten when due)."""
+    def add(self, row: dict[str, Any]) -> bool:
+        """Record a finished case's row (CSV: appended now; Parquet: the file rewritten when due);
+        False, and nothing written, for a case that has a row already (Dask can hand a finished
+        case back twice)."""
+        if row["case"] in self._cases:
+            return False
+        self._cases.add(row["case"])
         row = _typed(row)
         self.rows.append(row)
         if self.ext == ".csv":
@@ -190,6 +196,7 @@ class ResultsFile:
             self._pending = True
             if time.monotonic() - self._written >= PARQUET_INTERVAL:
                 self._write_parquet()
+        return True
 
     def _write_parquet(self) -> None:
         from ..util.atomic import replace_atomically

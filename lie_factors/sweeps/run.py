@@ -182,7 +182,8 @@ def _run(distributed, spec: Spec, todo: Sequence[Case], results: ResultsFile, sc
                 row = future.result()
             except Exception as exc:  # the clean optimum failed, or the worker running the case died
                 row = _failed(case, exc, sweep_run)
-            results.add(row)
+            if not results.add(row):
+                continue
             bar.update(row)
             if on_row is not None:
                 on_row(row)

@@ -35,6 +35,19 @@ def test_rows_round_trip_with_their_types(tmp_path):
     assert ResultsFile(path).done == {"g/uniform/0.2/1/ours", "g/uniform/0.2/2/ours"}
 
 
+def test_a_case_has_one_row(tmp_path):
+    """A case handed back a second time (in this sweep or after a resume) adds no row."""
+    path = str(tmp_path / "r.csv")
+    with ResultsFile(path) as results:
+        assert results.add(row("g/uniform/0.2/1/ours", 1, 0.5))
+        assert not results.add(row("g/uniform/0.2/1/ours", 1, 0.25))
+    with ResultsFile(path) as results:
+        assert not results.add(row("g/uniform/0.2/1/ours", 1, 0.75))
+        assert results.add(row("g/uniform/0.2/2/ours", 2, 0.75))
+    assert [(r["case"], r["precision"]) for r in read_results(path)] == [("g/uniform/0.2/1/ours", 0.5),
+                                                                        ("g/uniform/0.2/2/ours", 0.75)]
+
+
 def test_a_row_cut_short_is_dropped_and_its_case_runs_again(tmp_path):
     path = tmp_path / "r.csv"
     with ResultsFile(str(path)) as results:
