@@ -15,7 +15,7 @@ import numpy as np
 from ..kernels.jit import direct
 from . import substitution
 from .marking import factors_of
-from .substitution import conditional_squares, gradient_at_zero, marginal_covariance, max_abs_blocks, path_rows
+from .substitution import conditional_squares, gradient_at_zero, marginal_covariance, max_abs_blocks, solve_on_paths
 
 back_substitute = direct(substitution.back_substitute)
 
@@ -45,30 +45,39 @@ class FactorReading:
         """The factors on any of ``variables``, each once, increasing."""
         return factors_of(variables, self.store, self.nf)
 
-    def joint_covariance(self, variables, paths: dict | None = None) -> np.ndarray:
-        """(Σd, Σd): the blocks of Λ⁻¹ of ``variables``, in their order.  Λ⁻¹ = YᵀY with
-        Y = R⁻ᵀ, whose column of a variable is nonzero only on the path from it to its root
-        (:func:`~lie_factors.incremental.substitution.path_rows`): the columns of ``variables``,
-        scattered onto the union of their paths, give every block in one product.  ``paths``: a
-        cache of the paths (variable → :func:`path_rows`), valid while the factor is unchanged."""
+    def joint_covariance(self, variables) -> np.ndarray:
+        """(Σd, Σd): the blocks of Λ⁻¹ of ``variables`` (distinct), in their order.  Λ⁻¹ = YᵀY
+        with Y = R⁻ᵀ, whose column of a variable is nonzero only on the path from it to its root
+        (:func:`~lie_factors.incremental.substitution.solve_on_paths`): each variable's columns,
+        solved on its own path and scattered onto the union of the paths, give every block in
+        one product."""
         variables = [int(v) for v in variables]
         dim = self.tree.dim
-        paths = {} if paths is None else paths
-        for v in variables:
-            if v not in paths:
-                paths[v] = path_rows(v, self.tree, self.pools)
-        found = [paths[v] for v in variables]
-        nodes = np.unique(np.concatenate([path for path, _, _ in found]))
+        found = [solve_on_paths(np.array([v]), np.eye(int(dim[v])), self.tree, self.pools) for v in variables]
+        nodes = np.unique(np.concatenate([path for path, _ in found]))
         first = np.concatenate([[0], np.cumsum(dim[nodes])]).astype(np.int64)
         Y = np.zeros((int(first[-1]), sum(int(dim[v]) for v in variables)))
         col = 0
-        for path, _, Yv in found:
+        for path, Yv in found:
             d = np.asarray(dim[path], dtype=np.int64)
             at = first[np.searchsorted(nodes, path)]
             rows = np.repeat(at - np.concatenate([[0], np.cumsum(d)[:-1]]), d) + np.arange(int(d.sum()))
             Y[rows, col:col + Yv.shape[1]] = Yv
             col += Yv.shape[1]
         return Y.T @ Y
+
+    def projected_covariance(self, variables, blocks: np.ndarray) -> np.ndarray:
+        """(m, m): Bᵀ Λ⁻¹ B for B = Σ_i E_{v_i} B_i, ``blocks`` (Σ_i d_{v_i}, m) the B_i of
+        ``variables`` (distinct) stacked in their order: A Σ Aᵀ of a Jacobian A = Bᵀ on those
+        variables, Σ their joint marginal covariance, from one forward substitution over the
+        union of their paths to their roots (:func:`~lie_factors.incremental.substitution.solve_on_paths`)."""
+        variables = np.asarray(variables, dtype=np.int64)
+        blocks = np.ascontiguousarray(blocks, dtype=np.float64)
+        if blocks.shape[0] != int(self.tree.dim[variables].sum()):
+            raise ValueError(f"blocks has {blocks.shape[0]} rows; the variables' dimensions sum to "
+                             f"{int(self.tree.dim[variables].sum())}")
+        _, Z = solve_on_paths(variables, blocks, self.tree, self.pools)
+        return Z.T @ Z
 
     def conditional_error(self, x: np.ndarray) -> float:
         """½ Σ over the nodes of ‖R_j x_j + T_j x_S − d_j‖² at the scalars ``x`` (nscalar,): the

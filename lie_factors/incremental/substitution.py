@@ -135,28 +135,10 @@ def back_substitute(threshold, tree, pools, delta, wildfire):
 
 
 @inline_kernel
-def _root_path(v, parent):
-    """The nodes from ``v`` up to its root."""
-    plen = 0
-    j = v
-    while j >= 0:
-        plen += 1
-        j = parent[j]
-    path = np.empty(plen, dtype=np.int64)
-    j = v
-    q = 0
-    while j >= 0:
-        path[q] = j
-        q += 1
-        j = parent[j]
-    return path
-
-
-@inline_kernel
 def _forward_node(q, path, start, where, Y, tree, pools):
-    """Path node ``q``'s rows of Y = R⁻ᵀ(E − the contributions already subtracted), then Tᵀ
-    times them subtracted from the rows of its separator (all on the path); ``where[j]``: node
-    j's place on the path, −1 off it."""
+    """Node ``path[q]``'s rows of Y = R⁻ᵀ(B − the contributions already subtracted), then Tᵀ
+    times them subtracted from the rows of its separator (all in ``path``, its ancestors);
+    ``where[j]``: node j's place in ``path``, −1 off it."""
     cond = tree.cond
     sep_len = tree.sep_len
     sep_start = tree.sep_start
@@ -170,12 +152,15 @@ def _forward_node(q, path, start, where, Y, tree, pools):
         s += dim[ipool[t]]
     N = d + s + 1
     y0 = start[q]
-    for col in range(dv):
-        for p in range(d):
-            acc = Y[y0 + p, col]
-            for t in range(p):
-                acc -= fpool[c0 + t * N + p] * Y[y0 + t, col]
-            Y[y0 + p, col] = acc / fpool[c0 + p * N + p]
+    # row by row, each a contiguous loop over Y's columns (numba vectorizes it)
+    for p in range(d):
+        for t in range(p):
+            f = fpool[c0 + t * N + p]
+            for col in range(dv):
+                Y[y0 + p, col] -= f * Y[y0 + t, col]
+        f = fpool[c0 + p * N + p]
+        for col in range(dv):
+            Y[y0 + p, col] /= f
     cc = d
     for t in range(sep_start[j], sep_start[j] + sep_len[j]):
         w = ipool[t]
@@ -183,50 +168,71 @@ def _forward_node(q, path, start, where, Y, tree, pools):
         if where[w] >= 0:
             yw = start[where[w]]
             for i in range(dw):
-                for col in range(dv):
-                    acc = 0.0
-                    for p in range(d):
-                        acc += fpool[c0 + p * N + cc + i] * Y[y0 + p, col]
-                    Y[yw + i, col] -= acc
+                for p in range(d):
+                    f = fpool[c0 + p * N + cc + i]
+                    for col in range(dv):
+                        Y[yw + i, col] -= f * Y[y0 + p, col]
         cc += dw
 
 
-@kernel
-def path_rows(v, tree, pools):
-    """(path, start, Y): the nodes from ``v`` to its root, each one's first row in Y, and
-    Y = L⁻¹ E_v (Σ dims on the path, d_v), which is nonzero only on that path.
+@inline_kernel
+def _paths_union(variables, parent, pos, where):
+    """The nodes on the paths from ``variables`` to their roots, each once, in elimination order
+    (a node before its parent: ``pos`` grows up the tree); ``where[j]`` is set to node j's place
+    in it (it must hold −1 everywhere on entry)."""
+    nodes = np.empty(parent.shape[0], dtype=np.int64)
+    count = 0
+    for v in variables:
+        j = v
+        while j >= 0 and where[j] < 0:
+            where[j] = 0  # marked: the path above j is already collected
+            nodes[count] = j
+            count += 1
+            j = parent[j]
+    nodes = nodes[:count][np.argsort(pos[nodes[:count]])]
+    for q in range(count):
+        where[nodes[q]] = q
+    return nodes
 
-    Forward substitution Rᵀ Y = E_v visiting only the path: a node's rows of Y take the
-    contributions of the path nodes below it through their blocks T.  Λ⁻¹'s block (a, b) of
-    two variables is Y_aᵀ Y_b summed over the nodes their paths share."""
+
+@kernel
+def solve_on_paths(variables, rhs, tree, pools):
+    """(nodes, Z): Z = R⁻ᵀ B for B = Σ_i E_{v_i} B_i, where ``rhs`` (Σ_i d_{v_i}, m) stacks the
+    blocks B_i of ``variables`` (distinct, in their order), and Z is nonzero only on the union of
+    their paths to their roots, ``nodes`` (each node's rows in Z in that order).
+
+    Forward substitution Rᵀ Z = B visiting only those nodes, children first: a node's rows take
+    the contributions of the nodes below it through their blocks T (whose separators are their
+    ancestors, on the union too).  So Bᵀ Λ⁻¹ B = Bᵀ R⁻¹ R⁻ᵀ B = ZᵀZ costs the union of the paths,
+    however many columns B has; Λ⁻¹'s block of one variable v is YᵀY for Y = R⁻ᵀ E_v."""
     dim = tree.dim
-    parent = tree.parent
-    dv = dim[v]
-    path = _root_path(v, parent)
-    plen = path.shape[0]
+    where = np.full(tree.parent.shape[0], -1, dtype=np.int64)
+    nodes = _paths_union(variables, tree.parent, tree.pos, where)
+    count = nodes.shape[0]
+    start = np.empty(count, dtype=np.int64)
     tot = 0
-    start = np.empty(plen, dtype=np.int64)
-    for q in range(plen):
+    for q in range(count):
         start[q] = tot
-        tot += dim[path[q]]
-    Y = np.zeros((tot, dv))
-    # each path node's place on the path (-1 off it): an array, which numba indexes far faster
-    # than it looks up a dict
-    where = np.full(parent.shape[0], -1, dtype=np.int64)
-    for q in range(plen):
-        where[path[q]] = q
-    for i in range(dv):
-        Y[i, i] = 1.0
-    for q in range(plen):
-        _forward_node(q, path, start, where, Y, tree, pools)
-    return path, start, Y
+        tot += dim[nodes[q]]
+    m = rhs.shape[1]
+    Z = np.zeros((tot, m))
+    r = 0
+    for v in variables:
+        z0 = start[where[v]]
+        for p in range(dim[v]):
+            for col in range(m):
+                Z[z0 + p, col] += rhs[r + p, col]
+        r += dim[v]
+    for q in range(count):
+        _forward_node(q, nodes, start, where, Z, tree, pools)
+    return nodes, Z
 
 
 @kernel
 def marginal_covariance(v, tree, pools, out):
-    """Σ_v = YᵀY with Y = R⁻ᵀ E_v (:func:`path_rows`): ``out`` (d_v, d_v) receives the marginal
-    covariance of ``v``, from the path from ``v`` to its root alone."""
-    _, _, Y = path_rows(v, tree, pools)
+    """Σ_v = YᵀY with Y = R⁻ᵀ E_v (:func:`solve_on_paths`): ``out`` (d_v, d_v) receives the
+    marginal covariance of ``v``, from the path from ``v`` to its root alone."""
+    _, Y = solve_on_paths(np.array([v]), np.eye(tree.dim[v]), tree, pools)
     dv = Y.shape[1]
     tot = Y.shape[0]
     for a in range(dv):

@@ -26,9 +26,11 @@ Each update that brings closures:
    either passes.
 
 So an update's work is bounded by its new closures plus :data:`RETEST` groups,
-each of at most :data:`~lie_factors.robust.tail.GROUP_MAX` closures, a joint
-covariance over the paths from their ends to the root of the smoother's tree; not
-by the graph's size.  A decision made early is revisited as the map firms up:
+each of at most :data:`~lie_factors.robust.tail.GROUP_MAX` closures, and A Σ Aᵀ
+of a group costs one forward substitution over the union of the paths from its
+ends to the roots of the smoother's tree: the number of statistics does not grow
+with the graph, but each costs the nodes on those paths and their separators,
+which do.  A decision made early is revisited as the map firms up:
 the round robin reaches every closure within (closures ÷ :data:`RETEST`)
 updates that bring closures.
 
@@ -138,7 +140,6 @@ class OnlineRejection:
         self.queue: deque = deque()  # closure ids, the oldest decision first
         self.model = TailModel(self.n, np.zeros(0), self.probability)
         self._limits: dict = {}  # group size -> the model's threshold
-        self._paths: dict = {}  # variable -> its path in the smoother's factor, while it is unchanged
         self._fitted_at = 0
         self.fits = 0  # the tail model's fits so far
         self.tests = 0  # group statistics computed (the work the bound counts)
@@ -218,17 +219,17 @@ class OnlineRejection:
         fa = self.source[int(group[0])][0]
         loops = smoother.elements[fa.group].loops
         X = np.ascontiguousarray(smoother.estimate_matrices(ends))
-        Sigma = smoother.bf.joint_covariance([smoother._var_of(int(k)) for k in ends.tolist()], self._paths)
         n, g = self.n, len(group)
         Minv, R = self.Minv[group], self.R[group]
         A1, A2, b, sq = np.empty((g, n, n)), np.empty((g, n, n)), np.empty((g, n)), np.empty(g)
         loops.between_lin(X, np.ascontiguousarray(where[:, 0]), np.ascontiguousarray(where[:, 1]), Minv, R,
                           np.arange(g, dtype=np.int64), A1, A2, b, sq)
-        A = np.zeros((g * n, len(ends) * n))
+        At = np.zeros((len(ends) * n, g * n))  # Aᵀ, by the ends' blocks of rows
         for t in range(g):
-            A[t * n:(t + 1) * n, where[t, 0] * n:(where[t, 0] + 1) * n] += A1[t]
-            A[t * n:(t + 1) * n, where[t, 1] * n:(where[t, 1] + 1) * n] += A2[t]
-        M = np.eye(g * n) + sign * (A @ Sigma @ A.T)
+            At[where[t, 0] * n:(where[t, 0] + 1) * n, t * n:(t + 1) * n] += A1[t].T
+            At[where[t, 1] * n:(where[t, 1] + 1) * n, t * n:(t + 1) * n] += A2[t].T
+        ASA = smoother.bf.projected_covariance([smoother._var_of(int(k)) for k in ends.tolist()], At)
+        M = np.eye(g * n) + sign * ASA
         M = 0.5 * (M + M.T)
         if np.linalg.eigvalsh(M)[0] <= 1e-9:
             return float("nan")
@@ -250,7 +251,6 @@ class OnlineRejection:
         update, pending).  Returns what the smoother should add and remove (:func:`apply_decision`
         applies it); the update that ends the wait for :data:`MIN_FIT` closures applies its own
         decisions, one closure at a time (:meth:`_first_fit`), and returns the retests'."""
-        self._paths = {}
         new = [int(c) for c in np.asarray(new, dtype=np.int64).tolist()]
         if self.fits == 0:
             if len(self.state) < MIN_FIT:
@@ -296,7 +296,6 @@ class OnlineRejection:
             self.T[c] = self.statistic(smoother, [c])
             if self._passes(self.T[c], 1):
                 apply_decision(smoother, self, Decision([c], []))
-                self._paths = {}  # the smoother's factor changed
 
     def _retest(self, smoother, c: int, add: list, remove: list, new=()) -> None:
         """Test closure ``c``'s decision again, appending to ``add`` or ``remove`` what changes:
@@ -332,7 +331,6 @@ class OnlineRejection:
         for _ in range(rounds):
             smoother.optimize(max_iterations=SETTLE_ITERATIONS, tolerance=SETTLE_TOLERANCE)
             self._refit()
-            self._paths = {}
             decision = self._settle_round(smoother)
             if not decision.add and not decision.remove:
                 self.unsettled = False
