@@ -50,7 +50,9 @@ class FactorReading:
         with Y = R⁻ᵀ, whose column of a variable is nonzero only on the path from it to its root
         (:func:`~lie_factors.incremental.substitution.solve_on_paths`): each variable's columns,
         solved on its own path and scattered onto the union of the paths, give every block in
-        one product."""
+        one product.  (One solve of all their columns over the union, :meth:`projected_covariance`
+        with B = I, would carry every column through every path: up to len(variables) times the
+        work where the paths do not meet.)"""
         variables = [int(v) for v in variables]
         dim = self.tree.dim
         found = [solve_on_paths(np.array([v]), np.eye(int(dim[v])), self.tree, self.pools) for v in variables]
@@ -73,9 +75,9 @@ class FactorReading:
         union of their paths to their roots (:func:`~lie_factors.incremental.substitution.solve_on_paths`)."""
         variables = np.asarray(variables, dtype=np.int64)
         blocks = np.ascontiguousarray(blocks, dtype=np.float64)
-        if blocks.shape[0] != int(self.tree.dim[variables].sum()):
-            raise ValueError(f"blocks has {blocks.shape[0]} rows; the variables' dimensions sum to "
-                             f"{int(self.tree.dim[variables].sum())}")
+        height = int(self.tree.dim[variables].sum())
+        if blocks.shape[0] != height:
+            raise ValueError(f"blocks has {blocks.shape[0]} rows; the variables' dimensions sum to {height}")
         _, Z = solve_on_paths(variables, blocks, self.tree, self.pools)
         return Z.T @ Z
 
