@@ -46,6 +46,7 @@ RANKS = {
     "g2o": 5,
     "lm": 6.0, "dogleg": 6.0, "optimizers": 6.1, "dropin": 6.2, "sparse": 6.3,
     "robust.losses": 6.4, "robust.statistics": 6.4, "robust.tail": 6.4, "robust.online": 6.4,
+    "robust.leverage": 6.4,
     "batch": 6.5, "initialization": 6.6, "incremental": 6.7, "robust": 6.8, "backends": 6.9,
     "result": 5.5,
     "events": 7, "solve": 7, "files": 7, "corruption": 7, "": 7,

@@ -18,6 +18,7 @@ import numpy as np
 from ..batch.graph import key_name
 from ..errors import InputError
 from ..interop import to_gtsam
+from .group_statistic import group_statistic
 from .gtsam_objects import make_factor, retracted
 
 
@@ -60,6 +61,14 @@ class Queries:
         for k, v in self.var.items():
             vv.insert(k, self._variable_step(v).copy())
         return vv
+
+    def between_statistic(self, group: str, ends, where, C, R, sign: float) -> float:
+        """T = bᵀ (I + sign·A Σ Aᵀ)⁻¹ b of between factors of group ``group`` at the estimate, NaN at
+        leverage 1 (:func:`~lie_factors.incremental.group_statistic.group_statistic`): ``ends``
+        their distinct keys, ``where`` (g, 2) int64 each factor's ends as places in ``ends``, ``C``
+        (g, m, m) the measurements' inverses, ``R`` (g, n, n) their whitening."""
+        vs = np.array([self._var_of(k) for k in ends], dtype=np.int64)
+        return group_statistic(self, self.elements[group], vs, where, C, R, sign)
 
     def _var_of(self, key) -> int:
         try:

@@ -47,6 +47,7 @@ from ..batch.graph import Problem
 from ..batch.loops import parallel_kernel
 from ..kernels.sort import sort
 from ..batch.system import LinearSystem
+from .leverage import statistics
 
 __all__ = ["leave_out_chi2", "group_gram", "UnitLower"]
 
@@ -161,7 +162,7 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
     rejected closure); ``groups``: lists of between-factor indices, all of
     weight 1 (the leave-group-out test) or all of weight 0 (the innovation
     test).  NaN for a group without which the graph would be singular
-    (leverage 1: nothing else measures what it measures).
+    (leverage 1: nothing else measures what it measures; :data:`~lie_factors.robust.leverage.SINGULAR`).
     """
     problem = Problem.from_pose_graph(graph, X)
     problem.linearize()
@@ -199,12 +200,6 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
         signs = np.where(np.all(w == 1.0, axis=1), -1.0, np.where(np.all(w == 0.0, axis=1), 1.0, np.nan))
         if np.isnan(signs).any():
             raise ValueError("leave_out_chi2: a group must be all in the graph (weight 1) or all out (0)")
-        d = Hgg.shape[1]
-        M = np.eye(d)[None] + signs[:, None, None] * Hgg
         b = np.stack([between.b[rows[g]].reshape(-1) for g in idx])
-        ok = np.linalg.eigvalsh(M)[:, 0] > 1e-9
-        T = np.full(idx.size, np.nan)
-        if ok.any():
-            T[ok] = np.einsum("ki,ki->k", b[ok], np.linalg.solve(M[ok], b[ok][:, :, None])[:, :, 0])
-        out[idx] = T
+        out[idx] = statistics(np.ascontiguousarray(Hgg), b, np.ascontiguousarray(signs))
     return out

@@ -59,6 +59,7 @@ import numpy as np
 from ..errors import InputError
 from ..posegraph.graph import is_loop_closure
 from .statistics import DOF_RANGE, chi2_inlier_threshold
+from ..kernels.jit import kernel
 from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
 
 __all__ = ["OnlineRejection", "RobustSmoothing", "robust_update", "check_loss", "RETEST", "MIN_FIT", "PROBABILITY",
@@ -93,6 +94,32 @@ SETTLE_ITERATIONS = 20
 SETTLE_TOLERANCE = 1e-6
 
 PENDING, ACCEPTED = 0, 1
+
+
+@kernel
+def _nearest(keys, among, c, window, most):
+    """Closures ``among`` (ids) whose ends (low, high key) are each within ``window`` of closure
+    ``c``'s, ``c`` first, then the others nearest first (ties in ``among``'s order), ``most`` in all."""
+    klo, khi = min(keys[c, 0], keys[c, 1]), max(keys[c, 0], keys[c, 1])
+    ids = np.empty(among.shape[0], dtype=np.int64)
+    d = np.empty(among.shape[0], dtype=np.int64)
+    count = 0
+    for x in among:
+        if x == c:
+            continue
+        lo, hi = min(keys[x, 0], keys[x, 1]), max(keys[x, 0], keys[x, 1])
+        dx = max(abs(lo - klo), abs(hi - khi))
+        if dx <= window:
+            ids[count] = x
+            d[count] = dx
+            count += 1
+    order = np.argsort(d[:count], kind="mergesort")
+    take = min(count, most - 1)
+    out = np.empty(take + 1, dtype=np.int64)
+    out[0] = c
+    for t in range(take):
+        out[t + 1] = ids[order[t]]
+    return out
 
 
 def min_fit(probability: float = PROBABILITY) -> int:
@@ -193,48 +220,24 @@ class OnlineRejection:
 
     def _near_among(self, c: int, among) -> np.ndarray:
         """:meth:`_near` among the closures ``among``."""
-        among = np.asarray(among, dtype=np.int64)
-        lo, hi = self.keys[among].min(axis=1), self.keys[among].max(axis=1)
-        k = self.keys[c]
-        d = np.maximum(np.abs(lo - k.min()), np.abs(hi - k.max()))
-        near = among[d <= GROUP_WINDOW]
-        d = d[d <= GROUP_WINDOW]
-        d = d[near != c]
-        near = near[near != c]
-        near = near[np.argsort(d, kind="stable")][:GROUP_MAX - 1]
-        return np.concatenate([[c], near]).astype(np.int64)
+        return _nearest(self.keys, np.asarray(among, dtype=np.int64), int(c), GROUP_WINDOW, GROUP_MAX)
 
     # ------------------------------------------------------------------ the statistic
     def statistic(self, smoother, group) -> float:
         """T of closures ``group`` (all accepted: leave-group-out; all pending: innovation) at
         ``smoother``'s estimate; NaN where the others do not measure what the group does."""
         group = np.asarray(group, dtype=np.int64)
-        states = self.state[group]
-        sign = -1.0 if states[0] == ACCEPTED else 1.0
-        assert np.all(states == states[0]), "a group is all accepted or all pending"
+        states = set(self.state[group].tolist())
+        assert len(states) == 1, "a group is all accepted or all pending"
+        sign = -1.0 if states.pop() == ACCEPTED else 1.0
         self.tests += 1
         self.epoch[group] = self.fits
-        ends, where = np.unique(self.keys[group].reshape(-1), return_inverse=True)
-        where = where.reshape(-1, 2)
-        fa = self.source[int(group[0])][0]
-        loops = smoother.elements[fa.group].loops
-        X = np.ascontiguousarray(smoother.estimate_matrices(ends))
-        n, g = self.n, len(group)
-        Minv, R = self.Minv[group], self.R[group]
-        A1, A2, b, sq = np.empty((g, n, n)), np.empty((g, n, n)), np.empty((g, n)), np.empty(g)
-        loops.between_lin(X, np.ascontiguousarray(where[:, 0]), np.ascontiguousarray(where[:, 1]), Minv, R,
-                          np.arange(g, dtype=np.int64), A1, A2, b, sq)
-        At = np.zeros((len(ends) * n, g * n))  # Aᵀ, by the ends' blocks of rows
-        for t in range(g):
-            At[where[t, 0] * n:(where[t, 0] + 1) * n, t * n:(t + 1) * n] += A1[t].T
-            At[where[t, 1] * n:(where[t, 1] + 1) * n, t * n:(t + 1) * n] += A2[t].T
-        ASA = smoother.bf.projected_covariance([smoother._var_of(int(k)) for k in ends.tolist()], At)
-        M = np.eye(g * n) + sign * ASA
-        M = 0.5 * (M + M.T)
-        if np.linalg.eigvalsh(M)[0] <= 1e-9:
-            return float("nan")
-        bb = b.reshape(-1)
-        return float(bb @ np.linalg.solve(M, bb))
+        keys = self.keys[group].reshape(-1).tolist()
+        ends = sorted(set(keys))
+        place = {k: i for i, k in enumerate(ends)}
+        where = np.array([place[k] for k in keys], dtype=np.int64).reshape(-1, 2)
+        return smoother.between_statistic(self.source[int(group[0])][0].group, ends, where, self.Minv[group],
+                                          self.R[group], sign)
 
     def _passes(self, T: float, g: int) -> bool:
         limit = self._limits.get(g)
