@@ -48,14 +48,7 @@ def _on_paths(g, Xg, velem, voff, delta, variables, where, C, R, sign, tree, poo
                 At[r1 + i, t * n + j] += A1[t, j, i]
                 At[r2 + i, t * n + j] += A2[t, j, i]
     _, Z = solve_on_paths(variables, At, tree, pools)
-    d = G * n
-    H = np.zeros((d, d))
-    for r in range(Z.shape[0]):
-        for i in range(d):
-            zi = Z[r, i]
-            for j in range(d):
-                H[i, j] += zi * Z[r, j]
-    return quadratic(H, b.reshape(d), sign)
+    return quadratic(np.dot(Z.T, Z), b.reshape(G * n), sign)
 
 
 _entries: dict = {}  # group tag (each a numba type of its own) -> _on_paths compiled for it
