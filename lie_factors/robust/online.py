@@ -50,6 +50,7 @@ closures' statistics (as the batch check's, its tail at most as heavy as
 from __future__ import annotations
 
 from collections import deque
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import math
@@ -171,6 +172,7 @@ class OnlineRejection:
         self.fits = 0  # the tail model's fits so far
         self.tests = 0  # group statistics computed (the work the bound counts)
         self.unsettled = False  # settle() stopped at its rounds with a change to make
+        self._memo: "dict | None" = None  # inside _one_state(): each group's statistic (frozenset -> T)
 
     # ------------------------------------------------------------------ bookkeeping
     def offer(self, fa, edges) -> np.ndarray:
@@ -230,14 +232,30 @@ class OnlineRejection:
         states = set(self.state[group].tolist())
         assert len(states) == 1, "a group is all accepted or all pending"
         sign = -1.0 if states.pop() == ACCEPTED else 1.0
-        self.tests += 1
         self.epoch[group] = self.fits
+        key = None if self._memo is None else frozenset(group.tolist())
+        if key is not None and key in self._memo:
+            return self._memo[key]
+        self.tests += 1
         keys = self.keys[group].reshape(-1).tolist()
         ends = sorted(set(keys))
         place = {k: i for i, k in enumerate(ends)}
         where = np.array([place[k] for k in keys], dtype=np.int64).reshape(-1, 2)
-        return smoother.between_statistic(self.source[int(group[0])][0].group, ends, where, self.Minv[group],
-                                          self.R[group], sign)
+        T = smoother.between_statistic(self.source[int(group[0])][0].group, ends, where, self.Minv[group],
+                                       self.R[group], sign)
+        if key is not None:
+            self._memo[key] = T
+        return T
+
+    @contextmanager
+    def _one_state(self):
+        """A scope in which the smoother does not change: a group's statistic computed twice in it
+        (a closure's group is often its neighbour's) is computed once."""
+        self._memo = {}
+        try:
+            yield
+        finally:
+            self._memo = None
 
     def _passes(self, T: float, g: int) -> bool:
         limit = self._limits.get(g)
@@ -262,8 +280,12 @@ class OnlineRejection:
             new = []
         else:
             self._refit()
-            for c in new:
-                self.T[c] = self.statistic(smoother, [c])
+        with self._one_state():
+            return self._decide_tests(smoother, new)
+
+    def _decide_tests(self, smoother, new: list) -> Decision:
+        for c in new:
+            self.T[c] = self.statistic(smoother, [c])
         passing = [c for c in new if self._passes(self.T[c], 1)]
         grouped: set = set()
         for c in list(passing):
@@ -347,6 +369,10 @@ class OnlineRejection:
         """One kind of change, as the batch final check makes them: the accepted closures that fail
         alone; else the accepted groups that fail; else the pending closures that pass, with their
         group or alone."""
+        with self._one_state():
+            return self._settle_tests(smoother)
+
+    def _settle_tests(self, smoother) -> Decision:
         acc = self.accepted().tolist()
         for c in acc:
             self.T[c] = self.statistic(smoother, [c])

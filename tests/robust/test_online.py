@@ -262,3 +262,41 @@ def test_the_command_reports_the_online_rejection(capsys):
     assert d["robust_status"]["status"] in ("ok", "uncertain")
     assert all(v == "online" for v in d["rejected_by"].values())
     assert "online TLS: rejected" in out
+
+
+def test_a_group_is_computed_once_per_state_and_decides_as_without_reuse(small):
+    """Inside one update's tests or one settling round the smoother does not change: a group
+    (as a set) met twice is computed once, and the run rejects exactly what it rejects when every
+    statistic is computed afresh."""
+    from contextlib import nullcontext
+
+    pg, clean = small
+    c = corruption.plant(pg, fraction=0.2, kind="group", seed=2, reference=clean.poses)
+    computed: list = []
+    between = lf.Smoother.between_statistic
+
+    def counted(self, group, ends, where, C, R, sign):
+        computed.append((self.rejection._memo is not None, tuple(sorted(map(tuple, np.asarray(ends)[where].tolist())))))
+        return between(self, group, ends, where, C, R, sign)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(lf.Smoother, "between_statistic", counted)
+        settle = online.OnlineRejection._settle_tests
+        rounds: list = []
+
+        def logged(self, s):
+            start = len(computed)
+            try:
+                return settle(self, s)
+            finally:
+                rounds.append(computed[start:])
+
+        mp.setattr(online.OnlineRejection, "_settle_tests", logged)
+        reused = lf.replay(c.graph, gnc="tls")
+        assert rounds and all(len(r) == len(set(r)) for r in rounds)
+        mp.setattr(online.OnlineRejection, "_one_state", lambda self: nullcontext())
+        fresh_count = len(computed)
+        fresh = lf.replay(c.graph, gnc="tls")
+    assert len(computed) - fresh_count > fresh_count  # the reuse saved statistics
+    np.testing.assert_array_equal(np.sort(reused.outliers), np.sort(fresh.outliers))
+    assert reused.error == pytest.approx(fresh.error, rel=1e-9)
