@@ -58,9 +58,9 @@ import math
 import numpy as np
 
 from ..errors import InputError
+from ..kernels.jit import kernel
 from ..posegraph.graph import is_loop_closure
 from .statistics import DOF_RANGE, chi2_inlier_threshold
-from ..kernels.jit import kernel
 from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TailModel
 
 __all__ = ["OnlineRejection", "RobustSmoothing", "robust_update", "check_loss", "RETEST", "MIN_FIT", "PROBABILITY",
