@@ -13,17 +13,22 @@ strategy run with GTSAM's own ``GncLMOptimizer``: the same replay, and at each u
 loop closure GNC again on the whole graph so far (odometry and the prior known inliers, TLS, GTSAM's
 thresholds), from the previous estimate with the new poses composed along the odometry; its total
 GNC seconds against the online replay's update seconds, and both runs' precision, recall and map
-(a reference run past ``--rerun-limit`` seconds stops, and its row says so).
+(a reference run past ``--rerun-limit`` seconds stops, and its row says so).  ``--commands``:
+instead, what a user runs, each command in a fresh process, alternated, best of ``--repeat``: the
+clean ``posegraph FILE --incremental``, then ``--incremental --gnc tls`` and the batch ``--gnc tls``
+on the graph ``lie-factors corrupt`` writes (each graph, kind, fraction and seed).
 
     python benchmarks/online_rejection.py --graphs intel smallGrid3D --kinds uniform group \\
-        --fractions 0.2 --seeds 4 5 6 [--during 10 | --rerun]
+        --fractions 0.2 --seeds 4 5 6 [--during 10 | --rerun | --commands]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -174,9 +179,13 @@ def main(argv=None) -> int:
                          "strategy) against the online replay")
     ap.add_argument("--rerun-limit", type=float, default=600.0, metavar="SECONDS",
                     help="stop a reference run once its GNC seconds pass this")
+    ap.add_argument("--commands", action="store_true",
+                    help="instead: the whole CLI commands, each in a fresh process, against the clean one")
     args = ap.parse_args(argv)
     if args.during:
         return main_during(args)
+    if args.commands:
+        return main_commands(args)
     if args.rerun:
         return main_rerun(args)
     print("| graph | kind | false | seed | precision | recall | map vs clean optimum | map vs clean replay "
@@ -202,6 +211,40 @@ def main(argv=None) -> int:
               f"{robust.update_seconds / base.update_seconds:.1f}× | "
               f"{robust.update_p99 / base.update_p99:.1f}× | {settle:.2f} | "
               f"{robust_whole / base_whole:.1f}× | {robust.robust_status['status']} |", flush=True)
+    print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
+    return 0
+
+
+def _cli_seconds(*argv) -> float:
+    """Wall seconds of ``lie-factors ARGV --quiet`` in a fresh process (it must succeed)."""
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "lie_factors.app.cli", *argv, "--quiet"], check=True,
+                   stdout=subprocess.DEVNULL)
+    return time.perf_counter() - t
+
+
+def main_commands(args) -> int:
+    print("| graph | kind | false | seed | clean `--incremental` s | `--incremental --gnc tls` s | ratio "
+          "| batch `--gnc tls` s |")
+    print("|---|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.graphs:
+            clean = os.path.join(DATA, name + ".g2o")
+            for kind in args.kinds:
+                for fraction in args.fractions:
+                    for seed in args.seeds:
+                        bad = os.path.join(tmp, "bad.g2o")
+                        subprocess.run([sys.executable, "-m", "lie_factors.app.cli", "corrupt", clean, bad,
+                                        "--fraction", str(fraction), "--kind", kind, "--seed", str(seed)],
+                                       check=True, stdout=subprocess.DEVNULL)
+                        best = [np.inf] * 3
+                        for _ in range(args.repeat):  # alternated
+                            for i, argv in enumerate((("posegraph", clean, "--incremental"),
+                                                      ("posegraph", bad, "--incremental", "--gnc", "tls"),
+                                                      ("posegraph", bad, "--gnc", "tls"))):
+                                best[i] = min(best[i], _cli_seconds(*argv))
+                        print(f"| {name} | {kind} | {fraction:.0%} | {seed} | {best[0]:.2f} | {best[1]:.2f} "
+                              f"| {best[1] / best[0]:.1f}× | {best[2]:.2f} |", flush=True)
     print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
     return 0
 
