@@ -444,7 +444,7 @@ class BlockFactor(FactorReading):
                 (dead is not None and dead.size) else np.arange(self.nv, dtype=np.int64)
             orphans = orphans[:0]
         order = self._order(affected, orphans, observed) if groups is None else \
-            self._order_groups(affected, orphans, groups)
+            self._order_groups(affected, orphans, groups, observed)
         stats = self.work.stats
         before = stats.copy()
         # a batch step rewrites every node: into new pools (nothing in the old ones is read),
@@ -538,17 +538,19 @@ class BlockFactor(FactorReading):
             ordering_ = gtsam.Ordering.ColamdSymbolicFactorGraph(g)
         return np.fromiter(map(ordering_.at, range(ordering_.size())), dtype=np.int64, count=ordering_.size())
 
-    def _order_groups(self, affected: np.ndarray, orphans: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    def _order_groups(self, affected: np.ndarray, orphans: np.ndarray, groups: np.ndarray,
+                      observed: np.ndarray) -> np.ndarray:
         """The affected variables in an elimination order that takes them group by group
-        (``groups[v]``, smaller first; GTSAM's constrained ordering of ISAM2's
-        ``constrainedKeys``): ordered as :meth:`_order` orders them with every variable above the
-        smallest group last, then sorted stably by group (with two groups, as constrained
-        COLAMD orders them)."""
+        (``groups[v]``, smaller first: ISAM2's ``constrainedKeys``): ordered as :meth:`_order`
+        orders them, the ``observed`` ones last, then sorted stably by group.  Keeping the
+        observed variables last inside their group (ISAM2's rule without constrained keys) keeps
+        the newest variables at the root: with the groups alone, minimum degree starts a chain at
+        its newest end, the oldest variable becomes the root, and a fixed-lag smoother's next
+        marginalization must re-eliminate the whole window to make it a leaf."""
         g = groups[affected]
         if not len(g):
             return affected
-        later = affected[g > g.min()]
-        order = self._order(affected, orphans, later)
+        order = self._order(affected, orphans, observed)
         return order[np.argsort(groups[order], kind="stable")]
 
     def _graph_room(self, affected: np.ndarray, orphans: np.ndarray) -> int:

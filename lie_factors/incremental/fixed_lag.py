@@ -100,14 +100,13 @@ class IncrementalFixedLagSmoother:
             bisect.insort(order, (t, k))
         try:
             now = order[-1][0] if order else -np.finfo(float).max
-            old_keys = [k for k in self._keys_before(now - self._lag) if self.isam.valueExists(k)
-                        or (newTheta is not None and newTheta.exists(k))]
+            # a key with a timestamp and no value is no variable: left out of the order's groups
+            variables, new_keys = self.isam.var, set() if newTheta is None else set(newTheta.keys())
+            old_keys = [k for k in self._keys_before(now - self._lag) if k in variables or k in new_keys]
             constrained = None
             if old_keys:
-                constrained = dict.fromkeys(self._time, 1)
+                constrained = {k: 1 for k in self._time if k in variables or k in new_keys}
                 constrained.update(dict.fromkeys(old_keys, 0))
-                constrained = {k: g for k, g in constrained.items() if self.isam.valueExists(k)
-                               or (newTheta is not None and newTheta.exists(k))}
             extra = self.isam.row_subtree_keys([k for k in old_keys if self.isam.valueExists(k)])
             self._result = self.isam.update(newFactors, newTheta, list(factorsToRemove), constrained, None, extra)
         except BaseException:

@@ -95,6 +95,8 @@ def _constrained(value):
     if value is None or isinstance(value, gtsam.KeyGroupMap):
         return value
     if isinstance(value, dict):
+        if all(type(g) is int for g in value.values()) and all(type(k) is int for k in value):
+            return dict(value)
         out = {}
         for k, g in value.items():
             if isinstance(g, (bool, np.bool_)) or not isinstance(g, (int, np.integer)):
