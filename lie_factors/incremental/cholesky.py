@@ -542,13 +542,11 @@ class BlockFactor(FactorReading):
                       observed: np.ndarray) -> np.ndarray:
         """The affected variables in an elimination order that takes them group by group
         (``groups[v]``, smaller first: ISAM2's ``constrainedKeys``): ordered as :meth:`_order`
-        orders them, the ``observed`` ones last, then sorted stably by group.  Keeping the
-        observed variables last inside their group (ISAM2's rule without constrained keys) keeps
-        the newest variables at the root: with the groups alone, minimum degree starts a chain at
-        its newest end, the oldest variable becomes the root, and a fixed-lag smoother's next
-        marginalization must re-eliminate the whole window to make it a leaf."""
-        g = groups[affected]
-        if not len(g):
+        orders them, the ``observed`` ones last, then sorted stably by group.  The observed last
+        (ISAM2's rule without groups) keeps the newest at the root; with the groups alone, a
+        chain's oldest variable becomes the root, and a fixed-lag smoother's next
+        marginalization re-eliminates the whole window to make it a leaf."""
+        if not len(affected):
             return affected
         order = self._order(affected, orphans, observed)
         return order[np.argsort(groups[order], kind="stable")]
