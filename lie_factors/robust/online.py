@@ -40,10 +40,15 @@ probability :data:`PROBABILITY` (a binomial bound, :func:`min_fit`).  The tail
 model's scale is then set from the median of their statistics against the map
 they found (the known inliers alone) with the noise models' χ²_n shape — up to
 half of them may be false — and each is decided in the order it came
-(:meth:`OnlineRejection._first_fit`).  Later the model is fitted to the accepted
-closures' statistics (as the batch check's, its tail at most as heavy as
-ν = :data:`~lie_factors.robust.tail.TAIL_DOF`) each time they have grown by
-:data:`REFIT_GROWTH`.  No threshold exceeds the batch odometry gate's,
+(:meth:`OnlineRejection._first_fit`).  The statistic's scale moves with the map it
+is measured against where the odometry's noise models and the closures' are off
+by different factors (a closure against the odometry alone measures mostly the
+odometry's), so while fewer than :data:`MIN_FIT` closures are accepted the scale
+is set again the same way, from the median of the closures that came since, each
+time the closures have grown by :data:`REFIT_GROWTH`.  Then the model is fitted
+to the accepted closures' statistics (as the batch check's, its tail at most as
+heavy as ν = :data:`~lie_factors.robust.tail.TAIL_DOF`) each time they have grown
+by :data:`REFIT_GROWTH`.  No threshold exceeds the batch odometry gate's,
 χ²_gn(:data:`PROBABILITY`) at the noise models' own scale.
 """
 
@@ -168,7 +173,8 @@ class OnlineRejection:
         self.queue: deque = deque()  # closure ids, the oldest decision first
         self.model = TailModel(self.n, np.zeros(0), self.probability)
         self._limits: dict = {}  # group size -> the model's threshold
-        self._fitted_at = 0
+        self._fitted_at = 0  # accepted closures at the last fit to them
+        self._median_at = 0  # closures at the last scale set from a median
         self.fits = 0  # the tail model's fits so far
         self.tests = 0  # group statistics computed (the work the bound counts)
         self.unsettled = False  # settle() stopped at its rounds with a change to make
@@ -208,12 +214,27 @@ class OnlineRejection:
         return np.flatnonzero(self.state == ACCEPTED)
 
     def _refit(self) -> None:
+        """The tail model fitted again (module docstring): to the accepted closures once there
+        are :data:`MIN_FIT` of them, each time they grow by :data:`REFIT_GROWTH`; before, its scale
+        from the median of the closures that came since the last such scale, each time the
+        closures grow by :data:`REFIT_GROWTH`."""
         acc = self.accepted()
-        if acc.size >= MIN_FIT and acc.size >= REFIT_GROWTH * self._fitted_at:
-            self.model = TailModel(self.n, self.T[acc], self.probability)
-            self._limits = {}
-            self._fitted_at = acc.size
-            self.fits += 1
+        if acc.size >= MIN_FIT:
+            if acc.size >= REFIT_GROWTH * self._fitted_at:
+                self._fitted_at = acc.size
+                self._set_model(TailModel(self.n, self.T[acc], self.probability))
+        elif self._median_at and len(self.state) >= REFIT_GROWTH * self._median_at:
+            self._set_model(self._median_scale(np.arange(self._median_at, len(self.state))))
+
+    def _median_scale(self, closures: np.ndarray) -> TailModel:
+        """The model whose scale is set from the median of ``closures``' statistics, with the
+        noise models' χ²_n shape: up to half of them may be false, so only their median is read."""
+        self._median_at = len(self.state)
+        return TailModel(self.n, self.T[closures], self.probability, dof=DOF_RANGE[1], fit=False)
+
+    def _set_model(self, model: TailModel) -> None:
+        self.model, self._limits = model, {}
+        self.fits += 1
 
     def _near(self, c: int, state: int) -> np.ndarray:
         """Closures in ``state`` whose ends (low, high key) are each within GROUP_WINDOW of
@@ -311,11 +332,8 @@ class OnlineRejection:
         held = list(range(len(self.state)))
         for c in held:
             self.T[c] = self.statistic(smoother, [c])
-        # Up to half of them may be false: the scale from their median alone, with the noise
-        # models' own shape (χ²_n); the tail's weight is fitted later, to accepted closures.
-        self.model = TailModel(self.n, self.T[held], self.probability, dof=DOF_RANGE[1], fit=False)
-        self._limits = {}
-        self.fits = 1
+        # the tail's weight is fitted later, to accepted closures
+        self._set_model(self._median_scale(np.asarray(held, dtype=np.int64)))
         self.queue.extend(held)
         for c in held:
             self.T[c] = self.statistic(smoother, [c])

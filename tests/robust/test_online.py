@@ -300,3 +300,53 @@ def test_a_group_is_computed_once_per_state_and_decides_as_without_reuse(small):
     assert len(computed) - fresh_count > fresh_count  # the reuse saved statistics
     np.testing.assert_array_equal(np.sort(reused.outliers), np.sort(fresh.outliers))
     assert reused.error == pytest.approx(fresh.error, rel=1e-9)
+
+
+def _rejection_after_first_fit(first: int, total: int, accepted: int, T: np.ndarray) -> online.OnlineRejection:
+    """An OnlineRejection whose first fit was made at ``first`` closures, now holding ``total``
+    closures with statistics ``T``, the first ``accepted`` of them accepted."""
+    r = online.OnlineRejection(6)
+    r.state = np.full(total, online.PENDING, dtype=np.int8)
+    r.state[:accepted] = online.ACCEPTED
+    r.T = np.asarray(T, dtype=np.float64)
+    r.epoch = np.ones(total, dtype=np.int64)
+    r._set_model(r._median_scale(np.arange(first)))
+    r._median_at = first
+    return r
+
+
+def _median_scale_of(T: np.ndarray) -> float:
+    return float(np.median(T)) / stats.chi2.median(6)  # s·χ²_6 at its median
+
+
+def test_before_min_fit_accepted_the_scale_follows_the_median_of_the_newer_closures():
+    # the statistics of the closures that came later are 20× those of the first ones (the map they
+    # are measured against holds closures now): the scale is set again from the newer ones' median
+    # when the closures have doubled, not before, and only while few are accepted
+    rng = np.random.default_rng(3)
+    first = 60
+    T = np.concatenate([rng.chisquare(6, first), 20.0 * rng.chisquare(6, first)]) * 1e-6
+    r = _rejection_after_first_fit(first, 2 * first - 1, 3, T[:2 * first - 1])
+    before = r.model.scale
+    assert before == pytest.approx(_median_scale_of(T[:first]), rel=1e-4)
+    r._refit()
+    assert (r.model.scale, r.fits) == (before, 1)
+    r = _rejection_after_first_fit(first, 2 * first, 3, T)
+    r._refit()
+    assert r.fits == 2
+    assert r.model.scale == pytest.approx(_median_scale_of(T[first:]), rel=1e-4)
+    assert r.model.scale > 10 * before
+    assert r.status()["status"] == "uncertain"  # the decisions made under the first scale are stale
+    r._refit()
+    assert r.fits == 2
+
+
+def test_from_min_fit_accepted_the_model_is_fitted_to_the_accepted_closures():
+    rng = np.random.default_rng(4)
+    first = online.MIN_FIT
+    T = np.concatenate([rng.chisquare(6, first), 20.0 * rng.chisquare(6, first)]) * 1e-6
+    r = _rejection_after_first_fit(first, 2 * first, online.MIN_FIT, T)
+    r._refit()
+    expected = online.TailModel(6, T[:online.MIN_FIT], online.PROBABILITY)
+    assert r.fits == 2
+    assert (r.model.scale, r.model.dof) == (expected.scale, expected.dof)
