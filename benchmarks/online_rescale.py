@@ -49,13 +49,13 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[4, 5, 6])
     a = ap.parse_args()
     fired: list = []
-    median_scale = online.OnlineRejection._median_scale
+    median_scale = online.OnlineRejection._set_median_scale
 
-    def counted(self, closures):
+    def counted(self, first):
         fired.append(len(self.state))
-        return median_scale(self, closures)
+        median_scale(self, first)
 
-    online.OnlineRejection._median_scale = counted
+    online.OnlineRejection._set_median_scale = counted
     rule = online.OnlineRejection._refit
     print("| case | scale set again | precision, recall, map error %, status | without the rule |")
     print("|---|---:|---|---|")

@@ -107,7 +107,7 @@ class IncrementalFixedLagSmoother:
             if old_keys:
                 constrained = {k: 1 for k in self._time if k in variables or k in new_keys}
                 constrained.update(dict.fromkeys(old_keys, 0))
-            extra = self.isam.row_subtree_keys([k for k in old_keys if self.isam.valueExists(k)])
+            extra = self.isam.row_subtree_keys([k for k in old_keys if k in variables])
             self._result = self.isam.update(newFactors, newTheta, list(factorsToRemove), constrained, None, extra)
         except BaseException:
             self._time, self._order = saved[0], saved[1]

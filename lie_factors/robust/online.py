@@ -224,13 +224,15 @@ class OnlineRejection:
                 self._fitted_at = acc.size
                 self._set_model(TailModel(self.n, self.T[acc], self.probability))
         elif self._median_at and len(self.state) >= REFIT_GROWTH * self._median_at:
-            self._set_model(self._median_scale(np.arange(self._median_at, len(self.state))))
+            self._set_median_scale(self._median_at)
 
-    def _median_scale(self, closures: np.ndarray) -> TailModel:
-        """The model whose scale is set from the median of ``closures``' statistics, with the
-        noise models' χ²_n shape: up to half of them may be false, so only their median is read."""
+    def _set_median_scale(self, first: int) -> None:
+        """The model whose scale is set from the median of the statistics of closures ``first``
+        onwards, with the noise models' χ²_n shape: up to half of them may be false, so only their
+        median is read."""
+        closures = np.arange(first, len(self.state))
         self._median_at = len(self.state)
-        return TailModel(self.n, self.T[closures], self.probability, dof=DOF_RANGE[1], fit=False)
+        self._set_model(TailModel(self.n, self.T[closures], self.probability, dof=DOF_RANGE[1], fit=False))
 
     def _set_model(self, model: TailModel) -> None:
         self.model, self._limits = model, {}
@@ -332,8 +334,7 @@ class OnlineRejection:
         held = list(range(len(self.state)))
         for c in held:
             self.T[c] = self.statistic(smoother, [c])
-        # the tail's weight is fitted later, to accepted closures
-        self._set_model(self._median_scale(np.asarray(held, dtype=np.int64)))
+        self._set_median_scale(0)  # the tail's weight is fitted later, to accepted closures
         self.queue.extend(held)
         for c in held:
             self.T[c] = self.statistic(smoother, [c])

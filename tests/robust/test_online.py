@@ -306,12 +306,13 @@ def _rejection_after_first_fit(first: int, total: int, accepted: int, T: np.ndar
     """An OnlineRejection whose first fit was made at ``first`` closures, now holding ``total``
     closures with statistics ``T``, the first ``accepted`` of them accepted."""
     r = online.OnlineRejection(6)
+    r.state = np.full(first, online.PENDING, dtype=np.int8)
+    r.T = np.asarray(T[:first], dtype=np.float64)
+    r._set_median_scale(0)
     r.state = np.full(total, online.PENDING, dtype=np.int8)
     r.state[:accepted] = online.ACCEPTED
     r.T = np.asarray(T, dtype=np.float64)
     r.epoch = np.ones(total, dtype=np.int64)
-    r._set_model(r._median_scale(np.arange(first)))
-    r._median_at = first
     return r
 
 
