@@ -177,14 +177,19 @@ def measure(case: Case, data: GraphData, clean: CleanOptimum) -> dict[str, Any]:
 
 
 def fork_safe_threads() -> bool:
-    """Choose numba's ``workqueue`` threads for this process unless its threads already run (GNU
+    """Choose numba's ``workqueue`` threads for this process, and take their count from
+    ``NUMBA_NUM_THREADS`` as the environment holds it now, unless its threads already run (GNU
     OpenMP's cannot survive a fork); whether a child forked now can run numba's parallel code."""
     import numba
     from numba.core import config
 
     try:
         return numba.threading_layer() in ("workqueue", "tbb")
-    except ValueError:  # no parallel code has run yet: the layer is still ours to choose
+    except ValueError:  # no parallel code has run yet: the layer and the thread count are still ours to set
+        # A worker that imported numba before its environment was set (a spawned process re-imports
+        # its parent's main module first) holds the default thread count, not NUMBA_NUM_THREADS; its
+        # first compile after the threads start would re-read the environment and refuse the change.
+        config.reload_config()
         # numba.core.config sets its names from the environment at run time: no attribute a checker sees
         if getattr(config, "THREADING_LAYER") in ("default", "safe", "threadsafe", "forksafe", "omp"):
             setattr(config, "THREADING_LAYER", "workqueue")
@@ -279,5 +284,6 @@ def _in_child(case: Case, data: GraphData, clean: CleanOptimum, timeout: float |
     if not chunks:
         how = (f"signal {signal.Signals(os.WTERMSIG(status)).name}" if os.WIFSIGNALED(status)
                else f"exit status {os.WEXITSTATUS(status)}")
-        return {"status": "failed", "error": f"the case's process died ({how})", "case_seconds": time.perf_counter() - t}
+        return {"status": "failed", "error": f"the case's process died ({how})",
+                "case_seconds": time.perf_counter() - t}
     return pickle.loads(b"".join(chunks))

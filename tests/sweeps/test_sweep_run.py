@@ -177,3 +177,59 @@ def test_a_case_past_its_timeout_is_a_row_and_the_sweep_goes_on(tmp_path):
     assert all("timeout of 0.05 s" in r["error"] for r in rows)
     with open(out, newline="") as fh:
         assert len(list(csv.reader(fh))) == 3
+
+
+
+PARALLEL_KERNEL = """
+import numba
+
+
+@numba.njit(parallel=True, cache=True)
+def total(x):
+    t = 0.0
+    for i in numba.prange(x.size):
+        t += x[i]
+    return t
+"""
+
+WORKER_THREADS = """
+import os
+import sys
+
+import numba
+import numpy as np
+
+# a worker process imports numba (its parent's main module) before its environment is set
+os.environ["NUMBA_NUM_THREADS"] = str(numba.config.NUMBA_NUM_THREADS + 1)
+from lie_factors.sweeps.cases import fork_safe_threads
+
+fork_safe_threads()
+sys.path.insert(0, sys.argv[1])
+from kernel import total
+
+total(np.ones(64))  # loaded from numba's cache, no compile: the threads start
+
+
+@numba.njit
+def later(x):  # a compile after they started re-reads the environment
+    return x + 1
+
+
+later(1)
+print(numba.config.NUMBA_NUM_THREADS, os.environ["NUMBA_NUM_THREADS"])
+"""
+
+
+def test_a_case_takes_the_thread_count_the_environment_set_after_numba_was_imported(tmp_path):
+    """A sweep's worker gets NUMBA_NUM_THREADS after its parent's main module imported numba: the
+    case's threads start with the environment's count, so a later compile does not refuse it."""
+    (tmp_path / "kernel.py").write_text(PARALLEL_KERNEL)
+    child = {k: v for k, v in env().items() if k != "NUMBA_NUM_THREADS"}
+    child["NUMBA_CACHE_DIR"] = str(tmp_path / "cache")
+    fill = "import sys, numpy as np; sys.path.insert(0, sys.argv[1]); from kernel import total; total(np.ones(64))"
+    subprocess.run([sys.executable, "-c", fill, str(tmp_path)], env=child, check=True, timeout=300)
+    done = subprocess.run([sys.executable, "-c", WORKER_THREADS, str(tmp_path)], env=child, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    configured, environment = done.stdout.split()
+    assert configured == environment
