@@ -26,12 +26,24 @@ re-admits closures set aside earlier, as a group, where one at a time each
 would look wrong (a stretch of true closures that only agree with the map
 once all of them are in).
 
-One sparse Cholesky P·H·Pᵀ = L·D·Lᵀ; H_GG = YᵀD⁻¹Y with Y = L⁻¹·P·A_Gᵀ.  A column
-of P·A_Gᵀ is nonzero on the variables of two poses only, and L⁻¹ spreads it
-along their paths to the root of L's elimination tree (Gilbert and Peierls,
-"Sparse partial pivoting in time proportional to arithmetic operations",
-1988), so each group is solved on the union of its poses' paths: hundreds of
-rows where the system has thousands (intel: 150 of 5184 on average).
+Two ways to H_GG from a sparse Cholesky P·H·Pᵀ = L·D·Lᵀ:
+
+- **On paths.** H_GG = YᵀD⁻¹Y with Y = L⁻¹·P·A_Gᵀ: a column of P·A_Gᵀ is nonzero
+  on the variables of two poses only, and L⁻¹ spreads it along their paths to
+  the root of L's elimination tree (Gilbert and Peierls, "Sparse partial pivoting
+  in time proportional to arithmetic operations", 1988), so each group is solved
+  on the union of its poses' paths: hundreds of rows where the system has
+  thousands (intel: 150 of 5184 on average).  Every group out of the graph takes
+  this way: its ends are far apart, and their block in the factor's pattern
+  would bring back the fill its weight 0 keeps out.
+- **By selected inversion**, for the groups in the graph: the blocks of H⁻¹ among
+  a group's poses lie on L's pattern once the blocks among them are in H's (as
+  zeros where no factor joins them), and selected inversion
+  (:mod:`lie_factors.sparse.selinv`) gives every block of H⁻¹ on that pattern for
+  the products of one sweep over the factor.  Where the graph's separators are
+  large (a 3-D grid, a torus), every path crosses them, and one sweep costs less
+  than a path per group; on a near-chain the paths are short.  The count of
+  multiply-adds of each way decides (:func:`_selected_inverse_is_cheaper`).
 """
 
 from __future__ import annotations
@@ -42,9 +54,12 @@ import numpy as np
 from numba import prange
 
 from ..posegraph.graph import PoseGraph
-from ..sparse.cholmod import Cholesky, block_order
+from ..sparse.cholmod import Cholesky, block_order, direct_available, lower_csc
+from ..sparse.selinv import diagonal_blocks, invert_in_place
+from ..sparse.supernodes import Supernodes
 from ..batch.graph import Problem
 from ..batch.loops import parallel_kernel
+from ..kernels.jit import kernel
 from ..kernels.sort import sort
 from ..batch.system import LinearSystem
 from .leverage import statistics
@@ -137,7 +152,12 @@ def group_gram(factor: Cholesky, pos: np.ndarray, o1: np.ndarray, o2: np.ndarray
     scalars ``o1[f]:o1[f]+n`` and ``o2[f]:o2[f]+n``; ``groups``: sequences of factor
     indices.  Returns one (d, d) array per group, d = n·len(group).
     """
-    perm, colptr, rowind, values, d = factor.lower()
+    return _path_gram(factor.lower(), pos, o1, o2, A1, A2, groups)
+
+
+def _path_gram(lower: tuple, pos, o1, o2, A1, A2, groups: list) -> list:
+    """:func:`group_gram` from ``lower``, :meth:`~lie_factors.sparse.cholmod.Cholesky.lower`'s arrays."""
+    perm, colptr, rowind, values, d = lower
     where = np.empty(len(perm), dtype=np.int64)
     where[perm] = np.arange(len(perm))
     pos = where[np.asarray(pos, dtype=np.int64)]
@@ -155,6 +175,39 @@ def group_gram(factor: Cholesky, pos: np.ndarray, o1: np.ndarray, o2: np.ndarray
     return [H[hptr[g]:hptr[g + 1]].reshape(n * sizes[g], n * sizes[g]) for g in range(len(groups))]
 
 
+@kernel
+def _path_entries(colptr, rowind):
+    """(N,) the entries of L's columns on the path from each column to the root of the
+    elimination tree (a column's parent: its smallest off-diagonal row, always a later column)."""
+    N = colptr.shape[0] - 1
+    out = np.zeros(N, dtype=np.int64)
+    for j in range(N - 1, -1, -1):
+        parent = N
+        for q in range(colptr[j] + 1, colptr[j + 1]):
+            parent = min(parent, rowind[q])
+        out[j] = colptr[j + 1] - colptr[j] + (out[parent] if parent < N else 0)
+    return out
+
+
+def _selected_inverse_is_cheaper(lower: tuple, pos: np.ndarray, offsets: np.ndarray, n: int, sizes: np.ndarray,
+                                 ends: list) -> bool:
+    """Whether the groups in the graph cost fewer multiply-adds by selected inversion than on paths.
+
+    Paths: each group's d = n·size columns swept over the entries on its ends' paths (their
+    sum: an upper bound of the union's).  Selected inversion: Σ_j c_j² over L's columns of c_j
+    entries, its products' count (:mod:`lie_factors.sparse.selinv`), the blocks among each
+    group's poses not counted.
+    """
+    perm, colptr, rowind = lower[:3]
+    where = np.empty(len(perm), dtype=np.int64)
+    where[perm] = np.arange(len(perm))
+    on_path = _path_entries(colptr, rowind)
+    first_row = where[pos[offsets]]  # a variable's first scalar: every other one is on its path
+    paths = sum(int(n * size) * int(on_path[first_row[v]].sum()) for size, v in zip(sizes.tolist(), ends))
+    counts = np.diff(colptr).astype(np.float64)
+    return float(np.dot(counts, counts)) < paths
+
+
 def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups: list) -> np.ndarray:
     """(G,) T_G of each group at the poses ``X`` (P, m, m) in ``graph.keys`` order.
 
@@ -163,43 +216,113 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
     weight 1 (the leave-group-out test) or all of weight 0 (the innovation
     test).  NaN for a group without which the graph would be singular
     (leverage 1: nothing else measures what it measures; :data:`~lie_factors.robust.leverage.SINGULAR`).
+
+    A_G·H⁻¹·A_Gᵀ of a group out of the graph comes from the paths of :func:`group_gram`;
+    of the groups in the graph, from the same paths or from the selected inverse of H
+    (its poses' blocks added to the pattern), whichever costs fewer multiply-adds
+    (:func:`_selected_inverse_is_cheaper`; the module docstring).
     """
     problem = Problem.from_pose_graph(graph, X)
     problem.linearize()
     between = next(g for g in problem.groups if g.kind == "between")
+    out = np.full(len(groups), np.nan)
+    if not groups:
+        return out
+    where = np.full(problem.graph_size, -1, dtype=np.int64)
+    where[between.fidx] = np.arange(between.fidx.size)
+    rows = [where[np.asarray(G, dtype=np.int64)] for G in groups]
+    if any(np.any(r < 0) for r in rows):
+        raise ValueError("leave_out_chi2: a group holds a factor that is not a between factor")
+    w = [weights[between.fidx[r]] for r in rows]
+    signs = np.array([-1.0 if np.all(x == 1.0) else 1.0 if np.all(x == 0.0) else np.nan for x in w])
+    if np.isnan(signs).any():
+        raise ValueError("leave_out_chi2: a group must be all in the graph (weight 1) or all out (0)")
+    inside, outside = np.flatnonzero(signs < 0), np.flatnonzero(signs > 0)
+    colptr, rowind, values, pos = _system_with_blocks(problem, between, weights, [])
+    factor = Cholesky(colptr, rowind)
+    factor.factorize(values)
+    lower = factor.lower()
+    ends = [np.unique(np.concatenate([between.v1[rows[g]], between.v2[rows[g]]])) for g in inside.tolist()]
+    by_inverse = inside.size > 0 and _selected_inverse_is_cheaper(
+        lower, pos, problem.var_offsets, between.A1.shape[1], np.array([len(groups[g]) for g in inside]), ends)
+    on_paths = outside if by_inverse else np.arange(len(groups))
+    Hs: list = [None] * len(groups)
+    for g, H in zip(on_paths.tolist(), _path_gram(lower, pos, between.o1, between.o2, between.A1, between.A2,
+                                                  [rows[g] for g in on_paths])):
+        Hs[g] = H
+    if by_inverse:
+        colptr, rowind, values, pos = _system_with_blocks(problem, between, weights, ends)
+        factor = Cholesky(colptr, rowind, natural=True, supernodal=True)
+        factor.factorize(values)
+        inverse = invert_in_place(factor.supernodes() if factor.supernodal and direct_available()
+                                  else Supernodes.from_lower(*factor.lower()))
+        for g, H in zip(inside.tolist(), _gram_from_inverse(inverse, pos, problem.var_offsets, between,
+                                                            [rows[g] for g in inside], ends)):
+            Hs[g] = H
+    sizes = np.array([len(G) for G in groups], dtype=np.int64)
+    for size in np.unique(sizes).tolist():
+        idx = np.flatnonzero(sizes == size)
+        b = np.stack([between.b[rows[g]].reshape(-1) for g in idx])
+        out[idx] = statistics(np.ascontiguousarray(np.stack([Hs[g] for g in idx])), b, np.ascontiguousarray(signs[idx]))
+    return out
+
+
+def _system_with_blocks(problem: Problem, between, weights: np.ndarray, sets: list):
+    """H of the weighted factors, ordered and stored with every block among the variables of each
+    of ``sets`` (arrays of variable indices) in its pattern (as zeros where H has none):
+    (colptr, rowind, values, pos), the lower triangle in compressed columns and ``pos``
+    (n,) the matrix row of each variable scalar."""
     # What weighs 0 (a rejected closure between far-apart poses) stays out of the fill-reducing
     # order and of the factor's structure: its blocks of H are 0, and would only add fill to L.
     live = weights[between.fidx] != 0.0
-    pairs = np.concatenate([np.stack([between.v1[live], between.v2[live]], axis=1), problem.native_pairs])
+    among = [np.stack(np.triu_indices(len(v), 1)) for v in sets]
+    qa = np.concatenate([v[i[0]] for v, i in zip(sets, among)]) if sets else np.zeros(0, dtype=np.int64)
+    qb = np.concatenate([v[i[1]] for v, i in zip(sets, among)]) if sets else np.zeros(0, dtype=np.int64)
+    pairs = np.concatenate([np.stack([between.v1[live], between.v2[live]], axis=1), problem.native_pairs,
+                            np.stack([qa, qb], axis=1).astype(np.int64)])
     system = LinearSystem(problem, block_order(len(problem.var_dims), pairs[:, 0], pairs[:, 1]))
     system.weights[:] = weights
     system.assemble()
     p = system.pattern
-    keep = system.data != 0.0
-    keep[p.colptr[:-1]] = True  # the diagonal (first in each column)
-    colptr = np.concatenate([[0], np.cumsum(np.add.reduceat(keep, p.colptr[:-1]))]).astype(np.int64) \
-        if p.n else np.zeros(1, dtype=np.int64)
-    factor = Cholesky(colptr, p.rowind[keep])
-    factor.factorize(np.ascontiguousarray(system.data[keep]))
     pos = np.empty(p.n, dtype=np.int64)
     pos[p.scalar_order] = np.arange(p.n)
-    where = np.full(problem.graph_size, -1, dtype=np.int64)
-    where[between.fidx] = np.arange(between.fidx.size)
-    out = np.full(len(groups), np.nan)
-    if not groups:
-        return out
-    rows = [where[np.asarray(G, dtype=np.int64)] for G in groups]
-    if any(np.any(r < 0) for r in rows):
-        raise ValueError("leave_out_chi2: a group holds a factor that is not a between factor")
-    Hs = group_gram(factor, pos, between.o1, between.o2, between.A1, between.A2, rows)
-    sizes = np.array([len(G) for G in groups], dtype=np.int64)
-    for size in np.unique(sizes).tolist():
-        idx = np.flatnonzero(sizes == size)
-        Hgg = np.stack([Hs[g] for g in idx])
-        w = np.stack([weights[between.fidx[rows[g]]] for g in idx])
-        signs = np.where(np.all(w == 1.0, axis=1), -1.0, np.where(np.all(w == 0.0, axis=1), 1.0, np.nan))
-        if np.isnan(signs).any():
-            raise ValueError("leave_out_chi2: a group must be all in the graph (weight 1) or all out (0)")
-        b = np.stack([between.b[rows[g]].reshape(-1) for g in idx])
-        out[idx] = statistics(np.ascontiguousarray(Hgg), b, np.ascontiguousarray(signs))
+    keep = system.data != 0.0
+    keep[p.colptr[:-1]] = True  # the diagonal (first in each column)
+    if not sets:
+        colptr = np.concatenate([[0], np.cumsum(np.add.reduceat(keep, p.colptr[:-1]))]).astype(np.int64) \
+            if p.n else np.zeros(1, dtype=np.int64)
+        return colptr, p.rowind[keep], np.ascontiguousarray(system.data[keep]), pos
+    col = np.repeat(np.arange(p.n, dtype=np.int64), np.diff(p.colptr))
+    n = between.A1.shape[1]
+    scalars = np.arange(n)
+    ra = pos[problem.var_offsets[qa][:, None, None] + scalars[:, None] + 0 * scalars].reshape(-1)
+    rb = pos[problem.var_offsets[qb][:, None, None] + 0 * scalars[:, None] + scalars].reshape(-1)
+    colptr, rowind, values = lower_csc(p.n, np.concatenate([p.rowind[keep], np.maximum(ra, rb)]),
+                                       np.concatenate([col[keep], np.minimum(ra, rb)]),
+                                       np.concatenate([system.data[keep], np.zeros(ra.size)]))
+    return colptr, rowind, np.ascontiguousarray(values), pos
+
+
+def _gram_from_inverse(inverse: Supernodes, pos: np.ndarray, offsets: np.ndarray, between, groups: list,
+                       ends: list) -> list:
+    """A_G·H⁻¹·A_Gᵀ (d × d, d = n·len(G)) of each group of between factors (indices into the
+    ``between`` block's factors) from ``inverse`` (:func:`~lie_factors.sparse.selinv.invert_in_place`),
+    whose pattern holds every block among the group's variables ``ends`` (ascending)."""
+    n = between.A1.shape[1]
+    out: list = [None] * len(groups)
+    shape = np.array([[len(G), len(v)] for G, v in zip(groups, ends)], dtype=np.int64).reshape(-1, 2)
+    for s, k in {tuple(x) for x in shape.tolist()}:
+        idx = np.flatnonzero((shape[:, 0] == s) & (shape[:, 1] == k))
+        V = np.stack([ends[g] for g in idx])
+        R = np.stack([groups[g] for g in idx])
+        Z = diagonal_blocks(inverse, pos[offsets[V][:, :, None] + np.arange(n)].reshape(idx.size, k * n))
+        A = np.zeros((idx.size, s, n, k, n))
+        m = np.arange(idx.size)
+        for t in range(s):
+            f = R[:, t]
+            A[m, t, :, np.argmax(V == between.v1[f][:, None], axis=1), :] += between.A1[f]
+            A[m, t, :, np.argmax(V == between.v2[f][:, None], axis=1), :] += between.A2[f]
+        A = A.reshape(idx.size, s * n, k * n)
+        for g, H in zip(idx.tolist(), A @ Z @ A.transpose(0, 2, 1)):
+            out[g] = H
     return out

@@ -19,6 +19,7 @@ import gtsam
 import numpy as np
 import pytest
 
+import lie_factors as lf
 from lie_factors.app import cli, demo
 from lie_factors.backends import build_graph
 from lie_factors.g2o import read_pose_graph
@@ -28,6 +29,7 @@ from support.runs import run
 from lie_factors.robust import clique, consistency
 from lie_factors.robust import gnc as gncm
 from lie_factors.robust import inner
+from lie_factors.robust import leave_out
 from lie_factors.robust.leave_out import leave_out_chi2
 from lie_factors.robust.statistics import chi2_inlier_threshold, f_quantile
 from lie_factors.robust.rejection import closure_groups, reject_false_closures
@@ -285,7 +287,14 @@ def test_screening_rejects_planted_closures_and_keeps_the_true_ones():
     np.testing.assert_array_equal(s.closures, pg.loop_closures())
 
 
-def test_leave_out_chi2_equals_a_dense_reference():
+@pytest.fixture(params=["paths", "selected inversion"])
+def leave_out_way(request, monkeypatch):
+    """Each way the groups in the graph are computed, forced (the rule picks one per call)."""
+    monkeypatch.setattr(leave_out, "_selected_inverse_is_cheaper", lambda *a: request.param != "paths")
+    return request.param
+
+
+def test_leave_out_chi2_equals_a_dense_reference(leave_out_way):
     prob, between = _chain_graph(40, seed=4)
     graph, planted = outliers.plant_false_loop_closures(between, list(range(40)), 3, 4, True)
     pg = PoseGraph.from_gtsam(graph, "Pose3", np.arange(40))
@@ -298,35 +307,76 @@ def test_leave_out_chi2_equals_a_dense_reference():
     inside = [lc[~np.isin(lc, planted)][:1], lc[~np.isin(lc, planted)][1:4]]
     outside = [planted[:1], planted[1:]]
     T = leave_out_chi2(pg, X, w, inside + outside)
-    # dense: GTSAM linearizes the weighted graph (weight 0 = left out)
+    np.testing.assert_allclose(T, _dense_chi2(pg, X, w, inside + outside, (-1, -1, 1, 1)), rtol=1e-8)
+
+
+def _dense_chi2(pg, X, w, groups, signs):
+    """T_G from a dense inverse of the Gauss–Newton matrix GTSAM linearizes (weight 0 = left out)."""
     native = pg.factor_graph()
+    P = len(pg.keys)
     values = gtsam.Values()
-    for k in range(40):
-        values.insert(k, gtsam.Pose3(X[k]))
+    for k in range(P):
+        M = X[k]
+        values.insert(int(pg.keys[k]), gtsam.Pose3(M) if M.shape[0] == 4
+                      else gtsam.Pose2(M[0, 2], M[1, 2], np.arctan2(M[1, 0], M[0, 0])))
     kept = gtsam.NonlinearFactorGraph()
     for k in range(native.size()):
         if w[k]:
             kept.add(native.at(k))
     ordering = gtsam.Ordering()
-    for k in range(40):
-        ordering.push_back(k)
+    for k in pg.keys.tolist():
+        ordering.push_back(int(k))
     A, _ = kept.linearize(values).jacobian(ordering)
     Hinv = np.linalg.inv(A.T @ A)
-    col = {k: k for k in range(40)}
-    for t, G, sign in zip(T, inside + outside, (-1, -1, 1, 1)):
+    n = A.shape[1] // P
+    col = {int(k): i for i, k in enumerate(pg.keys.tolist())}
+    out = []
+    for G, sign in zip(groups, signs):
         rows, res = [], []
         for e in G:
             f = native.at(int(e))
-            J = f.linearize(values)
-            Ag = np.zeros((6, A.shape[1]))
-            Aj, bj = J.jacobian()  # columns in the factor's key order
+            Aj, bj = f.linearize(values).jacobian()  # columns in the factor's key order
+            Ag = np.zeros((n, A.shape[1]))
             for i, key in enumerate(f.keys()):
-                Ag[:, 6 * col[key]:6 * col[key] + 6] = Aj[:, 6 * i:6 * i + 6]
+                Ag[:, n * col[key]:n * col[key] + n] = Aj[:, n * i:n * i + n]
             rows.append(Ag)
             res.append(bj)
         Ag, b = np.vstack(rows), np.concatenate(res)
         M = np.eye(len(b)) + sign * Ag @ Hinv @ Ag.T
-        assert t == pytest.approx(float(b @ np.linalg.solve(M, b)), rel=1e-8)
+        out.append(float(b @ np.linalg.solve(M, b)))
+    return np.array(out)
+
+
+def test_leave_out_chi2_of_groups_sharing_poses_equals_a_dense_reference(leave_out_way):
+    """Planar closures in groups whose members share a pose (one place seen from two, a run of
+    closures between the same places), in the graph and out of it, and one closure alone."""
+    rng = np.random.default_rng(7)
+    P = 40
+    graph = gtsam.NonlinearFactorGraph()
+    odo = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.05, 0.05, 0.02]))
+    loop = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1, 0.1, 0.05]))
+    truth = [gtsam.Pose2(0.0, 0.0, 0.0)]
+    for k in range(1, P):
+        truth.append(truth[-1].compose(gtsam.Pose2(1.0, 0.0, 2 * np.pi / 20)))
+
+    def noisy(a, b, sigmas):
+        d = truth[a].between(truth[b])
+        return d.retract(rng.normal(0.0, sigmas))
+
+    for k in range(P - 1):
+        graph.add(gtsam.BetweenFactorPose2(k, k + 1, noisy(k, k + 1, [0.05, 0.05, 0.02]), odo))
+    closures = [(0, 20), (0, 21), (1, 21), (2, 22), (5, 25), (10, 30), (11, 31), (12, 32), (11, 30), (15, 35)]
+    for a, b in closures:
+        graph.add(gtsam.BetweenFactorPose2(a, b, noisy(a, b, [0.1, 0.1, 0.05]), loop))
+    pg = PoseGraph.from_gtsam(graph, "Pose2", np.arange(P))
+    pg = pg.with_prior(0, truth[0].matrix(), np.diag([1e4, 1e4, 1e4]))
+    X = np.array([t.retract(rng.normal(0.0, [0.02, 0.02, 0.01])).matrix() for t in truth])
+    e = P - 1  # the first closure's edge
+    w = np.ones(len(pg.edge_keys) + 1)
+    w[[e + 6, e + 7, e + 8]] = 0.0  # (10, 30), (11, 31), (12, 32) out of the graph
+    groups = [[e, e + 1, e + 2, e + 3], [e + 4], [e + 9], [e + 6, e + 7, e + 8], [e + 6]]
+    T = leave_out_chi2(pg, X, w, groups)
+    np.testing.assert_allclose(T, _dense_chi2(pg, X, w, groups, (-1, -1, -1, 1, 1)), rtol=1e-8)
 
 
 def test_closure_groups_join_runs_of_closures_between_the_same_places():
@@ -585,3 +635,19 @@ def test_a_pose_graph_solve_leaves_out_the_slots_weighing_zero():
     assert np.all(errors[planted] > 0) and np.all(cut.factor_errors(reference)[planted[1:]] == 0)
     weights[planted] = 1.0  # every slot back: the solver holding them all
     assert solving._solver_for(weights)[0] is solving.lm
+
+
+def test_the_groups_in_the_graph_take_the_way_of_fewer_multiply_adds(monkeypatch):
+    """smallGrid3D's closures, every one a group: one sweep of selected inversion costs less than a
+    path each; one closure alone: its path costs less than the sweep."""
+    pg = read_pose_graph(str(DATA / "smallGrid3D.g2o")).with_first_prior()
+    X = np.asarray(lf.optimize(pg).poses)
+    lc = pg.loop_closures()
+    w = np.ones(len(pg.edge_keys) + 1)
+    chosen = []
+    rule = leave_out._selected_inverse_is_cheaper
+    monkeypatch.setattr(leave_out, "_selected_inverse_is_cheaper", lambda *a: chosen.append(rule(*a)) or chosen[-1])
+    many = leave_out_chi2(pg, X, w, [lc[k:k + 1] for k in range(lc.size)])
+    one = leave_out_chi2(pg, X, w, [lc[:1]])
+    assert chosen == [True, False]
+    assert one[0] == pytest.approx(many[0], rel=1e-9)
