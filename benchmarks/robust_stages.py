@@ -7,8 +7,10 @@ The graph from data/, its clean optimum (the default command), ``lf.corrupt``'s 
 planted from it; then ``lf.optimize(graph, gnc="tls")`` once under cProfile, after a first run of
 the pipeline on the clean graph in the same process (its kernels loaded, none compiled in the
 profiled run).  Prints the verdict (precision, recall, the status, the stage that rejected each
-true closure rejected) and one markdown row per
-stage: cumulative seconds and calls.  cProfile's overhead is per Python call; the stages spend
+true closure rejected), one markdown row per stage (cumulative seconds and calls),
+and one per round of the final check: the closures rejected before it, what it drops and takes
+back (of them planted), its likelihood-ratio trials, the tail model's scale and one closure's
+threshold.  cProfile's overhead is per Python call; the stages spend
 their time in compiled code and CHOLMOD.
 """
 
@@ -28,6 +30,7 @@ import numpy as np  # noqa: E402
 
 import lie_factors as lf  # noqa: E402
 from lie_factors import corruption  # noqa: E402
+from lie_factors.robust import rejection  # noqa: E402
 from lie_factors.testing.outliers import classify  # noqa: E402
 
 #: Stage → (module path suffix, function name) of the profiled call that is the stage.
@@ -52,6 +55,19 @@ def main(argv=None) -> int:
     lf.optimize(pg, gnc="tls")  # loads every kernel the pipeline runs
     c = corruption.plant(pg, fraction=args.fraction, kind=args.kind, seed=args.seed,
                          reference=np.asarray(clean.poses))
+    planted = set(c.planted.tolist())
+    rounds: list[str] = []
+    final_round = rejection._final_round
+
+    def logged(graph, X, weights, lc, *rest):
+        v = final_round(graph, X, weights, lc, *rest)
+        drop, back = v.drop.tolist(), v.back.tolist()
+        rounds.append(f"| {len(rounds) + 1} | {int(np.sum(weights[lc] < 0.5))} | {len(drop)} "
+                      f"({sum(e in planted for e in drop)}) | {len(back)} ({sum(e in planted for e in back)}) | "
+                      f"{len(v.trials)} | {v.model.scale:.3g} | {v.model.threshold(1):.3g} |")
+        return v
+
+    rejection._final_round = logged
     profile = cProfile.Profile()
     t = time.perf_counter()
     profile.enable()
@@ -77,6 +93,10 @@ def main(argv=None) -> int:
         cum = sum(f[0] for f in found)
         calls = sum(f[1] for f in found)
         print(f"| {stage} | {cum:.1f} | {calls} |")
+    print("\n| final check round | rejected before it | drop (false) | take back (false) | trials | scale "
+          "| threshold |")
+    print("|---|---|---|---|---|---|---|")
+    print("\n".join(rounds))
     return 0
 
 
