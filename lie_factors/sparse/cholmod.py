@@ -460,8 +460,9 @@ class Cholesky:
                 size = int(p[-1]) if sp.packed else int(start.max(initial=0) + count.max(initial=0))
                 i = as_array(ctypes.cast(sp.i, ctypes.POINTER(ctypes.c_int32)), shape=(max(size, 1),))
                 x = as_array(ctypes.cast(sp.x, ctypes.POINTER(ctypes.c_double)), shape=(max(size, 1),))
-                take = np.concatenate([np.arange(a, a + c) for a, c in zip(start.tolist(), count.tolist())])
                 colptr = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
+                # each column's entries from its start in CHOLMOD's arrays, packed one after another
+                take = np.arange(int(colptr[-1]), dtype=np.int64) + np.repeat(start - colptr[:-1], count)
                 rowind, values = i[take].astype(np.int64), x[take].astype(np.float64)
             finally:
                 lib.cholmod_free_sparse(ctypes.byref(S), common)
