@@ -152,15 +152,22 @@ def group_gram(factor: Cholesky, pos: np.ndarray, o1: np.ndarray, o2: np.ndarray
     scalars ``o1[f]:o1[f]+n`` and ``o2[f]:o2[f]+n``; ``groups``: sequences of factor
     indices.  Returns one (d, d) array per group, d = n·len(group).
     """
-    return _path_gram(factor.lower(), pos, o1, o2, A1, A2, groups)
+    lower = factor.lower()
+    return _path_gram(lower, _factor_rows(lower[0], pos), o1, o2, A1, A2, groups)
 
 
-def _path_gram(lower: tuple, pos, o1, o2, A1, A2, groups: list) -> list:
-    """:func:`group_gram` from ``lower``, :meth:`~lie_factors.sparse.cholmod.Cholesky.lower`'s arrays."""
-    perm, colptr, rowind, values, d = lower
+def _factor_rows(perm: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """(n,) the factor's row of each variable scalar: ``pos`` (its matrix row) through the
+    factor's permutation ``perm`` (position → matrix row)."""
     where = np.empty(len(perm), dtype=np.int64)
     where[perm] = np.arange(len(perm))
-    pos = where[np.asarray(pos, dtype=np.int64)]
+    return where[np.asarray(pos, dtype=np.int64)]
+
+
+def _path_gram(lower: tuple, at: np.ndarray, o1, o2, A1, A2, groups: list) -> list:
+    """:func:`group_gram` from ``lower``, :meth:`~lie_factors.sparse.cholmod.Cholesky.lower`'s arrays,
+    with ``at`` (n,) the factor's row of each variable scalar (:func:`_factor_rows`)."""
+    _, colptr, rowind, values, d = lower
     n = A1.shape[1]
     sizes = np.array([len(G) for G in groups], dtype=np.int64)
     gptr = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
@@ -169,7 +176,7 @@ def _path_gram(lower: tuple, pos, o1, o2, A1, A2, groups: list) -> list:
             else np.zeros(0, dtype=np.int64))
     H = np.empty(int(hptr[-1]))
     if len(groups):
-        _group_gram(UnitLower(colptr, rowind, values, d), pos, np.ascontiguousarray(o1, dtype=np.int64),
+        _group_gram(UnitLower(colptr, rowind, values, d), at, np.ascontiguousarray(o1, dtype=np.int64),
                     np.ascontiguousarray(o2, dtype=np.int64), np.ascontiguousarray(A1),
                     np.ascontiguousarray(A2), gptr, flat, hptr, H)
     return [H[hptr[g]:hptr[g + 1]].reshape(n * sizes[g], n * sizes[g]) for g in range(len(groups))]
@@ -189,20 +196,18 @@ def _path_entries(colptr, rowind):
     return out
 
 
-def _selected_inverse_is_cheaper(lower: tuple, pos: np.ndarray, offsets: np.ndarray, n: int, sizes: np.ndarray,
-                                 ends: list) -> bool:
+def _selected_inverse_is_cheaper(colptr: np.ndarray, rowind: np.ndarray, at: np.ndarray, offsets: np.ndarray,
+                                 n: int, sizes: np.ndarray, ends: list) -> bool:
     """Whether the groups in the graph cost fewer multiply-adds by selected inversion than on paths.
 
     Paths: each group's d = n·size columns swept over the entries on its ends' paths (their
     sum: an upper bound of the union's).  Selected inversion: Σ_j c_j² over L's columns of c_j
     entries, its products' count (:mod:`lie_factors.sparse.selinv`), the blocks among each
-    group's poses not counted.
+    group's poses not counted.  L: ``colptr``, ``rowind``; ``at`` (n,) the factor's row of
+    each variable scalar, ``offsets`` each variable's first scalar.
     """
-    perm, colptr, rowind = lower[:3]
-    where = np.empty(len(perm), dtype=np.int64)
-    where[perm] = np.arange(len(perm))
     on_path = _path_entries(colptr, rowind)
-    first_row = where[pos[offsets]]  # a variable's first scalar: every other one is on its path
+    first_row = at[offsets]  # a variable's first scalar: every other one is on its path
     paths = sum(int(n * size) * int(on_path[first_row[v]].sum()) for size, v in zip(sizes.tolist(), ends))
     counts = np.diff(colptr).astype(np.float64)
     return float(np.dot(counts, counts)) < paths
@@ -238,16 +243,18 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
     if np.isnan(signs).any():
         raise ValueError("leave_out_chi2: a group must be all in the graph (weight 1) or all out (0)")
     inside, outside = np.flatnonzero(signs < 0), np.flatnonzero(signs > 0)
+    sizes = np.array([len(G) for G in groups], dtype=np.int64)
     colptr, rowind, values, pos = _system_with_blocks(problem, between, weights, [])
     factor = Cholesky(colptr, rowind)
     factor.factorize(values)
     lower = factor.lower()
+    at = _factor_rows(lower[0], pos)
     ends = [np.unique(np.concatenate([between.v1[rows[g]], between.v2[rows[g]]])) for g in inside.tolist()]
     by_inverse = inside.size > 0 and _selected_inverse_is_cheaper(
-        lower, pos, problem.var_offsets, between.A1.shape[1], np.array([len(groups[g]) for g in inside]), ends)
+        lower[1], lower[2], at, problem.var_offsets, between.A1.shape[1], sizes[inside], ends)
     on_paths = outside if by_inverse else np.arange(len(groups))
     Hs: list = [None] * len(groups)
-    for g, H in zip(on_paths.tolist(), _path_gram(lower, pos, between.o1, between.o2, between.A1, between.A2,
+    for g, H in zip(on_paths.tolist(), _path_gram(lower, at, between.o1, between.o2, between.A1, between.A2,
                                                   [rows[g] for g in on_paths])):
         Hs[g] = H
     if by_inverse:
@@ -259,7 +266,6 @@ def leave_out_chi2(graph: PoseGraph, X: np.ndarray, weights: np.ndarray, groups:
         for g, H in zip(inside.tolist(), _gram_from_inverse(inverse, pos, problem.var_offsets, between,
                                                             [rows[g] for g in inside], ends)):
             Hs[g] = H
-    sizes = np.array([len(G) for G in groups], dtype=np.int64)
     for size in np.unique(sizes).tolist():
         idx = np.flatnonzero(sizes == size)
         b = np.stack([between.b[rows[g]].reshape(-1) for g in idx])
@@ -294,9 +300,9 @@ def _system_with_blocks(problem: Problem, between, weights: np.ndarray, sets: li
         return colptr, p.rowind[keep], np.ascontiguousarray(system.data[keep]), pos
     col = np.repeat(np.arange(p.n, dtype=np.int64), np.diff(p.colptr))
     n = between.A1.shape[1]
-    scalars = np.arange(n)
-    ra = pos[problem.var_offsets[qa][:, None, None] + scalars[:, None] + 0 * scalars].reshape(-1)
-    rb = pos[problem.var_offsets[qb][:, None, None] + 0 * scalars[:, None] + scalars].reshape(-1)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")  # every scalar pair of a block
+    ra = pos[problem.var_offsets[qa][:, None, None] + i].reshape(-1)
+    rb = pos[problem.var_offsets[qb][:, None, None] + j].reshape(-1)
     colptr, rowind, values = lower_csc(p.n, np.concatenate([p.rowind[keep], np.maximum(ra, rb)]),
                                        np.concatenate([col[keep], np.minimum(ra, rb)]),
                                        np.concatenate([system.data[keep], np.zeros(ra.size)]))
@@ -311,7 +317,7 @@ def _gram_from_inverse(inverse: Supernodes, pos: np.ndarray, offsets: np.ndarray
     n = between.A1.shape[1]
     out: list = [None] * len(groups)
     shape = np.array([[len(G), len(v)] for G, v in zip(groups, ends)], dtype=np.int64).reshape(-1, 2)
-    for s, k in {tuple(x) for x in shape.tolist()}:
+    for s, k in np.unique(shape, axis=0).tolist():
         idx = np.flatnonzero((shape[:, 0] == s) & (shape[:, 1] == k))
         V = np.stack([ends[g] for g in idx])
         R = np.stack([groups[g] for g in idx])
