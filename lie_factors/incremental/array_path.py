@@ -156,11 +156,13 @@ def prepared(fa) -> Prepared:
 
 def takes(s, fa) -> bool:
     """Whether the smoother ``s`` can take an update of ``fa``'s factors on the array path: it
-    holds only ``fa``'s group and array factors, and neither ``evaluateNonlinearError`` nor
+    holds only ``fa``'s group and array factors (and marginal factors), and neither ``evaluateNonlinearError`` nor
     ``enableAdaptiveReorder`` is set."""
     p = s.smoother_params
-    # (an update that reports the error, or may reorder every variable, is the general path's)
-    return not (s.native or s.other_types or (s.group_names and s.group_names != [fa.group])
+    # (an update that reports the error, or may reorder every variable, is the general path's;
+    # marginal factors are linear on held variables, so the array path never relinearizes them)
+    return not (len(s.native) > s.marginal_natives or s.other_types
+                or (s.group_names and s.group_names != [fa.group])
                 or p.evaluateNonlinearError or p.enableAdaptiveReorder)
 
 
@@ -217,6 +219,18 @@ def arrays_of(nf, numbered: bool = True):
         return None
     values = np.array(nf.values) if nf.values else None
     return fa, values, {"between": between.get("src", []), "prior": prior.get("src", [])}
+
+
+def update_read(s, nf, args):
+    """:meth:`Smoother.update` once its arguments are read (``nf``, ``args``): the robust
+    smoother's update, the array path where it takes the update, the general path otherwise."""
+    if s.robust is not None:
+        return robust_objects(s, nf, args)
+    if args == PLAIN:
+        result = try_objects(s, nf)
+        if result is not None:
+            return result
+    return s._apply(nf, args)
 
 
 def try_objects(s, nf):

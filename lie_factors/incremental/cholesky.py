@@ -294,13 +294,9 @@ class BlockFactor(FactorReading):
         """``leaves`` must be whole subtrees: every child of one of them is one of them."""
         inside = np.zeros(self.nv, dtype=bool)
         inside[leaves] = True
-        tree = self.tree
-        for v in leaves.tolist():
-            c = int(tree.first[v])
-            while c >= 0:
-                if not inside[c]:
-                    raise ValueError(f"variable {v} is not a leaf: variable {c} below it is not marginalized")
-                c = int(tree.nxt[c])
+        found = st.child_outside(self.tree, leaves.tolist(), inside)
+        if found is not None:
+            raise ValueError(f"variable {found[0]} is not a leaf: variable {found[1]} below it is not marginalized")
 
     def update_arrays(self, g, X: np.ndarray, velem: np.ndarray, prep, plan: np.ndarray, sizes: tuple,
                       refreshed=()) -> None:

@@ -10,6 +10,20 @@ group 0, the others group 1) and re-eliminates every node whose separator
 holds one of them (``extraReelimKeys``), so that they are leaves when they are
 marginalized; then the update runs, then the marginalization.
 
+When.  GTSAM's marginalizes on every update; this one leaves the marginalization for later
+while nothing could tell: until the next update that checks relinearization (every
+``relinearizeSkip``-th: the keys that would have been marginalized must not be relinearized,
+and their separators are held from then on), an update that removes factors or uses one of
+those keys, or a read that could see them (the whole estimate, the factors, the
+linearization point, δ, a marginal covariance, the smoother inside, or one of those keys).
+It then marginalizes them all at once, after one re-elimination that makes them leaves
+(:func:`~lie_factors.incremental.marginalize.marginalize_late`).  In between the updates
+neither relinearize nor reorder them, so the information each window variable holds, and its
+estimate, is the same; one re-elimination and one marginalization every ``relinearizeSkip``
+updates cost less than one of each per update.  Where the keys that leave the window are
+already leaves and the update leaves them so, it needs no constrained ordering either
+(:func:`leaves_stay`).
+
 ::
 
     smoother = IncrementalFixedLagSmoother(2.0)       # a lag of 2 s, ISAM2's default parameters
@@ -30,8 +44,14 @@ import numpy as np
 
 from ..batch.graph import key_name
 from ..errors import InputError
-from .gtsam_objects import VALUE_TYPES
+from .array_path import update_read
+from .gtsam_objects import VALUE_TYPES, read_update
+from .marginalize import marginalize_late
+from .relinearization import checks_next, relinearized_now
+from .removal import users
 from .smoother import Smoother
+from .structures import child_outside
+from .update_args import PLAIN, read_args
 
 
 class FixedLagSmootherResult:
@@ -69,6 +89,7 @@ class IncrementalFixedLagSmoother:
         self._time: dict[int, float] = {}  # key → timestamp
         self._order: list[tuple[float, int]] = []  # (timestamp, key), sorted
         self._result = None
+        self._pending: list = []  # keys past the lag whose marginalization is left for later
 
     # ---------------------------------------------------------------- the lag
     def smootherLag(self) -> float:
@@ -88,8 +109,11 @@ class IncrementalFixedLagSmoother:
     def update(self, newFactors=None, newTheta=None, timestamps=None, factorsToRemove=()) -> FixedLagSmootherResult:
         """Add factors, values and the new keys' timestamps (a dict or a
         ``FixedLagSmootherKeyTimestampMap``), take ``factorsToRemove`` out, then marginalize
-        every variable older than the newest timestamp less the lag."""
+        every variable older than the newest timestamp less the lag (module docstring: when)."""
         stamps = _stamps(timestamps)
+        isam = self.isam
+        nf = read_update(newFactors, newTheta, isam._setup)
+        removal = list(factorsToRemove)
         order = self._order
         saved = dict(self._time), list(order)
         for k, t in stamps.items():
@@ -101,41 +125,69 @@ class IncrementalFixedLagSmoother:
         try:
             now = order[-1][0] if order else -np.finfo(float).max
             # a key with a timestamp and no value is no variable: left out of the order's groups
-            variables, new_keys = self.isam.var, set() if newTheta is None else set(newTheta.keys())
+            variables, new_keys = isam.var, set(nf.keys)
             old_keys = [k for k in self._keys_before(now - self._lag) if k in variables or k in new_keys]
-            constrained = None
-            if old_keys:
+            used = {isam.keys[v] for v in users(isam, nf, {}) if v is not None}
+            # marginalized later (module docstring) unless this update could tell
+            late = not removal and not checks_next(isam) and all(k in variables and k not in used for k in old_keys)
+            if self._pending and (not late or not self._pending_set().isdisjoint(used | new_keys | set(stamps))):
+                self._flush()
+            args = read_args(removal) if removal else PLAIN
+            if old_keys and not late and (removal or not leaves_stay(isam, old_keys, nf)):
                 constrained = {k: 1 for k in self._time if k in variables or k in new_keys}
                 constrained.update(dict.fromkeys(old_keys, 0))
-            extra = self.isam.row_subtree_keys([k for k in old_keys if k in variables])
-            self._result = self.isam.update(newFactors, newTheta, list(factorsToRemove), constrained, None, extra)
+                extra = isam.row_subtree_keys([k for k in old_keys if k in variables])
+                args = read_args(removal, constrained, None, extra)
+            self._result = update_read(isam, nf, args)
         except BaseException:
             self._time, self._order = saved[0], saved[1]
             raise
-        if old_keys:
-            self.isam.marginalizeLeaves(old_keys)
+        if late:
+            self._pending += old_keys
+        elif old_keys:
+            isam.marginalizeLeaves(old_keys)
         for k in old_keys:
             t = self._time.pop(k)
             order.remove((t, k))
         return FixedLagSmootherResult()
 
+    def _pending_set(self) -> set:
+        return set(self._pending)
+
+    def _flush(self) -> None:
+        """Marginalize the keys left for later (module docstring)."""
+        keys, self._pending = self._pending, []
+        if keys:
+            marginalize_late(self.isam, keys, self._time)
+
     # ---------------------------------------------------------------- reading
     def calculateEstimate(self, key=None):
+        self._flush_for(key)
         return self.isam.calculateEstimate(key)
+
+    def _flush_for(self, key=None) -> None:
+        """Marginalize what is left for later before a read of ``key`` (of everything: None)
+        could see it; the estimate of a key in the window is the same either way."""
+        if self._pending and (key is None or not isinstance(key, (int, np.integer)) or key in self._pending):
+            self._flush()
 
     def params(self):
         return self.isam.params()
 
     def getFactors(self) -> gtsam.NonlinearFactorGraph:
+        self._flush_for()
         return self.isam.getFactorsUnsafe()
 
     def getLinearizationPoint(self) -> gtsam.Values:
+        self._flush_for()
         return self.isam.getLinearizationPoint()
 
     def getDelta(self) -> gtsam.VectorValues:
+        self._flush_for()
         return self.isam.getDelta()
 
     def marginalCovariance(self, key) -> np.ndarray:
+        self._flush_for()
         return self.isam.marginalCovariance(key)
 
     def getISAM2Result(self):
@@ -143,7 +195,8 @@ class IncrementalFixedLagSmoother:
         return self._result
 
     def getISAM2(self) -> Smoother:
-        """The smoother inside."""
+        """The smoother inside (what was left to marginalize, marginalized)."""
+        self._flush_for()
         return self.isam
 
     def print(self, s: str = "IncrementalFixedLagSmoother:\n") -> None:
@@ -154,6 +207,26 @@ class IncrementalFixedLagSmoother:
         if not isinstance(other, IncrementalFixedLagSmoother) or abs(self._lag - other._lag) >= tol:
             return False
         return self._order == other._order and self.calculateEstimate().equals(other.calculateEstimate(), tol)
+
+
+def leaves_stay(s, old_keys: list, nf) -> bool:
+    """Whether the variables of ``old_keys`` are leaves of the smoother ``s`` now (whole
+    subtrees) and stay so through the update ``nf`` without being ordered first: they are all
+    variables already, no new factor uses one, and the update relinearizes none.  An update
+    re-eliminates only the ancestors of what it touches, and a leaf is nobody's ancestor, so
+    then the update leaves them where they are and needs neither ``constrainedKeys`` nor
+    ``extraReelimKeys`` (the factor it gives is the same exact factorization)."""
+    var = s.var
+    if any(k not in var for k in old_keys):
+        return False
+    old = np.array([var[k] for k in old_keys], dtype=np.int64)
+    inside = np.zeros(s.bf.nv, dtype=bool)
+    inside[old] = True
+    if child_outside(s.bf.tree, old.tolist(), inside) is not None:
+        return False
+    if any(inside[v] for v in users(s, nf, {}) if v is not None):
+        return False
+    return not inside[relinearized_now(s)].any()
 
 
 def _lag(value) -> float:
@@ -185,6 +258,7 @@ def _stamps(timestamps) -> dict:
 
 def _typed(type_name: str):
     def typed(self, key):
+        self._flush_for(key)
         return getattr(self.isam, f"calculateEstimate{type_name}")(key)
     typed.__name__ = typed.__qualname__ = f"calculateEstimate{type_name}"
     typed.__doc__ = f"The estimate of ``key``, a ``gtsam.{type_name}``."

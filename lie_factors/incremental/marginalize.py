@@ -21,22 +21,57 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+from scipy.linalg import lapack
 
 from ..batch.graph import key_name
 from ..errors import InputError
 from ..interop import to_gtsam
 from .gtsam_objects import insert_from
 from .removal import forget
+from .structures import child_outside
 
 
 def _subtree_marginal(s, top: int, inside: np.ndarray) -> tuple:
     """(separator variables, [R_SS | r_S]) of the subtree under ``top`` (module docstring), or
-    (empty, None) when it hangs from no parent."""
+    (empty, None) when it hangs from no parent: from the update matrix ``top`` keeps where it
+    keeps one and it is positive definite, by QR of the subtree's factors otherwise."""
     bf = s.bf
     tree = bf.tree
     sep = bf.pools.ipool[int(tree.sep_start[top]):int(tree.sep_start[top]) + int(tree.sep_len[top])].copy()
     if not sep.size:
         return sep, None
+    kept = _kept_marginal(bf, top)
+    return sep, kept if kept is not None else _factors_marginal(s, top, inside, sep)
+
+
+def _kept_marginal(bf, top: int):
+    """[R_SS | r_S] from the update matrix ``U = [[Λ_SS, η_S], [η_Sᵀ, ·]]`` the node ``top``
+    passed to its parent (the Schur complement of its subtree's whitened factors ``[A | b]ᵀ[A |
+    b]`` onto its separator, :mod:`~lie_factors.incremental.structures`): ``R_SSᵀR_SS = Λ_SS``
+    (Cholesky), ``R_SSᵀ r_S = η_S``, the same factor as the QR's up to the signs of its rows.
+    None where the node keeps no update matrix or ``Λ_SS`` is not positive definite (the
+    subtree does not determine every direction of its separator)."""
+    u = int(bf.tree.ustart[top])
+    if u < 0:
+        return None
+    sd = int(bf.tree.sep_dim[top])
+    n = sd + 1
+    U = np.zeros((n, n))
+    U[np.triu_indices(n)] = bf.pools.fpool[u:u + n * (n + 1) // 2]
+    R, info = lapack.dpotrf(U[:sd, :sd], lower=0, clean=1)
+    if info != 0:
+        return None
+    r, info = lapack.dtrtrs(R, U[:sd, sd], lower=0, trans=1)
+    out = np.empty((sd, n))
+    out[:, :sd] = R
+    out[:, sd] = r
+    return out
+
+
+def _factors_marginal(s, top: int, inside: np.ndarray, sep: np.ndarray) -> np.ndarray:
+    """[R_SS | r_S] by QR of the factors on the subtree under ``top`` (separator ``sep``)."""
+    bf = s.bf
+    tree = bf.tree
     members, stack = [], [top]
     while stack:
         v = stack.pop()
@@ -71,7 +106,7 @@ def _subtree_marginal(s, top: int, inside: np.ndarray) -> tuple:
     if stacked.shape[0] < width + 1:
         stacked = np.concatenate([stacked, np.zeros((width + 1 - stacked.shape[0], width + 1))])
     R = np.linalg.qr(stacked, mode="r")
-    return sep, R[m:width, m:]
+    return R[m:width, m:]
 
 
 def _type_name(s, w: int) -> str:
@@ -133,13 +168,10 @@ def marginalize_leaves(s, keys) -> tuple[list, list]:
     inside = np.zeros(bf.nv, dtype=bool)
     inside[leaves] = True
     tree = bf.tree
-    for v in leaves.tolist():
-        c = int(tree.first[v])
-        while c >= 0:
-            if not inside[c]:
-                raise InputError(f"marginalizeLeaves: {key_name(s.keys[v])} is not a leaf: "
-                                 f"{key_name(s.keys[c])} is eliminated below it and is not marginalized")
-            c = int(tree.nxt[c])
+    found = child_outside(tree, leaves.tolist(), inside)
+    if found is not None:
+        raise InputError(f"marginalizeLeaves: {key_name(s.keys[found[0]])} is not a leaf: "
+                         f"{key_name(s.keys[found[1]])} is eliminated below it and is not marginalized")
     tops = [v for v in leaves.tolist() if tree.parent[v] < 0 or not inside[tree.parent[v]]]
     marginals = [m for m in (_subtree_marginal(s, t, inside) for t in tops) if m[1] is not None and m[1].shape[0]]
     removed = bf.factors_of(leaves)
@@ -156,6 +188,7 @@ def marginalize_leaves(s, keys) -> tuple[list, list]:
                                      for (sep, _, Rs), fid in zip(factors, fids)])
     for (sep, f, _), fid in zip(factors, fids):
         s.native.append((f, sep, fid))
+        s.marginal_natives += 1
         s._register(np.array([fid]), -1, np.array([len(s.native) - 1]), False)
         s.vfixed[sep] = True
         s.vnative[sep] = True
@@ -165,6 +198,27 @@ def marginalize_leaves(s, keys) -> tuple[list, list]:
     s.gauge.commit(plan)
     forget(s, leaves)
     return fids, removed.tolist()
+
+
+def marginalize_late(s, keys: list, window) -> None:
+    """Marginalize ``keys`` some updates after they left a fixed-lag window (``window``: the
+    keys still in it), as if it had been done when they left: they are made leaves first where
+    they are not, by one re-elimination that orders them before the window's keys (GTSAM's
+    fixed-lag grouping) and the nodes whose separator holds one (``extraReelimKeys``), adding
+    nothing and counting as no update.  Exact as long as no update in between relinearized a
+    variable (their separators would have been held) or used one of ``keys``."""
+    var = s.var
+    old = [var[k] for k in keys]
+    inside = np.zeros(s.bf.nv, dtype=bool)
+    inside[old] = True
+    if child_outside(s.bf.tree, old, inside) is not None:
+        groups = np.zeros(s.bf.nv, dtype=np.int64)
+        groups[[var[k] for k in window if k in var]] = 1
+        groups[old] = 0
+        extra = np.array([var[k] for k in row_subtree_keys(s, keys)], dtype=np.int64)
+        s.bf.update(observed=extra, groups=groups)
+        s._fresh = False
+    marginalize_leaves(s, keys)
 
 
 def _theta_of(s, variables: np.ndarray) -> gtsam.Values:

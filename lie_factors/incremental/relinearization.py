@@ -19,10 +19,16 @@ def relinearized_now(s, force: bool = False, frozen=()) -> np.ndarray:
     ``relinearizeSkip``-th update (ISAM2's count), or now with ``force`` (``force_relinearize``),
     δ brought up to date and :func:`relinearize_set` (``frozen`` held); none on the others."""
     p = s.smoother_params
-    if not (p.enableRelinearization and (force or (s.update_count + 1) % p.relinearizeSkip == 0) and s.bf.nv):
+    if not (p.enableRelinearization and (force or checks_next(s)) and s.bf.nv):
         return np.zeros(0, dtype=np.int64)
     s._solve()
     return relinearize_set(s, frozen)
+
+
+def checks_next(s) -> bool:
+    """Whether the next update of the smoother ``s`` is one that checks δ against the threshold
+    (every ``relinearizeSkip``-th, ISAM2's count; whether relinearization is enabled or not)."""
+    return (s.update_count + 1) % s.smoother_params.relinearizeSkip == 0
 
 
 def relinearize_set(s, frozen=()) -> np.ndarray:

@@ -47,7 +47,7 @@ from ..interop import to_gtsam
 from ..posegraph import gauge
 from ..robust.online import RobustSmoothing, check_loss, robust_update
 from ..sparse.pivots import PIVOT_TOLERANCE
-from .array_path import robust_objects, try_objects, try_update
+from .array_path import try_update, update_read
 from .cholesky import BlockFactor
 from .dogleg import dogleg_step
 from .factor_arrays import Elements, FactorArrays, FactorKind, NewFactors
@@ -121,6 +121,7 @@ class Smoother(Queries, RobustSmoothing):
         self.flocal = np.zeros(0, dtype=np.int64)  # factor id -> index in its kind (or in native)
         self.frelative = np.zeros(0, dtype=bool)  # factor id -> known to be relative (lie_factors.posegraph.gauge)
         self.native: list = []  # (factor, var indices, factor id)
+        self.marginal_natives = 0  # how many of them marginalizeLeaves made
         self.native_rows = NativeRows()
         self.native_theta = gtsam.Values()  # θ of every variable a native factor touches
         self.other = gtsam.Values()  # θ of the variables GTSAM holds (no group of ours)
@@ -169,14 +170,7 @@ class Smoother(Queries, RobustSmoothing):
         ``extraReelimKeys``: keys re-eliminated whatever their δ.  Or ``update(newFactors,
         newTheta, gtsam.ISAM2UpdateParams)``."""
         args = read_args(removeFactorIndices, constrainedKeys, noRelinKeys, extraReelimKeys, force_relinearize)
-        nf = read_update(newFactors, newTheta, self._setup)
-        if self.robust is not None:
-            return robust_objects(self, nf, args)
-        if args == PLAIN:
-            result = try_objects(self, nf)
-            if result is not None:
-                return result
-        return self._apply(nf, args)
+        return update_read(self, read_update(newFactors, newTheta, self._setup), args)
 
     def update_arrays(self, group: str, keys=(), values=None, edge_keys=None, measured=None, information=None,
                       prior_keys=None, prior_measured=None, prior_information=None,

@@ -176,6 +176,19 @@ def grown(structure, n: int, fill: dict):
     return structure._replace(**{name: grow(getattr(structure, name), n, value) for name, value in fill.items()})
 
 
+def child_outside(tree: Tree, vs, inside: np.ndarray):
+    """The first (v, c) with ``c`` a child of a node ``v`` of ``vs`` that is not ``inside`` (a
+    mask over the nodes), or None: then ``vs`` are whole subtrees (every node below one of them
+    is one of them)."""
+    for v in vs:
+        c = int(tree.first[v])
+        while c >= 0:
+            if not inside[c]:
+                return v, c
+            c = int(tree.nxt[c])
+    return None
+
+
 def empty_tree() -> Tree:
     return Tree(*(np.zeros(0, dtype=np.int64) for _ in TREE_FILL), np.full(1, -1, dtype=np.int64))
 

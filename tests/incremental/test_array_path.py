@@ -190,7 +190,7 @@ def _gtsam_updates(fa, updates, start):
 def test_updates_of_gtsam_factor_objects_take_the_array_path_and_equal_the_general_one(monkeypatch):
     """update() with GTSAM's Between/Prior objects runs on the array path, relinearizing updates
     too, and every factor, estimate and report equals the general path's."""
-    import lie_factors.incremental.smoother as smoother_module
+    import lie_factors.incremental.array_path as array_path_module
 
     fa, updates, start = _graph(seed=4)
     steps = _gtsam_updates(fa, updates, start)
@@ -201,7 +201,7 @@ def test_updates_of_gtsam_factor_objects_take_the_array_path_and_equal_the_gener
     fast_results = [fast.update(g, v) for g, v in steps]
     assert not general_calls
     assert fast.relinearizations > 0  # (the updates every relinearizeSkip-th relinearized some)
-    monkeypatch.setattr(smoother_module, "try_objects", lambda s, nf: None)
+    monkeypatch.setattr(array_path_module, "try_objects", lambda s, nf: None)
     slow = Smoother()
     slow_results = [slow.update(g, v) for g, v in steps]
     assert len(general_calls) == len(steps)
@@ -223,7 +223,7 @@ def test_updates_of_gtsam_factor_objects_take_the_array_path_and_equal_the_gener
 
 def test_gtsam_object_updates_the_array_path_refuses_read_as_the_general_paths(monkeypatch):
     import gtsam
-    import lie_factors.incremental.smoother as smoother_module
+    import lie_factors.incremental.array_path as array_path_module
 
     fa, updates, start = _graph(seed=5)
     steps = _gtsam_updates(fa, updates, start)
@@ -254,7 +254,7 @@ def test_gtsam_object_updates_the_array_path_refuses_read_as_the_general_paths(m
         return out
 
     fast = refusals()
-    monkeypatch.setattr(smoother_module, "try_objects", lambda s, nf: None)
+    monkeypatch.setattr(array_path_module, "try_objects", lambda s, nf: None)
     assert fast == refusals()
     assert "uses key 99, which has no value" in fast[0][1] and "already a variable" in fast[1][1]
 
