@@ -156,8 +156,8 @@ def prepared(fa) -> Prepared:
 
 def takes(s, fa) -> bool:
     """Whether the smoother ``s`` can take an update of ``fa``'s factors on the array path: it
-    holds only ``fa``'s group and array factors (and marginal factors), and neither ``evaluateNonlinearError`` nor
-    ``enableAdaptiveReorder`` is set."""
+    holds only ``fa``'s group and array factors (and marginal factors), and neither
+    ``evaluateNonlinearError`` nor ``enableAdaptiveReorder`` is set."""
     p = s.smoother_params
     # (an update that reports the error, or may reorder every variable, is the general path's;
     # marginal factors are linear on held variables, so the array path never relinearizes them)
@@ -214,8 +214,8 @@ def arrays_of(nf, numbered: bool = True):
         return None
     fa = FactorArrays.of_constants(group, between.get("keys"), between.get("C"), between.get("R"),
                                    prior.get("keys"), prior.get("C"), prior.get("R"))
-    if numbered and not (np.array_equal(between.get("pos", []), np.arange(fa.E))
-                         and np.array_equal(prior.get("pos", []), np.arange(fa.E, fa.E + fa.Q))):
+    if numbered and not (list(between.get("pos", ())) == list(range(fa.E))
+                         and list(prior.get("pos", ())) == list(range(fa.E, fa.E + fa.Q))):
         return None
     values = np.array(nf.values) if nf.values else None
     return fa, values, {"between": between.get("src", []), "prior": prior.get("src", [])}

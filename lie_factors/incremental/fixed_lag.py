@@ -12,17 +12,18 @@ marginalized; then the update runs, then the marginalization.
 
 When.  GTSAM's marginalizes on every update; this one leaves the marginalization for later
 while nothing could tell: until the next update that checks relinearization (every
-``relinearizeSkip``-th: the keys that would have been marginalized must not be relinearized,
-and their separators are held from then on), an update that removes factors or uses one of
-those keys, or a read that could see them (the whole estimate, the factors, the
-linearization point, δ, a marginal covariance, the smoother inside, or one of those keys).
-It then marginalizes them all at once, after one re-elimination that makes them leaves
-(:func:`~lie_factors.incremental.marginalize.marginalize_late`).  In between the updates
-neither relinearize nor reorder them, so the information each window variable holds, and its
-estimate, is the same; one re-elimination and one marginalization every ``relinearizeSkip``
-updates cost less than one of each per update.  Where the keys that leave the window are
-already leaves and the update leaves them so, it needs no constrained ordering either
-(:func:`leaves_stay`).
+``relinearizeSkip``-th: the keys that left must not be relinearized by it, and their
+separators are held from then on), an update that removes factors or uses one of those keys,
+or a read that could see them (the whole estimate, the factors, the linearization point, δ,
+a marginal covariance, the smoother inside, or one of those keys).  It then marginalizes them
+all at once, after one re-elimination that makes them leaves
+(:func:`~lie_factors.incremental.marginalize.marginalize_late`).  The updates in between
+relinearize nothing, so each key that left is marginalized at the linearization point GTSAM's
+would have used, and the information each window variable holds, and its estimate, is the
+same; one re-elimination and one marginalization every ``relinearizeSkip`` updates cost less
+than one of each per update, and the updates in between need no constrained ordering.  Where
+the keys that leave are already leaves and the update keeps them so, neither does an update
+that marginalizes at once (:func:`leaves_stay`).
 
 ::
 
@@ -128,9 +129,11 @@ class IncrementalFixedLagSmoother:
             variables, new_keys = isam.var, set(nf.keys)
             old_keys = [k for k in self._keys_before(now - self._lag) if k in variables or k in new_keys]
             used = {isam.keys[v] for v in users(isam, nf, {}) if v is not None}
-            # marginalized later (module docstring) unless this update could tell
-            late = not removal and not checks_next(isam) and all(k in variables and k not in used for k in old_keys)
-            if self._pending and (not late or not self._pending_set().isdisjoint(used | new_keys | set(stamps))):
+            # marginalized later (module docstring) unless this update could tell; what was left
+            # for later is marginalized before an update that checks relinearization
+            late = not removal and all(k in variables and k not in used for k in old_keys)
+            if self._pending and (not late or checks_next(isam)
+                                  or not self._pending_set().isdisjoint(used | new_keys | set(stamps))):
                 self._flush()
             args = read_args(removal) if removal else PLAIN
             if old_keys and not late and (removal or not leaves_stay(isam, old_keys, nf)):

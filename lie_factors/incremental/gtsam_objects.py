@@ -119,10 +119,6 @@ def _read_factors(newFactors: gtsam.NonlinearFactorGraph) -> tuple[dict, list, d
             native_pos.append(i)
             continue
         kind, spec, keys, Minv, R, M = c
-        if not np.all(np.isfinite(R)):
-            raise InputError(f"factor {i} ({type(f).__name__}): its noise model is not finite")
-        if M is not None and not np.all(np.isfinite(M)):
-            raise InputError(f"factor {i} ({type(f).__name__}): its measurement is not finite")
         for k in keys:
             g = group_of.setdefault(k, spec.name)
             if g != spec.name:
@@ -149,12 +145,24 @@ def _constants(arrays: dict, setup: Callable) -> dict:
         for q in range(F):
             if entry["Minv"][q] is not None:
                 Minv[q] = entry["Minv"][q]
+        R = np.array(entry["R"], dtype=np.float64)
+        _finite(R, range(F), entry, "noise model")
         if need:
-            Minv[need] = setup(spec, np.array([entry["M"][q] for q in need]), "measurement")
+            M = np.array([entry["M"][q] for q in need])
+            _finite(M, need, entry, "measurement")
+            Minv[need] = setup(spec, M, "measurement")
         keys = np.array(entry["keys"], dtype=np.int64).reshape(F, -1)
-        out[(kind, name)] = dict(keys=keys, C=Minv, R=np.array(entry["R"], dtype=np.float64), src=entry["src"],
-                                 pos=entry["pos"])
+        out[(kind, name)] = dict(keys=keys, C=Minv, R=R, src=entry["src"], pos=entry["pos"])
     return out
+
+
+def _finite(A: np.ndarray, which, entry: dict, what: str) -> None:
+    """``A`` (one row per factor ``which`` of a kind's ``entry``) is finite, else the error
+    names the first factor that is not, by its place in the graph."""
+    if np.isfinite(A).all():
+        return
+    q = list(which)[int(np.flatnonzero(~np.isfinite(A).reshape(len(A), -1).all(axis=1))[0])]
+    raise InputError(f"factor {entry['pos'][q]} ({type(entry['src'][q]).__name__}): its {what} is not finite")
 
 
 def read_update(newFactors, newTheta, setup: Callable) -> NewFactors:

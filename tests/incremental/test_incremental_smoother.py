@@ -234,7 +234,13 @@ def test_refused_updates_leave_the_smoother_as_it_was():
     # a NaN measurement
     g = gtsam.NonlinearFactorGraph(good_g)
     g.add(gtsam.BetweenFactorPose2(0, 12, gtsam.Pose2(np.nan, 0, 0), noise))
-    refused(g, good_v, "not finite")
+    refused(g, good_v, rf"factor {good_g.size()} \(BetweenFactorPose2\): its measurement is not finite")
+    # a NaN noise model, before a good factor of its kind
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.BetweenFactorPose2(0, 12, gtsam.Pose2(1, 0, 0), gtsam.noiseModel.Diagonal.Sigmas(
+        np.array([np.nan, 1.0, 1.0]))))
+    g.push_back(good_g)
+    refused(g, good_v, r"factor 0 \(BetweenFactorPose2\): its noise model is not finite")
     # a value of the wrong type
     v = gtsam.Values()
     v.insert(12, gtsam.Pose3())
