@@ -11,19 +11,24 @@ holds one of them (``extraReelimKeys``), so that they are leaves when they are
 marginalized; then the update runs, then the marginalization.
 
 When.  GTSAM's marginalizes on every update; this one leaves the marginalization for later
-while nothing could tell: until the next update that checks relinearization (every
-``relinearizeSkip``-th: the keys that left must not be relinearized by it, and their
-separators are held from then on), an update that removes factors or uses one of those keys,
-or a read that could see them (the whole estimate, the factors, the linearization point, δ,
-a marginal covariance, the smoother inside, or one of those keys).  It then marginalizes them
-all at once, after one re-elimination that makes them leaves
-(:func:`~lie_factors.incremental.marginalize.marginalize_late`).  The updates in between
-relinearize nothing, so each key that left is marginalized at the linearization point GTSAM's
-would have used, and the information each window variable holds, and its estimate, is the
-same; one re-elimination and one marginalization every ``relinearizeSkip`` updates cost less
-than one of each per update, and the updates in between need no constrained ordering.  Where
-the keys that leave are already leaves and the update keeps them so, neither does an update
-that marginalizes at once (:func:`leaves_stay`).
+while nothing could tell.  Marginalizing changes no estimate in the window (the
+conditionals above already hold what the marginal factors carry); what it changes is which
+variables the next relinearization check may move: GTSAM's holds the marginalized
+variables' separators from then on.  So before an update that checks relinearization
+(every ``relinearizeSkip``-th) this one holds the keys that left and every variable a factor
+joins to one of them (:func:`~lie_factors.incremental.marginalize.hold_for_later`: the same
+variables), and marginalizes them all at once later: when they are as many as the window's
+keys (a bound on the tree's size), or before an update that removes factors, re-adds one of
+them or gives one a timestamp, or a read that could see them (the whole estimate, the
+factors, the linearization point, δ, a marginal covariance, the smoother inside, or one of
+those keys), after one re-elimination that makes them leaves
+(:func:`~lie_factors.incremental.marginalize.marginalize_late`).  A new factor on one of them
+is refused as the smoother refuses a factor on a key it does not hold.  Each key is then
+marginalized at the linearization point GTSAM's would have used, and every estimate in the
+window is the same; the updates in between are plain updates (no constrained ordering), and
+one re-elimination and marginalization of many keys costs less than one per update.  Where
+the keys that leave are already leaves and the update keeps them so, an update that must
+marginalize at once needs no constrained ordering either (:func:`leaves_stay`).
 
 ::
 
@@ -47,9 +52,9 @@ from ..batch.graph import key_name
 from ..errors import InputError
 from .array_path import update_read
 from .gtsam_objects import VALUE_TYPES, read_update
-from .marginalize import marginalize_late
+from .marginalize import hold_for_later, marginalize_late
 from .relinearization import checks_next, relinearized_now
-from .removal import users
+from .removal import keys_used, users
 from .smoother import Smoother
 from .structures import child_outside
 from .update_args import PLAIN, read_args
@@ -90,7 +95,8 @@ class IncrementalFixedLagSmoother:
         self._time: dict[int, float] = {}  # key → timestamp
         self._order: list[tuple[float, int]] = []  # (timestamp, key), sorted
         self._result = None
-        self._pending: list = []  # keys past the lag whose marginalization is left for later
+        self._pending: dict = {}  # keys past the lag whose marginalization is left for later, in order
+        self._held = 0  # how many of them are held (the first)
 
     # ---------------------------------------------------------------- the lag
     def smootherLag(self) -> float:
@@ -116,7 +122,7 @@ class IncrementalFixedLagSmoother:
         nf = read_update(newFactors, newTheta, isam._setup)
         removal = list(factorsToRemove)
         order = self._order
-        saved = dict(self._time), list(order)
+        saved = [(k, self._time.get(k)) for k in stamps]
         for k, t in stamps.items():
             old = self._time.get(k)
             if old is not None:
@@ -128,13 +134,19 @@ class IncrementalFixedLagSmoother:
             # a key with a timestamp and no value is no variable: left out of the order's groups
             variables, new_keys = isam.var, set(nf.keys)
             old_keys = [k for k in self._keys_before(now - self._lag) if k in variables or k in new_keys]
-            used = {isam.keys[v] for v in users(isam, nf, {}) if v is not None}
+            used = keys_used(nf)
             # marginalized later (module docstring) unless this update could tell; what was left
             # for later is marginalized before an update that checks relinearization
             late = not removal and all(k in variables and k not in used for k in old_keys)
-            if self._pending and (not late or checks_next(isam)
-                                  or not self._pending_set().isdisjoint(used | new_keys | set(stamps))):
+            pending = self._pending
+            if pending:
+                _refuse_gone(nf, (used - new_keys) & pending.keys())
+            if pending and (not late or len(pending) >= len(self._time)
+                            or not pending.keys().isdisjoint(new_keys | set(stamps))):
                 self._flush()
+            elif len(pending) > self._held and checks_next(isam):
+                hold_for_later(isam, list(pending)[self._held:])
+                self._held = len(pending)
             args = read_args(removal) if removal else PLAIN
             if old_keys and not late and (removal or not leaves_stay(isam, old_keys, nf)):
                 constrained = {k: 1 for k in self._time if k in variables or k in new_keys}
@@ -143,10 +155,14 @@ class IncrementalFixedLagSmoother:
                 args = read_args(removal, constrained, None, extra)
             self._result = update_read(isam, nf, args)
         except BaseException:
-            self._time, self._order = saved[0], saved[1]
+            for k, t in saved:  # the timestamps as they were
+                order.remove((self._time.pop(k), k))
+                if t is not None:
+                    self._time[k] = t
+                    bisect.insort(order, (t, k))
             raise
         if late:
-            self._pending += old_keys
+            self._pending.update(dict.fromkeys(old_keys))
         elif old_keys:
             isam.marginalizeLeaves(old_keys)
         for k in old_keys:
@@ -154,12 +170,9 @@ class IncrementalFixedLagSmoother:
             order.remove((t, k))
         return FixedLagSmootherResult()
 
-    def _pending_set(self) -> set:
-        return set(self._pending)
-
     def _flush(self) -> None:
         """Marginalize the keys left for later (module docstring)."""
-        keys, self._pending = self._pending, []
+        keys, self._pending, self._held = list(self._pending), {}, 0
         if keys:
             marginalize_late(self.isam, keys, self._time)
 
@@ -230,6 +243,21 @@ def leaves_stay(s, old_keys: list, nf) -> bool:
     if any(inside[v] for v in users(s, nf, {}) if v is not None):
         return False
     return not inside[relinearized_now(s)].any()
+
+
+def _refuse_gone(nf, gone: set) -> None:
+    """The error the smoother gives a new factor on a key it does not hold, for a factor of the
+    update ``nf`` on one of ``gone`` (keys marginalized, some of them late)."""
+    for (_, name), entry in nf.arrays.items():
+        for k in entry["keys"].ravel().tolist():
+            if k in gone:
+                raise InputError(f"a {name} factor uses key {key_name(k)}, which has no value "
+                                 "(neither new nor in the smoother)")
+    for f, keys in nf.native:
+        for k in keys:
+            if k in gone:
+                raise InputError(f"a {type(f).__name__} uses key {key_name(k)}, which has no value "
+                                 "(neither new nor in the smoother)")
 
 
 def _lag(value) -> float:

@@ -140,17 +140,22 @@ def _constants(arrays: dict, setup: Callable) -> dict:
     for (kind, name), entry in arrays.items():
         spec = _factors.GROUPS[name]
         F = len(entry["keys"])
-        Minv = np.empty((F, spec.mat, spec.mat))
-        need = [q for q in range(F) if entry["Minv"][q] is None]
-        for q in range(F):
-            if entry["Minv"][q] is not None:
-                Minv[q] = entry["Minv"][q]
         R = np.array(entry["R"], dtype=np.float64)
         _finite(R, range(F), entry, "noise model")
-        if need:
-            M = np.array([entry["M"][q] for q in need])
+        need = [q for q in range(F) if entry["Minv"][q] is None]
+        if len(need) == F:  # GTSAM's factors only: M⁻¹ in one call
+            M = np.array(entry["M"])
             _finite(M, need, entry, "measurement")
-            Minv[need] = setup(spec, M, "measurement")
+            Minv = setup(spec, M, "measurement")
+        else:
+            Minv = np.empty((F, spec.mat, spec.mat))
+            for q in range(F):
+                if entry["Minv"][q] is not None:
+                    Minv[q] = entry["Minv"][q]
+            if need:
+                M = np.array([entry["M"][q] for q in need])
+                _finite(M, need, entry, "measurement")
+                Minv[need] = setup(spec, M, "measurement")
         keys = np.array(entry["keys"], dtype=np.int64).reshape(F, -1)
         out[(kind, name)] = dict(keys=keys, C=Minv, R=R, src=entry["src"], pos=entry["pos"])
     return out
@@ -159,7 +164,8 @@ def _constants(arrays: dict, setup: Callable) -> dict:
 def _finite(A: np.ndarray, which, entry: dict, what: str) -> None:
     """``A`` (one row per factor ``which`` of a kind's ``entry``) is finite, else the error
     names the first factor that is not, by its place in the graph."""
-    if np.isfinite(A).all():
+    total = float(A.sum())
+    if total - total == 0.0 or np.isfinite(A).all():  # (a NaN or an infinity makes the sum's difference NaN)
         return
     q = list(which)[int(np.flatnonzero(~np.isfinite(A).reshape(len(A), -1).all(axis=1))[0])]
     raise InputError(f"factor {entry['pos'][q]} ({type(entry['src'][q]).__name__}): its {what} is not finite")

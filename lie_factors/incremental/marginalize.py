@@ -205,8 +205,9 @@ def marginalize_late(s, keys: list, window) -> None:
     keys still in it), as if it had been done when they left: they are made leaves first where
     they are not, by one re-elimination that orders them before the window's keys (GTSAM's
     fixed-lag grouping) and the nodes whose separator holds one (``extraReelimKeys``), adding
-    nothing and counting as no update.  Exact as long as no update in between relinearized a
-    variable (their separators would have been held) or used one of ``keys``."""
+    nothing and counting as no update.  Exact as long as no update since they left has
+    relinearized one of them or a variable their marginalization holds
+    (:func:`hold_for_later`), or used one of ``keys``."""
     var = s.var
     old = [var[k] for k in keys]
     inside = np.zeros(s.bf.nv, dtype=bool)
@@ -219,6 +220,20 @@ def marginalize_late(s, keys: list, window) -> None:
         s.bf.update(observed=extra, groups=groups)
         s._fresh = False
     marginalize_leaves(s, keys)
+
+
+def hold_for_later(s, keys: list) -> None:
+    """Hold (never relinearize again, ISAM2's fixed variables) the variables of ``keys``, to be
+    marginalized later, and every variable a factor joins to one of them: the variables their
+    marginalization would hold (its marginal factors' separators are the variables outside
+    ``keys`` that their factors reach)."""
+    bf = s.bf
+    vs = np.array([s.var[k] for k in keys], dtype=np.int64)
+    store = bf.store
+    for f in bf.factors_of(vs).tolist():
+        a = int(store.fvstart[f])
+        s.vfixed[store.fvars[a:a + int(store.fnv[f])]] = True
+    s.vfixed[vs] = True
 
 
 def _theta_of(s, variables: np.ndarray) -> gtsam.Values:

@@ -121,16 +121,21 @@ def check_keys(s, keys: list, new: dict, what: str) -> list:
     return out
 
 
+def keys_used(nf) -> set:
+    """The keys the update ``nf``'s new factors use."""
+    out = set()
+    for entry in nf.arrays.values():
+        out.update(entry["keys"].ravel().tolist())
+    for _, keys in nf.native:
+        out.update(keys)
+    return out
+
+
 def users(s, nf, new: dict) -> set:
     """The variables the update ``nf``'s new factors use (old ones, and new ones by ``new``:
     key → index)."""
     var = s.var
-    out = set()
-    for entry in nf.arrays.values():
-        out.update(var.get(k, new.get(k)) for k in entry["keys"].ravel().tolist())
-    for _, keys in nf.native:
-        out.update(var.get(k, new.get(k)) for k in keys)
-    return out
+    return {var.get(k, new.get(k)) for k in keys_used(nf)}
 
 
 def forget(s, dead: np.ndarray) -> None:

@@ -144,9 +144,8 @@ class Smoother(Queries, RobustSmoothing):
     # ------------------------------------------------------------------ reading
     def _setup(self, spec, M: np.ndarray, what: str):
         Minv, codes = self._elements(spec.name).loops.setup(M)
-        bad = np.flatnonzero(codes != _factors.OK)
-        if bad.size:
-            k = int(bad[0])
+        if (codes != _factors.OK).any():
+            k = int(np.flatnonzero(codes != _factors.OK)[0])
             raise InputError(str(_factors.element_error(spec, M[k], int(codes[k]), f"{what} {k}", "update")))
         return Minv
 

@@ -561,10 +561,11 @@ def test_a_key_past_the_lag_is_gone_for_reads_and_new_factors():
     ours, theirs, ups = _pair(35)
     g = gtsam.NonlinearFactorGraph()
     g.add(gtsam.BetweenFactorPose3(gone, X(34), gtsam.Pose3(), NOISE))
-    before = ours.calculateEstimatePose3(X(34))
+    before, stamps = ours.calculateEstimatePose3(X(34)), ours.timestamps()
     with pytest.raises(InputError, match="no value"):
-        ours.update(g, gtsam.Values(), {})
+        ours.update(g, gtsam.Values(), {X(34): 99.0, X(77): 1.0})  # a key re-stamped, a new one
     assert ours.calculateEstimatePose3(X(34)).equals(before, 0.0)
+    assert ours.timestamps() == stamps and ours._order == sorted((t, k) for k, t in stamps.items())
 
 
 @pytest.mark.parametrize("skip", [1, 3])
