@@ -1,6 +1,7 @@
 """The fixed-lag smoother against GTSAM's: update time and agreement over a Pose3 run.
 
     python benchmarks/fixed_lag.py [--poses 1000] [--lag 10] [--rate 10] [--repeat 5] [--seeds 0 1]
+        [--agreement]
 
 A noisy Pose3 chain with loop closures 8 poses back every 7 poses (GTSAM's own Pose3 factors,
 whose Jacobians are exact, in both), a pose every 1/``rate`` s, each new pose started at the
@@ -31,16 +32,26 @@ from gtsam.symbol_shorthand import X
 import lie_factors as lf
 
 
+def truth_poses(n: int) -> list:
+    """The chain's true poses."""
+    truth = [gtsam.Pose3()]
+    for i in range(1, n):
+        truth.append(truth[-1].compose(_step(i)))
+    return truth
+
+
+def _step(i: int) -> gtsam.Pose3:
+    return gtsam.Pose3(gtsam.Rot3.RzRyRx(0.01, 0.02 * np.cos(i / 20), 0.1 * np.sin(i / 10)), np.array([1.0, 0.0, 0.1]))
+
+
 def chain(n: int, seed: int) -> list:
-    """(graph, values) of each update; the value of a new pose is filled in at run time."""
+    """(factors, odometry) of each update; the value of a new pose is filled in at run time."""
     rng = np.random.default_rng(seed)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.02] * 3 + [0.05] * 3))
-    truth = [gtsam.Pose3()]
+    truth = truth_poses(n)
     out = [([gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), noise)], None)]
     for i in range(1, n):
-        step = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.01, 0.02 * np.cos(i / 20), 0.1 * np.sin(i / 10)),
-                           np.array([1.0, 0.0, 0.1]))
-        truth.append(truth[-1].compose(step))
+        step = _step(i)
         z = step.compose(gtsam.Pose3.Expmap(rng.normal(0, [0.02] * 3 + [0.05] * 3)))
         factors = [gtsam.BetweenFactorPose3(X(i - 1), X(i), z, noise)]
         if i > 12 and i % 7 == 0:
@@ -50,8 +61,9 @@ def chain(n: int, seed: int) -> list:
     return out
 
 
-def params(exact: bool) -> gtsam.ISAM2Params:
+def params(exact: bool, relinearize: bool = True) -> gtsam.ISAM2Params:
     p = gtsam.ISAM2Params()
+    p.enableRelinearization = relinearize
     if exact:
         gn = gtsam.ISAM2GaussNewtonParams()
         gn.setWildfireThreshold(0.0)
@@ -96,7 +108,12 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=10.0)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument("--agreement", action="store_true",
+                    help="instead: agreement on runs whose starts do not depend on the estimates")
     a = ap.parse_args()
+    if a.agreement:
+        agreement(a)
+        return
     print("| seed | back-substitution | GTSAM s | ours s | × | with the reads, GTSAM / ours s | × | "
           "median update GTSAM / ours ms | p99 update GTSAM / ours ms | longest update GTSAM / ours ms | "
           "variables re-eliminated GTSAM "
@@ -128,6 +145,43 @@ def main() -> None:
                   f"{1e3 * np.percentile(g, 99):.2f} / {1e3 * np.percentile(o, 99):.2f} | "
                   f"{1e3 * g.max():.2f} / {1e3 * o.max():.2f} | "
                   f"{counts['gtsam']} / {counts['ours']} | {diff:.2e} | {itself:.2e} |", flush=True)
+
+
+def fixed_run(cls, updates: list, starts: list, lag: float, rate: float, exact: bool, relinearize: bool,
+              perturb: float = 0.0) -> gtsam.Values:
+    """The final estimate of a run whose starts are given (``starts``: no feedback from the
+    estimates), each moved by Exp(perturb·n) as in :func:`run`."""
+    s = cls(lag, params(exact, relinearize))
+    rng = np.random.default_rng(0)
+    for i, (factors, _) in enumerate(updates):
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for f in factors:
+            g.add(f)
+        start = starts[i] if not perturb else starts[i].compose(gtsam.Pose3.Expmap(perturb * rng.normal(size=6)))
+        v.insert(X(i), start)
+        s.update(g, v, {X(i): i / rate})
+    return s.calculateEstimate()
+
+
+def agreement(a) -> None:
+    """``--agreement``: ours against GTSAM's, and GTSAM's against itself with its starts moved
+    by 1e-15, on runs whose starts do not depend on the estimates (the truth moved by
+    Exp(N(0, 0.05² I₆)), seed + 100), with relinearization as ISAM2's default and off (then
+    both solve the same sequence of linear systems)."""
+    print("| seed | back-substitution | relinearization | ours against GTSAM | GTSAM against itself |")
+    print("|---|---|---|---:|---:|")
+    for seed in a.seeds:
+        updates = chain(a.poses, seed)
+        rng = np.random.default_rng(seed + 100)
+        starts = [p.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.05, 6))) for p in truth_poses(a.poses)]
+        for exact in (False, True):
+            for relinearize in (True, False):
+                args = (updates, starts, a.lag, a.rate, exact, relinearize)
+                theirs = fixed_run(gtsam.IncrementalFixedLagSmoother, *args)
+                ours = fixed_run(lf.IncrementalFixedLagSmoother, *args)
+                moved = fixed_run(gtsam.IncrementalFixedLagSmoother, *args, PERTURB)
+                print(f"| {seed} | {'exact' if exact else 'wildfire'} | {'on' if relinearize else 'off'} | "
+                      f"{largest_difference(theirs, ours):.2e} | {largest_difference(theirs, moved):.2e} |", flush=True)
 
 
 #: How far each start is moved for GTSAM's own sensitivity: about one unit in the last place of a
