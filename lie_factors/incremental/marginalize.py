@@ -253,16 +253,24 @@ def row_subtree_keys(s, keys) -> list:
     (below them in the tree): what must be re-eliminated with ``keys`` ordered first for them to
     become leaves (GTSAM's fixed-lag smoother marks the same, clique by clique)."""
     tree, ipool = s.bf.tree, s.bf.pools.ipool
+    vs = [s._var_of(k) for k in keys]
+    held = np.zeros(s.bf.nv, dtype=bool)
+    held[vs] = True
     out: set = set()
-    for k in keys:
-        v = s._var_of(k)
-        stack = _children(tree, v)
-        while stack:
-            j = stack.pop()
-            a = int(tree.sep_start[j])
-            if v in ipool[a:a + int(tree.sep_len[j])]:
-                out.add(s.keys[j])
-                stack += _children(tree, j)
+    # one search from all their children, pruned at a node whose separator holds none of them:
+    # a node below it whose separator holds a key above it would put the key in its separator
+    # too (the row subtree of a variable is connected), and a key below it starts its own
+    stack = [c for v in set(vs) for c in _children(tree, v)]
+    seen = set(stack)
+    while stack:
+        j = stack.pop()
+        a = int(tree.sep_start[j])
+        if held[ipool[a:a + int(tree.sep_len[j])]].any():
+            out.add(s.keys[j])
+            for c in _children(tree, j):
+                if c not in seen:
+                    seen.add(c)
+                    stack.append(c)
     return sorted(out)
 
 

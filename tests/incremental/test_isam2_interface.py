@@ -457,6 +457,20 @@ def test_wildfire_keeps_what_it_solves_below_the_threshold_as_isam2_does():
     assert solved_below > 10  # what this test is about happened
 
 
+def test_row_subtree_keys_are_the_nodes_whose_separator_holds_a_key():
+    s = Smoother(gtsam.ISAM2Params())
+    for g, v in _chain(60, seed=19, closures=3):
+        s.update(g, v)
+    tree, ipool = s.bf.tree, s.bf.pools.ipool
+    rng = np.random.default_rng(19)
+    for _ in range(20):
+        keys = [X(int(i)) for i in rng.choice(60, size=int(rng.integers(1, 6)), replace=False)]
+        vs = {s.var[k] for k in keys}
+        brute = sorted(s.keys[j] for j in range(s.bf.nv)
+                       if vs & set(ipool[tree.sep_start[j]:tree.sep_start[j] + tree.sep_len[j]].tolist()))
+        assert s.row_subtree_keys(keys) == brute
+
+
 def _fixed_lag(cls, n: int, lag: float, dt: float = 0.1, seed: int = 14, reeliminated: list | None = None):
     p = _exact_isam2()
     p.relinearizeSkip = 10
