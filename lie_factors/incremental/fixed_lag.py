@@ -135,8 +135,8 @@ class IncrementalFixedLagSmoother:
             variables, new_keys = isam.var, set(nf.keys)
             old_keys = [k for k in self._keys_before(now - self._lag) if k in variables or k in new_keys]
             used = keys_used(nf)
-            # marginalized later (module docstring) unless this update could tell; what was left
-            # for later is marginalized before an update that checks relinearization
+            # the keys that leave are marginalized later (module docstring) unless this update
+            # could tell; those left so far are held before an update that checks relinearization
             late = not removal and all(k in variables and k not in used for k in old_keys)
             pending = self._pending
             if pending:
