@@ -8,7 +8,10 @@ factor, the Schur complement of the subtree's factors onto S:
     [A_M A_S | b] = Q [[R_MM R_MS r_M], [0 R_SS r_S]]  →  the factor ‖R_SS δ_S − r_S‖²
 
 (QR of the factors on the subtree, its columns first), which is what the
-subtree's update matrix passed to its parent.  The factors on the subtree are
+subtree's update matrix U = [[Λ_SS, η_S], [η_Sᵀ, ·]] passed to its parent: where the
+subtree's top keeps U, R_SS is its Cholesky factor and r_S = R_SS⁻ᵀ η_S instead, with no
+QR.  The fixed-lag smoother marginalizes late (:func:`marginalize_late`,
+:func:`hold_for_later`).  The factors on the subtree are
 removed, the marginal factors added as ``gtsam.LinearContainerFactor`` (linear
 at the current θ of S, GTSAM's ``JacobianFactor`` inside), the variables of S
 held at their linearization point from then on (ISAM2's *fixed variables*), and
