@@ -34,6 +34,7 @@ from .marking import mark_affected
 from .ordering import SMALL_SET, has_graph_room, order_small
 from .relinearization import relinearized_now
 from .removal import NONE as NO_REMOVAL
+from .removal import no_value
 from .update_args import PLAIN
 from .storage import init_variables, link_adjacency
 from .undo import Undo
@@ -187,8 +188,7 @@ def _observed(s, fa, klist: list, edges: list, priors: list) -> list:
             if v is None:
                 v = var.get(k)
                 if v is None:
-                    raise InputError(f"a {fa.group} factor uses key {key_name(k)}, which has no value "
-                                     "(neither new nor in the smoother)")
+                    raise no_value(f"{fa.group} factor", k)
             obs.append(v)
     used = set(obs[len(klist):])
     for q, k in enumerate(klist):

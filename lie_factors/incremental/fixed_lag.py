@@ -26,9 +26,7 @@ those keys), after one re-elimination that makes them leaves
 is refused as the smoother refuses a factor on a key it does not hold.  Each key is then
 marginalized at the linearization point GTSAM's would have used, and every estimate in the
 window is the same; the updates in between are plain updates (no constrained ordering), and
-one re-elimination and marginalization of many keys costs less than one per update.  Where
-the keys that leave are already leaves and the update keeps them so, an update that must
-marginalize at once needs no constrained ordering either (:func:`leaves_stay`).
+one re-elimination and marginalization of many keys costs less than one per update.
 
 ::
 
@@ -53,10 +51,9 @@ from ..errors import InputError
 from .array_path import update_read
 from .gtsam_objects import VALUE_TYPES, read_update
 from .marginalize import hold_for_later, marginalize_late
-from .relinearization import checks_next, relinearized_now
-from .removal import keys_used, users
+from .relinearization import checks_next
+from .removal import keys_used, no_value
 from .smoother import Smoother
-from .structures import child_outside
 from .update_args import PLAIN, read_args
 
 
@@ -148,11 +145,9 @@ class IncrementalFixedLagSmoother:
                 hold_for_later(isam, list(pending)[self._held:])
                 self._held = len(pending)
             args = read_args(removal) if removal else PLAIN
-            if old_keys and not late and (removal or not leaves_stay(isam, old_keys, nf)):
-                constrained = {k: 1 for k in self._time if k in variables or k in new_keys}
-                constrained.update(dict.fromkeys(old_keys, 0))
+            if old_keys and not late:
                 extra = isam.row_subtree_keys([k for k in old_keys if k in variables])
-                args = read_args(removal, constrained, None, extra)
+                args = read_args(removal, self._first(old_keys, new_keys), None, extra)
             self._result = update_read(isam, nf, args)
         except BaseException:
             for k, t in saved:  # the timestamps as they were
@@ -170,11 +165,19 @@ class IncrementalFixedLagSmoother:
             order.remove((t, k))
         return FixedLagSmootherResult()
 
+    def _first(self, old_keys: list, new_keys=()) -> dict:
+        """GTSAM's fixed-lag grouping (``constrainedKeys``): ``old_keys`` in group 0, before every
+        other key with a timestamp that is a variable (or one of ``new_keys``) in group 1."""
+        variables = self.isam.var
+        constrained = {k: 1 for k in self._time if k in variables or k in new_keys}
+        constrained.update(dict.fromkeys(old_keys, 0))
+        return constrained
+
     def _flush(self) -> None:
         """Marginalize the keys left for later (module docstring)."""
         keys, self._pending, self._held = list(self._pending), {}, 0
         if keys:
-            marginalize_late(self.isam, keys, self._time)
+            marginalize_late(self.isam, keys, self._first(keys))
 
     # ---------------------------------------------------------------- reading
     def calculateEstimate(self, key=None):
@@ -225,39 +228,17 @@ class IncrementalFixedLagSmoother:
         return self._order == other._order and self.calculateEstimate().equals(other.calculateEstimate(), tol)
 
 
-def leaves_stay(s, old_keys: list, nf) -> bool:
-    """Whether the variables of ``old_keys`` are leaves of the smoother ``s`` now (whole
-    subtrees) and stay so through the update ``nf`` without being ordered first: they are all
-    variables already, no new factor uses one, and the update relinearizes none.  An update
-    re-eliminates only the ancestors of what it touches, and a leaf is nobody's ancestor, so
-    then the update leaves them where they are and needs neither ``constrainedKeys`` nor
-    ``extraReelimKeys`` (the factor it gives is the same exact factorization)."""
-    var = s.var
-    if any(k not in var for k in old_keys):
-        return False
-    old = np.array([var[k] for k in old_keys], dtype=np.int64)
-    inside = np.zeros(s.bf.nv, dtype=bool)
-    inside[old] = True
-    if child_outside(s.bf.tree, old.tolist(), inside) is not None:
-        return False
-    if any(inside[v] for v in users(s, nf, {}) if v is not None):
-        return False
-    return not inside[relinearized_now(s)].any()
-
-
 def _refuse_gone(nf, gone: set) -> None:
     """The error the smoother gives a new factor on a key it does not hold, for a factor of the
     update ``nf`` on one of ``gone`` (keys marginalized, some of them late)."""
     for (_, name), entry in nf.arrays.items():
         for k in entry["keys"].ravel().tolist():
             if k in gone:
-                raise InputError(f"a {name} factor uses key {key_name(k)}, which has no value "
-                                 "(neither new nor in the smoother)")
+                raise no_value(f"{name} factor", k)
     for f, keys in nf.native:
         for k in keys:
             if k in gone:
-                raise InputError(f"a {type(f).__name__} uses key {key_name(k)}, which has no value "
-                                 "(neither new nor in the smoother)")
+                raise no_value(type(f).__name__, k)
 
 
 def _lag(value) -> float:

@@ -30,8 +30,9 @@ from ..batch.graph import key_name
 from ..errors import InputError
 from ..interop import to_gtsam
 from .gtsam_objects import insert_from
-from .removal import forget
+from .removal import factor_variables, forget
 from .structures import child_outside
+from .update_args import order_groups, read_args
 
 
 def _subtree_marginal(s, top: int, inside: np.ndarray) -> tuple:
@@ -203,24 +204,21 @@ def marginalize_leaves(s, keys) -> tuple[list, list]:
     return fids, removed.tolist()
 
 
-def marginalize_late(s, keys: list, window) -> None:
-    """Marginalize ``keys`` some updates after they left a fixed-lag window (``window``: the
-    keys still in it), as if it had been done when they left: they are made leaves first where
-    they are not, by one re-elimination that orders them before the window's keys (GTSAM's
-    fixed-lag grouping) and the nodes whose separator holds one (``extraReelimKeys``), adding
-    nothing and counting as no update.  Exact as long as no update since they left has
-    relinearized one of them or a variable their marginalization holds
-    (:func:`hold_for_later`), or used one of ``keys``."""
+def marginalize_late(s, keys: list, constrained: dict) -> None:
+    """Marginalize ``keys`` some updates after they left a fixed-lag window, as if it had been
+    done when they left: they are made leaves first where they are not, by one re-elimination
+    ordered by ``constrained`` (``constrainedKeys``: the fixed-lag smoother's grouping, ``keys``
+    first) of the nodes whose separator holds one (``extraReelimKeys``), adding nothing and
+    counting as no update.  Exact as long as no update since they left has relinearized one of
+    them or a variable their marginalization holds (:func:`hold_for_later`), or used one of
+    ``keys``."""
     var = s.var
     old = [var[k] for k in keys]
     inside = np.zeros(s.bf.nv, dtype=bool)
     inside[old] = True
     if child_outside(s.bf.tree, old, inside) is not None:
-        groups = np.zeros(s.bf.nv, dtype=np.int64)
-        groups[[var[k] for k in window if k in var]] = 1
-        groups[old] = 0
         extra = np.array([var[k] for k in row_subtree_keys(s, keys)], dtype=np.int64)
-        s.bf.update(observed=extra, groups=groups)
+        s.bf.update(observed=extra, groups=order_groups(s, read_args(constrainedKeys=constrained), 0, {}))
         s._fresh = False
     marginalize_leaves(s, keys)
 
@@ -230,12 +228,8 @@ def hold_for_later(s, keys: list) -> None:
     marginalized later, and every variable a factor joins to one of them: the variables their
     marginalization would hold (its marginal factors' separators are the variables outside
     ``keys`` that their factors reach)."""
-    bf = s.bf
     vs = np.array([s.var[k] for k in keys], dtype=np.int64)
-    store = bf.store
-    for f in bf.factors_of(vs).tolist():
-        a = int(store.fvstart[f])
-        s.vfixed[store.fvars[a:a + int(store.fnv[f])]] = True
+    s.vfixed[factor_variables(s.bf.store, s.bf.factors_of(vs))] = True
     s.vfixed[vs] = True
 
 

@@ -121,6 +121,12 @@ def check_keys(s, keys: list, new: dict, what: str) -> list:
     return out
 
 
+def no_value(user: str, key: int) -> InputError:
+    """The error of a new factor (``user``: what it is, "a ``user`` uses …") on ``key``, which
+    is neither a new key nor a variable of the smoother."""
+    return InputError(f"a {user} uses key {key_name(key)}, which has no value (neither new nor in the smoother)")
+
+
 def keys_used(nf) -> set:
     """The keys the update ``nf``'s new factors use."""
     out = set()

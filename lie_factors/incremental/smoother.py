@@ -56,7 +56,7 @@ from .params import SmootherParams, UpdateResult
 from .queries import Queries
 from .marginalize import marginalize_leaves, row_subtree_keys
 from .relinearization import relinearized_now
-from .removal import check_keys, forget, users
+from .removal import check_keys, forget, no_value, users
 from .reports import adaptive_reorder, error_before, update_result
 from .removal import plan as removal_plan
 from .removal import structure as removal_structure
@@ -243,8 +243,7 @@ class Smoother(Queries, RobustSmoothing):
                 elif k in var:
                     g = self.vgroup[var[k]]
                 else:
-                    raise InputError(f"a {name} factor uses key {key_name(k)}, which has no value "
-                                        "(neither new nor in the smoother)")
+                    raise no_value(f"{name} factor", k)
                 if g != name:
                     raise InputError(f"key {key_name(k)} holds a {g or 'non-group value'}, "
                                         f"not a {name} (used by a {name} factor)")
@@ -252,8 +251,7 @@ class Smoother(Queries, RobustSmoothing):
             for k in keys:
                 used.add(k)
                 if k not in new_group and k not in var:
-                    raise InputError(f"a {type(f).__name__} uses key {key_name(k)}, which has no value "
-                                        "(neither new nor in the smoother)")
+                    raise no_value(type(f).__name__, k)
         for k in nf.keys:
             if k not in used:
                 raise InputError(f"new key {key_name(k)} is in no new factor: it would be unconstrained")
