@@ -76,12 +76,14 @@ def params(exact: bool, relinearize: str = "default") -> gtsam.ISAM2Params:
     return p
 
 
-def run(cls, updates: list, lag: float, rate: float, exact: bool, perturb: float = 0.0):
+def run(cls, updates: list, lag: float, rate: float, exact: bool, perturb: float = 0.0, starts: list | None = None,
+        relinearize: str = "default"):
     """(smoother, update seconds, variables re-eliminated in all, seconds of each read of the
-    last estimate, which the next start composes); ``perturb``: each new pose's
-    start moved by Exp(perturb·n), n drawn from N(0, I₆) (seed 0): the run's own sensitivity to its
-    last bits."""
-    s = cls(lag, params(exact))
+    last estimate, which the next start composes); ``perturb``: each new pose's start moved by
+    Exp(perturb·n), n drawn from N(0, I₆) (seed 0): the run's own sensitivity to its last bits;
+    ``starts``: the new poses' starts given (no feedback from the estimates, no reads);
+    ``relinearize``: as :func:`params` takes it."""
+    s = cls(lag, params(exact, relinearize))
     rng = np.random.default_rng(0)
     times = []
     reeliminated = 0
@@ -90,10 +92,13 @@ def run(cls, updates: list, lag: float, rate: float, exact: bool, perturb: float
         g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
         for f in factors:
             g.add(f)
-        t = time.perf_counter()
-        last = None if z is None else s.calculateEstimatePose3(X(i - 1))
-        reads.append(time.perf_counter() - t)
-        start = gtsam.Pose3() if z is None else last.compose(z)
+        if starts is not None:
+            start = starts[i]
+        else:
+            t = time.perf_counter()
+            last = None if z is None else s.calculateEstimatePose3(X(i - 1))
+            reads.append(time.perf_counter() - t)
+            start = gtsam.Pose3() if z is None else last.compose(z)
         if perturb:
             start = start.compose(gtsam.Pose3.Expmap(perturb * rng.normal(size=6)))
         v.insert(X(i), start)
@@ -152,28 +157,6 @@ def main() -> None:
                   f"{counts['gtsam']} / {counts['ours']} | {diff:.2e} | {itself:.2e} |", flush=True)
 
 
-def fixed_run(cls, updates: list, starts: list | None, lag: float, rate: float, exact: bool, relinearize: str,
-              perturb: float = 0.0) -> gtsam.Values:
-    """The final estimate of a run whose starts are ``starts`` (no feedback from the
-    estimates), or with None the last estimate composed with the odometry, each moved by
-    Exp(perturb·n) as in :func:`run`."""
-    s = cls(lag, params(exact, relinearize))
-    rng = np.random.default_rng(0)
-    for i, (factors, z) in enumerate(updates):
-        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        for f in factors:
-            g.add(f)
-        if starts is not None:
-            start = starts[i]
-        else:
-            start = gtsam.Pose3() if z is None else s.calculateEstimatePose3(X(i - 1)).compose(z)
-        if perturb:
-            start = start.compose(gtsam.Pose3.Expmap(perturb * rng.normal(size=6)))
-        v.insert(X(i), start)
-        s.update(g, v, {X(i): i / rate})
-    return s.calculateEstimate()
-
-
 def agreement(a) -> None:
     """``--agreement``: ours against GTSAM's, and GTSAM's against itself with its starts moved
     by 1e-15, on runs whose starts do not depend on the estimates (the truth moved by
@@ -189,10 +172,10 @@ def agreement(a) -> None:
         starts = [p.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.05, 6))) for p in truth_poses(a.poses)]
         cases = [(starts, exact, relin) for exact in (False, True) for relin in ("default", "off")]
         for given, exact, relin in cases + [(None, True, "every")]:
-            args = (updates, given, a.lag, a.rate, exact, relin)
-            theirs = fixed_run(gtsam.IncrementalFixedLagSmoother, *args)
-            ours = fixed_run(lf.IncrementalFixedLagSmoother, *args)
-            moved = fixed_run(gtsam.IncrementalFixedLagSmoother, *args, PERTURB)
+            def final(cls, perturb=0.0):
+                return run(cls, updates, a.lag, a.rate, exact, perturb, given, relin)[0].calculateEstimate()
+            theirs, ours = final(gtsam.IncrementalFixedLagSmoother), final(lf.IncrementalFixedLagSmoother)
+            moved = final(gtsam.IncrementalFixedLagSmoother, PERTURB)
             print(f"| {seed} | {'fixed' if given is not None else 'estimates'} | {'exact' if exact else 'wildfire'} "
                   f"| {relin} | {largest_difference(theirs, ours):.2e} | {largest_difference(theirs, moved):.2e} |",
                   flush=True)
