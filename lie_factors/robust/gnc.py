@@ -15,7 +15,8 @@ Perception", RA-L 2020, as GTSAM implements it (``GncOptimizer.h``,
    the inlier threshold, by default ``½·χ²_{dim_k}(0.99)``;
 3. each outer iteration recomputes the weights of the factors that are neither
    known inliers nor known outliers from ``f_k`` at the last solution
-   (:func:`gnc_weights`), re-solves from the initial values, and stops when
+   (:func:`gnc_weights`), re-solves from the initial values (from the last
+   solution with ``warm_start``, ours only), and stops when
    ``|cost − prev|/max(prev, 1e-7) < relativeCostTol``, or (TLS) every weight
    is within ``weightsTol`` of 0 or 1, or (GM) λ = 1; otherwise λ ← λ·step
    (TLS; ``SuperLinear``: √λ·step below 1, capped at λ_max) or
@@ -100,6 +101,9 @@ class GncSettings:
     #: The first solve uses the known inliers only (GTSAM's weighs every factor 1), so that it
     #: starts from a map no unknown factor has bent.  Ours only: ``to_gtsam`` refuses it.
     first_solve_known_inliers: bool = False
+    #: Each solve after the first starts from the last solution (a continuation in μ), not from the
+    #: initial values as GTSAM's does.  Ours only: ``to_gtsam`` refuses it.
+    warm_start: bool = False
 
     def __post_init__(self):
         self.loss = self.loss.lower()
@@ -120,6 +124,8 @@ class GncSettings:
 
         if self.first_solve_known_inliers:
             raise ValueError("GTSAM's GncOptimizer has no first_solve_known_inliers")
+        if self.warm_start:
+            raise ValueError("GTSAM's GncOptimizer has no warm_start: it restarts every solve")
 
         lm = self.lm_params if self.lm_params is not None else gtsam.LevenbergMarquardtParams()
         p = gtsam.GncLMParams(lm)
@@ -144,9 +150,10 @@ class InnerSolver(Protocol):
     ``size``: number of factor slots; ``dims``: (size,) factor dimensions;
     ``factor_errors(values)``: (size,) Gaussian errors ``½‖R_k e_k‖²`` (robust
     losses removed) at ``values``; ``initial``: the initial values;
-    ``optimize(weights)``: LM on the graph with every factor's information
-    scaled by ``weights[k]``, started from ``initial``; returns
-    ``(values, iterations)``.  ``values`` are opaque to the loop.
+    ``optimize(weights, start=None)``: LM on the graph with every factor's
+    information scaled by ``weights[k]``, started from ``start`` (values it
+    returned before) or else ``initial``; returns ``(values, iterations)``.
+    ``values`` are opaque to the loop.
     """
 
     size: int
@@ -155,7 +162,7 @@ class InnerSolver(Protocol):
 
     def factor_errors(self, values) -> np.ndarray: ...
 
-    def optimize(self, weights: np.ndarray) -> tuple[object, int]: ...
+    def optimize(self, weights: np.ndarray, start=None) -> tuple[object, int]: ...
 
 
 @dataclass
@@ -343,7 +350,7 @@ def gnc_optimize(inner: InnerSolver, params: GncSettings | None = None,
     for it in range(p.max_iterations):
         gnc_weights(int(loss), int(sched), lam, inner.factor_errors(result), thresholds, types, new_w)
         weights = new_w.copy()
-        result, n = inner.optimize(weights)
+        result, n = inner.optimize(weights, result if p.warm_start else None)
         inner_its += n
         cost = float(np.dot(weights, inner.factor_errors(result)))
         history.append((it, lam, cost, n))

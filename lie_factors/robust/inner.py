@@ -90,9 +90,9 @@ class GtsamInner:
             g.add(with_noise(f, gtsam.noiseModel.Gaussian.Information(float(w) * info)))
         return g
 
-    def optimize(self, weights: np.ndarray):
-        opt = self.gtsam.LevenbergMarquardtOptimizer(self.weighted_graph(weights), self.initial,
-                                                     self.lm_params)
+    def optimize(self, weights: np.ndarray, start=None):
+        opt = self.gtsam.LevenbergMarquardtOptimizer(self.weighted_graph(weights),
+                                                     self.initial if start is None else start, self.lm_params)
         values = stack.call(opt.optimize)  # GTSAM's elimination recurses: a large stack for long chains
         return values, int(opt.iterations())
 
@@ -299,12 +299,12 @@ class BatchInner:
                     other.erase(int(k))
         return _BatchState(self.lm, Xs, other)
 
-    def optimize(self, weights: np.ndarray):
+    def optimize(self, weights: np.ndarray, start: "_BatchState | None" = None):
         weights = np.asarray(weights, dtype=np.float64)
         if np.any(weights[self._left_out] != 0.0):
             raise ValueError("BatchInner: an excluded factor slot has a nonzero weight")
         lm, slots = self._solver_for(weights)
-        lm.restart(weights[slots])
+        lm.restart(weights[slots], None if start is None else (start.Xs, start.other))
         res = lm.optimize()
         P = lm.problem
         return _BatchState(self.lm, P.elements(), P.other), int(res.iterations)

@@ -54,13 +54,15 @@ def reject_and_optimize(graph: PoseGraph, solver: Solver, size: int, *, loss: st
 
     ``loss``: ``tls`` or ``gm``; ``lm_params``: the inner Levenberg–Marquardt's
     ``gtsam.LevenbergMarquardtParams``; ``gtsam_semantics``: GTSAM's own GNC, whose
-    first solve weighs every factor 1 (ours, with the consistency stage, starts from the
-    known inliers alone).  A ``RuntimeError`` from GTSAM becomes a
+    first solve weighs every factor 1 and whose every solve starts from the initial values
+    (ours, with the consistency stage, starts from the known inliers alone and continues each
+    solve from the last).  A ``RuntimeError`` from GTSAM becomes a
     :class:`~lie_factors.errors.LieFactorsError`.
     """
     known = np.setdiff1d(np.arange(size), graph.loop_closures())
+    ours = consistency and not gtsam_semantics
     params = GncSettings(loss=loss, known_inliers=known.tolist(), lm_params=lm_params,
-                       first_solve_known_inliers=consistency and not gtsam_semantics)
+                         first_solve_known_inliers=ours, warm_start=ours)
     try:
         if consistency:
             rejection = reject_false_closures(graph, solver, params)

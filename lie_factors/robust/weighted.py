@@ -134,12 +134,13 @@ class WeightedLevenbergMarquardt(BatchLevenbergMarquardt):
         return total
 
     # ------------------------------------------------------------ restarts (GNC)
-    def restart(self, scale: np.ndarray) -> None:
-        """Back to the initial values and LM state, with factor scales ``scale`` (GNC's weights)."""
+    def restart(self, scale: np.ndarray, start: tuple | None = None) -> None:
+        """Back to the initial values (or ``start``: block name → its values, and the other
+        ``gtsam.Values``) and LM's initial state, with factor scales ``scale`` (GNC's weights)."""
         P = self.problem
-        for b in (*P.blocks.values(), *P.value_blocks.values()):
-            b.X = b.X0.copy()
-        P.other = gtsam.Values(self._other0)
+        for name, b in (*P.blocks.items(), *P.value_blocks.items()):
+            b.X = (b.X0 if start is None else start[0][name]).copy()
+        P.other = gtsam.Values(self._other0 if start is None else start[1])
         self.scale = np.asarray(scale, dtype=np.float64).copy()
         self._lm_reset()
         self._iterations = 0

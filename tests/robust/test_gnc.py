@@ -185,6 +185,59 @@ def test_batch_gnc_matches_gncLMOptimizer_se3_and_finds_the_planted_outliers():
     assert res.cost == pytest.approx(ref.cost, rel=1e-4)
 
 
+class _RecordingInner:
+    """An inner solver that records where each solve starts (GtsamInner underneath)."""
+
+    def __init__(self, graph, initial):
+        self._inner = inner.GtsamInner(graph, initial)
+        self.size, self.dims, self.initial = self._inner.size, self._inner.dims, initial
+        self.starts, self.results = [], []
+
+    def factor_errors(self, values):
+        return self._inner.factor_errors(values)
+
+    def optimize(self, weights, start=None):
+        self.starts.append(start)
+        values, n = self._inner.optimize(weights, start)
+        self.results.append(values)
+        return values, n
+
+
+def test_warm_start_continues_each_solve_from_the_last():
+    between, planted, initial = _circle_problem(seed=1)
+    prior_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+    graph = _with_prior(between, NATIVE2, gtsam.Pose2(), prior_noise)
+    params = _params(graph)
+    cold, warm = _RecordingInner(graph, initial), _RecordingInner(graph, initial)
+    ref = gnc.gnc_optimize(cold, params)
+    res = gnc.gnc_optimize(warm, gnc.GncSettings(**{**params.__dict__, "warm_start": True}))
+    assert all(s is None for s in cold.starts)  # GTSAM's: every solve from the initial values
+    assert warm.starts[0] is None and len(warm.starts) > 2
+    assert all(s is r for s, r in zip(warm.starts[1:], warm.results))
+    # the continuation ends at the same verdict with fewer LM iterations
+    np.testing.assert_array_equal(res.outliers, ref.outliers)
+    assert set(planted.tolist()) <= set(res.outliers.tolist())
+    assert res.inner_iterations < ref.inner_iterations
+    with pytest.raises(ValueError, match="warm_start"):
+        gnc.GncSettings(warm_start=True).to_gtsam()
+
+
+def test_batch_warm_start_begins_at_the_given_state():
+    between, _, initial = _circle_problem(seed=3)
+    ours = _with_prior(between, OURS2, gtsam.Pose2(), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4])))
+    w = np.ones(ours.size())
+    solved, n = inner.BatchInner(ours, initial).optimize(w)
+    assert n > 1
+    none = gtsam.LevenbergMarquardtParams()
+    none.setMaxIterations(0)  # a solve that returns where it starts
+    idle = inner.BatchInner(ours, initial, none)
+    at_start, at_solved = idle.optimize(w)[0].to_values(), idle.optimize(w, solved)[0].to_values()
+    expected = solved.to_values()
+    for k in range(80):
+        assert initial.atPose2(k).equals(at_start.atPose2(k), 1e-15)
+        assert expected.atPose2(k).equals(at_solved.atPose2(k), 1e-15)
+
+
 def test_robust_noise_models_are_replaced_by_their_gaussian_part():
     # GncOptimizer strips Robust noise: the same result with or without it.
     between, planted, initial = _circle_problem(seed=2)
