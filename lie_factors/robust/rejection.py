@@ -7,7 +7,18 @@
 2. **GNC** (:func:`lie_factors.robust.gnc.gnc_optimize`, or GTSAM's own): the
    odometry and the priors are known inliers, and the first solve uses them
    alone (``first_solve_known_inliers``), so GNC does not start from a map the
-   remaining false closures have bent.
+   remaining false closures have bent.  That start is the composed odometry,
+   and on a 3-D graph with much rotational drift LM from it stops at a local
+   minimum that the true closures do not fit (torus3D).  So GNC runs a second
+   time from the relaxation (chordal) of the odometry and the closures the
+   first stage kept, its first solve weighing them all, and the run whose
+   truncated-least-squares cost Σ_known f_k + Σ_closures min(f_k, c̄_k) — the
+   cost GNC-TLS minimizes (Yang et al., RA-L 2020) — is lower is kept: two
+   local minima of one objective, compared on it (:func:`tls_cost`).  The
+   second run is made only where its first solve (LM on the odometry and the
+   kept closures, from the relaxation) already ends below the first run's
+   cost: where the kept closures include false ones that bend the relaxation,
+   it does not, and the second run's cost (up to another GNC) is not spent.
 3. **Final check**, at GNC's solution.  Every loop closure, and every group
    of closures whose ends lie within :data:`GROUP_WINDOW` poses of each other
    (a run of closures between the same two places), is judged by how much the
@@ -42,9 +53,9 @@
    is taken back at most once.  Then a group GNC rejected that fails by less
    than :data:`TRIAL_RATIO` times its threshold gets the likelihood-ratio test:
    LM re-solves with it, and twice the rise of the whole cost must pass the
-   same threshold (GNC restarts every solve from the initial values, and on a
-   graph with much drift it can end where a stretch of true closures does not
-   fit, where the linear test agrees with it).
+   same threshold (GNC starts from the odometry, and on a graph with much
+   drift it can end where a stretch of true closures does not fit, where the
+   linear test agrees with it).
 
 Each rejected closure is reported with the stage that decided it.
 """
@@ -113,7 +124,9 @@ class Rejection:
     check put back; ``screening``: the first stage's verdict (None if it was
     off); ``rounds``: re-solves the final check ran; ``scale``: the tail model's
     scale s at the end; ``seconds``: the whole; ``reasons``: why the verdict may be wrong
-    (:func:`uncertainty`)."""
+    (:func:`uncertainty`); ``start``: the GNC run kept, ``"odometry"`` or ``"relaxation"``
+    (module docstring); ``costs``: the truncated-least-squares cost (:func:`tls_cost`) of each run
+    and of the relaxation's first solve."""
 
     gnc: GncResult
     rejected_by: dict
@@ -123,6 +136,8 @@ class Rejection:
     scale: float
     seconds: float
     reasons: tuple = ()
+    start: str = "odometry"
+    costs: dict = dataclasses.field(default_factory=dict)
 
     @property
     def outliers(self) -> np.ndarray:
@@ -134,13 +149,17 @@ class Solver(Protocol):
     graph's edges, then its priors (then any other factor).  An *estimate* is whatever the
     backend keeps (poses on arrays, ``gtsam.Values``): opaque to the stages.
 
-    ``gnc(params)``: GNC (:class:`~lie_factors.robust.gnc.GncSettings`, its known outliers
-    extended by the consistency stage); ``errors(estimate)``: every slot's Gaussian error
+    ``gnc(params, start=None)``: GNC (:class:`~lie_factors.robust.gnc.GncSettings`, its known
+    outliers extended by the consistency stage) from the solver's start, or from ``start``
+    (P, m, m) poses in the pose graph's key order; ``estimate(poses)``: the estimate at those
+    poses (the other variables at the start's); ``errors(estimate)``: every slot's Gaussian error
     ½‖R e‖²; ``refine(estimate, weights)``: LM from ``estimate`` with each slot's information
     scaled by ``weights``; ``poses(estimate)``: (P, m, m) the poses in the pose graph's key order.
     """
 
-    def gnc(self, params: GncSettings) -> GncResult: ...
+    def gnc(self, params: GncSettings, start: np.ndarray | None = None) -> GncResult: ...
+
+    def estimate(self, poses: np.ndarray): ...
 
     def errors(self, estimate) -> np.ndarray: ...
 
@@ -161,7 +180,25 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
     lc = graph.loop_closures()
     screening = screen_closures(graph, probability) if screen else None
     known = [] if screening is None else screening.rejected.tolist()
-    res = run_gnc(dataclasses.replace(params, known_outliers=sorted(set(params.known_outliers) | set(known))))
+    gnc_params = dataclasses.replace(params, known_outliers=sorted(set(params.known_outliers) | set(known)))
+    runs = {"odometry": run_gnc(gnc_params)}
+    costs = {"odometry": tls_cost(errors(runs["odometry"].values), runs["odometry"].thresholds, lc,
+                                  gnc_params.known_outliers)}
+    relaxed = _relaxed_start(graph, screening) if params.first_solve_known_inliers else None
+    if relaxed is not None:
+        # GNC's first solve from the relaxation: LM on the odometry and the kept closures.  Only
+        # where that point is already below the odometry's run in the objective is GNC run from it.
+        kept = np.ones(len(runs["odometry"].weights))
+        kept[gnc_params.known_outliers] = 0.0
+        first = refine(solver.estimate(relaxed), kept)
+        costs["relaxation's first solve"] = tls_cost(errors(first), runs["odometry"].thresholds, lc,
+                                                     gnc_params.known_outliers)
+        if costs["relaxation's first solve"] < costs["odometry"]:
+            runs["relaxation"] = run_gnc(dataclasses.replace(gnc_params, first_solve_known_inliers=False), relaxed)
+            costs["relaxation"] = tls_cost(errors(runs["relaxation"].values), runs["relaxation"].thresholds, lc,
+                                           gnc_params.known_outliers)
+    start = min(runs, key=lambda k: (costs[k], k != "odometry"))  # a tie keeps the odometry's
+    res = runs[start]
     stage = {}
     if screening is not None:
         for e, s in zip(screening.closures.tolist(), screening.stage.tolist()):
@@ -229,7 +266,39 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
     rejected_by = {e: s for e, s in sorted(stage.items()) if weights[e] < 0.5}
     reasons = uncertainty(screening, res, settled=not (verdict.drop.size or verdict.back.size))
     return Rejection(out, rejected_by, sorted(readmitted - set(rejected_by)), screening, rounds,
-                     model.scale if model is not None else float("nan"), clock.seconds(), reasons)
+                     model.scale if model is not None else float("nan"), clock.seconds(), reasons, start, costs)
+
+
+def tls_cost(errors: np.ndarray, thresholds: np.ndarray, closures: np.ndarray, known_outliers) -> float:
+    """The truncated-least-squares cost of an estimate: Σ f_k over the known inliers plus
+    Σ min(f_k, c̄_k) over the loop closures, the known outliers left out (the same for any estimate).
+
+    ``errors`` (size,) f_k = ½‖R_k e_k‖²; ``thresholds`` (size,) c̄_k; ``closures``: the loop
+    closures' slots; ``known_outliers``: slots."""
+    truncated = np.zeros(errors.size, dtype=bool)
+    truncated[closures] = True
+    counted = np.ones(errors.size, dtype=bool)
+    counted[np.asarray(list(known_outliers), dtype=np.int64)] = False
+    return float(np.sum(errors[counted & ~truncated])
+                 + np.sum(np.minimum(errors, thresholds)[counted & truncated]))
+
+
+def _relaxed_start(graph: PoseGraph, screening: Screening | None) -> np.ndarray | None:
+    """(P, m, m) the chordal relaxation of the odometry, the priors and the closures the first stage
+    kept; None without the first stage, on a graph with landmarks, or where the relaxation cannot
+    run (Similarity3, no closure kept)."""
+    from ..errors import InitializationError
+    from ..initialization import initialize
+
+    if screening is None or graph.landmarks is not None:
+        return None
+    kept = np.setdiff1d(np.arange(len(graph.edge_keys)), screening.rejected)
+    if kept.size == len(graph.edge_keys) - len(screening.closures):
+        return None  # every closure set aside: the relaxation is the odometry again
+    try:
+        return initialize(graph.with_edges(kept), "chordal").poses
+    except InitializationError:
+        return None
 
 
 def uncertainty(screening: Screening | None, gnc: GncResult, settled: bool = True) -> tuple:

@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..interop import matrices_from_values
+from ..interop import matrices_from_values, values_from_matrices
 from ..posegraph.graph import PoseGraph
 from . import gnc as gncm
 from .inner import BatchInner, GtsamInner, gtsam_gnc
@@ -39,8 +39,12 @@ class ArraySolver:
     def inner(self, X: np.ndarray, exclude=()) -> BatchInner:
         return BatchInner.from_pose_graph(self.graph, X, self.lm_params, exclude=exclude)
 
-    def gnc(self, params: gncm.GncSettings) -> gncm.GncResult:
-        return gncm.gnc_optimize(self.inner(self.X0, params.known_outliers), params, self.progress)
+    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None) -> gncm.GncResult:
+        X = self.X0 if start is None else start
+        return gncm.gnc_optimize(self.inner(X, params.known_outliers), params, self.progress)
+
+    def estimate(self, poses: np.ndarray):
+        return self.inner(poses).initial
 
     def errors(self, state) -> np.ndarray:
         if self._scorer is None:
@@ -82,13 +86,21 @@ class GraphSolver:
             return BatchInner(self.factors, start, self.lm_params, exclude=exclude)
         return GtsamInner(self.factors, start, self.lm_params)
 
-    def gnc(self, params: gncm.GncSettings) -> gncm.GncResult:
+    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None) -> gncm.GncResult:
+        initial = self.initial if start is None else self.estimate(start)
         if self.backend == "native":
-            return gtsam_gnc(self.factors, self.initial, params)
-        res = gncm.gnc_optimize(self.inner(self.initial, params.known_outliers), params, self.progress)
+            return gtsam_gnc(self.factors, initial, params)
+        res = gncm.gnc_optimize(self.inner(initial, params.known_outliers), params, self.progress)
         if self.backend == "batch":
             res.values = res.values.to_values()
         return res
+
+    def estimate(self, poses: np.ndarray):
+        import gtsam
+
+        values = gtsam.Values(self.initial)
+        values.update(values_from_matrices(self.graph.group, self.graph.keys, poses))
+        return values
 
     def errors(self, values) -> np.ndarray:
         if self._scorer is not None:

@@ -32,7 +32,9 @@ from lie_factors.robust import inner
 from lie_factors.robust import leave_out
 from lie_factors.robust.leave_out import leave_out_chi2
 from lie_factors.robust.statistics import chi2_inlier_threshold, f_quantile
-from lie_factors.robust.rejection import closure_groups, reject_false_closures
+from lie_factors.robust.rejection import closure_groups, reject_false_closures, tls_cost
+from lie_factors.robust.solvers import ArraySolver
+from lie_factors.initialization import initialize
 from lie_factors.robust.screening import CLIQUE, GATE, KEPT, screen_closures
 from lie_factors.kernels import registry
 from lie_factors.testing import outliers
@@ -567,6 +569,71 @@ def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_t
     assert rej.rejected_by == {int(e): ("final" if e == planted[0] else "gnc") for e in planted.tolist()}
     assert int(true[5]) in rej.readmitted
     assert set(np.unique(rej.gnc.weights[lc]).tolist()) == {0.0, 1.0}
+
+
+def test_tls_cost_truncates_the_closures_and_leaves_out_the_known_outliers():
+    rng = np.random.default_rng(3)
+    f, c = rng.exponential(2.0, 40), rng.uniform(1.0, 3.0, 40)
+    closures, known = np.arange(10, 40, 2), [12, 30, 3]
+    expected = sum(f[k] if k not in closures else min(f[k], c[k]) for k in range(40) if k not in known)
+    assert tls_cost(f, c, closures, known) == pytest.approx(expected, rel=1e-14)
+
+
+def _two_start_problem():
+    ds, planted, prob = _planted_dataset(200, 11, "uniform", 0.3)
+    pg = ds.with_first_prior()
+    X0 = initialize(pg, "odometry").poses
+    params = gncm.GncSettings(known_inliers=np.setdiff1d(np.arange(len(pg.edge_keys) + len(pg.prior_keys)),
+                                                         pg.loop_closures()).tolist(),
+                              first_solve_known_inliers=True, warm_start=True)
+    return pg, planted, X0, params
+
+
+class _Recorded(ArraySolver):
+    """The batch solver, recording where each GNC starts; ``odometry_result`` replaces the run from
+    the solver's own start."""
+
+    odometry_result = None
+
+    def gnc(self, params, start=None):
+        self.starts = getattr(self, "starts", []) + [start]
+        res = super().gnc(params, start)
+        if start is None and self.odometry_result is not None:
+            return self.odometry_result(res)
+        return res
+
+
+def test_the_relaxations_run_is_made_only_where_its_first_solve_is_below_the_odometrys_run():
+    pg, planted, X0, params = _two_start_problem()
+    solver = _Recorded(pg, X0, None)
+    rej = reject_false_closures(pg, solver, params)
+    first = rej.costs["relaxation's first solve"]
+    assert ("relaxation" in rej.costs) == (first < rej.costs["odometry"])
+    assert len(solver.starts) == 1 + ("relaxation" in rej.costs)
+    assert rej.costs[rej.start] == min(v for k, v in rej.costs.items() if k != "relaxation's first solve")
+    assert set(rej.outliers.tolist()) == set(planted.tolist())
+
+
+def test_the_relaxations_run_is_kept_where_the_odometrys_ends_at_a_higher_cost():
+    pg, planted, X0, params = _two_start_problem()
+    lc = pg.loop_closures()
+
+    def every_closure_rejected(res):  # a bent map where no closure fits: each costs its threshold
+        w = res.weights.copy()
+        w[lc] = 0.0
+        return dataclasses.replace(res, values=solver.refine(solver.start(), w), weights=w)
+
+    solver = _Recorded(pg, X0, None)
+    solver.odometry_result = every_closure_rejected
+    rej = reject_false_closures(pg, solver, params)
+    kept = np.setdiff1d(np.arange(len(pg.edge_keys)), rej.screening.rejected)
+    assert solver.starts[0] is None
+    np.testing.assert_array_equal(solver.starts[1], initialize(pg.with_edges(kept), "chordal").poses)
+    assert rej.start == "relaxation" and rej.costs["relaxation"] < rej.costs["odometry"]
+    assert set(rej.outliers.tolist()) == set(planted.tolist())
+    # no first stage, no kept closures to relax over: the odometry's run is the only one
+    solver = _Recorded(pg, X0, None)
+    assert reject_false_closures(pg, solver, params, screen=False).costs.keys() == {"odometry"}
 
 
 # --------------------------------------------------------------------------- #
