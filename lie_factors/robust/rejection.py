@@ -182,21 +182,22 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
     known = [] if screening is None else screening.rejected.tolist()
     gnc_params = dataclasses.replace(params, known_outliers=sorted(set(params.known_outliers) | set(known)))
     runs = {"odometry": run_gnc(gnc_params)}
-    costs = {"odometry": tls_cost(errors(runs["odometry"].values), runs["odometry"].thresholds, lc,
-                                  gnc_params.known_outliers)}
+    thresholds = runs["odometry"].thresholds  # every run's: they depend on the factors alone
+
+    def cost(estimate) -> float:
+        return tls_cost(errors(estimate), thresholds, lc, gnc_params.known_outliers)
+
+    costs = {"odometry": cost(runs["odometry"].values)}
     relaxed = _relaxed_start(graph, screening) if params.first_solve_known_inliers else None
     if relaxed is not None:
         # GNC's first solve from the relaxation: LM on the odometry and the kept closures.  Only
         # where that point is already below the odometry's run in the objective is GNC run from it.
-        kept = np.ones(len(runs["odometry"].weights))
+        kept = np.ones(len(thresholds))
         kept[gnc_params.known_outliers] = 0.0
-        first = refine(solver.estimate(relaxed), kept)
-        costs["relaxation's first solve"] = tls_cost(errors(first), runs["odometry"].thresholds, lc,
-                                                     gnc_params.known_outliers)
+        costs["relaxation's first solve"] = cost(refine(solver.estimate(relaxed), kept))
         if costs["relaxation's first solve"] < costs["odometry"]:
             runs["relaxation"] = run_gnc(dataclasses.replace(gnc_params, first_solve_known_inliers=False), relaxed)
-            costs["relaxation"] = tls_cost(errors(runs["relaxation"].values), runs["relaxation"].thresholds, lc,
-                                           gnc_params.known_outliers)
+            costs["relaxation"] = cost(runs["relaxation"].values)
     start = min(runs, key=lambda k: (costs[k], k != "odometry"))  # a tie keeps the odometry's
     res = runs[start]
     stage = {}

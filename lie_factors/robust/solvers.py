@@ -44,12 +44,10 @@ class ArraySolver:
         return gncm.gnc_optimize(self.inner(X, params.known_outliers), params, self.progress)
 
     def estimate(self, poses: np.ndarray):
-        return self.inner(poses).initial
+        return self._scorer_at().at({self.graph.group: poses})
 
     def errors(self, state) -> np.ndarray:
-        if self._scorer is None:
-            self._scorer = self.inner(self.X0)
-        return self._scorer.factor_errors(state)
+        return self._scorer_at().factor_errors(state)
 
     def refine(self, state, weights: np.ndarray):
         return self.inner(self.poses(state), np.flatnonzero(weights == 0.0)).optimize(weights)[0]
@@ -59,9 +57,13 @@ class ArraySolver:
 
     def start(self):
         """The start as an estimate (what GNC starts from)."""
+        return self._scorer_at().initial
+
+    def _scorer_at(self) -> BatchInner:
+        """The solver on every edge at the start, built once: it scores any estimate."""
         if self._scorer is None:
             self._scorer = self.inner(self.X0)
-        return self._scorer.initial
+        return self._scorer
 
 
 class GraphSolver:
