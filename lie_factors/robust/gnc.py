@@ -51,7 +51,7 @@ from ..util.timing import Stopwatch
 from .statistics import chi2_inlier_threshold
 
 __all__ = ["GncSettings", "GncResult", "InnerSolver", "gnc_optimize", "gnc_weights", "GncLoss", "Scheduler",
-           "TLS", "GM", "LINEAR", "SUPERLINEAR"]
+           "TLS", "GM", "LINEAR", "SUPERLINEAR", "DECLINED"]
 
 
 class GncLoss(IntEnum):
@@ -73,6 +73,9 @@ LINEAR, SUPERLINEAR = Scheduler.LINEAR, Scheduler.SUPERLINEAR
 
 # factor types of GncOptimizer (``GncFactorType``)
 _NORMAL, _INLIER, _OUTLIER = 0, 1, 2
+
+#: :attr:`GncResult.stop` where ``proceed`` declined the run after its first solve.
+DECLINED = "declined after the first solve"
 
 
 @dataclass
@@ -316,11 +319,14 @@ def factor_types(size: int, params: GncSettings) -> np.ndarray:
 
 
 def gnc_optimize(inner: InnerSolver, params: GncSettings | None = None,
-                 progress: Callable[[int, float, float, int], None] | None = None) -> GncResult:
+                 progress: Callable[[int, float, float, int], None] | None = None,
+                 proceed: Callable[[Any], bool] | None = None) -> GncResult:
     """GTSAM's ``GncOptimizer::optimize`` over ``inner``; see the module docstring.
 
     ``progress(outer_iteration, lambda, cost, inner_iterations)`` after each
-    outer iteration.
+    outer iteration; ``proceed(values)``, ours only: asked after the first solve, False ends the
+    run there (stop :data:`DECLINED`, no outer iteration), so that a caller deciding whether a
+    start is worth a GNC run on its first solve does not solve it twice.
     """
     clock = Stopwatch()  # numba compilation is not optimization time
     p = params if params is not None else GncSettings()
@@ -339,6 +345,8 @@ def gnc_optimize(inner: InnerSolver, params: GncSettings | None = None,
     prev_cost = float(np.dot(weights, inner.factor_errors(result)))
     cost = 0.0
     history = []
+    if proceed is not None and not proceed(result):
+        return GncResult(result, weights, thresholds, prev_cost, 0, inner_its, lam, DECLINED, clock.seconds(), history)
     n_unknown = int(np.count_nonzero(types == _NORMAL))
     if lam <= 0 or n_unknown == 0:
         stop = "no factor above threshold at the initial values" if lam <= 0 else "no unknown factors"

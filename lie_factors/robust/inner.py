@@ -299,11 +299,6 @@ class BatchInner:
                     other.erase(int(k))
         return _BatchState(self.lm, Xs, other)
 
-    def at(self, Xs: dict) -> "_BatchState":
-        """An estimate of this problem with the block values ``Xs`` (block name → its values), any
-        other variable at the initial values."""
-        return _BatchState(self.lm, Xs, self.initial.other)
-
     def optimize(self, weights: np.ndarray, start: "_BatchState | None" = None):
         weights = np.asarray(weights, dtype=np.float64)
         if np.any(weights[self._left_out] != 0.0):

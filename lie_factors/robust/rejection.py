@@ -70,7 +70,7 @@ import numpy as np
 
 from ..posegraph.graph import PoseGraph
 from ..util.timing import Stopwatch
-from .gnc import GncSettings, GncResult
+from .gnc import DECLINED, GncResult, GncSettings
 from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TAIL_DOF, TailModel
 from .screening import STAGES, Screening, screen_closures
 
@@ -149,17 +149,15 @@ class Solver(Protocol):
     graph's edges, then its priors (then any other factor).  An *estimate* is whatever the
     backend keeps (poses on arrays, ``gtsam.Values``): opaque to the stages.
 
-    ``gnc(params, start=None)``: GNC (:class:`~lie_factors.robust.gnc.GncSettings`, its known
-    outliers extended by the consistency stage) from the solver's start, or from ``start``
-    (P, m, m) poses in the pose graph's key order; ``estimate(poses)``: the estimate at those
-    poses (the other variables at the start's); ``errors(estimate)``: every slot's Gaussian error
-    ½‖R e‖²; ``refine(estimate, weights)``: LM from ``estimate`` with each slot's information
+    ``gnc(params, start=None, proceed=None)``: GNC (:class:`~lie_factors.robust.gnc.GncSettings`,
+    its known outliers extended by the consistency stage) from the solver's start, or from
+    ``start`` (P, m, m) poses in the pose graph's key order, asking ``proceed(estimate)`` after
+    its first solve whether to go on (:func:`~lie_factors.robust.gnc.gnc_optimize`);
+    ``errors(estimate)``: every slot's Gaussian error ½‖R e‖²; ``refine(estimate, weights)``: LM from ``estimate`` with each slot's information
     scaled by ``weights``; ``poses(estimate)``: (P, m, m) the poses in the pose graph's key order.
     """
 
-    def gnc(self, params: GncSettings, start: np.ndarray | None = None) -> GncResult: ...
-
-    def estimate(self, poses: np.ndarray): ...
+    def gnc(self, params: GncSettings, start: np.ndarray | None = None, proceed=None) -> GncResult: ...
 
     def errors(self, estimate) -> np.ndarray: ...
 
@@ -191,13 +189,15 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
     relaxed = _relaxed_start(graph, screening) if params.first_solve_known_inliers else None
     if relaxed is not None:
         # GNC's first solve from the relaxation: LM on the odometry and the kept closures.  Only
-        # where that point is already below the odometry's run in the objective is GNC run from it.
-        kept = np.ones(len(thresholds))
-        kept[gnc_params.known_outliers] = 0.0
-        costs["relaxation's first solve"] = cost(refine(solver.estimate(relaxed), kept))
-        if costs["relaxation's first solve"] < costs["odometry"]:
-            runs["relaxation"] = run_gnc(dataclasses.replace(gnc_params, first_solve_known_inliers=False), relaxed)
-            costs["relaxation"] = cost(runs["relaxation"].values)
+        # where that point is already below the odometry's run in the objective does GNC go on.
+        def below_odometry(estimate) -> bool:
+            costs["relaxation's first solve"] = cost(estimate)
+            return costs["relaxation's first solve"] < costs["odometry"]
+
+        second = run_gnc(dataclasses.replace(gnc_params, first_solve_known_inliers=False), relaxed, below_odometry)
+        if second.stop != DECLINED:
+            runs["relaxation"] = second
+            costs["relaxation"] = cost(second.values)
     start = min(runs, key=lambda k: (costs[k], k != "odometry"))  # a tie keeps the odometry's
     res = runs[start]
     stage = {}

@@ -39,12 +39,9 @@ class ArraySolver:
     def inner(self, X: np.ndarray, exclude=()) -> BatchInner:
         return BatchInner.from_pose_graph(self.graph, X, self.lm_params, exclude=exclude)
 
-    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None) -> gncm.GncResult:
+    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None, proceed=None) -> gncm.GncResult:
         X = self.X0 if start is None else start
-        return gncm.gnc_optimize(self.inner(X, params.known_outliers), params, self.progress)
-
-    def estimate(self, poses: np.ndarray):
-        return self._scorer_at().at({self.graph.group: poses})
+        return gncm.gnc_optimize(self.inner(X, params.known_outliers), params, self.progress, proceed)
 
     def errors(self, state) -> np.ndarray:
         return self._scorer_at().factor_errors(state)
@@ -88,11 +85,15 @@ class GraphSolver:
             return BatchInner(self.factors, start, self.lm_params, exclude=exclude)
         return GtsamInner(self.factors, start, self.lm_params)
 
-    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None) -> gncm.GncResult:
+    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None, proceed=None) -> gncm.GncResult:
         initial = self.initial if start is None else self.estimate(start)
         if self.backend == "native":
+            if proceed is not None:
+                raise ValueError("GTSAM's GncOptimizer cannot stop after its first solve (proceed)")
             return gtsam_gnc(self.factors, initial, params)
-        res = gncm.gnc_optimize(self.inner(initial, params.known_outliers), params, self.progress)
+        # the batch inner's states are shown to ``proceed`` as this solver's estimates, Values
+        hook = proceed if proceed is None or self.backend != "batch" else (lambda s: proceed(s.to_values()))
+        res = gncm.gnc_optimize(self.inner(initial, params.known_outliers), params, self.progress, hook)
         if self.backend == "batch":
             res.values = res.values.to_values()
         return res

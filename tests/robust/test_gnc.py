@@ -222,6 +222,23 @@ def test_warm_start_continues_each_solve_from_the_last():
         gnc.GncSettings(warm_start=True).to_gtsam()
 
 
+def test_a_declined_run_ends_at_its_first_solve_and_an_accepted_one_is_the_plain_run():
+    between, planted, initial = _circle_problem(seed=2)
+    graph = _with_prior(between, NATIVE2, gtsam.Pose2(), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4])))
+    params = _params(graph)
+    plain = gnc.gnc_optimize(_RecordingInner(graph, initial), params)
+    asked, recording = [], _RecordingInner(graph, initial)
+    declined = gnc.gnc_optimize(recording, params, proceed=lambda v: asked.append(v) or False)
+    assert declined.stop == gnc.DECLINED and declined.iterations == 0 and declined.history == []
+    assert len(recording.results) == 1 and asked == recording.results  # one solve, shown to proceed
+    assert declined.values is recording.results[0]
+    np.testing.assert_array_equal(declined.weights, np.ones(graph.size()))  # the first solve's weights
+    accepted = gnc.gnc_optimize(_RecordingInner(graph, initial), params, proceed=lambda v: True)
+    np.testing.assert_array_equal(accepted.weights, plain.weights)
+    assert (accepted.iterations, accepted.cost, accepted.stop) == (plain.iterations, plain.cost, plain.stop)
+    assert set(planted.tolist()) <= set(accepted.outliers.tolist())
+
+
 def test_batch_warm_start_begins_at_the_given_state():
     between, _, initial = _circle_problem(seed=3)
     ours = _with_prior(between, OURS2, gtsam.Pose2(), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4])))
