@@ -153,8 +153,9 @@ class Solver(Protocol):
     its known outliers extended by the consistency stage) from the solver's start, or from
     ``start`` (P, m, m) poses in the pose graph's key order, asking ``proceed(estimate)`` after
     its first solve whether to go on (:func:`~lie_factors.robust.gnc.gnc_optimize`);
-    ``errors(estimate)``: every slot's Gaussian error ½‖R e‖²; ``refine(estimate, weights)``: LM from ``estimate`` with each slot's information
-    scaled by ``weights``; ``poses(estimate)``: (P, m, m) the poses in the pose graph's key order.
+    ``errors(estimate)``: every slot's Gaussian error ½‖R e‖²; ``refine(estimate, weights)``: LM
+    from ``estimate`` with each slot's information scaled by ``weights``; ``poses(estimate)``:
+    (P, m, m) the poses in the pose graph's key order.
     """
 
     def gnc(self, params: GncSettings, start: np.ndarray | None = None, proceed=None) -> GncResult: ...
