@@ -153,9 +153,11 @@ class InnerSolver(Protocol):
     ``size``: number of factor slots; ``dims``: (size,) factor dimensions;
     ``factor_errors(values)``: (size,) Gaussian errors ``½‖R_k e_k‖²`` (robust
     losses removed) at ``values``; ``initial``: the initial values;
-    ``optimize(weights, start=None)``: LM on the graph with every factor's
-    information scaled by ``weights[k]``, started from ``start`` (values it
-    returned before) or else ``initial``; returns ``(values, iterations)``.
+    ``optimize(weights, start=None, max_iterations=None)``: LM on the graph with
+    every factor's information scaled by ``weights[k]``, started from ``start``
+    (values it returned before) or else ``initial``, for at most ``max_iterations``
+    iterations where given (asked for by ``first_iterations`` only); returns
+    ``(values, iterations)``.
     ``values`` are opaque to the loop.
     """
 
@@ -165,7 +167,7 @@ class InnerSolver(Protocol):
 
     def factor_errors(self, values) -> np.ndarray: ...
 
-    def optimize(self, weights: np.ndarray, start=None) -> tuple[object, int]: ...
+    def optimize(self, weights: np.ndarray, start=None, max_iterations: int | None = None) -> tuple[object, int]: ...
 
 
 @dataclass
@@ -320,13 +322,15 @@ def factor_types(size: int, params: GncSettings) -> np.ndarray:
 
 def gnc_optimize(inner: InnerSolver, params: GncSettings | None = None,
                  progress: Callable[[int, float, float, int], None] | None = None,
-                 proceed: Callable[[Any], bool] | None = None) -> GncResult:
+                 proceed: Callable[[Any], bool] | None = None,
+                 first_iterations: int | None = None) -> GncResult:
     """GTSAM's ``GncOptimizer::optimize`` over ``inner``; see the module docstring.
 
     ``progress(outer_iteration, lambda, cost, inner_iterations)`` after each
-    outer iteration; ``proceed(values)``, ours only: asked after the first solve, False ends the
+    outer iteration.  Ours only: ``proceed(values)``, asked after the first solve, False ends the
     run there (stop :data:`DECLINED`, no outer iteration), so that a caller deciding whether a
-    start is worth a GNC run on its first solve does not solve it twice.
+    start is worth a GNC run on its first solve does not solve it twice; ``first_iterations``:
+    the first solve's LM iterations at most (``inner.optimize``'s ``max_iterations``).
     """
     clock = Stopwatch()  # numba compilation is not optimization time
     p = params if params is not None else GncSettings()
@@ -340,7 +344,8 @@ def gnc_optimize(inner: InnerSolver, params: GncSettings | None = None,
     weights[types == _OUTLIER] = 0.0
     if p.first_solve_known_inliers:
         weights[types == _NORMAL] = 0.0
-    result, inner_its = inner.optimize(weights)
+    result, inner_its = (inner.optimize(weights) if first_iterations is None
+                         else inner.optimize(weights, None, first_iterations))
     lam = _initialize_lambda(loss, inner.factor_errors(inner.initial), thresholds)
     prev_cost = float(np.dot(weights, inner.factor_errors(result)))
     cost = 0.0

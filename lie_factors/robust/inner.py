@@ -11,6 +11,7 @@ are reused across all of GNC's solves); :func:`gtsam_gnc` is GTSAM's
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 
@@ -90,11 +91,28 @@ class GtsamInner:
             g.add(with_noise(f, gtsam.noiseModel.Gaussian.Information(float(w) * info)))
         return g
 
-    def optimize(self, weights: np.ndarray, start=None):
-        opt = self.gtsam.LevenbergMarquardtOptimizer(self.weighted_graph(weights),
-                                                     self.initial if start is None else start, self.lm_params)
-        values = stack.call(opt.optimize)  # GTSAM's elimination recurses: a large stack for long chains
+    def optimize(self, weights: np.ndarray, start=None, max_iterations: int | None = None):
+        with iteration_limit(self.lm_params, max_iterations):
+            opt = self.gtsam.LevenbergMarquardtOptimizer(self.weighted_graph(weights),
+                                                         self.initial if start is None else start, self.lm_params)
+            values = stack.call(opt.optimize)  # GTSAM's elimination recurses: a large stack for long chains
         return values, int(opt.iterations())
+
+
+@contextlib.contextmanager
+def iteration_limit(lm_params, max_iterations: int | None):
+    """``lm_params`` (``gtsam.LevenbergMarquardtParams``) with at most ``max_iterations`` iterations
+    inside the block (its own limit where that is lower, or where ``max_iterations`` is None), its
+    own limit again after."""
+    own = int(lm_params.getMaxIterations())
+    if max_iterations is None or max_iterations >= own:
+        yield lm_params
+        return
+    lm_params.setMaxIterations(int(max_iterations))
+    try:
+        yield lm_params
+    finally:
+        lm_params.setMaxIterations(own)
 
 
 def _native_iterations(summary: str, max_iterations: int) -> int:
@@ -299,12 +317,13 @@ class BatchInner:
                     other.erase(int(k))
         return _BatchState(self.lm, Xs, other)
 
-    def optimize(self, weights: np.ndarray, start: "_BatchState | None" = None):
+    def optimize(self, weights: np.ndarray, start: "_BatchState | None" = None, max_iterations: int | None = None):
         weights = np.asarray(weights, dtype=np.float64)
         if np.any(weights[self._left_out] != 0.0):
             raise ValueError("BatchInner: an excluded factor slot has a nonzero weight")
         lm, slots = self._solver_for(weights)
         lm.restart(weights[slots], None if start is None else (start.Xs, start.other))
-        res = lm.optimize()
+        with iteration_limit(lm.params, max_iterations):
+            res = lm.optimize()
         P = lm.problem
         return _BatchState(self.lm, P.elements(), P.other), int(res.iterations)

@@ -19,6 +19,11 @@
    kept closures, from the relaxation) already ends below the first run's
    cost: where the kept closures include false ones that bend the relaxation,
    it does not, and the second run's cost (up to another GNC) is not spent.
+   That first solve gets at most :func:`relaxation_iterations` LM iterations:
+   a relaxation whose edges agree lies where Gauss–Newton converges
+   quadratically, and LM settles from it in a few iterations; one bent by
+   false closures does not settle, and each of its iterations factors a
+   system the false closures fill.
 3. **Final check**, at GNC's solution.  Every loop closure, and every group
    of closures whose ends lie within :data:`GROUP_WINDOW` poses of each other
    (a run of closures between the same two places), is judged by how much the
@@ -63,6 +68,7 @@ Each rejected closure is reported with the stage that decided it.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -74,7 +80,8 @@ from .gnc import DECLINED, GncResult, GncSettings
 from .tail import GROUP_MAX, GROUP_WINDOW, MAX_ROUNDS, TAIL_DOF, TailModel
 from .screening import STAGES, Screening, screen_closures
 
-__all__ = ["Rejection", "Solver", "TailModel", "reject_false_closures", "closure_groups", "MAX_ROUNDS", "TAIL_DOF"]
+__all__ = ["Rejection", "Solver", "TailModel", "reject_false_closures", "closure_groups", "relaxation_iterations",
+           "MAX_ROUNDS", "TAIL_DOF"]
 
 #: Groups rejected by GNC that the final check re-solves with, at most (each is one LM solve).
 MAX_TRIALS = 32
@@ -149,16 +156,18 @@ class Solver(Protocol):
     graph's edges, then its priors (then any other factor).  An *estimate* is whatever the
     backend keeps (poses on arrays, ``gtsam.Values``): opaque to the stages.
 
-    ``gnc(params, start=None, proceed=None)``: GNC (:class:`~lie_factors.robust.gnc.GncSettings`,
-    its known outliers extended by the consistency stage) from the solver's start, or from
-    ``start`` (P, m, m) poses in the pose graph's key order, asking ``proceed(estimate)`` after
-    its first solve whether to go on (:func:`~lie_factors.robust.gnc.gnc_optimize`);
+    ``gnc(params, start=None, proceed=None, first_iterations=None)``: GNC
+    (:class:`~lie_factors.robust.gnc.GncSettings`, its known outliers extended by the consistency
+    stage) from the solver's start, or from ``start`` (P, m, m) poses in the pose graph's key
+    order, its first solve at most ``first_iterations`` LM iterations, asking
+    ``proceed(estimate)`` after it whether to go on (:func:`~lie_factors.robust.gnc.gnc_optimize`);
     ``errors(estimate)``: every slot's Gaussian error ½‖R e‖²; ``refine(estimate, weights)``: LM
     from ``estimate`` with each slot's information scaled by ``weights``; ``poses(estimate)``:
     (P, m, m) the poses in the pose graph's key order.
     """
 
-    def gnc(self, params: GncSettings, start: np.ndarray | None = None, proceed=None) -> GncResult: ...
+    def gnc(self, params: GncSettings, start: np.ndarray | None = None, proceed=None,
+            first_iterations: int | None = None) -> GncResult: ...
 
     def errors(self, estimate) -> np.ndarray: ...
 
@@ -195,7 +204,8 @@ def reject_false_closures(graph: PoseGraph, solver: Solver, params: GncSettings,
             costs["relaxation's first solve"] = cost(estimate)
             return costs["relaxation's first solve"] < costs["odometry"]
 
-        second = run_gnc(dataclasses.replace(gnc_params, first_solve_known_inliers=False), relaxed, below_odometry)
+        second = run_gnc(dataclasses.replace(gnc_params, first_solve_known_inliers=False), relaxed, below_odometry,
+                         relaxation_iterations(gnc_params.lm_params))
         if second.stop != DECLINED:
             runs["relaxation"] = second
             costs["relaxation"] = cost(second.values)
@@ -283,6 +293,20 @@ def tls_cost(errors: np.ndarray, thresholds: np.ndarray, closures: np.ndarray, k
     counted[np.asarray(list(known_outliers), dtype=np.int64)] = False
     return float(np.sum(errors[counted & ~truncated])
                  + np.sum(np.minimum(errors, thresholds)[counted & truncated]))
+
+
+def relaxation_iterations(lm_params=None) -> int:
+    """The LM iterations of the relaxation's first solve, at most: twice the Gauss–Newton
+    iterations that take a relative cost error of ½ below LM's ``relativeErrorTol`` at a quadratic
+    rate (the error squared at each), 2·⌈log₂(ln tol / ln ½)⌉ — 10 at GTSAM's default 1e-5 — the
+    factor 2 for the steps LM rejects while it sets its damping.  ``lm_params``:
+    ``gtsam.LevenbergMarquardtParams`` (None: GTSAM's defaults); the tolerance is taken in
+    [1e-16, ¼]."""
+    import gtsam
+
+    p = lm_params if lm_params is not None else gtsam.LevenbergMarquardtParams()
+    tol = min(max(float(p.getRelativeErrorTol()), 1e-16), 0.25)
+    return 2 * math.ceil(math.log2(math.log(tol) / math.log(0.5)))
 
 
 def _relaxed_start(graph: PoseGraph, screening: Screening | None) -> np.ndarray | None:

@@ -39,9 +39,11 @@ class ArraySolver:
     def inner(self, X: np.ndarray, exclude=()) -> BatchInner:
         return BatchInner.from_pose_graph(self.graph, X, self.lm_params, exclude=exclude)
 
-    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None, proceed=None) -> gncm.GncResult:
+    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None, proceed=None,
+            first_iterations: int | None = None) -> gncm.GncResult:
         X = self.X0 if start is None else start
-        return gncm.gnc_optimize(self.inner(X, params.known_outliers), params, self.progress, proceed)
+        return gncm.gnc_optimize(self.inner(X, params.known_outliers), params, self.progress, proceed,
+                                 first_iterations)
 
     def errors(self, state) -> np.ndarray:
         return self._scorer_at().factor_errors(state)
@@ -85,15 +87,18 @@ class GraphSolver:
             return BatchInner(self.factors, start, self.lm_params, exclude=exclude)
         return GtsamInner(self.factors, start, self.lm_params)
 
-    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None, proceed=None) -> gncm.GncResult:
+    def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None, proceed=None,
+            first_iterations: int | None = None) -> gncm.GncResult:
         initial = self.initial if start is None else self.estimate(start)
         if self.backend == "native":
-            if proceed is not None:
-                raise ValueError("GTSAM's GncOptimizer cannot stop after its first solve (proceed)")
+            if proceed is not None or first_iterations is not None:
+                raise ValueError("GTSAM's GncOptimizer has no hook after its first solve (proceed) "
+                                 "and no limit of its own on it (first_iterations)")
             return gtsam_gnc(self.factors, initial, params)
         # the batch inner's states are shown to ``proceed`` as this solver's estimates, Values
         hook = proceed if proceed is None or self.backend != "batch" else (lambda s: proceed(s.to_values()))
-        res = gncm.gnc_optimize(self.inner(initial, params.known_outliers), params, self.progress, hook)
+        res = gncm.gnc_optimize(self.inner(initial, params.known_outliers), params, self.progress, hook,
+                                first_iterations)
         if self.backend == "batch":
             res.values = res.values.to_values()
         return res

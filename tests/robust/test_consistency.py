@@ -32,7 +32,7 @@ from lie_factors.robust import inner
 from lie_factors.robust import leave_out
 from lie_factors.robust.leave_out import leave_out_chi2
 from lie_factors.robust.statistics import chi2_inlier_threshold, f_quantile
-from lie_factors.robust.rejection import closure_groups, reject_false_closures, tls_cost
+from lie_factors.robust.rejection import closure_groups, reject_false_closures, relaxation_iterations, tls_cost
 from lie_factors.interop import values_from_matrices
 from lie_factors.robust.solvers import ArraySolver, GraphSolver
 from lie_factors.initialization import initialize
@@ -572,6 +572,16 @@ def test_final_check_drops_an_accepted_false_closure_and_takes_back_a_rejected_t
     assert set(np.unique(rej.gnc.weights[lc]).tolist()) == {0.0, 1.0}
 
 
+def test_the_relaxations_iterations_follow_lms_relative_tolerance():
+    # 2·⌈log₂(ln tol / ln ½)⌉: ½ squared k times is below tol once 2^k ≥ ln tol / ln ½
+    assert relaxation_iterations() == 10  # GTSAM's default relativeErrorTol, 1e-5: ln 1e-5/ln ½ = 16.6
+    for tol, k in [(0.1, 2), (1e-2, 3), (1e-8, 5), (0.0, 6), (1e-300, 6), (0.9, 1)]:
+        p = gtsam.LevenbergMarquardtParams()
+        p.setRelativeErrorTol(tol)
+        assert relaxation_iterations(p) == 2 * k
+        assert 0.5 ** (2 ** k) <= max(min(tol, 0.25), 1e-16) < 0.5 ** (2 ** (k - 1))
+
+
 def test_tls_cost_truncates_the_closures_and_leaves_out_the_known_outliers():
     rng = np.random.default_rng(3)
     f, c = rng.exponential(2.0, 40), rng.uniform(1.0, 3.0, 40)
@@ -596,10 +606,11 @@ class _Recorded(ArraySolver):
 
     odometry_result = None
 
-    def gnc(self, params, start=None, proceed=None):
+    def gnc(self, params, start=None, proceed=None, first_iterations=None):
         self.starts = getattr(self, "starts", []) + [start]
         self.calls = getattr(self, "calls", []) + ["gnc"]
-        res = super().gnc(params, start, proceed)
+        self.first_iterations = getattr(self, "first_iterations", []) + [first_iterations]
+        res = super().gnc(params, start, proceed, first_iterations)
         if start is None and self.odometry_result is not None:
             return self.odometry_result(res)
         return res
@@ -618,6 +629,7 @@ def test_the_relaxations_run_is_made_only_where_its_first_solve_is_below_the_odo
     # the relaxation's first solve is its GNC run's own, asked about before GNC goes on: no LM
     # solve between the two runs
     assert solver.calls[:2] == ["gnc", "gnc"] and len(solver.starts) == 2
+    assert solver.first_iterations == [None, relaxation_iterations()]  # the relaxation's solve is bounded
     assert rej.costs[rej.start] == min(v for k, v in rej.costs.items() if k != "relaxation's first solve")
     assert set(rej.outliers.tolist()) == set(planted.tolist())
 
@@ -628,9 +640,11 @@ def test_a_graph_solver_shows_proceed_its_estimates(backend):
     factors = build_graph(pg, backend)
     initial = pg.with_landmarks(values_from_matrices(pg.group, pg.keys, X0))
     solver = GraphSolver(pg, factors, initial, backend, None)
-    if backend == "native":  # GTSAM's GncOptimizer has no hook after its first solve
+    if backend == "native":  # GTSAM's GncOptimizer has no hook after its first solve, nor a limit on it
         with pytest.raises(ValueError, match="proceed"):
             solver.gnc(params, proceed=lambda v: True)
+        with pytest.raises(ValueError, match="first_iterations"):
+            solver.gnc(params, first_iterations=3)
         return
     seen = []
     res = solver.gnc(params, proceed=lambda v: seen.append(v) or False)

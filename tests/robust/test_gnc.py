@@ -196,9 +196,10 @@ class _RecordingInner:
     def factor_errors(self, values):
         return self._inner.factor_errors(values)
 
-    def optimize(self, weights, start=None):
+    def optimize(self, weights, start=None, max_iterations=None):
         self.starts.append(start)
-        values, n = self._inner.optimize(weights, start)
+        self.limits = getattr(self, "limits", []) + [max_iterations]
+        values, n = self._inner.optimize(weights, start, max_iterations)
         self.results.append(values)
         return values, n
 
@@ -237,6 +238,28 @@ def test_a_declined_run_ends_at_its_first_solve_and_an_accepted_one_is_the_plain
     np.testing.assert_array_equal(accepted.weights, plain.weights)
     assert (accepted.iterations, accepted.cost, accepted.stop) == (plain.iterations, plain.cost, plain.stop)
     assert set(planted.tolist()) <= set(accepted.outliers.tolist())
+
+
+@pytest.mark.parametrize("kind", ["gtsam", "batch"])
+def test_the_first_solve_stops_at_first_iterations_and_the_others_at_lms_limit(kind):
+    between, _, initial = _circle_problem(seed=4)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+    graph = _with_prior(between, NATIVE2 if kind == "gtsam" else OURS2, gtsam.Pose2(), noise)
+    lm = gtsam.LevenbergMarquardtParams()
+    kind_of = inner.GtsamInner if kind == "gtsam" else inner.BatchInner
+
+    def made():
+        return kind_of(graph, initial, lm)
+
+    w = np.ones(graph.size())
+    assert made().optimize(w)[1] > 2
+    assert made().optimize(w, None, 2)[1] == 2
+    assert lm.getMaxIterations() == 100  # the caller's parameters as they were
+    recording = _RecordingInner(graph, initial) if kind == "gtsam" else None
+    if recording is not None:
+        res = gnc.gnc_optimize(recording, _params(graph), first_iterations=1)
+        assert recording.limits[0] == 1 and all(m is None for m in recording.limits[1:])
+        assert res.iterations > 0
 
 
 def test_batch_warm_start_begins_at_the_given_state():
