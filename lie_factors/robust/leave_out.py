@@ -281,7 +281,9 @@ def _system_with_blocks(problem: Problem, between, weights: np.ndarray, sets: li
     # What weighs 0 (a rejected closure between far-apart poses) stays out of the fill-reducing
     # order and of the factor's structure: its blocks of H are 0, and would only add fill to L.
     live = weights[between.fidx] != 0.0
-    among = [np.stack(np.triu_indices(len(v), 1)) for v in sets]
+    # each end's own block too: H can hold exact zeros there (a grid's quarter-turn headings with
+    # isotropic translation information: no x–y term), which would leave it off the factor's pattern
+    among = [np.stack(np.triu_indices(len(v))) for v in sets]
     qa = np.concatenate([v[i[0]] for v, i in zip(sets, among)]) if sets else np.zeros(0, dtype=np.int64)
     qb = np.concatenate([v[i[1]] for v, i in zip(sets, among)]) if sets else np.zeros(0, dtype=np.int64)
     pairs = np.concatenate([np.stack([between.v1[live], between.v2[live]], axis=1), problem.native_pairs,

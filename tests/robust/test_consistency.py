@@ -35,6 +35,8 @@ from lie_factors.robust.statistics import chi2_inlier_threshold, f_quantile
 from lie_factors.robust.rejection import closure_groups, reject_false_closures, relaxation_iterations, tls_cost
 from lie_factors.interop import values_from_matrices
 from lie_factors.robust.solvers import ArraySolver, GraphSolver
+from lie_factors.batch.graph import Problem
+from lie_factors.batch.system import LinearSystem
 from lie_factors.initialization import initialize
 from lie_factors.robust.screening import CLIQUE, GATE, KEPT, screen_closures
 from lie_factors.kernels import registry
@@ -311,6 +313,54 @@ def test_leave_out_chi2_equals_a_dense_reference(leave_out_way):
     outside = [planted[:1], planted[1:]]
     T = leave_out_chi2(pg, X, w, inside + outside)
     np.testing.assert_allclose(T, _dense_chi2(pg, X, w, inside + outside, (-1, -1, 1, 1)), rtol=1e-8)
+
+
+def test_leave_out_chi2_where_a_poses_block_of_h_holds_exact_zeros(leave_out_way):
+    """A planar grid graph (city10000's kind): headings in quarter turns and isotropic translation
+    information, so Rᵀ·Ω·R has no x–y term and the blocks of H within a pose hold exact zeros; the
+    entries of the factor that selected inversion reads there must stay in its pattern all the same."""
+    P = 40
+    rng = np.random.default_rng(7)
+    theta = np.cumsum(rng.integers(-1, 2, P)) * (np.pi / 2)
+    steps = np.round(np.stack([np.cos(theta), np.sin(theta)], axis=1))
+    xy = np.cumsum(steps, axis=0)
+    truth = [gtsam.Pose2(x, y, t) for (x, y), t in zip(xy, theta)]
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1, 0.1, 0.05]))
+    between = gtsam.NonlinearFactorGraph()
+    exact = [(k, k + 1) for k in range(P - 1)] + [(2, 20), (5, 33)]
+    noisy = [(9, 24), (12, 37)]
+    for i, j in exact + noisy:
+        z = truth[i].between(truth[j])
+        if (i, j) in noisy:
+            z = z.compose(gtsam.Pose2(*rng.normal(0, [0.1, 0.1, 0.05])))
+        between.add(gtsam.BetweenFactorPose2(i, j, z, noise))
+    pg = PoseGraph.from_gtsam(between, "Pose2", np.arange(P)).with_first_prior()
+    X = np.array([truth[k].matrix() for k in range(P)])
+    w = np.ones(len(pg.edge_keys) + 1)
+    lc = pg.loop_closures()
+    groups = [lc[[0, 2]], lc[[1, 3]], lc[2:3], lc[3:4]]
+    T = leave_out_chi2(pg, X, w, groups)
+    np.testing.assert_allclose(T, _dense_chi2(pg, X, w, groups, (-1, -1, -1, -1)), rtol=1e-8)
+    assert np.all(T > 0)
+    # the cause: every entry among a group's poses, within each pose's block too, is in the pattern
+    # the factor is analysed from, though H holds exact zeros there
+    problem = Problem.from_pose_graph(pg, X)
+    problem.linearize()
+    between = next(g for g in problem.groups if g.kind == "between")
+    ends = [np.unique(np.concatenate([between.v1[G], between.v2[G]])) for G in groups]
+    colptr, rowind, _, pos = leave_out._system_with_blocks(problem, between, w, ends)
+    entries = set(zip(rowind.tolist(), np.repeat(np.arange(len(colptr) - 1), np.diff(colptr)).tolist()))
+    for V in ends:
+        rows = pos[(problem.var_offsets[V][:, None] + np.arange(3)).reshape(-1)]
+        assert all((max(a, b), min(a, b)) in entries for a in rows.tolist() for b in rows.tolist())
+    system = LinearSystem(problem)
+    system.weights[:] = w
+    system.assemble()
+    p = system.pattern
+    var = p.scalar_order // 3  # each matrix row's pose (every variable a Pose2 here)
+    col = np.repeat(np.arange(p.n), np.diff(p.colptr))
+    within = (var[p.rowind] == var[col]) & (p.rowind != col)
+    assert np.any(system.data[within] == 0.0)  # the exact zeros the test is about
 
 
 def _dense_chi2(pg, X, w, groups, signs):
