@@ -346,12 +346,12 @@ def gnc_optimize(inner: InnerSolver, params: GncSettings | None = None,
         weights[types == _NORMAL] = 0.0
     result, inner_its = (inner.optimize(weights) if first_iterations is None
                          else inner.optimize(weights, None, first_iterations))
-    lam = _initialize_lambda(loss, inner.factor_errors(inner.initial), thresholds)
     prev_cost = float(np.dot(weights, inner.factor_errors(result)))
-    cost = 0.0
     history = []
     if proceed is not None and not proceed(result):
-        return GncResult(result, weights, thresholds, prev_cost, 0, inner_its, lam, DECLINED, clock.seconds(), history)
+        return GncResult(result, weights, thresholds, prev_cost, 0, inner_its, None, DECLINED, clock.seconds(), history)
+    lam = _initialize_lambda(loss, inner.factor_errors(inner.initial), thresholds)
+    cost = 0.0
     n_unknown = int(np.count_nonzero(types == _NORMAL))
     if lam <= 0 or n_unknown == 0:
         stop = "no factor above threshold at the initial values" if lam <= 0 else "no unknown factors"

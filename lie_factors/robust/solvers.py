@@ -89,7 +89,7 @@ class GraphSolver:
 
     def gnc(self, params: gncm.GncSettings, start: np.ndarray | None = None, proceed=None,
             first_iterations: int | None = None) -> gncm.GncResult:
-        initial = self.initial if start is None else self.estimate(start)
+        initial = self.initial if start is None else self._values_at(start)
         if self.backend == "native":
             if proceed is not None or first_iterations is not None:
                 raise ValueError("GTSAM's GncOptimizer has no hook after its first solve (proceed) "
@@ -103,7 +103,8 @@ class GraphSolver:
             res.values = res.values.to_values()
         return res
 
-    def estimate(self, poses: np.ndarray):
+    def _values_at(self, poses: np.ndarray):
+        """The start's values with the poses (P, m, m), in the pose graph's key order, replaced."""
         import gtsam
 
         values = gtsam.Values(self.initial)
